@@ -1,0 +1,1 @@
+"""ROS adapters: message conversion, the nodes and the replay."""

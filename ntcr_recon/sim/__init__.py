@@ -1,0 +1,1 @@
+"""The synthetic rig: parametric NTCR, D405 depth emulation, bag writer."""
