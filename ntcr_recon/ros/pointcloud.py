@@ -12,8 +12,9 @@ No Python loop runs over points: a structured numpy dtype views the bytes in pla
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 

@@ -1,0 +1,114 @@
+"""What every ntcr_recon node shares: QoS profiles, validated parameters, a guarded callback and `run_node`.
+
+A node is parameters + QoS + message conversion around one core function; this module keeps that
+adapter part in one place so each node file holds only what is its own.
+"""
+
+from __future__ import annotations
+
+import functools
+import sys
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import rclpy
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import (
+    DurabilityPolicy,
+    HistoryPolicy,
+    QoSProfile,
+    ReliabilityPolicy,
+    qos_profile_sensor_data,
+)
+
+# Camera clouds: best effort, keep the last few (a late cloud is worth less than a fresh one).
+SENSOR_QOS = qos_profile_sensor_data
+# Stage outputs: reliable, depth 1 (a consumer wants the newest result, not a backlog).
+STAGE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE)
+# What a late subscriber still needs (the mesh): reliable and transient-local.
+LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+class ParameterError(ValueError):
+    """A parameter value the node cannot work with; the message names the parameter."""
+
+
+def describe(description: str, *, minimum: float | None = None, maximum: float | None = None,
+             integer: bool = False, read_only: bool = False) -> ParameterDescriptor:
+    """A ParameterDescriptor with an optional range, so `ros2 param describe` shows the bounds."""
+    descriptor = ParameterDescriptor(description=description, read_only=read_only)
+    if minimum is not None or maximum is not None:
+        low = minimum if minimum is not None else -sys.float_info.max
+        high = maximum if maximum is not None else sys.float_info.max
+        if integer:
+            descriptor.integer_range = [IntegerRange(from_value=int(low), to_value=int(high), step=1)]
+        else:
+            descriptor.floating_point_range = [FloatingPointRange(from_value=float(low), to_value=float(high))]
+    return descriptor
+
+
+def finite_vector(name: str, value: Sequence[float], length: int) -> list[float]:
+    """`value` as a list of `length` finite floats, or a ParameterError naming `name`."""
+    values = list(value) if value is not None else []
+    if len(values) != length or not all(isinstance(v, float | int) and v == v and abs(v) != float("inf")
+                                        for v in values):
+        raise ParameterError(f"parameter '{name}' must be {length} finite numbers, got {values!r}")
+    return [float(v) for v in values]
+
+
+def validate_on_change(node: Node, names: Sequence[str], apply: Callable[[dict[str, Any]], None]) -> None:
+    """Refuse a parameter change that `apply` rejects, naming the parameter; otherwise apply it.
+
+    `apply` receives the would-be values of the parameters `names` (current values overlaid with the
+    change) and raises ParameterError (or ValueError) to refuse.
+    """
+
+    def on_set(parameters) -> SetParametersResult:
+        proposed = {name: node.get_parameter(name).value for name in names}
+        proposed.update({param.name: param.value for param in parameters})
+        try:
+            apply(proposed)
+        except ValueError as error:
+            node.get_logger().error(f"refused parameter change: {error}")
+            return SetParametersResult(successful=False, reason=str(error))
+        return SetParametersResult(successful=True)
+
+    node.add_on_set_parameters_callback(on_set)
+
+
+def guarded(callback: Callable) -> Callable:
+    """Wrap a subscription callback so bad input is logged and the node goes on with the next message."""
+
+    @functools.wraps(callback)
+    def wrapper(self: Node, msg) -> None:
+        try:
+            callback(self, msg)
+        except ValueError as error:  # bad input: say what was wrong with it
+            self.get_logger().error(f"dropped a message: {error}")
+        except Exception as error:  # a bug must not take the graph down either
+            self.get_logger().error(f"dropped a message after an unexpected {type(error).__name__}: {error}")
+
+    return wrapper
+
+
+def run_node(node_factory: Callable[[], Node], args: list[str] | None = None) -> int:
+    """Init rclpy, build the node, spin until Ctrl-C or shutdown, then clean up. Returns an exit code."""
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = node_factory()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except ParameterError as error:  # refused at start-up: say which parameter, exit non-zero
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    finally:
+        if node is not None:
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    return 0
