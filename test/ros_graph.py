@@ -73,7 +73,7 @@ class RosGraph:
         for process, _ in self.processes:
             if process.poll() is None:
                 process.send_signal(signal.SIGINT)
-        for process, log in self.processes:
+        for process, _ in self.processes:
             try:
                 process.wait(timeout=10)
             except subprocess.TimeoutExpired:
