@@ -9,6 +9,11 @@ PACKAGE = "ntcr_recon"
 # One console script per node, so `ros2 run ntcr_recon <node>` finds it under lib/ntcr_recon.
 NODES = {
     "transform_node": "ntcr_recon.ros.transform_node:main",
+    "camera_node": "ntcr_recon.ros.camera_node:main",
+    "fusion_node": "ntcr_recon.ros.fusion_node:main",
+    "filter_node": "ntcr_recon.ros.filter_node:main",
+    "relocation_node": "ntcr_recon.ros.relocation_node:main",
+    "mesh_node": "ntcr_recon.ros.mesh_node:main",
 }
 
 setup(

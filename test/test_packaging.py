@@ -12,7 +12,8 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 COLCON = Path(sys.executable).parent / "colcon"
-NODE_EXECUTABLES = ("transform_node",)
+NODE_EXECUTABLES = ("transform_node", "camera_node", "fusion_node", "filter_node", "relocation_node",
+                    "mesh_node")
 
 
 @pytest.fixture(scope="module")

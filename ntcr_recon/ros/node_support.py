@@ -112,3 +112,74 @@ def run_node(node_factory: Callable[[], Node], args: list[str] | None = None) ->
         if rclpy.ok():
             rclpy.shutdown()
     return 0
+
+
+# ---- rig-configured nodes -------------------------------------------------------------------------------------
+# Every stage node reads the same rig configuration (config/*.yaml, passed as a ROS parameter file) as the CLI.
+# Its nested sections become dotted parameters (`cam_a.translation`, `filters.sor_alpha`); each is declared with a
+# descriptor, and the whole set is validated by the core's loader, so a bad value is refused at start and on
+# change with the loader's message, which names the dotted key.
+
+def _rig_parameter_defaults(camera_names: Sequence[str]) -> dict[str, Any]:
+    """Dotted rig parameter name -> default (None where the configuration must give the value)."""
+    import dataclasses
+
+    from ntcr_recon.core import config as rig
+    from ntcr_recon.core.robot import TubeGeometry
+
+    defaults: dict[str, Any] = {"base_frame": "ntcr_base"}
+    required_camera_keys = {"translation", "rotation", "depth_unit"}
+    for name in camera_names:
+        for field in dataclasses.fields(rig.CameraConfig):
+            if field.name != "name":
+                defaults[f"{name}.{field.name}"] = None if field.name in required_camera_keys else field.default
+    sections = {"robot": TubeGeometry(), **{key: cls() for key, cls in rig._STAGE_SECTIONS.items()}}
+    for section, instance in sections.items():
+        for field in dataclasses.fields(instance):
+            value = getattr(instance, field.name)
+            defaults[f"{section}.{field.name}"] = list(value) if isinstance(value, tuple) else value
+    return defaults
+
+
+class RigNode(Node):
+    """A node configured by the rig configuration (attribute `rig`, a RigConfig) plus its own parameters.
+
+    `own_parameters`: name -> (default, ParameterDescriptor). Subclasses implement `configure(rig, params)`,
+    which checks their own parameters (raise ParameterError naming one to refuse) and applies both; it runs at
+    start-up and again on every accepted parameter change.
+    """
+
+    def __init__(self, node_name: str, own_parameters: dict[str, tuple[Any, ParameterDescriptor]]) -> None:
+        super().__init__(node_name)
+        # Types are checked by the configuration loader (which accepts 30 for 30.0 and names the key), so the
+        # rig parameters are dynamically typed.
+        self.declare_parameter("camera_names", ["cam_a", "cam_b"], ParameterDescriptor(
+            description="rig configuration: names of the cameras, each with its own section", dynamic_typing=True))
+        camera_names = self.get_parameter("camera_names").value
+        if not isinstance(camera_names, list | tuple) or not all(isinstance(n, str) and n for n in camera_names):
+            raise ParameterError(f"parameter 'camera_names' must be a list of camera names, got {camera_names!r}")
+        names = ["camera_names"]
+        for name, default in _rig_parameter_defaults(camera_names).items():
+            self.declare_parameter(name, default, ParameterDescriptor(
+                description=f"rig configuration key {name} (see config/sim_rig.yaml)", dynamic_typing=True))
+            names.append(name)
+        for name, (default, descriptor) in own_parameters.items():
+            self.declare_parameter(name, default, descriptor)
+            names.append(name)
+        self._rig_names = [n for n in names if n not in own_parameters]
+        self._own_names = list(own_parameters)
+        self._configure_from({name: self.get_parameter(name).value for name in names})
+        validate_on_change(self, names, self._configure_from)
+
+    def _configure_from(self, values: dict[str, Any]) -> None:
+        from ntcr_recon.core.config import ConfigError, rig_config_from_mapping, unflatten_parameters
+
+        rig_values = {name: values[name] for name in self._rig_names if values[name] is not None}
+        try:
+            rig = rig_config_from_mapping(unflatten_parameters(rig_values))
+        except ConfigError as error:
+            raise ParameterError(f"rig configuration: {error}") from error
+        self.configure(rig, {name: values[name] for name in self._own_names})
+
+    def configure(self, rig, params: dict[str, Any]) -> None:
+        raise NotImplementedError

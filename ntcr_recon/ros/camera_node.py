@@ -1,0 +1,189 @@
+"""camera_node: one camera's frames -> `<ns>/<cam>/depth/color/points` (+ `<ns>/<cam>/depth/camera_info`).
+
+One instance per camera (parameter `camera`, a name of the rig's camera_names). The source is a parameter:
+  bag       a rosbag2 bag (`bag_path`): the camera's depth (16UC1 in the configured depth_unit, or 32FC1 metres),
+            camera_info and colour, or, in a bag of recorded clouds only, its `.../depth/color/points` as recorded;
+            at `rate` times the recorded rate (0: as fast as it can), looping with `loop`, publishing /clock from
+            the frames' stamps with `publish_clock` (so `use_sim_time` nodes follow the bag);
+  realsense a live D405 (pyrealsense2), picked by the configuration's serial_number, at its width/height/fps,
+            depth unit kept at the configured value (0.1 mm on a D405);
+  file      a librealsense recording (`file_path`) played back through pyrealsense2.
+Every depth frame goes through the core's deprojection (`ntcr_recon.core.deproject`): with `crop_to_robot`
+only the image window that can see the robot's crop box is deprojected, as the offline pipeline does.
+The cloud is in the camera's optical frame (the configuration's frame_id) with the frame's own stamp.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import CameraInfo, PointCloud2
+
+from ntcr_recon.core.deproject import Intrinsics, crop_window, depth_to_points
+from ntcr_recon.ros.camera_sources import BagSource, SourceError, SourceFrame, camera_topic
+from ntcr_recon.ros.messages import header, stamp_msg
+from ntcr_recon.ros.node_support import SENSOR_QOS, ParameterError, RigNode, describe, run_node
+from ntcr_recon.ros.pointcloud import RCLPY, cloud_to_msg
+
+SOURCES = ("bag", "realsense", "file")
+
+PARAMETERS = {
+    "camera": ("cam_a", describe("name of this camera in the rig's camera_names", read_only=True)),
+    "source": ("bag", describe(f"where frames come from: {' | '.join(SOURCES)}", read_only=True)),
+    "bag_path": ("", describe("rosbag2 directory replayed by the 'bag' source", read_only=True)),
+    "file_path": ("", describe("librealsense recording (.bag / .db3) played by the 'file' source", read_only=True)),
+    "rate": (1.0, describe("replay speed relative to the recorded rate; 0 = as fast as possible", minimum=0.0,
+                           maximum=100.0)),
+    "loop": (False, describe("replay the bag / file again and again (stamps keep increasing)", read_only=True)),
+    "publish_clock": (False, describe("publish /clock from the frames' stamps (bag source; one node per graph)",
+                                      read_only=True)),
+    "crop_to_robot": (True, describe("deproject only the pixels that can see the robot's crop box")),
+    "spatial_filter": (False, describe("realsense: librealsense spatial edge-preserving filter", read_only=True)),
+    "temporal_filter": (False, describe("realsense: librealsense temporal filter", read_only=True)),
+    "hole_filling": (False, describe("realsense: librealsense hole-filling filter", read_only=True)),
+    "reconnect_period": (1.0, describe("realsense: seconds between attempts to (re)open the device",
+                                       minimum=0.1, maximum=60.0)),
+}
+
+
+def camera_info_msg(frame: SourceFrame, frame_id: str) -> CameraInfo:
+    """The frame's recorded camera_info re-stamped, or one built from its intrinsics (no distortion)."""
+    recorded, intrinsics = frame.camera_info, frame.intrinsics
+    info = CameraInfo(header=header(frame_id, frame.stamp_ns))
+    if recorded is not None:
+        info.height, info.width = int(recorded.height), int(recorded.width)
+        info.distortion_model = str(recorded.distortion_model)
+        info.d = [float(v) for v in recorded.d]
+        info.k, info.r, info.p = (np.asarray(getattr(recorded, name), dtype=float) for name in "krp")
+        return info
+    info.height, info.width, info.distortion_model = intrinsics.height, intrinsics.width, "plumb_bob"
+    info.d = [0.0] * 5
+    info.k = np.array([intrinsics.fx, 0, intrinsics.cx, 0, intrinsics.fy, intrinsics.cy, 0, 0, 1], dtype=float)
+    info.r = np.eye(3).reshape(-1)
+    info.p = np.array([intrinsics.fx, 0, intrinsics.cx, 0, 0, intrinsics.fy, intrinsics.cy, 0, 0, 0, 1, 0], float)
+    return info
+
+
+def recorded_cloud_msg(recorded, stamp_ns: int) -> PointCloud2:
+    """A recorded (rosbags) PointCloud2 as an rclpy message, bytes untouched, stamp possibly shifted by a loop."""
+    msg = PointCloud2(header=header(str(recorded.header.frame_id), stamp_ns), height=int(recorded.height),
+                      width=int(recorded.width), is_bigendian=bool(recorded.is_bigendian),
+                      point_step=int(recorded.point_step), row_step=int(recorded.row_step),
+                      is_dense=bool(recorded.is_dense))
+    msg.fields = [RCLPY.point_field(name=str(f.name), offset=int(f.offset), datatype=int(f.datatype),
+                                    count=int(f.count)) for f in recorded.fields]
+    msg.data = np.asarray(recorded.data, dtype=np.uint8).tobytes()
+    return msg
+
+
+class CameraNode(RigNode):
+    def __init__(self) -> None:
+        self._source = None
+        super().__init__("camera_node", PARAMETERS)
+        points_topic = camera_topic(self.rig.topics, self.camera, "points")
+        self._cloud_publisher = self.create_publisher(PointCloud2, points_topic, SENSOR_QOS)
+        self._info_publisher = self.create_publisher(
+            CameraInfo, camera_topic(self.rig.topics, self.camera, "depth_info"), SENSOR_QOS)
+        self._clock_publisher = self.create_publisher(Clock, "/clock", 10) if self._params["publish_clock"] else None
+        self._stop = threading.Event()
+        self.frames_published = 0
+        self._thread = threading.Thread(target=self._pump, name="camera_source", daemon=True)
+        self._thread.start()
+        self.get_logger().info(f"camera '{self.camera}' from the {self._params['source']} source -> {points_topic}")
+
+    def configure(self, rig, params: dict) -> None:
+        if params["camera"] not in rig.camera_names:
+            raise ParameterError(f"parameter 'camera' is '{params['camera']}', which is not one of the rig's "
+                                 f"camera_names {list(rig.camera_names)}")
+        if params["source"] not in SOURCES:
+            raise ParameterError(f"parameter 'source' must be one of {SOURCES}, got '{params['source']}'")
+        if self._source is None:  # the source is opened once; its parameters are read-only
+            self._source = self._open_source(rig, params)
+        self.rig, self.camera, self._params = rig, params["camera"], params
+        self._windows: dict[Intrinsics, object] = {}
+
+    def _open_source(self, rig, params: dict):
+        try:
+            if params["source"] == "bag":
+                if not params["bag_path"]:
+                    raise ParameterError("parameter 'bag_path' must name a rosbag2 directory for the 'bag' source")
+                return BagSource(params["bag_path"], params["camera"], rig.topics, loop=params["loop"])
+            from ntcr_recon.ros.realsense_source import RealSenseFileSource, RealSenseSource
+
+            if params["source"] == "file":
+                if not params["file_path"]:
+                    raise ParameterError("parameter 'file_path' must name a recording for the 'file' source")
+                return RealSenseFileSource(params["file_path"], loop=params["loop"])
+            camera = rig.cameras[params["camera"]]
+            return RealSenseSource(camera, spatial=params["spatial_filter"], temporal=params["temporal_filter"],
+                                   hole_filling=params["hole_filling"], reconnect_period=params["reconnect_period"],
+                                   log=self.get_logger())
+        except SourceError as error:
+            raise ParameterError(f"source '{params['source']}': {error}") from error
+
+    # ---- the producer thread -------------------------------------------------------------------------------
+    def _pump(self) -> None:
+        start_wall = start_stamp = None
+        try:
+            for frame in self._source:
+                if self._stop.is_set():
+                    return
+                rate = self._params["rate"]
+                if rate > 0 and self._params["source"] != "realsense":
+                    if start_wall is None:
+                        start_wall, start_stamp = time.monotonic(), frame.stamp_ns
+                    delay = start_wall + (frame.stamp_ns - start_stamp) * 1e-9 / rate - time.monotonic()
+                    if delay > 0 and self._stop.wait(delay):
+                        return
+                try:
+                    self._publish(frame)
+                except ValueError as error:  # one bad frame (wrong size, bad encoding): say so, go on
+                    self.get_logger().error(f"dropped a frame at {frame.stamp_ns} ns: {error}")
+        except SourceError as error:
+            self.get_logger().error(f"camera source stopped: {error}")
+        except Exception as error:  # the context may be shut down under a publish at Ctrl-C
+            if not self._stop.is_set():
+                self.get_logger().error(f"camera source failed: {type(error).__name__}: {error}")
+            return
+        self.get_logger().info(f"source finished after {self.frames_published} frames")
+
+    def _publish(self, frame: SourceFrame) -> None:
+        if self._clock_publisher is not None:
+            self._clock_publisher.publish(Clock(clock=stamp_msg(frame.stamp_ns)))
+        camera = self.rig.cameras[self.camera]
+        if frame.cloud is not None:
+            self._cloud_publisher.publish(recorded_cloud_msg(frame.cloud, frame.stamp_ns))
+            self.frames_published += 1
+            return
+        unit = camera.depth_unit if frame.depth_unit is None else frame.depth_unit
+        window = self._window(frame.intrinsics) if self._params["crop_to_robot"] else None
+        if self._params["crop_to_robot"] and window is None:
+            xyz, rgb = np.empty((0, 3)), None  # the camera cannot see the crop box at all
+        else:
+            xyz, rgb = depth_to_points(frame.depth, frame.intrinsics, unit, frame.color, window)
+        self._cloud_publisher.publish(cloud_to_msg(xyz, rgb, frame_id=camera.frame_id, stamp_ns=frame.stamp_ns,
+                                                   msgtypes=RCLPY))
+        self._info_publisher.publish(camera_info_msg(frame, camera.frame_id))
+        self.frames_published += 1
+
+    def _window(self, intrinsics: Intrinsics):
+        if intrinsics not in self._windows:
+            box_min, box_max = self.rig.crop_box()
+            self._windows[intrinsics] = crop_window(intrinsics, self.rig.cameras[self.camera].extrinsic,
+                                                    box_min, box_max)
+        return self._windows[intrinsics]
+
+    def destroy_node(self) -> None:
+        self._stop.set()
+        if self._source is not None and hasattr(self._source, "close"):
+            self._source.close()
+        if getattr(self, "_thread", None) is not None:
+            self._thread.join(timeout=5)
+        super().destroy_node()
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(CameraNode, args)

@@ -1,0 +1,184 @@
+"""Where camera_node's frames come from: a rosbag2 bag, a live D405 or a librealsense recording.
+
+Every source yields `SourceFrame`s: one camera's depth image (+ colour, + intrinsics) at one stamp, or, for a
+bag that holds only recorded clouds, the cloud message as recorded. camera_node turns them into the same
+PointCloud2 whatever the source. No rclpy import here: the sources are tested without a ROS graph.
+
+Public API:
+    SourceFrame
+    image_to_array(msg) -> np.ndarray            # sensor_msgs/Image (either flavour) -> (H, W) or (H, W, 3)
+    camera_topic(topics, camera, kind) -> str    # absolute topic name
+    BagSource(path, camera, topics, loop=False)  # iterate it for SourceFrames, stamps shifted on each loop
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from rosbags.typesys import Stores, get_typestore
+
+from ntcr_recon.core.config import TopicConfig
+from ntcr_recon.core.deproject import Intrinsics
+
+
+class SourceError(RuntimeError):
+    """A camera source that cannot deliver frames (no device, wrong serial, missing topics...)."""
+
+
+@dataclass
+class SourceFrame:
+    """One camera frame. Depth frames: `depth` (16UC1 raw units, `depth_unit` None = the configured unit;
+    32FC1 metres, `depth_unit` 1.0), `intrinsics`, optional RGB `color`, and `camera_info` (the recorded
+    message, or None to build one from the intrinsics). Recorded-cloud frames: `cloud` (the message)."""
+
+    stamp_ns: int
+    depth: np.ndarray | None = None
+    depth_unit: float | None = None
+    intrinsics: Intrinsics | None = None
+    color: np.ndarray | None = None
+    camera_info: Any = None
+    cloud: Any = None
+
+
+_IMAGE_DTYPES = {"16UC1": (np.uint16, 1), "mono16": (np.uint16, 1), "32FC1": (np.float32, 1),
+                 "rgb8": (np.uint8, 3), "bgr8": (np.uint8, 3), "rgba8": (np.uint8, 4), "bgra8": (np.uint8, 4),
+                 "mono8": (np.uint8, 1), "8UC3": (np.uint8, 3)}
+
+
+def image_to_array(msg) -> np.ndarray:
+    """A sensor_msgs/Image as numpy: depth (H, W) uint16 / float32, colour (H, W, 3) uint8 RGB."""
+    if msg.encoding not in _IMAGE_DTYPES:
+        raise ValueError(f"image encoding '{msg.encoding}' is not supported (known: {', '.join(_IMAGE_DTYPES)})")
+    scalar, channels = _IMAGE_DTYPES[msg.encoding]
+    dtype = np.dtype(scalar).newbyteorder(">" if msg.is_bigendian else "<")
+    height, width, step = int(msg.height), int(msg.width), int(msg.step)
+    row_bytes = width * channels * dtype.itemsize
+    data = np.frombuffer(bytes(msg.data) if not isinstance(msg.data, np.ndarray) else msg.data, dtype=np.uint8)
+    if step < row_bytes or data.size < step * (height - 1) + row_bytes:
+        raise ValueError(f"{msg.encoding} image {width}x{height} with step {step} needs "
+                         f"{step * (height - 1) + row_bytes} bytes, has {data.size}")
+    rows = np.lib.stride_tricks.as_strided(data, shape=(height, row_bytes), strides=(step, 1))
+    image = np.ascontiguousarray(rows).view(dtype).reshape(height, width, channels).astype(scalar, copy=False)
+    if msg.encoding.startswith("bgr"):
+        image = image[:, :, 2::-1]
+    elif channels == 4:
+        image = image[:, :, :3]
+    return image[:, :, 0] if channels == 1 else np.ascontiguousarray(image)
+
+
+def camera_topic(topics: TopicConfig, camera: str, kind: str) -> str:
+    """The absolute topic name of `kind` ("depth", "depth_info", "color", "points") for `camera`."""
+    return "/" + topics.camera_topic(camera, kind).lstrip("/")
+
+
+def _stamp(msg) -> int:
+    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+
+
+class BagSource:
+    """One camera's frames from a rosbag2 bag (mcap or sqlite3), in recorded order.
+
+    Depth + camera_info (+ colour paired by stamp) when the bag has the camera's depth topic; otherwise the
+    recorded `.../depth/color/points` clouds. With `loop`, the bag repeats with stamps shifted by its
+    duration plus one frame period, so time keeps moving forward for the graph.
+    """
+
+    def __init__(self, path: str | Path, camera: str, topics: TopicConfig, loop: bool = False) -> None:
+        from rosbags.highlevel import AnyReader
+
+        self.path = Path(path)
+        self.loop = loop
+        if not self.path.exists():
+            raise SourceError(f"bag {self.path} does not exist")
+        self._reader_class = AnyReader
+        self.topics = {kind: camera_topic(topics, camera, kind) for kind in ("depth", "depth_info", "color", "points")}
+        with self._open() as reader:
+            present = {c.topic for c in reader.connections}
+            self.duration_ns = int(reader.duration)
+        if self.topics["depth"] in present:
+            self.mode = "depth"
+            if self.topics["depth_info"] not in present:
+                raise SourceError(f"bag {self.path} has {self.topics['depth']} but no {self.topics['depth_info']}")
+            self.has_color = self.topics["color"] in present
+        elif self.topics["points"] in present:
+            self.mode, self.has_color = "points", False
+        else:
+            raise SourceError(f"bag {self.path} has neither {self.topics['depth']} nor {self.topics['points']} "
+                              f"(topics: {', '.join(sorted(present)) or 'none'})")
+
+    @contextlib.contextmanager
+    def _open(self):
+        reader = self._reader_class([self.path], default_typestore=get_typestore(Stores.ROS2_JAZZY))
+        try:
+            reader.open()
+        except Exception as error:  # rosbags raises its own types for truncated / foreign files
+            raise SourceError(f"cannot read bag {self.path}: {error}") from error
+        try:
+            yield reader
+        finally:
+            reader.close()
+
+    def __iter__(self) -> Iterator[SourceFrame]:
+        offset_ns, first, last, period = 0, None, None, 0
+        while True:
+            for frame in self._one_pass():
+                first = frame.stamp_ns if first is None else first
+                period = frame.stamp_ns - last if last is not None and period == 0 else period
+                last = frame.stamp_ns
+                frame.stamp_ns += offset_ns
+                yield frame
+            if not self.loop or first is None:
+                return
+            offset_ns += last - first + max(period, 1)
+
+    def _one_pass(self) -> Iterator[SourceFrame]:
+        wanted = ("depth", "depth_info", "color") if self.mode == "depth" else ("points",)
+        topics = {self.topics[kind]: kind for kind in wanted}
+        with self._open() as reader:
+            connections = [c for c in reader.connections if c.topic in topics]
+            if self.mode == "points":
+                for connection, _, raw in reader.messages(connections=connections):
+                    msg = reader.deserialize(raw, connection.msgtype)
+                    yield SourceFrame(stamp_ns=_stamp(msg), cloud=msg)
+                return
+            info, intrinsics = None, None
+            colors: dict[int, np.ndarray] = {}
+            waiting: SourceFrame | None = None  # a depth frame whose colour has not come yet
+            for connection, _, raw in reader.messages(connections=connections):
+                kind = topics[connection.topic]
+                msg = reader.deserialize(raw, connection.msgtype)
+                if kind == "depth_info":
+                    info, intrinsics = msg, Intrinsics.from_camera_info(msg)
+                    continue
+                stamp = _stamp(msg)
+                if kind == "color":
+                    if waiting is not None and waiting.stamp_ns == stamp:
+                        waiting.color = image_to_array(msg)
+                        yield waiting
+                        waiting = None
+                    else:
+                        colors[stamp] = msg
+                        for old in sorted(colors)[:-4]:  # bounded: only the last few wait for their depth
+                            del colors[old]
+                    continue
+                if waiting is not None:  # its colour never came: it goes without
+                    yield waiting
+                    waiting = None
+                if intrinsics is None:
+                    continue  # no camera_info yet: the frame cannot be deprojected
+                depth = image_to_array(msg)
+                frame = SourceFrame(stamp_ns=stamp, depth=depth, depth_unit=1.0 if depth.dtype == np.float32 else None,
+                                    intrinsics=intrinsics, camera_info=info)
+                color = colors.pop(stamp, None)
+                if color is not None or not self.has_color:
+                    frame.color = None if color is None else image_to_array(color)
+                    yield frame
+                else:
+                    waiting = frame
+            if waiting is not None:
+                yield waiting

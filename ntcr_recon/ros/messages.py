@@ -1,0 +1,197 @@
+"""Core results <-> ROS messages for the stage nodes (rclpy messages; no algorithm here).
+
+Stage clouds (`<ns>/fused/points`, `<ns>/filtered/points`, `<ns>/relocated/points`) are PointCloud2 with
+x, y, z, rgb float32 as DESIGN.md fixes, plus two fields a later stage needs to compute what the offline
+command computes on the same frames: `camera` (float32, the index of the camera in the rig's camera_names that
+saw the point) and `pixel_footprint` (float32, metres; the size of one depth pixel on the robot, the same for
+every point of a cloud, 0 when unknown). Readers that know only x, y, z (and rgb) are unaffected.
+
+Notches as `std_msgs/Float64MultiArray` (`<ns>/notches`), readable without this package:
+    layout.dim[0] = {label: "notch", size: N, stride: 4 * N}
+    layout.dim[1] = {label: "index,center_s_m,width_m,bend_rad", size: 4, stride: 4}
+    data = [index_0, center_s_0, width_0, bend_0, index_1, ...]   (row-major, metres / radians; bend NaN
+           when the shape does not give it)
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import Point, Pose, PoseStamped
+from nav_msgs.msg import Path
+from sensor_msgs.msg import PointCloud2, PointField
+from shape_msgs.msg import Mesh, MeshTriangle
+from std_msgs.msg import ColorRGBA, Float64MultiArray, Header, MultiArrayDimension, MultiArrayLayout
+from visualization_msgs.msg import Marker, MarkerArray
+
+from ntcr_recon.core.cloud import Cloud
+from ntcr_recon.core.transforms import matrix_to_quaternion
+from ntcr_recon.ros.pointcloud import FLOAT32, RCLPY, cloud_from_msg, cloud_to_msg, stamp_to_ns
+
+NOTCH_LAYOUT_LABEL = "index,center_s_m,width_m,bend_rad"
+_EXTRA_FIELDS = ("camera", "pixel_footprint")
+
+
+def stamp_msg(stamp_ns: int) -> Time:
+    seconds, nanoseconds = divmod(int(stamp_ns), 1_000_000_000)
+    return Time(sec=seconds, nanosec=nanoseconds)
+
+
+def header(frame_id: str, stamp_ns: int) -> Header:
+    return Header(frame_id=frame_id, stamp=stamp_msg(stamp_ns))
+
+
+# ---- stage clouds ---------------------------------------------------------------------------------------------
+
+def stage_cloud_to_msg(cloud: Cloud, frame_id: str) -> PointCloud2:
+    """A Cloud as a PointCloud2: x, y, z, rgb, then `camera` and `pixel_footprint` (see the module doc)."""
+    base = cloud_to_msg(cloud.xyz, cloud.rgb if cloud.rgb is not None else np.zeros(len(cloud), np.uint32),
+                        frame_id=frame_id, stamp_ns=cloud.stamp_ns, msgtypes=RCLPY)
+    count = len(cloud)
+    extra = np.empty((count, 2), dtype="<f4")
+    extra[:, 0] = cloud.camera if cloud.camera is not None else -1
+    extra[:, 1] = cloud.pixel_footprint
+    points = np.frombuffer(bytes(base.data), dtype=np.uint8).reshape(count, base.point_step)
+    data = np.concatenate([points, extra.view(np.uint8).reshape(count, 8)], axis=1)
+    offset = base.point_step
+    base.fields = list(base.fields) + [PointField(name=name, offset=offset + 4 * i, datatype=FLOAT32, count=1)
+                                       for i, name in enumerate(_EXTRA_FIELDS)]
+    base.point_step = offset + 8
+    base.row_step = base.point_step * count
+    base.data = data.tobytes()
+    return base
+
+
+def stage_cloud_from_msg(msg: PointCloud2) -> Cloud:
+    """A stage cloud back as a Cloud; NaN points dropped. Any PointCloud2 with x, y, z is accepted (a cloud
+    without the `camera` / `pixel_footprint` fields gets none / 0)."""
+    xyz, rgb = cloud_from_msg(msg, drop_nan=False)  # validates the layout and names what is wrong
+    fields = {field.name: field for field in msg.fields}
+    camera, footprint = None, 0.0
+    if all(name in fields and fields[name].datatype == FLOAT32 for name in _EXTRA_FIELDS) and len(xyz):
+        rows = np.frombuffer(msg.data, dtype=np.uint8)[: len(xyz) * msg.point_step].reshape(len(xyz), -1)
+        order = ">" if msg.is_bigendian else "<"
+
+        def column(name: str) -> np.ndarray:
+            offset = fields[name].offset
+            return rows[:, offset:offset + 4].copy().view(f"{order}f4").reshape(-1)
+
+        camera_values = column("camera")
+        camera = camera_values.astype(np.int8) if np.all(camera_values >= 0) else None
+        footprints = column("pixel_footprint")
+        footprint = float(np.nanmax(footprints)) if np.isfinite(footprints).any() else 0.0
+    finite = np.isfinite(xyz).all(axis=1)
+    cloud = Cloud(xyz, rgb, camera, stamp_to_ns(msg.header.stamp), footprint)
+    return cloud if finite.all() else cloud.subset(finite)
+
+
+def require_frame(msg, expected: str) -> None:
+    """A ValueError naming both frames when a message is not in the frame the configuration gives."""
+    if msg.header.frame_id != expected:
+        raise ValueError(f"message in frame '{msg.header.frame_id}', expected '{expected}' (rig configuration)")
+
+
+# ---- centreline, tip and notches ------------------------------------------------------------------------------
+
+def pose(position: Sequence[float], rotation: np.ndarray | None = None) -> Pose:
+    """A Pose from a position and an optional 3x3 rotation (identity when None)."""
+    result = Pose()
+    result.position.x, result.position.y, result.position.z = (float(v) for v in position)
+    if rotation is not None:
+        q = matrix_to_quaternion(np.asarray(rotation, dtype=float))
+        result.orientation.x, result.orientation.y, result.orientation.z, result.orientation.w = (float(v) for v in q)
+    return result
+
+
+def path_msg(points: np.ndarray, rotations: np.ndarray | None, frame_id: str, stamp_ns: int) -> Path:
+    """nav_msgs/Path through `points` (N, 3), oriented by `rotations` (N, 3, 3) when given."""
+    head = header(frame_id, stamp_ns)
+    poses = [PoseStamped(header=head, pose=pose(p, None if rotations is None else rotations[i]))
+             for i, p in enumerate(np.asarray(points, dtype=float))]
+    return Path(header=head, poses=poses)
+
+
+def pose_stamped(position: Sequence[float], rotation: np.ndarray | None, frame_id: str, stamp_ns: int
+                 ) -> PoseStamped:
+    return PoseStamped(header=header(frame_id, stamp_ns), pose=pose(position, rotation))
+
+
+def notches_array(notches: Sequence[dict]) -> Float64MultiArray:
+    """Notches ({index, center_s, width, bend}) in the documented Float64MultiArray layout (module doc)."""
+    rows = [[float(n["index"]), float(n["center_s"]), float(n["width"]),
+             math.nan if n.get("bend") is None else float(n["bend"])] for n in notches]
+    layout = MultiArrayLayout(dim=[
+        MultiArrayDimension(label="notch", size=len(rows), stride=4 * len(rows)),
+        MultiArrayDimension(label=NOTCH_LAYOUT_LABEL, size=4, stride=4)])
+    return Float64MultiArray(layout=layout, data=[v for row in rows for v in row])
+
+
+def notches_from_array(msg: Float64MultiArray) -> list[dict]:
+    """The inverse of `notches_array` (what a consumer without this package does by hand)."""
+    if len(msg.layout.dim) != 2 or msg.layout.dim[1].label != NOTCH_LAYOUT_LABEL:
+        raise ValueError(f"not a notch array: layout {[d.label for d in msg.layout.dim]}")
+    values = np.asarray(msg.data, dtype=float).reshape(-1, 4)
+    return [{"index": int(row[0]), "center_s": row[1], "width": row[2],
+             "bend": None if math.isnan(row[3]) else row[3]} for row in values]
+
+
+def notch_markers(notches: Sequence[dict], positions: np.ndarray, rotations: np.ndarray, radius: float,
+                  frame_id: str, stamp_ns: int) -> MarkerArray:
+    """One flat cylinder per notch at its centre on the centreline (axis along the tube, thickness = width),
+    and a text label with the width in mm; a DELETEALL first so vanished notches disappear in RViz."""
+    head = header(frame_id, stamp_ns)
+    markers = [Marker(header=head, ns="notches", action=Marker.DELETEALL)]
+    for notch, position, rotation in zip(notches, positions, rotations, strict=True):
+        disc = Marker(header=head, ns="notches", id=2 * int(notch["index"]), type=Marker.CYLINDER,
+                      action=Marker.ADD, pose=pose(position, rotation))
+        disc.scale.x = disc.scale.y = 2.2 * radius
+        disc.scale.z = float(notch["width"])
+        disc.color = ColorRGBA(r=1.0, g=0.5, b=0.0, a=0.6)
+        label = Marker(header=head, ns="notch_labels", id=2 * int(notch["index"]) + 1, type=Marker.TEXT_VIEW_FACING,
+                       action=Marker.ADD, pose=pose(np.asarray(position) + rotation[:, 0] * 2.0 * radius),
+                       text=f"{notch['index']}: {1e3 * float(notch['width']):.2f} mm")
+        label.scale.z = radius
+        label.color = ColorRGBA(r=1.0, g=1.0, b=1.0, a=1.0)
+        markers += [disc, label]
+    return MarkerArray(markers=markers)
+
+
+# ---- meshes ---------------------------------------------------------------------------------------------------
+
+def mesh_marker(vertices: np.ndarray, triangles: np.ndarray, frame_id: str, stamp_ns: int,
+                color: tuple[float, float, float, float] = (0.7, 0.75, 0.8, 1.0)) -> Marker:
+    """visualization_msgs/Marker TRIANGLE_LIST: three points per triangle (RViz draws them flat-shaded)."""
+    marker = Marker(header=header(frame_id, stamp_ns), ns="mesh", id=0, type=Marker.TRIANGLE_LIST,
+                    action=Marker.ADD)
+    marker.pose.orientation.w = 1.0
+    marker.scale.x = marker.scale.y = marker.scale.z = 1.0
+    marker.color = ColorRGBA(r=color[0], g=color[1], b=color[2], a=color[3])
+    corners = np.asarray(vertices, dtype=float)[np.asarray(triangles, dtype=np.int64).reshape(-1)]
+    marker.points = [Point(x=x, y=y, z=z) for x, y, z in corners.tolist()]
+    return marker
+
+
+def mesh_msg(vertices: np.ndarray, triangles: np.ndarray) -> Mesh:
+    """shape_msgs/Mesh (no header: it is in the frame of the Marker published beside it, the base frame)."""
+    return Mesh(vertices=[Point(x=x, y=y, z=z) for x, y, z in np.asarray(vertices, dtype=float).tolist()],
+                triangles=[MeshTriangle(vertex_indices=tri) for tri in np.asarray(triangles, dtype=np.uint32).tolist()])
+
+
+def mesh_from_msg(msg: Mesh) -> tuple[np.ndarray, np.ndarray]:
+    vertices = np.array([[p.x, p.y, p.z] for p in msg.vertices], dtype=float).reshape(-1, 3)
+    triangles = np.array([list(t.vertex_indices) for t in msg.triangles], dtype=np.int64).reshape(-1, 3)
+    return vertices, triangles
+
+
+# ---- diagnostics ----------------------------------------------------------------------------------------------
+
+def diagnostics(name: str, hardware_id: str, level: bytes, message: str, values: dict[str, object],
+                stamp_ns: int) -> DiagnosticArray:
+    """A /diagnostics array of one status (level: DiagnosticStatus.OK / WARN / ERROR / STALE, bytes)."""
+    status = DiagnosticStatus(level=level, name=name, hardware_id=hardware_id, message=message,
+                              values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
+    return DiagnosticArray(header=header("", stamp_ns), status=[status])

@@ -1,0 +1,121 @@
+"""camera_node's bag source as its own process: depth (16UC1 / 32FC1) + colour -> the core's deprojection,
+recorded clouds republished as recorded, looping with increasing stamps, /clock, and clear refusals."""
+
+from __future__ import annotations
+
+import subprocess
+
+import numpy as np
+import pytest
+import tiny_rig
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from ros_graph import VENV_BIN, RosGraph
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import CameraInfo, PointCloud2
+
+from ntcr_recon.core.config import load_rig_config
+from ntcr_recon.core.deproject import crop_window, depth_to_points
+from ntcr_recon.ros.pointcloud import cloud_from_msg, stamp_to_ns
+
+COLLECT_QOS = QoSProfile(depth=200, reliability=ReliabilityPolicy.BEST_EFFORT)
+FRAMES, FPS, START = 6, 30.0, 1_000_000_000
+PERIOD = int(round(1e9 / FPS))
+# One camera_node per case, its outputs remapped under the case's name so they share one graph.
+CASES = {
+    "raw16": dict(encoding="16UC1"),
+    "float32": dict(encoding="32FC1"),
+    "points": dict(points_only=True),
+}
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    root = tmp_path_factory.mktemp("camera_node")
+    rig = tiny_rig.write_rig(root / "rig.yaml")
+    bags = {name: tiny_rig.write_bag(root / name, frames=FRAMES, fps=FPS, cameras=("cam_a",), **options)
+            for name, options in CASES.items()}
+    with RosGraph() as graph:
+        received = {name: [] for name in CASES}
+        infos, clocks = [], []
+        for name, bag in bags.items():
+            graph.start("camera_node", "--params-file", str(rig), "-p", f"bag_path:={bag}", "-p", "camera:=cam_a",
+                        "-p", "loop:=true",
+                        "-r", f"/ntcr/cam_a/depth/color/points:=/{name}/cam_a/depth/color/points",
+                        "-r", f"/ntcr/cam_a/depth/camera_info:=/{name}/cam_a/depth/camera_info",
+                        *(["-p", "publish_clock:=true"] if name == "raw16" else []))
+            graph.node.create_subscription(PointCloud2, f"/{name}/cam_a/depth/color/points", received[name].append,
+                                           COLLECT_QOS)
+        graph.node.create_subscription(CameraInfo, "/raw16/cam_a/depth/camera_info", infos.append, COLLECT_QOS)
+        graph.node.create_subscription(Clock, "/clock", clocks.append, COLLECT_QOS)
+        # Two loops of every bag after discovery.
+        assert graph.spin_until(lambda: all(len(r) >= 2 * FRAMES for r in received.values()), 30), graph.all_logs()
+        yield graph, received, infos, clocks, load_rig_config(rig)
+
+
+def expected_points(config, frame_index: int, unit_scale: bool):
+    depth_m = tiny_rig.render_tube("cam_a")
+    depth = np.round(depth_m / tiny_rig.DEPTH_UNIT).astype(np.uint16) if unit_scale else depth_m.astype(np.float32)
+    window = crop_window(tiny_rig.INTRINSICS, config.cameras["cam_a"].extrinsic, *config.crop_box())
+    return depth_to_points(depth, tiny_rig.INTRINSICS, tiny_rig.DEPTH_UNIT if unit_scale else 1.0,
+                           tiny_rig.frame_color("cam_a", frame_index), window)
+
+
+@pytest.mark.parametrize("case", ["raw16", "float32"])
+def test_depth_frames_are_deprojected_by_the_core(setup, case):
+    _, received, _, _, config = setup
+    for msg in received[case][:FRAMES + 2]:
+        stamp = stamp_to_ns(msg.header.stamp)
+        index = round((stamp - START) / PERIOD) % FRAMES
+        xyz, rgb = cloud_from_msg(msg)
+        want_xyz, want_rgb = expected_points(config, index, unit_scale=case == "raw16")
+        assert msg.header.frame_id == "cam_a_optical_frame"
+        assert len(xyz) == len(want_xyz) > 100
+        np.testing.assert_allclose(xyz, want_xyz, atol=1e-7)
+        np.testing.assert_array_equal(rgb, want_rgb)  # the colour of the frame with the same stamp
+
+
+def test_16bit_depth_is_scaled_by_the_configured_unit(setup):
+    _, received, _, _, _ = setup
+    raw16, metres = cloud_from_msg(received["raw16"][0])[0], cloud_from_msg(received["float32"][0])[0]
+    # Same scene: 16UC1 in 0.1 mm units equals 32FC1 metres to within the quantisation.
+    assert np.abs(raw16[:, 2] - metres[:, 2]).max() <= tiny_rig.DEPTH_UNIT / 2 + 1e-7
+    assert 0.085 < np.median(raw16[:, 2]) < 0.09
+
+
+def test_loop_keeps_stamps_increasing_and_publishes_clock(setup):
+    _, received, infos, clocks, _ = setup
+    stamps = [stamp_to_ns(m.header.stamp) for m in received["raw16"]]
+    assert np.all(np.diff(stamps) > 0)
+    assert stamps[-1] - stamps[0] >= (2 * FRAMES - 1) * PERIOD - 1  # crossed at least one loop boundary
+    assert np.all(np.diff(stamps) % PERIOD == 0)  # on the frame grid across the loop boundary: no repeat
+    clock_stamps = [stamp_to_ns(c.clock) for c in clocks]
+    assert len(clock_stamps) >= FRAMES and set(stamps) & set(clock_stamps)
+    assert np.all(np.diff(clock_stamps) > 0)
+    info_stamps = {stamp_to_ns(i.header.stamp) for i in infos}
+    assert info_stamps & set(stamps)  # camera_info carries the frame's own stamp
+    assert infos[0].k[0] == tiny_rig.INTRINSICS.fx and infos[0].header.frame_id == "cam_a_optical_frame"
+
+
+def test_recorded_clouds_are_republished_as_recorded(setup):
+    _, received, _, _, _ = setup
+    msg = received["points"][0]
+    index = round((stamp_to_ns(msg.header.stamp) - START) / PERIOD) % FRAMES
+    xyz, rgb = cloud_from_msg(msg)
+    want_xyz, want_rgb = depth_to_points(tiny_rig.render_tube("cam_a"), tiny_rig.INTRINSICS, 1.0,
+                                         tiny_rig.frame_color("cam_a", index))
+    np.testing.assert_allclose(xyz, want_xyz.astype(np.float32))  # not cropped, not re-deprojected
+    np.testing.assert_array_equal(rgb, want_rgb)
+
+
+@pytest.mark.parametrize("override, expected", [
+    (("-p", "bag_path:=/nonexistent/bag"), "/nonexistent/bag does not exist"),
+    (("-p", "camera:=cam_z"), "parameter 'camera' is 'cam_z'"),
+    (("-p", "cam_a.depth_unit:=-1.0"), "cam_a.depth_unit must be > 0"),
+])
+def test_bad_start_parameters_are_refused_by_name(setup, tmp_path, override, expected):
+    rig = tiny_rig.write_rig(tmp_path / "rig.yaml")
+    bag = tiny_rig.write_bag(tmp_path / "bag", frames=1, cameras=("cam_a",))
+    result = subprocess.run([str(VENV_BIN / "camera_node"), "--ros-args", "--params-file", str(rig),
+                             "-p", f"bag_path:={bag}", *override], capture_output=True, text=True, timeout=30)
+    assert result.returncode != 0
+    assert expected in result.stderr, result.stderr
