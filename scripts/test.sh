@@ -6,6 +6,6 @@ NTCR_EXTRAS=test "$root/scripts/setup_env.sh"
 venv="${NTCR_VENV:-$root/.venv}"
 cd "$root"
 echo "[test] ruff"
-"$venv/bin/ruff" check ntcr_recon test benchmarks launch setup.py
+"$venv/bin/ruff" check .
 echo "[test] pytest"
 "$venv/bin/python" -m pytest test "$@"
