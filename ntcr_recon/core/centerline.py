@@ -1,0 +1,338 @@
+"""The robot's centreline estimated from the cloud, using the known outer radius.
+
+Each camera sees one (flattened) side of the tube, so a free circle fit of a cross-section would follow the
+flattening; with the radius known, a fixed-radius fit of the arcs that both cameras see recovers the axis.
+The estimate alternates, until the centreline moves less than a tolerance:
+
+1. correspondences: every point is projected onto the current centreline (nearest centreline sample by a
+   KD-tree, then along the local tangent) giving its arc length s and its offset in the normal plane;
+2. a Gauss-Newton step of the point-to-reference objective (Eq. 10 with the reference tube swept along the
+   centreline): per slab of arc length, the fixed-radius circle residual |p - c| - r_o, robustly weighted
+   (points deep inside the tube are cut faces or bore, points far outside are outliers);
+3. all slab updates solved jointly with a second-difference smoothness prior along s (a smoothing length
+   relative to the outer radius) and the base anchored at the configured base position;
+4. the curve re-parametrised by arc length.
+
+A cold start marches from the base along the base axis, fitting one slab at a time; a warm start (the
+previous frame's centreline, a still or slowly moving robot) needs one or two iterations.
+
+Public API:
+    Centerline                 s (M,), points (M,3), tangents, normals (towards the notch side), binormals
+    Centerline.frames_at(s)    positions and frames at arbitrary arc lengths (linear interpolation)
+    Centerline.project(xyz)    -> TubeCoordinates (s, x, y along normal/binormal, radius, angle)
+    estimate_centerline(xyz, geometry, pixel_footprint, settings, prior=None) -> (Centerline, iterations)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse
+import scipy.sparse.linalg
+from scipy.spatial import cKDTree
+
+from ntcr_recon.core.robot import TubeGeometry
+
+
+@dataclass(frozen=True)
+class TubeCoordinates:
+    """Points in the tube's own coordinates: arc length s of their cross-section, offset (x towards the notch
+    side, y = tangent x x) in it, radius = |(x, y)| and angle = atan2(y, x) about the axis from the notch side."""
+
+    s: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+
+    @property
+    def radius(self) -> np.ndarray:
+        return np.hypot(self.x, self.y)
+
+    @property
+    def angle(self) -> np.ndarray:
+        return np.arctan2(self.y, self.x)
+
+
+@dataclass(frozen=True)
+class Centerline:
+    """A centreline sampled uniformly in arc length from the base (s = 0) to the tip (s = length)."""
+
+    s: np.ndarray
+    points: np.ndarray
+    tangents: np.ndarray
+    normals: np.ndarray     # unit, towards the notch side
+    binormals: np.ndarray   # tangent x normal
+
+    @property
+    def length(self) -> float:
+        return float(self.s[-1])
+
+    @property
+    def tip(self) -> np.ndarray:
+        return self.points[-1]
+
+    @classmethod
+    def from_points(cls, points: np.ndarray, binormal_hint: np.ndarray, step: float) -> Centerline:
+        """Re-sample a polyline at uniform arc-length steps and attach frames.
+
+        The binormal is the hint (the bend plane's normal of a robot bending towards its notches) made
+        perpendicular to the tangent, so the frame does not twist and needs no sequential transport.
+        """
+        chord = np.linalg.norm(np.diff(points, axis=0), axis=1)
+        arc = np.concatenate([[0.0], np.cumsum(chord)])
+        length = float(arc[-1])
+        count = max(int(np.ceil(length / step)), 1) + 1
+        s = np.linspace(0.0, length, count)
+        resampled = np.stack([np.interp(s, arc, points[:, d]) for d in range(3)], axis=1)
+        tangents = np.gradient(resampled, s, axis=0) if count > 2 else np.repeat(
+            (resampled[-1:] - resampled[:1]), count, axis=0)
+        tangents /= np.linalg.norm(tangents, axis=1, keepdims=True)
+        binormals = binormal_hint - np.einsum("ij,j->i", tangents, binormal_hint)[:, None] * tangents
+        binormals /= np.linalg.norm(binormals, axis=1, keepdims=True)
+        normals = np.cross(binormals, tangents)
+        return cls(s, resampled, tangents, normals, binormals)
+
+    def frames_at(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Position, tangent, normal and binormal at arc lengths s; beyond the ends along the end tangent."""
+        s = np.asarray(s, dtype=float)
+        clipped = np.clip(s, 0.0, self.length)
+        index = np.clip(np.searchsorted(self.s, clipped, side="right") - 1, 0, len(self.s) - 2)
+        step = self.s[index + 1] - self.s[index]
+        fraction = ((clipped - self.s[index]) / np.where(step > 0, step, 1.0))[:, None]
+
+        def lerp(values):
+            return values[index] * (1.0 - fraction) + values[index + 1] * fraction
+
+        tangent = lerp(self.tangents)
+        tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
+        position = lerp(self.points) + (s - clipped)[:, None] * tangent
+        normal = lerp(self.normals)
+        normal -= np.einsum("ij,ij->i", normal, tangent)[:, None] * tangent
+        normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+        return position, tangent, normal, np.cross(tangent, normal)
+
+    def project(self, xyz: np.ndarray, tree: cKDTree | None = None) -> TubeCoordinates:
+        """Tube coordinates of points: nearest sample (KD-tree), then slid along the local tangent."""
+        tree = cKDTree(self.points) if tree is None else tree
+        _, nearest = tree.query(xyz)
+        s = self.s[nearest] + np.einsum("ij,ij->i", xyz - self.points[nearest], self.tangents[nearest])
+        position, tangent, normal, binormal = self.frames_at(s)
+        offset = xyz - position
+        # one more correction along the interpolated tangent (curved sections)
+        s = s + np.einsum("ij,ij->i", offset, tangent)
+        position, tangent, normal, binormal = self.frames_at(s)
+        offset = xyz - position
+        return TubeCoordinates(s, np.einsum("ij,ij->i", offset, normal), np.einsum("ij,ij->i", offset, binormal))
+
+    def to_points(self, s: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Base-frame points of tube coordinates (the inverse of project)."""
+        position, _, normal, binormal = self.frames_at(s)
+        return position + x[:, None] * normal + y[:, None] * binormal
+
+    def bend_angle(self, s0: float, s1: float) -> float:
+        """Signed turn of the tangent from s0 to s1 about the binormal (positive towards the notch side)."""
+        _, tangent, normal, binormal = self.frames_at(np.array([s0, s1]))
+        cosine = float(np.clip(tangent[0] @ tangent[1], -1.0, 1.0))
+        sign = 1.0 if tangent[1] @ normal[0] >= 0 else -1.0
+        return sign * float(np.arccos(cosine))
+
+
+@dataclass(frozen=True)
+class CenterlineSettings:
+    """Lengths (metres) derived from the robot and the camera (see `settings_for`)."""
+
+    bin_length: float       # slab length along s
+    smoothing_length: float
+    gate: float             # a point farther than this from the reference surface is an outlier
+    tolerance: float        # convergence: largest centreline move
+    max_iterations: int
+
+
+def settings_for(geometry: TubeGeometry, pixel_footprint: float, relocation) -> CenterlineSettings:
+    """Slab length, smoothing, gate and tolerance from the robot's radius and the pixel footprint."""
+    r_o = geometry.outer_radius
+    footprint = pixel_footprint if pixel_footprint > 0 else r_o / 8.0
+    return CenterlineSettings(
+        bin_length=max(relocation.bin_radius_fraction * r_o, 2.0 * footprint),
+        smoothing_length=relocation.smoothing_radius_fraction * r_o,
+        gate=relocation.gate_radius_fraction * r_o + relocation.gate_pixels * footprint,
+        tolerance=relocation.tolerance_radius_fraction * r_o,
+        max_iterations=relocation.max_iterations,
+    )
+
+
+def base_pose(geometry: TubeGeometry) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Base position, robot axis and bend-plane normal (the robot's y: axis x notch side) in the base frame."""
+    rotation = geometry.base_rotation
+    side = np.array([np.cos(geometry.notch_side), np.sin(geometry.notch_side), 0.0])
+    notch_side = rotation @ side
+    axis = rotation[:, 2]
+    return np.asarray(geometry.base_position, float), axis, np.cross(axis, notch_side)
+
+
+def fixed_radius_circle_fit(slab: np.ndarray, x: np.ndarray, y: np.ndarray, slabs: int, radius: float,
+                            gate: float, iterations: int = 5, point_weight: np.ndarray | None = None
+                            ) -> tuple[np.ndarray, np.ndarray]:
+    """Per slab, the centre (cx, cy) of a circle of known radius through its points (vectorised over slabs).
+
+    Gauss-Newton on r_i = |p_i - c| - radius with a robust weight: points deeper than gate / 2 inside the
+    circle (cut faces, bore) or farther than gate outside (outliers) do not count; Tukey-like taper within.
+    point_weight: optional prior weight of each point (e.g. its share of two neighbouring slabs).
+    Returns centres (slabs, 2) and the 2x2 information matrices (slabs, 2, 2) (zero where unobserved).
+    """
+    centre = np.zeros((slabs, 2))
+    information = np.zeros((slabs, 2, 2))
+    for _ in range(iterations):
+        dx, dy = x - centre[slab, 0], y - centre[slab, 1]
+        distance = np.maximum(np.hypot(dx, dy), 1e-12)
+        residual = distance - radius
+        nx, ny = dx / distance, dy / distance
+        scaled = np.where(residual < 0, 2.0 * residual, residual) / gate
+        weight = np.where(np.abs(scaled) < 1.0, (1.0 - scaled**2) ** 2, 0.0)
+        if point_weight is not None:
+            weight = weight * point_weight
+        sums = [np.bincount(slab, weights=weight * term, minlength=slabs)
+                for term in (nx * nx, nx * ny, ny * ny, residual * nx, residual * ny)]
+        a, b, c, gx, gy = sums
+        damping = 1e-6 * (a + c) + 1e-30
+        det = (a + damping) * (c + damping) - b * b
+        step_x = ((c + damping) * gx - b * gy) / det
+        step_y = ((a + damping) * gy - b * gx) / det
+        centre[:, 0] += step_x
+        centre[:, 1] += step_y
+        information = np.stack([np.stack([a, b], axis=1), np.stack([b, c], axis=1)], axis=1)
+        if max(np.abs(step_x).max(initial=0.0), np.abs(step_y).max(initial=0.0)) < 1e-3 * gate:
+            break
+    return centre, information
+
+
+def _smooth_update(nodes: np.ndarray, tangents: np.ndarray, targets: np.ndarray, information: np.ndarray,
+                   anchor: np.ndarray, smoothing_steps: float) -> np.ndarray:
+    """Positions minimising sum (P - target)^T W (P - target) + lam |second differences|^2 + anchor term.
+
+    nodes: current positions (M, 3); the data say nothing along the tangent, so each node is held at its
+    place along its tangent (else the smoothness prior would let the curve stretch freely) and weakly
+    everywhere. information: (M, 3, 3) data weights. lam = smoothing_steps^4 sets the cut-off length.
+    """
+    count = len(nodes)
+    traces = np.trace(information, axis1=1, axis2=2)
+    typical = float(np.median(traces[traces > 0])) if np.any(traces > 0) else 1.0
+    weak = 1e-4 * typical
+    lam = typical * smoothing_steps**4
+    rows, cols, values = [], [], []
+    along = typical * np.einsum("mi,mj->mij", tangents, tangents)
+    block = information + along + weak * np.eye(3)[None]
+    block[0] += 1e3 * typical * np.eye(3)                      # the base is clamped at the configured pose
+    for i in range(3):
+        for j in range(3):
+            rows.append(np.arange(count) * 3 + i)
+            cols.append(np.arange(count) * 3 + j)
+            values.append(block[:, i, j])
+    data_matrix = scipy.sparse.csr_matrix((np.concatenate(values), (np.concatenate(rows), np.concatenate(cols))),
+                                          shape=(3 * count, 3 * count))
+    rhs = np.einsum("mij,mj->mi", information, targets) + np.einsum("mij,mj->mi", along, nodes) + weak * nodes
+    rhs[0] += 1e3 * typical * anchor
+    if count >= 3:
+        second = scipy.sparse.diags([1.0, -2.0, 1.0], [0, 1, 2], shape=(count - 2, count))
+        penalty = scipy.sparse.kron(second.T @ second, scipy.sparse.identity(3))
+        system = (data_matrix + lam * penalty).tocsc()
+    else:
+        system = data_matrix.tocsc()
+    return scipy.sparse.linalg.spsolve(system, rhs.reshape(-1)).reshape(count, 3)
+
+
+def _march(xyz: np.ndarray, geometry: TubeGeometry, settings: CenterlineSettings) -> np.ndarray:
+    """Cold start: from the base along its axis, fit one slab ahead at a time; returns polyline nodes."""
+    base, axis, binormal = base_pose(geometry)
+    r_o = geometry.outer_radius
+    step = max(r_o, 2 * settings.bin_length)
+    reach = 1.5 * r_o + settings.gate
+    nodes = [base]
+    tangent = axis
+    limit = int(np.ceil(1.5 * geometry.length / step)) + 2
+    misses = 0
+    for _ in range(limit):
+        predicted = nodes[-1] + step * tangent
+        offset = xyz - predicted
+        along = offset @ tangent
+        lateral = offset - along[:, None] * tangent
+        near = (np.abs(along) <= step / 2) & (np.einsum("ij,ij->i", lateral, lateral) <= reach**2)
+        if np.count_nonzero(near) < 8:
+            misses += 1
+            if misses > 1:
+                break
+            nodes.append(predicted)
+            continue
+        misses = 0
+        e2 = binormal - (binormal @ tangent) * tangent
+        e2 /= np.linalg.norm(e2)
+        e1 = np.cross(e2, tangent)
+        local = lateral[near]
+        centre, _ = fixed_radius_circle_fit(np.zeros(len(local), dtype=np.intp), local @ e1, local @ e2, 1, r_o,
+                                            settings.gate, iterations=8)
+        node = predicted + centre[0, 0] * e1 + centre[0, 1] * e2
+        direction = node - nodes[max(len(nodes) - 2, 0)]
+        tangent = direction / np.linalg.norm(direction)
+        nodes.append(node)
+    while misses > 0 and len(nodes) > 2:  # drop the extrapolated nodes past the last observed slab
+        nodes.pop()
+        misses -= 1
+    return np.array(nodes)
+
+
+def estimate_centerline(xyz: np.ndarray, geometry: TubeGeometry, settings: CenterlineSettings,
+                        prior: Centerline | None = None) -> tuple[Centerline, int]:
+    """Fit the centreline to a cloud in the base frame; returns it and the number of iterations run.
+
+    The returned centreline runs from the base to just past the last slab with data; the tip is cut to
+    the observed end of the tube by the relocation (see relocation.observed_tip).
+    """
+    base, _, binormal_hint = base_pose(geometry)
+    step = settings.bin_length
+    if prior is None:
+        nodes = _march(xyz, geometry, settings)
+        centerline = Centerline.from_points(nodes, binormal_hint, step)
+    else:
+        centerline = prior
+    smoothing_steps = settings.smoothing_length / step
+    iterations = 0
+    for iterations in range(1, settings.max_iterations + 1):  # noqa: B007 - reported to the caller
+        coordinates = centerline.project(xyz)
+        near_tube = np.abs(coordinates.radius - geometry.outer_radius) < settings.gate
+        near_tube &= coordinates.s > -settings.gate
+        if np.count_nonzero(near_tube) < 16:
+            break
+        # the curve reaches as far as the tube is seen (it may grow past the previous end)
+        observed_end = float(np.sort(coordinates.s[near_tube])[-min(8, np.count_nonzero(near_tube))])
+        slabs = max(int(np.ceil(observed_end / step)) + 1, 2)
+        # each point feeds its two neighbouring nodes with linear (hat) weights, so the fit changes
+        # smoothly as points slide along s between iterations
+        position_in_steps = coordinates.s[near_tube] / step
+        lower = np.floor(position_in_steps).astype(np.intp)
+        share = position_in_steps - lower
+        slab = np.concatenate([lower, lower + 1])
+        weight = np.concatenate([1.0 - share, share])
+        keep = (slab >= 0) & (slab < slabs) & (weight > 0)
+        x = np.tile(coordinates.x[near_tube], 2)[keep]
+        y = np.tile(coordinates.y[near_tube], 2)[keep]
+        slab, weight = slab[keep], weight[keep]
+        centre, information_2d = fixed_radius_circle_fit(slab, x, y, slabs, geometry.outer_radius, settings.gate,
+                                                          point_weight=weight)
+        s_nodes = np.arange(slabs) * step
+        position, tangent, normal, binormal = centerline.frames_at(s_nodes)
+        basis = np.stack([normal, binormal], axis=2)                      # (M, 3, 2)
+        targets = position + np.einsum("mij,mj->mi", basis, centre)
+        information = np.einsum("mia,mab,mjb->mij", basis, information_2d, basis)
+        # slabs too thinly observed to place a circle are left to the smoothness prior
+        information[np.bincount(slab, weights=weight, minlength=slabs) < 6] = 0.0
+        updated = _smooth_update(position, tangent, targets, information, base, smoothing_steps)
+        previous = centerline
+        centerline = Centerline.from_points(updated, binormal_hint, step)
+        # the change of the curve's shape, not of its parametrisation: distance of the new samples from
+        # the previous curve, away from the tip where the extent itself may still move
+        settled = min(previous.length, centerline.length) - 2 * settings.smoothing_length - 3 * step
+        interior = centerline.points[centerline.s < settled]
+        moved = float(previous.project(interior).radius.max(initial=0.0))
+        if moved < settings.tolerance:
+            break
+    return centerline, iterations

@@ -1,0 +1,126 @@
+"""Fusion (paper Eq. 9): pair the cameras' frames by stamp, move each cloud into the base frame, concatenate.
+
+Public API:
+    CameraFrame    one camera's frame: a depth image + intrinsics (+ colour), or points in its optical frame
+    FramePair      the frames of one instant, by camera name; one camera alone is allowed
+    pair_frames(streams, slop_ns) -> list[FramePair]
+    fuse(pair, config) -> Cloud        # base frame, cropped to the configured box, camera index per point
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ntcr_recon.core.cloud import Cloud
+from ntcr_recon.core.config import RigConfig
+from ntcr_recon.core.deproject import Intrinsics, crop_window, depth_to_points
+from ntcr_recon.core.filters import crop_box_mask
+from ntcr_recon.core.transforms import transform_points
+
+
+@dataclass(frozen=True)
+class CameraFrame:
+    """One camera's data at one stamp. Either `depth` (+ `intrinsics`, optional RGB `color`, `depth_unit`
+    overriding the configured one, e.g. 1.0 for 32FC1 metres) or `points` (optical frame, + packed `rgb`)."""
+
+    camera: str
+    stamp_ns: int
+    depth: np.ndarray | None = None
+    intrinsics: Intrinsics | None = None
+    color: np.ndarray | None = None
+    depth_unit: float | None = None
+    points: np.ndarray | None = None
+    rgb: np.ndarray | None = None
+
+    def __post_init__(self):
+        if (self.depth is None) == (self.points is None):
+            raise ValueError(f"camera frame of {self.camera} needs either a depth image or points")
+        if self.depth is not None and self.intrinsics is None:
+            raise ValueError(f"depth frame of {self.camera} has no intrinsics (camera_info)")
+
+
+@dataclass(frozen=True)
+class FramePair:
+    stamp_ns: int
+    frames: dict[str, CameraFrame] = field(default_factory=dict)
+
+
+def pair_frames(streams: dict[str, list[CameraFrame]], slop_ns: int) -> list[FramePair]:
+    """Pair frames of several cameras whose stamps differ by at most slop_ns (approximate time).
+
+    The camera with most frames leads; each other camera contributes its nearest unused frame within the
+    slop. A frame of any camera left without partner becomes a one-camera pair, so nothing is lost when a
+    camera drops frames. Pairs come out in stamp order.
+    """
+    streams = {name: sorted(frames, key=lambda f: f.stamp_ns) for name, frames in streams.items() if frames}
+    if not streams:
+        return []
+    leader = max(streams, key=lambda name: len(streams[name]))
+    pairs = [{leader: frame} for frame in streams[leader]]
+    lead_stamps = np.array([f.stamp_ns for f in streams[leader]], dtype=np.int64)
+    unpaired: list[CameraFrame] = []
+    for name, frames in streams.items():
+        if name == leader:
+            continue
+        stamps = np.array([f.stamp_ns for f in frames], dtype=np.int64)
+        distance = np.abs(stamps[:, None] - lead_stamps[None, :])
+        taken = np.zeros(len(lead_stamps), dtype=bool)
+        used = np.zeros(len(stamps), dtype=bool)
+        # Closest matches first, so a frame never steals the partner of a better-matching one.
+        for flat in np.argsort(distance, axis=None):
+            i, j = divmod(int(flat), len(lead_stamps))
+            if distance[i, j] > slop_ns:
+                break
+            if not (taken[j] or used[i]):
+                pairs[j][name] = frames[i]
+                taken[j] = used[i] = True
+        unpaired.extend(frame for frame, was_used in zip(frames, used, strict=True) if not was_used)
+    result = [FramePair(min(f.stamp_ns for f in p.values()), p) for p in pairs]
+    result += [FramePair(f.stamp_ns, {f.camera: f}) for f in unpaired]
+    return sorted(result, key=lambda p: p.stamp_ns)
+
+
+def camera_cloud(frame: CameraFrame, config: RigConfig, box_min: np.ndarray, box_max: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray | None, float]:
+    """One camera's points in the base frame, cropped to the box, and the pixel footprint (m, 0 unknown)."""
+    camera = config.cameras[frame.camera]
+    extrinsic = camera.extrinsic
+    footprint = 0.0
+    if frame.depth is not None:
+        window = crop_window(frame.intrinsics, extrinsic, box_min, box_max)
+        if window is None:
+            return np.empty((0, 3)), None, 0.0
+        unit = camera.depth_unit if frame.depth_unit is None else frame.depth_unit
+        xyz, rgb = depth_to_points(frame.depth, frame.intrinsics, unit, frame.color, window)
+        if len(xyz):
+            footprint = float(np.median(xyz[:, 2])) / frame.intrinsics.fx
+    else:
+        xyz = np.asarray(frame.points, dtype=np.float64)
+        rgb = frame.rgb
+        finite = np.all(np.isfinite(xyz), axis=1)
+        xyz, rgb = xyz[finite], None if rgb is None else np.asarray(rgb)[finite]
+    xyz = transform_points(extrinsic, xyz)
+    inside = crop_box_mask(xyz, box_min, box_max)
+    return xyz[inside], None if rgb is None else rgb[inside], footprint
+
+
+def fuse(pair: FramePair, config: RigConfig) -> Cloud:
+    """Eq. 9 for every camera of the pair, concatenated; unknown camera names are refused."""
+    box_min, box_max = config.crop_box()
+    parts, colours, cameras, footprints = [], [], [], []
+    for name, frame in pair.frames.items():
+        if name not in config.cameras:
+            raise ValueError(f"frame from camera {name!r}, which the rig configuration does not list")
+        xyz, rgb, footprint = camera_cloud(frame, config, box_min, box_max)
+        parts.append(xyz)
+        colours.append(rgb)
+        cameras.append(np.full(len(xyz), config.camera_names.index(name), dtype=np.int8))
+        if footprint > 0:
+            footprints.append(footprint)
+    if not parts:
+        return Cloud(np.empty((0, 3)), None, np.empty(0, np.int8), pair.stamp_ns)
+    rgb = None if any(c is None for c in colours) else np.concatenate(colours)
+    return Cloud(np.concatenate(parts), rgb, np.concatenate(cameras), pair.stamp_ns,
+                 float(np.mean(footprints)) if footprints else 0.0)

@@ -1,0 +1,140 @@
+"""The reconstruction chain on a frame pair: one object the CLI, the benchmark and the ROS nodes all call.
+
+    reconstructor = Reconstructor(config)              # a RigConfig (core.config.load_rig_config)
+    result = reconstructor.process(frame_pair)          # fuse -> filter -> relocate (-> mesh if asked)
+
+Each stage is callable on its own, so each ROS node wraps one:
+
+    cloud = reconstructor.fuse(frame_pair)              # Cloud in the base frame (Eq. 9)
+    cloud = reconstructor.filter(cloud)                 # crop, colour, SOR, MLS, voxel (Sec. II-B)
+    relocation = reconstructor.relocate(cloud)          # centreline, notches, relocated cloud (Sec. IV)
+    mesh = reconstructor.mesh(relocation)               # Poisson mesh (Eq. 7-8), core.mesh.Mesh
+
+`relocate` warm-starts from the previous call's centreline (a still or slowly moving robot converges in
+one or two iterations); `reset()` forgets it. Several frames of a still robot are combined by relocating
+`Cloud.concatenate(filtered clouds)`. Every stage times itself into `timings_ms`.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ntcr_recon.core.centerline import Centerline, TubeCoordinates, estimate_centerline, settings_for
+from ntcr_recon.core.cloud import Cloud
+from ntcr_recon.core.config import RigConfig
+from ntcr_recon.core.filters import filter_cloud
+from ntcr_recon.core.fusion import FramePair, fuse
+from ntcr_recon.core.notches import Notch, detect_notches, observed_tip
+from ntcr_recon.core.relocation import RelocatedPoints, relocate_points
+
+
+class ReconstructionError(RuntimeError):
+    """A frame the chain cannot reconstruct (e.g. no robot points in it); the message says why."""
+
+
+@dataclass(frozen=True)
+class Relocation:
+    """What the relocation stage makes of one cloud."""
+
+    centerline: Centerline          # base to the observed tip
+    tip: np.ndarray                 # (3,) tip position, base frame
+    notches: list[Notch]
+    relocated: Cloud                # accepted points, moved onto the reference surface
+    normals: np.ndarray             # (A, 3) outward reference normals of the relocated points
+    rejected: int                   # points outside the gate
+    coordinates: TubeCoordinates    # tube coordinates of the input points (before relocation)
+    iterations: int                 # centreline iterations run
+
+
+@dataclass
+class FrameResult:
+    fused: Cloud
+    filtered: Cloud
+    relocation: Relocation
+    mesh: object | None = None
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+
+class Reconstructor:
+    def __init__(self, config: RigConfig):
+        self.config = config
+        self.geometry = config.robot
+        self._prior: Centerline | None = None
+        self.timings_ms: dict[str, float] = {}
+
+    def reset(self) -> None:
+        """Forget the previous centreline (the next relocation starts cold, from the base)."""
+        self._prior = None
+
+    def _timed(self, stage: str, start: float) -> None:
+        self.timings_ms[stage] = (time.perf_counter() - start) * 1e3
+
+    def fuse(self, pair: FramePair) -> Cloud:
+        start = time.perf_counter()
+        cloud = fuse(pair, self.config)
+        self._timed("fuse", start)
+        return cloud
+
+    def filter(self, cloud: Cloud) -> Cloud:
+        start = time.perf_counter()
+        cloud = filter_cloud(cloud, self.config)
+        self._timed("filter", start)
+        return cloud
+
+    def relocate(self, cloud: Cloud, warm_start: bool = True) -> Relocation:
+        """Centreline (fixed-radius fits + smoothing, iterated), notches, then relocation onto the reference."""
+        start = time.perf_counter()
+        geometry, settings_config = self.geometry, self.config.relocation
+        minimum = 32
+        if len(cloud) < minimum:
+            raise ReconstructionError(f"only {len(cloud)} points left after filtering (need {minimum}): is the "
+                                      "robot in view and inside the crop box?")
+        settings = settings_for(geometry, cloud.pixel_footprint, settings_config)
+        prior = self._prior if warm_start else None
+        centerline, iterations = estimate_centerline(cloud.xyz, geometry, settings, prior)
+        if centerline.length < 2 * settings.bin_length:
+            self._prior = None
+            raise ReconstructionError("no tube found along the robot's base axis: is the robot in view and the "
+                                      "base pose in the configuration right?")
+        coords = centerline.project(cloud.xyz)
+        footprint = cloud.pixel_footprint
+        tip_s = observed_tip(coords, geometry, settings.gate, footprint, settings_config.notch_kernel_px,
+                             centerline.length)
+        notches = detect_notches(coords, centerline, geometry, settings.gate, footprint,
+                                 settings_config.notch_kernel_px, settings_config.min_notch_width_fraction, tip_s)
+        moved: RelocatedPoints = relocate_points(coords, centerline, geometry, notches, tip_s, settings.gate)
+        tip = centerline.frames_at(np.array([tip_s]))[0][0]
+        relocated = cloud.subset(moved.accepted).with_points(moved.points)
+        self._prior = centerline
+        self._timed("relocate", start)
+        return Relocation(_cut(centerline, tip_s), tip, notches, relocated, moved.normals, moved.rejected, coords,
+                          iterations)
+
+    def mesh(self, relocation: Relocation):
+        from ntcr_recon.core.mesh import poisson_mesh  # open3d is imported only by who meshes
+
+        start = time.perf_counter()
+        mesh = poisson_mesh(relocation.relocated.xyz, relocation.normals, self.config.mesh)
+        self._timed("mesh", start)
+        return mesh
+
+    def process(self, pair: FramePair, with_mesh: bool = False) -> FrameResult:
+        """fuse -> filter -> relocate (-> mesh) on one frame pair."""
+        self.timings_ms = {}
+        fused = self.fuse(pair)
+        filtered = self.filter(fused)
+        relocation = self.relocate(filtered)
+        mesh = self.mesh(relocation) if with_mesh else None
+        return FrameResult(fused, filtered, relocation, mesh, dict(self.timings_ms))
+
+
+def _cut(centerline: Centerline, tip_s: float) -> Centerline:
+    """The centreline from the base to the tip (extended along the end tangent when the tip lies beyond)."""
+    step = float(centerline.s[1] - centerline.s[0]) if len(centerline.s) > 1 else tip_s
+    count = max(int(np.ceil(tip_s / step)), 1) + 1
+    s = np.linspace(0.0, tip_s, count)
+    position, tangent, normal, binormal = centerline.frames_at(s)
+    return Centerline(s, position, tangent, normal, binormal)

@@ -1,0 +1,131 @@
+"""Reference-guided relocation: every observed point within a gate of the reference surface moves onto it.
+
+The reference is the parametric NTCR swept along the estimated centreline: the outer wall (radius r_o) over
+[0, tip], and inside each detected notch the surfaces its cut exposes - the notch floor (the chord plane
+x = -d), the bore (r_i) and the spines' cut faces (the normal planes at the notch's ends) - plus the annular
+tip cap. Each point is moved to the nearest of the surfaces that exist at its arc length (for the walls:
+its radial projection at its arc length, which keeps s and the angle), unless that is farther than the
+gate: then it is rejected and counted. The reference normal of each relocated point is kept (outward from
+the material) for meshing.
+
+Public API:
+    relocate_points(coords, centerline, geometry, notches, tip_s, gate) -> RelocatedPoints
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ntcr_recon.core.centerline import Centerline, TubeCoordinates
+from ntcr_recon.core.notches import Notch
+from ntcr_recon.core.robot import (
+    PART_CUT_FACE,
+    PART_END_CAP,
+    PART_INNER_WALL,
+    PART_NOTCH_FLOOR,
+    PART_OUTER_WALL,
+    TubeGeometry,
+)
+
+
+@dataclass(frozen=True)
+class RelocatedPoints:
+    accepted: np.ndarray   # (N,) bool over the input points
+    points: np.ndarray     # (A, 3) relocated positions of the accepted points, base frame
+    normals: np.ndarray    # (A, 3) reference surface normals, outward
+    part: np.ndarray       # (A,) robot.PART_* of the surface each point went to
+    distance: np.ndarray   # (A,) how far each point moved
+
+    @property
+    def rejected(self) -> int:
+        return int(np.count_nonzero(~self.accepted))
+
+
+def relocate_points(coords: TubeCoordinates, centerline: Centerline, geometry: TubeGeometry,
+                    notches: list[Notch], tip_s: float, gate: float) -> RelocatedPoints:
+    """Move each point onto the nearest existing reference surface within `gate` (vectorised)."""
+    r_o, r_i, d = geometry.outer_radius, geometry.inner_radius, geometry.chord_offset
+    s, x, y = coords.s, coords.x, coords.y
+    radius = np.hypot(x, y)
+    angle = np.arctan2(y, x)
+    count = len(s)
+    # which detected notch (if any) each point's arc length falls in
+    starts = np.array([n.start_s for n in notches])
+    ends = np.array([n.end_s for n in notches])
+    if notches:
+        k = np.clip(np.searchsorted(starts, s, side="right") - 1, 0, len(notches) - 1)
+        in_notch = (s >= starts[k]) & (s <= ends[k])
+    else:
+        k = np.zeros(count, dtype=np.intp)
+        in_notch = np.zeros(count, dtype=bool)
+    in_cut = in_notch & (x > -d)          # where the cut removed material
+    along = np.clip(s, 0.0, tip_s)
+    inf = np.full(count, np.inf)
+
+    # candidate 1: outer wall, where it exists (not in a notch's open window, not beyond the ends)
+    outer_exists = ~(in_notch & (r_o * np.cos(angle) > -d))
+    outer_distance = np.where(outer_exists, np.hypot(radius - r_o, s - along), inf)
+    # candidate 2: bore, inside a notch where the cut exposes it (behind the floor)
+    bore_exists = in_notch & (r_i * np.cos(angle) < -d)
+    bore_distance = np.where(bore_exists, np.abs(radius - r_i), inf)
+    # candidate 3: notch floor, the chord x = -d between bore and outer wall
+    half_o = np.sqrt(max(r_o**2 - d**2, 0.0))
+    half_i = np.sqrt(max(r_i**2 - d**2, 0.0)) if abs(d) < r_i else 0.0
+    floor_y = np.sign(y) * np.clip(np.abs(y), half_i, half_o)
+    floor_distance = np.where(in_notch, np.hypot(x + d, y - floor_y), inf)
+    # candidate 4: the cut faces at the notch's ends (annulus part removed by the cut)
+    if notches:
+        to_start, to_end = s - starts[k], ends[k] - s
+        face_s = np.where(to_start < to_end, starts[k], ends[k])
+    else:
+        face_s = s
+    face_radius = np.clip(radius, r_i, r_o)
+    face_distance = np.where(in_cut, np.hypot(s - face_s, radius - face_radius), inf)
+    # candidate 5: the tip cap, for points beyond the tip
+    cap_distance = np.where(s > tip_s, np.hypot(s - tip_s, radius - np.clip(radius, r_i, r_o)), inf)
+
+    distances = np.stack([outer_distance, bore_distance, floor_distance, face_distance, cap_distance])
+    choice = np.argmin(distances, axis=0)
+    best = distances[choice, np.arange(count)]
+    accepted = best <= gate
+    choice, s, x, y, radius, angle = (a[accepted] for a in (choice, s, x, y, radius, angle))
+    floor_y, face_s, face_radius = floor_y[accepted], face_s[accepted], face_radius[accepted]
+    unit_x = np.cos(angle)
+    unit_y = np.sin(angle)
+    new_s = np.clip(s, 0.0, tip_s)
+    new_x = r_o * unit_x
+    new_y = r_o * unit_y
+    # local normal (x, y, along-tangent)
+    nx, ny, nt = unit_x.copy(), unit_y.copy(), np.zeros_like(s)
+    part = np.full(len(s), PART_OUTER_WALL, dtype=np.uint8)
+
+    bore = choice == 1
+    new_x[bore], new_y[bore] = r_i * unit_x[bore], r_i * unit_y[bore]
+    nx[bore], ny[bore] = -unit_x[bore], -unit_y[bore]
+    part[bore] = PART_INNER_WALL
+
+    floor = choice == 2
+    new_x[floor], new_y[floor] = -d, floor_y[floor]
+    nx[floor], ny[floor] = 1.0, 0.0
+    part[floor] = PART_NOTCH_FLOOR
+
+    face = choice == 3
+    new_s[face] = face_s[face]
+    new_x[face], new_y[face] = face_radius[face] * unit_x[face], face_radius[face] * unit_y[face]
+    nx[face], ny[face] = 0.0, 0.0
+    nt[face] = np.where(s[face] > face_s[face], -1.0, 1.0)  # cut faces look into the gap
+    part[face] = PART_CUT_FACE
+
+    cap = choice == 4
+    cap_radius = np.clip(radius[cap], r_i, r_o)
+    new_s[cap] = tip_s
+    new_x[cap], new_y[cap] = cap_radius * unit_x[cap], cap_radius * unit_y[cap]
+    nx[cap], ny[cap], nt[cap] = 0.0, 0.0, 1.0
+    part[cap] = PART_END_CAP
+
+    position, tangent, normal, binormal = centerline.frames_at(new_s)
+    points = position + new_x[:, None] * normal + new_y[:, None] * binormal
+    normals = nx[:, None] * normal + ny[:, None] * binormal + nt[:, None] * tangent
+    return RelocatedPoints(accepted, points, normals, part, best[accepted])
