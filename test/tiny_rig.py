@@ -133,3 +133,31 @@ def write_bag(path: Path, frames: int = 10, fps: float = 30.0, encoding: str = "
                     connection = connections[camera, kind]
                     writer.write(connection, stamp, TYPESTORE.serialize_cdr(msg, connection.msgtype))
     return path
+
+
+# ---- inputs for the stage nodes (rclpy messages) --------------------------------------------------------------
+
+MALFORMED = ("short_data", "no_z_field", "nan_only", "empty", "wrong_frame")
+
+
+def malformed_cloud(defect: str, frame_id: str, stamp_ns: int):
+    """A PointCloud2 with one defect; `frame_id` is the frame the node expects (wrong_frame uses another)."""
+    xyz = np.random.default_rng(0).uniform(-1e-3, 1e-3, size=(50, 3))
+    msg = cloud_to_msg(xyz, frame_id=frame_id, stamp_ns=stamp_ns)
+    if defect == "short_data":
+        msg.data = bytes(msg.data)[:100]
+    elif defect == "no_z_field":
+        msg.fields = [f for f in msg.fields if f.name != "z"]
+    elif defect == "nan_only":
+        msg = cloud_to_msg(np.full_like(xyz, np.nan), frame_id=frame_id, stamp_ns=stamp_ns)
+    elif defect == "empty":
+        msg = cloud_to_msg(np.empty((0, 3)), frame_id=frame_id, stamp_ns=stamp_ns)
+    elif defect == "wrong_frame":
+        msg.header.frame_id = "some_other_frame"
+    return msg
+
+
+# What a node logs for each defect.
+MALFORMED_LOG = {"short_data": "width*height*point_step", "no_z_field": "no field z",
+                 "wrong_frame": "in frame 'some_other_frame'", "nan_only": "no finite point",
+                 "empty": "empty cloud"}

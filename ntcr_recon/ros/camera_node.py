@@ -23,10 +23,11 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, PointCloud2
 
 from ntcr_recon.core.deproject import Intrinsics, crop_window, depth_to_points
-from ntcr_recon.ros.camera_sources import BagSource, SourceError, SourceFrame, camera_topic
+from ntcr_recon.ros.camera_sources import BagSource, SourceError, SourceFrame
 from ntcr_recon.ros.messages import header, stamp_msg
 from ntcr_recon.ros.node_support import SENSOR_QOS, ParameterError, RigNode, describe, run_node
 from ntcr_recon.ros.pointcloud import RCLPY, cloud_to_msg
+from ntcr_recon.ros.topics import camera_topic
 
 SOURCES = ("bag", "realsense", "file")
 

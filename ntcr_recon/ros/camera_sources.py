@@ -7,7 +7,6 @@ PointCloud2 whatever the source. No rclpy import here: the sources are tested wi
 Public API:
     SourceFrame
     image_to_array(msg) -> np.ndarray            # sensor_msgs/Image (either flavour) -> (H, W) or (H, W, 3)
-    camera_topic(topics, camera, kind) -> str    # absolute topic name
     BagSource(path, camera, topics, loop=False)  # iterate it for SourceFrames, stamps shifted on each loop
 """
 
@@ -24,6 +23,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from ntcr_recon.core.config import TopicConfig
 from ntcr_recon.core.deproject import Intrinsics
+from ntcr_recon.ros.topics import camera_topic
 
 
 class SourceError(RuntimeError):
@@ -69,11 +69,6 @@ def image_to_array(msg) -> np.ndarray:
     elif channels == 4:
         image = image[:, :, :3]
     return image[:, :, 0] if channels == 1 else np.ascontiguousarray(image)
-
-
-def camera_topic(topics: TopicConfig, camera: str, kind: str) -> str:
-    """The absolute topic name of `kind` ("depth", "depth_info", "color", "points") for `camera`."""
-    return "/" + topics.camera_topic(camera, kind).lstrip("/")
 
 
 def _stamp(msg) -> int:

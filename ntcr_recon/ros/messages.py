@@ -66,10 +66,26 @@ def stage_cloud_to_msg(cloud: Cloud, frame_id: str) -> PointCloud2:
     return base
 
 
-def stage_cloud_from_msg(msg: PointCloud2) -> Cloud:
-    """A stage cloud back as a Cloud; NaN points dropped. Any PointCloud2 with x, y, z is accepted (a cloud
-    without the `camera` / `pixel_footprint` fields gets none / 0)."""
+def input_cloud(msg: PointCloud2, expected_frame: str) -> tuple[np.ndarray, np.ndarray | None]:
+    """The finite points (and colours) of an input cloud; ValueError naming the defect for a cloud in another
+    frame than the configuration's, with broken layout, or without a single finite point."""
+    require_frame(msg, expected_frame)
     xyz, rgb = cloud_from_msg(msg, drop_nan=False)  # validates the layout and names what is wrong
+    if not len(xyz):
+        raise ValueError("empty cloud (0 points)")
+    finite = np.isfinite(xyz).all(axis=1)
+    if not finite.any():
+        raise ValueError(f"cloud has no finite point ({len(xyz)} points, all NaN or infinite)")
+    return (xyz, rgb) if finite.all() else (xyz[finite], None if rgb is None else rgb[finite])
+
+
+def stage_cloud_from_msg(msg: PointCloud2, expected_frame: str) -> Cloud:
+    """A stage cloud back as a Cloud (checked as `input_cloud` does; NaN points dropped). Any PointCloud2 with
+    x, y, z is accepted: a cloud without the `camera` / `pixel_footprint` fields gets none / 0."""
+    require_frame(msg, expected_frame)
+    xyz, rgb = cloud_from_msg(msg, drop_nan=False)
+    if not len(xyz):
+        raise ValueError("empty cloud (0 points)")
     fields = {field.name: field for field in msg.fields}
     camera, footprint = None, 0.0
     if all(name in fields and fields[name].datatype == FLOAT32 for name in _EXTRA_FIELDS) and len(xyz):
@@ -85,6 +101,8 @@ def stage_cloud_from_msg(msg: PointCloud2) -> Cloud:
         footprints = column("pixel_footprint")
         footprint = float(np.nanmax(footprints)) if np.isfinite(footprints).any() else 0.0
     finite = np.isfinite(xyz).all(axis=1)
+    if not finite.any():
+        raise ValueError(f"cloud has no finite point ({len(xyz)} points, all NaN or infinite)")
     cloud = Cloud(xyz, rgb, camera, stamp_to_ns(msg.header.stamp), footprint)
     return cloud if finite.all() else cloud.subset(finite)
 

@@ -1,0 +1,156 @@
+"""fusion_node: the cameras' clouds, paired by stamp -> `<ns>/fused/points` in the base frame (paper Eq. 9).
+
+Subscribes every configured camera's `<ns>/<cam>/depth/color/points` (sensor-data QoS; the cloud must carry
+the camera's configured frame_id) and `<ns>/<cam>/depth/camera_info` (its focal length gives the pixel
+footprint the later stages scale with). Pairing and fusion are the core's (`core.fusion.pair_frames` with
+`fusion.slop`, `core.fusion.fuse` with each camera's extrinsics); this node decides only when a buffered
+frame is released:
+  - as soon as every camera has a frame within the slop (a pair);
+  - alone, once no partner can come any more (the other camera has already sent a later frame), as the
+    offline command fuses an unpaired frame alone;
+  - alone, when the other camera is silent: its newest stamp lags the newest of all by more than
+    `fusion.camera_timeout`. Stamps, not the wall clock, measure the silence, so a bag replayed at any rate
+    (and `use_sim_time`) behaves like the live rig. The change is logged, and `/diagnostics` says which
+    camera is missing (WARN) until it returns (OK).
+Each camera's buffer holds at most `queue_size` frames (the oldest goes first): the node never blocks and
+never grows a queue without bound.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections import deque
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from sensor_msgs.msg import CameraInfo, PointCloud2
+
+from ntcr_recon.core.fusion import CameraFrame, FramePair, fuse, pair_frames
+from ntcr_recon.ros.messages import diagnostics, input_cloud, stage_cloud_to_msg
+from ntcr_recon.ros.node_support import SENSOR_QOS, STAGE_QOS, RigNode, describe, guarded, run_node
+from ntcr_recon.ros.pointcloud import stamp_to_ns
+from ntcr_recon.ros.topics import camera_topic, stage_topic
+
+PARAMETERS = {
+    "queue_size": (10, describe("frames buffered per camera while waiting for a partner", minimum=1, maximum=300,
+                                integer=True)),
+    "diagnostics_period": (1.0, describe("seconds between /diagnostics messages", minimum=0.05, maximum=60.0)),
+}
+DIAGNOSTIC_NAME = "ntcr_recon: fusion"
+
+
+class FusionNode(RigNode):
+    def __init__(self) -> None:
+        self._buffers: dict[str, deque] = {}
+        super().__init__("fusion_node", PARAMETERS)
+        self._newest: dict[str, int] = {}     # newest stamp received per camera
+        self._first_stamp: int | None = None  # the first stamp of any camera: a camera never heard of is
+        self._silent: set[str] = set()        # silent from then on
+        self._focal: dict[str, float] = {}
+        self.counts = {"pairs": 0, "alone": 0, "dropped": 0}
+        self._publisher = self.create_publisher(PointCloud2, stage_topic(self.rig.topics, "fused/points"), STAGE_QOS)
+        self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        for name in self.rig.camera_names:
+            self.create_subscription(PointCloud2, camera_topic(self.rig.topics, name, "points"),
+                                     lambda msg, name=name: self._on_cloud((name, msg)), SENSOR_QOS)
+            self.create_subscription(CameraInfo, camera_topic(self.rig.topics, name, "depth_info"),
+                                     lambda msg, name=name: self._on_info((name, msg)), SENSOR_QOS)
+        self.create_timer(self._params["diagnostics_period"], self._publish_diagnostics)
+        self.get_logger().info(f"fusing {', '.join(self.rig.camera_names)} within {self.rig.fusion.slop * 1e3:.1f} ms "
+                               f"into '{self.rig.base_frame}'")
+
+    def configure(self, rig, params: dict) -> None:
+        self.rig, self._params = rig, params
+        self._slop_ns = int(rig.fusion.slop * 1e9)
+        self._timeout_ns = int(rig.fusion.camera_timeout * 1e9)
+        for name in rig.camera_names:
+            old = self._buffers.get(name, ())
+            self._buffers[name] = deque(old, maxlen=int(params["queue_size"]))
+
+    @guarded
+    def _on_info(self, item) -> None:
+        name, msg = item
+        fx = float(msg.k[0])
+        if not fx > 0:
+            raise ValueError(f"camera_info of {name} has focal length {fx}")
+        self._focal[name] = fx
+
+    @guarded
+    def _on_cloud(self, item) -> None:
+        name, msg = item
+        xyz, rgb = input_cloud(msg, self.rig.cameras[name].frame_id)
+        stamp = stamp_to_ns(msg.header.stamp)
+        buffer = self._buffers[name]
+        if len(buffer) == buffer.maxlen:
+            self.counts["dropped"] += 1
+        buffer.append(CameraFrame(camera=name, stamp_ns=stamp, points=xyz, rgb=rgb))
+        self._newest[name] = max(stamp, self._newest.get(name, stamp))
+        self._first_stamp = stamp if self._first_stamp is None else self._first_stamp
+        self._update_silence()
+        self._release()
+
+    def _update_silence(self) -> None:
+        newest = max(self._newest.values())
+        silent = {name for name in self.rig.camera_names
+                  if newest - self._newest.get(name, self._first_stamp) > self._timeout_ns}
+        for name in sorted(silent - self._silent):
+            heard = sorted(set(self.rig.camera_names) - silent)
+            self.get_logger().warning(f"camera '{name}' silent for more than {self.rig.fusion.camera_timeout} s: "
+                                      f"publishing {', '.join(heard)} alone")
+        for name in sorted(self._silent - silent):
+            self.get_logger().info(f"camera '{name}' is back: pairing again")
+        changed = silent != self._silent
+        self._silent = silent
+        if changed:
+            self._publish_diagnostics()
+
+    def _release(self) -> None:
+        """Publish, in stamp order, every buffered pair that is complete or can no longer be completed."""
+        streams = {name: list(buffer) for name, buffer in self._buffers.items()}
+        for pair in pair_frames(streams, self._slop_ns):
+            missing = [name for name in self.rig.camera_names if name not in pair.frames]
+            # A missing camera that is alive and has not yet sent anything later than this pair may still do so.
+            if any(name not in self._silent and self._newest.get(name, -1) < pair.stamp_ns + self._slop_ns
+                   for name in missing):
+                break
+            self._publish(pair, alone=bool(missing))
+            for name, frame in pair.frames.items():  # by identity: frames hold arrays, == is no use
+                buffer = self._buffers[name]
+                kept = [f for f in buffer if f is not frame]
+                buffer.clear()
+                buffer.extend(kept)
+
+    def _publish(self, pair: FramePair, alone: bool) -> None:
+        cloud = fuse(pair, self.rig)
+        if cloud.pixel_footprint == 0:
+            cloud = dataclasses.replace(cloud, pixel_footprint=self._pixel_footprint(pair))
+        self._publisher.publish(stage_cloud_to_msg(cloud, self.rig.base_frame))
+        self.counts["alone" if alone else "pairs"] += 1
+
+    def _pixel_footprint(self, pair: FramePair) -> float:
+        """The size of one depth pixel on the robot (median depth / fx) from the cameras' own clouds, as the
+        core computes it from depth frames; 0 while no camera_info has come."""
+        footprints = [float(np.median(frame.points[:, 2])) / self._focal[name]
+                      for name, frame in pair.frames.items() if name in self._focal and len(frame.points)]
+        return float(np.mean(footprints)) if footprints else 0.0
+
+    def _publish_diagnostics(self) -> None:
+        if self._silent:
+            heard = [n for n in self.rig.camera_names if n not in self._silent]
+            level = DiagnosticStatus.WARN if heard else DiagnosticStatus.ERROR
+            message = (f"missing camera(s): {', '.join(sorted(self._silent))}; publishing "
+                       f"{', '.join(heard) or 'nothing'} alone")
+        elif not self._newest:
+            level, message = DiagnosticStatus.WARN, "no camera has sent a cloud yet"
+        else:
+            level, message = DiagnosticStatus.OK, f"pairing {', '.join(self.rig.camera_names)}"
+        newest = max(self._newest.values(), default=0)
+        values = {"missing": ",".join(sorted(self._silent)), **self.counts}
+        values.update({f"{name}.lag_s": f"{(newest - self._newest[name]) * 1e-9:.3f}" if name in self._newest
+                       else "never" for name in self.rig.camera_names})
+        self._diagnostics.publish(diagnostics(DIAGNOSTIC_NAME, "ntcr_recon/fusion_node", level, message, values,
+                                              self.get_clock().now().nanoseconds))
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(FusionNode, args)

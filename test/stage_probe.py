@@ -1,0 +1,44 @@
+"""Test-side helpers for one stage node: publish its input, collect its output, check it survives bad input."""
+
+from __future__ import annotations
+
+import tiny_rig
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import PointCloud2
+
+from ntcr_recon.ros.node_support import STAGE_QOS
+
+# Reliable like the stages' publishers, but deep enough that a slow test spin loses nothing.
+COLLECT_RELIABLE = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+
+
+class StageProbe:
+    """Publishes clouds on `input_topic` and collects what the node under test publishes on `output_topic`."""
+
+    def __init__(self, graph, process, input_topic: str, output_topic: str, output_type=PointCloud2,
+                 input_qos=STAGE_QOS, output_qos=COLLECT_RELIABLE) -> None:
+        self.graph, self.process = graph, process
+        self.received: list = []
+        graph.node.create_subscription(output_type, output_topic, self.received.append, output_qos)
+        self.publisher = graph.node.create_publisher(PointCloud2, input_topic, input_qos)
+        graph.wait_for_subscribers(self.publisher)
+
+    def send_and_wait(self, msg, timeout: float = 20.0) -> object:
+        """Publish `msg` (again every second: a best-effort input may drop it) until an output arrives."""
+        count = len(self.received)
+        for _ in range(int(timeout)):
+            self.publisher.publish(msg)
+            if self.graph.spin_until(lambda: len(self.received) > count, 1.0):
+                return self.received[-1]
+        raise AssertionError(f"no output within {timeout} s; logs:\n{self.graph.all_logs()}")
+
+    def assert_refuses(self, defect: str, frame_id: str, stamp_ns: int = 5_000) -> None:
+        """The malformed cloud is logged with its defect named, nothing is published, the node lives on."""
+        count = len(self.received)
+        log_before = len(self.graph.log_of(self.process))
+        self.publisher.publish(tiny_rig.malformed_cloud(defect, frame_id, stamp_ns))
+        expected = tiny_rig.MALFORMED_LOG[defect]
+        assert self.graph.spin_until(lambda: expected in self.graph.log_of(self.process)[log_before:], 10.0), \
+            self.graph.log_of(self.process)
+        assert self.process.poll() is None
+        assert len(self.received) == count

@@ -1,0 +1,126 @@
+"""fusion_node as its own process: pairs by stamp and fuses as the core does, survives malformed clouds,
+publishes one camera alone when the other falls silent (saying which on /diagnostics) and pairs again when it
+returns."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import tiny_rig
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from ros_graph import RosGraph
+from sensor_msgs.msg import CameraInfo, PointCloud2
+from stage_probe import COLLECT_RELIABLE, StageProbe
+
+from ntcr_recon.core.config import load_rig_config
+from ntcr_recon.core.deproject import depth_to_points
+from ntcr_recon.core.fusion import CameraFrame, FramePair, fuse
+from ntcr_recon.ros.messages import header, stage_cloud_from_msg
+from ntcr_recon.ros.node_support import SENSOR_QOS
+from ntcr_recon.ros.pointcloud import cloud_to_msg, stamp_to_ns
+
+PERIOD = 33_333_333
+
+
+def camera_points(camera: str, index: int):
+    return depth_to_points(tiny_rig.render_tube(camera), tiny_rig.INTRINSICS, 1.0, tiny_rig.frame_color(camera, index))
+
+
+def camera_msg(camera: str, stamp_ns: int, index: int = 0):
+    xyz, rgb = camera_points(camera, index)
+    return cloud_to_msg(xyz, rgb, frame_id=f"{camera}_optical_frame", stamp_ns=stamp_ns)
+
+
+@pytest.fixture(scope="module")
+def fusion(tmp_path_factory):
+    rig_path = tiny_rig.write_rig(tmp_path_factory.mktemp("fusion") / "rig.yaml",
+                                  fusion={"slop": 0.010, "camera_timeout": 0.3})
+    with RosGraph() as graph:
+        process = graph.start("fusion_node", "--params-file", str(rig_path))
+        probe = StageProbe(graph, process, "/ntcr/cam_a/depth/color/points", "/ntcr/fused/points",
+                           input_qos=SENSOR_QOS)
+        probe.publisher_b = graph.node.create_publisher(PointCloud2, "/ntcr/cam_b/depth/color/points", SENSOR_QOS)
+        infos = {c: graph.node.create_publisher(CameraInfo, f"/ntcr/{c}/depth/camera_info", SENSOR_QOS)
+                 for c in tiny_rig.CAMERAS}
+        probe.diagnostics = []
+        graph.node.create_subscription(DiagnosticArray, "/diagnostics", probe.diagnostics.append, COLLECT_RELIABLE)
+        graph.wait_for_subscribers(probe.publisher_b)
+        for camera, publisher in infos.items():
+            graph.wait_for_subscribers(publisher)
+            info = CameraInfo(header=header(f"{camera}_optical_frame", 0), width=tiny_rig.INTRINSICS.width,
+                              height=tiny_rig.INTRINSICS.height)
+            info.k = np.array([tiny_rig.INTRINSICS.fx, 0, tiny_rig.INTRINSICS.cx, 0, tiny_rig.INTRINSICS.fy,
+                               tiny_rig.INTRINSICS.cy, 0, 0, 1], float)
+            for _ in range(3):
+                publisher.publish(info)
+                graph.spin_until(lambda: False, 0.1)
+        probe.config = load_rig_config(rig_path)
+        yield probe
+
+
+def send_pair(probe, stamp_a: int | None, stamp_b: int | None, index: int = 0) -> None:
+    if stamp_a is not None:
+        probe.publisher.publish(camera_msg("cam_a", stamp_a, index))
+    if stamp_b is not None:
+        probe.publisher_b.publish(camera_msg("cam_b", stamp_b, index))
+    probe.graph.spin_until(lambda: False, 0.02)
+
+
+def test_a_pair_is_fused_as_the_core_fuses_it(fusion):
+    stamp_a, stamp_b = 10 * PERIOD, 10 * PERIOD + 4_000_000  # 4 ms apart: within the 10 ms slop
+    count = len(fusion.received)
+    for _ in range(20):
+        send_pair(fusion, stamp_a, stamp_b)
+        if fusion.graph.spin_until(lambda: any(stamp_to_ns(m.header.stamp) == stamp_a
+                                               for m in fusion.received[count:]), 0.5):
+            break
+    out = next(m for m in fusion.received[count:] if stamp_to_ns(m.header.stamp) == stamp_a)
+    frames = {}
+    for camera, stamp in (("cam_a", stamp_a), ("cam_b", stamp_b)):
+        xyz, rgb = camera_points(camera, 0)
+        frames[camera] = CameraFrame(camera, stamp, points=xyz.astype(np.float32), rgb=rgb)
+    expected = fuse(FramePair(stamp_a, frames), fusion.config)
+    cloud = stage_cloud_from_msg(out, "ntcr_base")
+    assert out.header.frame_id == "ntcr_base"
+    np.testing.assert_allclose(cloud.xyz, expected.xyz, atol=1e-6)
+    np.testing.assert_array_equal(cloud.rgb, expected.rgb)
+    np.testing.assert_array_equal(cloud.camera, expected.camera)
+    assert set(cloud.camera) == {0, 1}
+    # Pixel footprint: median depth / fx, as the core derives it from depth frames (~90 mm / 300 px).
+    assert cloud.pixel_footprint == pytest.approx(np.median(camera_points("cam_a", 0)[0][:, 2]) / 300.0, rel=1e-5)
+
+
+@pytest.mark.parametrize("defect", tiny_rig.MALFORMED)
+def test_malformed_cloud_is_logged_and_fusion_goes_on(fusion, defect):
+    fusion.assert_refuses(defect, "cam_a_optical_frame")
+    test_a_pair_is_fused_as_the_core_fuses_it(fusion)
+
+
+def test_one_camera_stopped_mid_stream_then_back(fusion):
+    graph, timeout_frames = fusion.graph, int(0.3 / (PERIOD * 1e-9)) + 1
+    start = 1000 * PERIOD
+    phases = [("both", 15), ("a_only", 3 * timeout_frames), ("both", 20)]
+    outputs_by_phase, stamp, index = {}, start, 0
+    for phase_number, (phase, frames) in enumerate(phases):
+        count, diag_count = len(fusion.received), len(fusion.diagnostics)
+        for _ in range(frames):
+            send_pair(fusion, stamp, stamp if phase == "both" else None, index)
+            stamp += PERIOD
+            index += 1
+        graph.spin_until(lambda: False, 0.3)
+        outputs_by_phase[phase_number] = ([stage_cloud_from_msg(m, "ntcr_base") for m in fusion.received[count:]],
+                                          fusion.diagnostics[diag_count:])
+    # While cam_b is silent, cam_a's clouds keep coming, alone (camera index 0 only).
+    alone, diagnostics = outputs_by_phase[1]
+    alone_clouds = [c for c in alone if set(np.unique(c.camera)) == {0}]
+    assert len(alone_clouds) >= timeout_frames, [set(np.unique(c.camera)) for c in alone]
+    statuses = [s for d in diagnostics for s in d.status]
+    warnings = [s for s in statuses if s.level == DiagnosticStatus.WARN]
+    assert warnings and "cam_b" in warnings[0].message and "cam_a" in warnings[0].message
+    assert any(kv.key == "missing" and kv.value == "cam_b" for kv in warnings[0].values)
+    assert "camera 'cam_b' silent" in graph.log_of(fusion.process)
+    # Back: pairs again, diagnostics OK, and the log says so.
+    back, diagnostics = outputs_by_phase[2]
+    assert sum(set(np.unique(c.camera)) == {0, 1} for c in back) >= 10
+    assert any(s.level == DiagnosticStatus.OK for d in diagnostics for s in d.status)
+    assert "camera 'cam_b' is back" in graph.log_of(fusion.process)
