@@ -1,0 +1,101 @@
+"""An Intel RealSense D405 as a pinhole camera, and the poses of the two cameras of the rig.
+
+Pixel convention (ROS / OpenCV): pixel (row v, column u) is centred on image coordinates (u, v); a point
+(x, y, z) of the optical frame (z forward, x right, y down) projects to u = fx x / z + cx, v = fy y / z + cy.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ntcr_recon.core.transforms import matrix_to_quaternion
+
+
+@dataclass(frozen=True)
+class D405Intrinsics:
+    """Depth stream of a D405 at 848x480 (the intrinsics of a real unit)."""
+
+    width: int = 848
+    height: int = 480
+    fx: float = 421.61
+    fy: float = 421.61
+    cx: float = 428.71
+    cy: float = 238.07
+    baseline: float = 0.018  # m, between the two imagers; the right imager sits at +x of the left one
+    depth_unit: float = 1e-4  # m per raw 16UC1 unit (the D405 default, 0.1 mm)
+    fps: float = 30.0
+    min_depth: float = 0.07  # m: nearer than this the disparity search range (848x480) is exceeded
+    max_depth: float = 0.5  # m: beyond this the D405 reports nothing useful
+
+    @property
+    def focal_baseline(self) -> float:
+        """f b in pixel metres: disparity (px) = f b / z."""
+        return self.fx * self.baseline
+
+    def matrix(self) -> np.ndarray:
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    def pixel_rays(self) -> np.ndarray:
+        """(H, W, 3) ray directions (x/z, y/z, 1) through the pixel centres: a point at depth z is z * ray."""
+        u = (np.arange(self.width) - self.cx) / self.fx
+        v = (np.arange(self.height) - self.cy) / self.fy
+        rays = np.empty((self.height, self.width, 3))
+        rays[..., 0] = u[None, :]
+        rays[..., 1] = v[:, None]
+        rays[..., 2] = 1.0
+        return rays
+
+
+@dataclass(frozen=True)
+class CameraPose:
+    """Pose of `<name>_optical_frame` in the base frame: p_base = rotation @ p_cam + translation."""
+
+    name: str
+    rotation: np.ndarray  # (3, 3)
+    translation: np.ndarray  # (3,)
+
+    @property
+    def frame_id(self) -> str:
+        return f"{self.name}_optical_frame"
+
+    @property
+    def quaternion(self) -> np.ndarray:
+        """(x, y, z, w)."""
+        return matrix_to_quaternion(self.rotation)
+
+    def to_camera(self, points_base: np.ndarray) -> np.ndarray:
+        return (np.asarray(points_base) - self.translation) @ self.rotation
+
+    def to_base(self, points_cam: np.ndarray) -> np.ndarray:
+        return np.asarray(points_cam) @ self.rotation.T + self.translation
+
+
+def facing_pair(distance: float, target=(0.010, 0.0, 0.022), names=("cam_a", "cam_b")) -> list[CameraPose]:
+    """Two cameras facing each other across the robot along the base frame's y axis.
+
+    Each optical axis passes through `target` (base frame) and the camera sits `distance` from it:
+    the first camera on the -y side looking along +y, the second on the +y side looking along -y. Both are
+    rolled so that the image's long side (848 px) runs along the robot's axis (base +z, base at the
+    left of the image), so a robot bending towards +x (the default notch side) is seen side-on.
+    """
+    if not distance > 0:
+        raise ValueError(f"camera distance must be > 0 m, got {distance}")
+    target = np.asarray(target, dtype=float)
+    ex, ey, ez = np.eye(3)
+    poses = []
+    for name, forward in zip(names, (ey, -ey), strict=True):
+        right = ez
+        down = np.cross(forward, right)  # right x down = forward: a right-handed optical frame
+        rotation = np.column_stack([right, down, forward])
+        poses.append(CameraPose(name, rotation, target - distance * forward))
+    return poses
+
+
+def deproject(depth_m: np.ndarray, intrinsics: D405Intrinsics) -> tuple[np.ndarray, np.ndarray]:
+    """Points (N, 3) in the optical frame of the valid (> 0, finite) pixels, and their flat pixel indices."""
+    depth = np.asarray(depth_m, dtype=float).ravel()
+    index = np.flatnonzero(np.isfinite(depth) & (depth > 0))
+    rays = intrinsics.pixel_rays().reshape(-1, 3)
+    return rays[index] * depth[index, None], index

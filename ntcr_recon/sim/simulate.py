@@ -1,0 +1,134 @@
+"""A simulated dual-D405 recording: the scene, its frames, the rig configuration and the ground truth.
+
+Public API:
+    Simulation(shape, camera_distance=0.09, ...)    # everything a scene needs; deterministic from `seed`
+    Simulation.frames(progress=False) -> iterator of bag.CameraFrame (camera by camera, frame by frame)
+    Simulation.rig_parameters() -> dict             # the ROS parameter file written as <bag>/rig.yaml
+    Simulation.truth() -> dict                      # the ground-truth document (<bag>/ground_truth.json)
+    Simulation.write_bag(out_dir, overwrite=False, progress=True) -> Path
+    notch_side_angle("side-on" | "facing" | degrees) -> radians
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from ntcr_recon.core.robot import TubeShape
+from ntcr_recon.sim.bag import BagContents, CameraFrame, write_rig_bag
+from ntcr_recon.sim.camera import CameraPose, D405Intrinsics, facing_pair
+from ntcr_recon.sim.scene import ExactFrame, RigProps, Scene
+from ntcr_recon.sim.stereo import StereoEmulation, emulate_depth
+from ntcr_recon.sim.truth import TRUTH_FILE, truth_document
+
+RIG_FILE = "rig.yaml"
+START_STAMP_NS = 1_767_225_600_000_000_000  # 2026-01-01T00:00:00Z: fixed, so a seed gives the same bag
+CAMERA_STAGGER_NS = 4_300_000  # no hardware sync: each further camera's frames come this much later
+STAMP_JITTER_NS = 300_000  # +- per frame, from the seed
+
+
+def notch_side_angle(value: str) -> float:
+    """The notch side in the robot base pose (radians) for the rig of `facing_pair`.
+
+    "side-on": the notches open towards +x, so the robot bends in the x-z plane, perpendicular to the
+    cameras' viewing axis (y); "facing": the notches face the first camera (at -y); a number: degrees.
+    """
+    if value == "side-on":
+        return 0.0
+    if value == "facing":
+        return -math.pi / 2
+    try:
+        return math.radians(float(value))
+    except ValueError:
+        raise ValueError(f"notch side must be 'side-on', 'facing' or an angle in degrees, got {value!r}") from None
+
+
+@dataclass
+class Simulation:
+    shape: TubeShape
+    scene_name: str = "scene"
+    camera_distance: float = 0.09
+    camera_names: tuple[str, ...] = ("cam_a", "cam_b")
+    namespace: str = "/ntcr"
+    base_frame: str = "ntcr_base"
+    frame_count: int = 3
+    seed: int = 1
+    emulation: StereoEmulation = field(default_factory=StereoEmulation)
+    color_noise: float = 1.0  # 8-bit levels, sigma of the colour imager's noise
+    with_points: bool = False
+    intrinsics: D405Intrinsics = field(default_factory=D405Intrinsics)
+    props: RigProps = field(default_factory=RigProps)
+
+    def __post_init__(self) -> None:
+        if self.frame_count < 1:
+            raise ValueError(f"frames must be >= 1, got {self.frame_count}")
+        if len(self.camera_names) != 2 or len(set(self.camera_names)) != 2 or not all(self.camera_names):
+            raise ValueError(f"the rig has two cameras with distinct names, got {self.camera_names}")
+        if self.color_noise < 0:
+            raise ValueError(f"colour noise must be >= 0, got {self.color_noise}")
+        self.emulation.validate()
+        self.cameras: list[CameraPose] = facing_pair(self.camera_distance, names=self.camera_names)
+        self.scene = Scene(self.shape, self.cameras, self.intrinsics, self.props)
+
+    @cached_property
+    def exact(self) -> dict[str, ExactFrame]:
+        """The artefact-free rendering of each camera (the scene is static)."""
+        return {camera.name: self.scene.render_exact(camera) for camera in self.cameras}
+
+    def frames(self, progress: bool = False) -> Iterator[CameraFrame]:
+        from tqdm import tqdm
+
+        period_ns = round(1e9 / self.intrinsics.fps)
+        steps = [(k, i) for k in range(self.frame_count) for i in range(len(self.cameras))]
+        for k, i in tqdm(steps, desc=f"rendering {self.scene_name}", unit="frame", disable=not progress):
+            camera = self.cameras[i]
+            exact = self.exact[camera.name]
+            rng = np.random.default_rng([self.seed, i, k])  # independent per camera and frame
+            jitter = int(rng.integers(-STAMP_JITTER_NS, STAMP_JITTER_NS + 1))
+            stamp = START_STAMP_NS + k * period_ns + i * CAMERA_STAGGER_NS + jitter
+            depth = emulate_depth(exact.depth, exact.normal, self.intrinsics, self.emulation, rng)
+            color = exact.color
+            if self.color_noise > 0:
+                noisy = exact.color + rng.normal(0.0, self.color_noise, exact.color.shape)
+                color = np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
+            yield CameraFrame(camera, stamp, depth, color)
+
+    def rig_parameters(self) -> dict:
+        """The rig configuration (ROS 2 parameter file) of this scene: cameras, topics and robot."""
+        parameters: dict = {"base_frame": self.base_frame, "camera_names": list(self.camera_names),
+                            "topics": {"namespace": self.namespace}}
+        for camera in self.cameras:
+            parameters[camera.name] = {
+                "serial_number": "", "width": self.intrinsics.width, "height": self.intrinsics.height,
+                "fps": self.intrinsics.fps, "depth_unit": self.intrinsics.depth_unit, "frame_id": camera.frame_id,
+                "translation": [float(v) for v in camera.translation],
+                "rotation": [float(v) for v in camera.quaternion]}
+        robot = self.shape.geometry.to_dict()
+        robot["notch_depth"] = self.shape.geometry.cut_depth  # ROS parameters have no null
+        parameters["robot"] = robot
+        return {"/**": {"ros__parameters": parameters}}
+
+    def truth(self) -> dict:
+        extra = {"emulation": {**self.emulation.to_dict(), "color_noise": self.color_noise,
+                               "baseline": self.intrinsics.baseline, "min_depth": self.intrinsics.min_depth,
+                               "max_depth": self.intrinsics.max_depth},
+                 "camera_distance_m": self.camera_distance, "frames": self.frame_count,
+                 "namespace": self.namespace}
+        return truth_document(self.shape, self.cameras, self.intrinsics, self.scene_name, self.seed,
+                              self.base_frame, extra)
+
+    def write_bag(self, out_dir: str | Path, overwrite: bool = False, progress: bool = True) -> Path:
+        import json
+
+        header = (f"# Rig configuration of the simulated scene '{self.scene_name}' (written by ntcr-recon simulate).\n"
+                  "# Camera poses are exact; stage sections (fusion, filters, ...) take their defaults.\n")
+        rig_text = header + yaml.safe_dump(self.rig_parameters(), sort_keys=False, default_flow_style=None)
+        files = {TRUTH_FILE: json.dumps(self.truth(), indent=1) + "\n", RIG_FILE: rig_text}
+        contents = BagContents(self.namespace, self.intrinsics, self.frames(progress), self.with_points)
+        return write_rig_bag(out_dir, contents, files, overwrite=overwrite)
