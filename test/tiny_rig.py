@@ -161,3 +161,30 @@ def malformed_cloud(defect: str, frame_id: str, stamp_ns: int):
 MALFORMED_LOG = {"short_data": "width*height*point_step", "no_z_field": "no field z",
                  "wrong_frame": "in frame 'some_other_frame'", "nan_only": "no finite point",
                  "empty": "empty cloud"}
+
+
+# ---- a realistic scene from the simulator, made once per test session -----------------------------------------
+
+def simulated_bag(tmp_path_factory, frames: int = 2, bend_deg: float = 45.0) -> Path:
+    """A bag of the simulated rig (848x480 D405 frames of a bent NTCR, ground truth and rig.yaml beside it),
+    written once per session and shared by the test modules that need realistic frames."""
+    import subprocess
+    import sys
+
+    path = tmp_path_factory.getbasetemp() / f"sim_bend{bend_deg:g}_{frames}"
+    if not (path / "metadata.yaml").exists():
+        subprocess.run([str(Path(sys.executable).parent / "ntcr-recon"), "simulate", str(path), "--bend-deg",
+                        str(bend_deg), "--frames", str(frames), "--no-progress", "--overwrite"],
+                       check=True, capture_output=True, timeout=120)
+    return path
+
+
+def bag_frame_pairs(bag: Path, config) -> list:
+    """The bag's frame pairs as the core pairs them (depth frames through camera_node's bag reader)."""
+    from ntcr_recon.core.fusion import CameraFrame, pair_frames
+    from ntcr_recon.ros.camera_sources import BagSource
+
+    streams = {camera: [CameraFrame(camera, f.stamp_ns, depth=f.depth, intrinsics=f.intrinsics, color=f.color,
+                                    depth_unit=f.depth_unit) for f in BagSource(bag, camera, config.topics)]
+               for camera in config.camera_names}
+    return pair_frames(streams, int(config.fusion.slop * 1e9))

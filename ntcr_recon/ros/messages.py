@@ -4,7 +4,9 @@ Stage clouds (`<ns>/fused/points`, `<ns>/filtered/points`, `<ns>/relocated/point
 x, y, z, rgb float32 as DESIGN.md fixes, plus two fields a later stage needs to compute what the offline
 command computes on the same frames: `camera` (float32, the index of the camera in the rig's camera_names that
 saw the point) and `pixel_footprint` (float32, metres; the size of one depth pixel on the robot, the same for
-every point of a cloud, 0 when unknown). Readers that know only x, y, z (and rgb) are unaffected.
+every point of a cloud, 0 when unknown); the relocated cloud also carries `normal_x`, `normal_y`, `normal_z`
+(float32, the outward normal of the reference surface, which the mesh stage orients its surface by).
+Readers that know only x, y, z (and rgb) are unaffected.
 
 Notches as `std_msgs/Float64MultiArray` (`<ns>/notches`), readable without this package:
     layout.dim[0] = {label: "notch", size: N, stride: 4 * N}
@@ -34,6 +36,7 @@ from ntcr_recon.ros.pointcloud import FLOAT32, RCLPY, cloud_from_msg, cloud_to_m
 
 NOTCH_LAYOUT_LABEL = "index,center_s_m,width_m,bend_rad"
 _EXTRA_FIELDS = ("camera", "pixel_footprint")
+_NORMAL_FIELDS = ("normal_x", "normal_y", "normal_z")
 
 
 def stamp_msg(stamp_ns: int) -> Time:
@@ -47,20 +50,24 @@ def header(frame_id: str, stamp_ns: int) -> Header:
 
 # ---- stage clouds ---------------------------------------------------------------------------------------------
 
-def stage_cloud_to_msg(cloud: Cloud, frame_id: str) -> PointCloud2:
-    """A Cloud as a PointCloud2: x, y, z, rgb, then `camera` and `pixel_footprint` (see the module doc)."""
-    base = cloud_to_msg(cloud.xyz, cloud.rgb if cloud.rgb is not None else np.zeros(len(cloud), np.uint32),
-                        frame_id=frame_id, stamp_ns=cloud.stamp_ns, msgtypes=RCLPY)
+def stage_cloud_to_msg(cloud: Cloud, frame_id: str, normals: np.ndarray | None = None) -> PointCloud2:
+    """A Cloud as a PointCloud2: x, y, z, rgb, `camera`, `pixel_footprint` and, when given, `normal_x`,
+    `normal_y`, `normal_z` (the PCL / RViz names) of the reference surface (see the module doc)."""
     count = len(cloud)
-    extra = np.empty((count, 2), dtype="<f4")
+    rgb = cloud.rgb if cloud.rgb is not None else np.zeros(count, np.uint32)
+    base = cloud_to_msg(cloud.xyz, rgb, frame_id=frame_id, stamp_ns=cloud.stamp_ns, msgtypes=RCLPY)
+    names = _EXTRA_FIELDS + (_NORMAL_FIELDS if normals is not None else ())
+    extra = np.empty((count, len(names)), dtype="<f4")
     extra[:, 0] = cloud.camera if cloud.camera is not None else -1
     extra[:, 1] = cloud.pixel_footprint
+    if normals is not None:
+        extra[:, 2:] = normals
     points = np.frombuffer(bytes(base.data), dtype=np.uint8).reshape(count, base.point_step)
-    data = np.concatenate([points, extra.view(np.uint8).reshape(count, 8)], axis=1)
+    data = np.concatenate([points, extra.view(np.uint8).reshape(count, 4 * len(names))], axis=1)
     offset = base.point_step
     base.fields = list(base.fields) + [PointField(name=name, offset=offset + 4 * i, datatype=FLOAT32, count=1)
-                                       for i, name in enumerate(_EXTRA_FIELDS)]
-    base.point_step = offset + 8
+                                       for i, name in enumerate(names)]
+    base.point_step = offset + 4 * len(names)
     base.row_step = base.point_step * count
     base.data = data.tobytes()
     return base
@@ -82,29 +89,37 @@ def input_cloud(msg: PointCloud2, expected_frame: str) -> tuple[np.ndarray, np.n
 def stage_cloud_from_msg(msg: PointCloud2, expected_frame: str) -> Cloud:
     """A stage cloud back as a Cloud (checked as `input_cloud` does; NaN points dropped). Any PointCloud2 with
     x, y, z is accepted: a cloud without the `camera` / `pixel_footprint` fields gets none / 0."""
+    return stage_cloud_and_normals(msg, expected_frame)[0]
+
+
+def stage_cloud_and_normals(msg: PointCloud2, expected_frame: str) -> tuple[Cloud, np.ndarray | None]:
+    """`stage_cloud_from_msg` plus the (N, 3) normals when the cloud carries normal_x/y/z, else None."""
     require_frame(msg, expected_frame)
     xyz, rgb = cloud_from_msg(msg, drop_nan=False)
     if not len(xyz):
         raise ValueError("empty cloud (0 points)")
-    fields = {field.name: field for field in msg.fields}
-    camera, footprint = None, 0.0
-    if all(name in fields and fields[name].datatype == FLOAT32 for name in _EXTRA_FIELDS) and len(xyz):
-        rows = np.frombuffer(msg.data, dtype=np.uint8)[: len(xyz) * msg.point_step].reshape(len(xyz), -1)
-        order = ">" if msg.is_bigendian else "<"
-
-        def column(name: str) -> np.ndarray:
-            offset = fields[name].offset
-            return rows[:, offset:offset + 4].copy().view(f"{order}f4").reshape(-1)
-
-        camera_values = column("camera")
-        camera = camera_values.astype(np.int8) if np.all(camera_values >= 0) else None
-        footprints = column("pixel_footprint")
-        footprint = float(np.nanmax(footprints)) if np.isfinite(footprints).any() else 0.0
     finite = np.isfinite(xyz).all(axis=1)
     if not finite.any():
         raise ValueError(f"cloud has no finite point ({len(xyz)} points, all NaN or infinite)")
+    camera_values = _float_field(msg, "camera", len(xyz))
+    camera = camera_values.astype(np.int8) if camera_values is not None and np.all(camera_values >= 0) else None
+    footprints = _float_field(msg, "pixel_footprint", len(xyz))
+    footprint = float(np.nanmax(footprints)) if footprints is not None and np.isfinite(footprints).any() else 0.0
+    normal_columns = [_float_field(msg, name, len(xyz)) for name in _NORMAL_FIELDS]
+    normals = None if any(c is None for c in normal_columns) else np.stack(normal_columns, axis=1).astype(float)
     cloud = Cloud(xyz, rgb, camera, stamp_to_ns(msg.header.stamp), footprint)
-    return cloud if finite.all() else cloud.subset(finite)
+    if finite.all():
+        return cloud, normals
+    return cloud.subset(finite), None if normals is None else normals[finite]
+
+
+def _float_field(msg: PointCloud2, name: str, count: int) -> np.ndarray | None:
+    """One float32 field of every point (layout already checked by cloud_from_msg), or None when absent."""
+    field = next((f for f in msg.fields if f.name == name and f.datatype == FLOAT32), None)
+    if field is None or field.offset + 4 > msg.point_step or msg.row_step != msg.width * msg.point_step:
+        return None
+    rows = np.frombuffer(msg.data, dtype=np.uint8)[: count * msg.point_step].reshape(count, msg.point_step)
+    return rows[:, field.offset:field.offset + 4].copy().view(">f4" if msg.is_bigendian else "<f4").reshape(-1)
 
 
 def require_frame(msg, expected: str) -> None:

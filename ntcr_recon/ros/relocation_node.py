@@ -1,0 +1,81 @@
+"""relocation_node: `<ns>/filtered/points` -> the reconstructed robot (the core's reference-guided relocation).
+
+Publishes (reliable, depth 1; all in the base frame, stamped with the input cloud's stamp):
+  `<ns>/relocated/points`   PointCloud2: the accepted points moved onto the reference surface, with the
+                            surface's outward normals (normal_x/y/z) for the mesh stage
+  `<ns>/centerline`         nav_msgs/Path, base to tip; each pose's x axis points to the notch side, z along
+                            the tangent (the robot kinematics' convention)
+  `<ns>/tip`                geometry_msgs/PoseStamped, same axes
+  `<ns>/notches`            std_msgs/Float64MultiArray, rows [index, center_s_m, width_m, bend_rad] (layout in
+                            ntcr_recon.ros.messages; readable without this package)
+  `<ns>/notches/markers`    visualization_msgs/MarkerArray for RViz (a disc per notch, its width in mm)
+The relocation warm-starts from the previous frame's centreline, as the offline command does over a bag.
+A cloud the core cannot reconstruct (too few points, no tube along the base axis) is logged and skipped.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import Path
+from sensor_msgs.msg import PointCloud2
+from std_msgs.msg import Float64MultiArray
+from visualization_msgs.msg import MarkerArray
+
+from ntcr_recon.core.pipeline import ReconstructionError, Reconstructor
+from ntcr_recon.ros.messages import (
+    notch_markers,
+    notches_array,
+    path_msg,
+    pose_stamped,
+    stage_cloud_from_msg,
+    stage_cloud_to_msg,
+)
+from ntcr_recon.ros.node_support import STAGE_QOS, RigNode, guarded, run_node
+from ntcr_recon.ros.topics import stage_topic
+
+
+def frame_rotations(normals: np.ndarray, binormals: np.ndarray, tangents: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) rotations whose columns are x = normal (notch side), y = binormal, z = tangent."""
+    return np.stack([normals, binormals, tangents], axis=-1)
+
+
+class RelocationNode(RigNode):
+    def __init__(self) -> None:
+        super().__init__("relocation_node", {})
+        topic = self.rig.topics
+        self._cloud = self.create_publisher(PointCloud2, stage_topic(topic, "relocated/points"), STAGE_QOS)
+        self._path = self.create_publisher(Path, stage_topic(topic, "centerline"), STAGE_QOS)
+        self._tip = self.create_publisher(PoseStamped, stage_topic(topic, "tip"), STAGE_QOS)
+        self._notches = self.create_publisher(Float64MultiArray, stage_topic(topic, "notches"), STAGE_QOS)
+        self._markers = self.create_publisher(MarkerArray, stage_topic(topic, "notches/markers"), STAGE_QOS)
+        self.create_subscription(PointCloud2, stage_topic(topic, "filtered/points"), self._on_cloud, STAGE_QOS)
+        self.get_logger().info("relocating filtered clouds onto the reference robot")
+
+    def configure(self, rig, params: dict) -> None:
+        self.rig, self._reconstructor = rig, Reconstructor(rig)
+
+    @guarded
+    def _on_cloud(self, msg: PointCloud2) -> None:
+        cloud = stage_cloud_from_msg(msg, self.rig.base_frame)
+        try:
+            relocation = self._reconstructor.relocate(cloud)
+        except ReconstructionError as error:
+            raise ValueError(f"cannot reconstruct the cloud of {len(cloud)} points: {error}") from error
+        frame, stamp = self.rig.base_frame, cloud.stamp_ns
+        centerline = relocation.centerline
+        rotations = frame_rotations(centerline.normals, centerline.binormals, centerline.tangents)
+        self._cloud.publish(stage_cloud_to_msg(relocation.relocated, frame, relocation.normals))
+        self._path.publish(path_msg(centerline.points, rotations, frame, stamp))
+        self._tip.publish(pose_stamped(relocation.tip, rotations[-1], frame, stamp))
+        notches = [{"index": n.index, "center_s": n.center_s, "width": n.width, "bend": n.bend}
+                   for n in relocation.notches]
+        self._notches.publish(notches_array(notches))
+        centres = np.array([n.center_s for n in relocation.notches], dtype=float)
+        position, tangent, normal, binormal = centerline.frames_at(centres)
+        self._markers.publish(notch_markers(notches, position, frame_rotations(normal, binormal, tangent),
+                                            self.rig.robot.outer_radius, frame, stamp))
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(RelocationNode, args)
