@@ -32,10 +32,8 @@ COLOR_TABLE = np.array([70.0, 110.0, 75.0])  # green cutting mat
 COLOR_BACKDROP = np.array([45.0, 75.0, 140.0])  # blue backdrop wall
 COLOR_CAMERA_BODY = np.array([38.0, 38.0, 42.0])  # the opposite D405's dark housing
 
-# A pixel's ray hits the sampled surface where it passes this close (in sample spacings) to a sample.
-_SAMPLE_REACH = 0.75
-# The first crossing of a surface by a ray: the samples near the ray this far behind the nearest one.
-_FRONT_LAYER = 0.3e-3
+# Radius of the disc each surface sample stands for, in sample spacings (>= 1/sqrt(2) covers the surface).
+_SURFEL_RADIUS = 0.8
 
 
 @dataclass(frozen=True)
@@ -56,6 +54,7 @@ class ExactFrame:
     normal: np.ndarray  # (H, W, 3) unit surface normal in the optical frame, facing the camera
     label: np.ndarray  # (H, W) uint8 LABEL_*
     color: np.ndarray  # (H, W, 3) uint8 RGB, aligned with depth (the D405 colours from the same imager)
+    robot_part: np.ndarray  # (H, W) uint8 PART_* of the robot's surface seen, 255 where not the robot
 
 
 class Scene:
@@ -98,8 +97,9 @@ class Scene:
         normal[flip] *= -1
         color = self._shade(rays, normal, label, robot_part)
         shape2 = (intr.height, intr.width)
+        robot_part[~nearer] = 255
         return ExactFrame(depth.reshape(shape2), normal.reshape(*shape2, 3), label.reshape(shape2),
-                          color.reshape(*shape2, 3))
+                          color.reshape(*shape2, 3), robot_part.reshape(shape2))
 
     def _cast_props(self, camera: CameraPose, rays_cam, depth, normal, label) -> None:
         """Analytic ray casting of the post, table, backdrop and the other cameras' bodies."""
@@ -173,38 +173,26 @@ class Scene:
         inside = in_front & (column >= 0) & (column < intr.width) & (row >= 0) & (row < intr.height)
         candidates = np.flatnonzero(inside)
         pixel = row[candidates] * intr.width + column[candidates]
-        # A pixel's ray meets the surface where it passes within reach of a sample: any surface point
-        # is within spacing / sqrt(2) of a sample of a grid of step `spacing`.
+        # Ray casting against surfels: each sample stands for a disc of radius _SURFEL_RADIUS spacings in
+        # its tangent plane (any surface point is within spacing / sqrt(2) of a sample of a grid of step
+        # `spacing`, so the discs cover the surface). A pixel's depth is its ray's nearest disc hit.
         ray = rays_cam[pixel]
-        ray_unit = ray / np.linalg.norm(ray, axis=1, keepdims=True)
         q = points[candidates]
-        along = np.einsum("ij,ij->i", q, ray_unit)
+        ray_norm = np.linalg.norm(ray, axis=1)
+        along = np.einsum("ij,ij->i", q, ray) / ray_norm
         off_ray = np.sqrt(np.maximum(np.einsum("ij,ij->i", q, q) - along**2, 0.0))
-        near = off_ray <= _SAMPLE_REACH * self.surface_spacing
-        candidates, pixel, ray = candidates[near], pixel[near], ray[near]
-        # the ray's first crossing of the surface: the samples near the ray within a thin layer behind
-        # the nearest one (a grazing ray runs along the surface for a while)
-        order = np.lexsort((z[candidates], pixel))
-        pixel_sorted = pixel[order]
-        group_start = np.flatnonzero(np.r_[True, pixel_sorted[1:] != pixel_sorted[:-1]]) if order.size else order
-        first_z = np.repeat(z[candidates[order[group_start]]], np.diff(np.r_[group_start, order.size]))
-        layer = order[z[candidates[order]] <= first_z + _FRONT_LAYER]
-        candidates, pixel, ray = candidates[layer], pixel[layer], ray[layer]
-        # each sample's tangent plane meets the ray somewhere; the sample where that is (nearly) the
-        # sample itself sits on the true hit, and its plane gives the depth without the sampling step
+        radius = _SURFEL_RADIUS * self.surface_spacing
+        near = off_ray <= radius
+        candidates, pixel, ray, q = candidates[near], pixel[near], ray[near], q[near]
         n = normals[candidates]
-        q = points[candidates]
         with np.errstate(divide="ignore", invalid="ignore"):
             z_plane = np.einsum("ij,ij->i", n, q) / np.einsum("ij,ij->i", n, ray)
-        ray_norm = np.linalg.norm(ray, axis=1)
-        z_closest = np.einsum("ij,ij->i", q, ray) / ray_norm**2
-        plane_offset = np.where(np.isfinite(z_plane), np.abs(z_plane - z_closest) * ray_norm, np.inf)
-        consistent = plane_offset <= 0.5 * self.surface_spacing
-        key = np.where(consistent, z_plane, 1.0 + plane_offset)
-        order = np.lexsort((key, pixel))
+            hit_offset = np.linalg.norm(z_plane[:, None] * ray - q, axis=1)
+        hits = np.isfinite(z_plane) & (z_plane > 0) & (hit_offset <= radius)
+        candidates, pixel, z_plane = candidates[hits], pixel[hits], z_plane[hits]
+        order = np.lexsort((z_plane, pixel))
         first = order[np.r_[True, pixel[order][1:] != pixel[order][:-1]]] if order.size else order
-        best, pix = candidates[first], pixel[first]
-        hit_depth = np.where(plane_offset[first] <= 2 * self.surface_spacing, z_plane[first], z_closest[first])
+        best, pix, hit_depth = candidates[first], pixel[first], z_plane[first]
         n = normals[best]
         depth = np.full(count, np.inf)
         normal = np.zeros((count, 3))
