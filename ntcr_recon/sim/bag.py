@@ -103,7 +103,7 @@ def _frame_messages(frame: CameraFrame, contents: BagContents):
     if contents.with_points:
         pinhole = Intrinsics(intrinsics.width, intrinsics.height, intrinsics.fx, intrinsics.fy, intrinsics.cx,
                              intrinsics.cy)
-        xyz, rgb = depth_to_points(frame.depth_raw, pinhole, intrinsics.depth_unit, color=frame.color)
+        xyz, rgb, *_ = depth_to_points(frame.depth_raw, pinhole, intrinsics.depth_unit, color=frame.color)
         yield "points", cloud_to_msg(xyz.astype(np.float32), rgb, frame_id=frame_id, stamp_ns=stamp,
                                      msgtypes=ROSBAGS)
 

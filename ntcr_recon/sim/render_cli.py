@@ -54,7 +54,7 @@ def render_bag(bag: Path, out: Path, config_path: Path | None = None, frame_inde
         frame = _frame(bag, name, config.topics, frame_index)
         unit = frame.depth_unit or camera.depth_unit
         depth_m = frame.depth.astype(np.float64) * unit
-        xyz, _ = depth_to_points(frame.depth, frame.intrinsics, unit,
+        xyz, *_ = depth_to_points(frame.depth, frame.intrinsics, unit,
                                  window=crop_window(frame.intrinsics, camera.extrinsic, box_min, box_max))
         points = transform_points(camera.extrinsic, xyz)
         inside = np.all((points >= box_min) & (points <= box_max), axis=1)

@@ -1,0 +1,141 @@
+"""A bag written by the simulator reads back, with rosbags and with the mcap reader, as it was written."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from rosbags.highlevel import AnyReader
+from rosbags.typesys import Stores, get_typestore
+
+from ntcr_recon import cli
+from ntcr_recon.core.config import load_rig_config
+from ntcr_recon.core.robot import TubeGeometry, TubeShape
+from ntcr_recon.ros.pointcloud import cloud_from_msg
+from ntcr_recon.sim.bag import TOPIC_KINDS, topic_name
+from ntcr_recon.sim.simulate import Simulation
+from ntcr_recon.sim.truth import load_truth
+
+FRAMES = 2
+
+
+@pytest.fixture(scope="module")
+def written(tmp_path_factory):
+    shape = TubeShape.from_bend_angle(TubeGeometry(), math.radians(30))
+    simulation = Simulation(shape, scene_name="unit", frame_count=FRAMES, seed=7, with_points=True,
+                            namespace="/rig", camera_names=("left_cam", "right_cam"))
+    path = simulation.write_bag(tmp_path_factory.mktemp("bags") / "unit", progress=False)
+    expected = list(simulation.frames())  # deterministic: the same frames again
+    return simulation, path, expected
+
+
+def expected_topics(simulation):
+    return {topic_name("/rig", camera, kind): msgtype for camera in simulation.camera_names
+            for kind, (_, msgtype) in TOPIC_KINDS.items()}
+
+
+def stamp_ns(msg):
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
+def test_rosbags_reads_topics_types_counts_stamps_and_bytes(written):
+    simulation, path, expected = written
+    by_topic: dict[str, list] = {}
+    with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        assert {c.topic: c.msgtype for c in reader.connections} == expected_topics(simulation)
+        for connection, _, raw in reader.messages():
+            by_topic.setdefault(connection.topic, []).append(reader.deserialize(raw, connection.msgtype))
+    assert all(len(messages) == FRAMES for messages in by_topic.values())
+    for frame_index in range(FRAMES):
+        for frame in expected[frame_index * 2:frame_index * 2 + 2]:
+            name = frame.camera.name
+            depth = by_topic[topic_name("/rig", name, "depth")][frame_index]
+            color = by_topic[topic_name("/rig", name, "color")][frame_index]
+            info = by_topic[topic_name("/rig", name, "depth_info")][frame_index]
+            assert depth.encoding == "16UC1" and color.encoding == "rgb8"
+            assert stamp_ns(depth) == stamp_ns(color) == stamp_ns(info) == frame.stamp_ns
+            assert depth.header.frame_id == f"{name}_optical_frame"
+            assert bytes(depth.data) == frame.depth_raw.tobytes()
+            assert bytes(color.data) == frame.color.tobytes()
+            np.testing.assert_allclose(np.asarray(info.k).reshape(3, 3), simulation.intrinsics.matrix())
+            xyz, rgb = cloud_from_msg(by_topic[topic_name("/rig", name, "points")][frame_index])
+            valid = frame.depth_raw > 0
+            assert len(xyz) == valid.sum() and rgb is not None
+            np.testing.assert_allclose(np.sort(xyz[:, 2]), np.sort(frame.depth_raw[valid] * 1e-4), atol=1e-6)
+    # the two cameras are not synchronised: a few milliseconds apart, 30 fps each
+    left = [stamp_ns(m) for m in by_topic[topic_name("/rig", "left_cam", "depth")]]
+    right = [stamp_ns(m) for m in by_topic[topic_name("/rig", "right_cam", "depth")]]
+    assert all(2e6 < r - lo < 6e6 for lo, r in zip(left, right, strict=True))
+    assert 32e6 < left[1] - left[0] < 35e6
+
+
+def test_mcap_reader_sees_the_same_messages(written):
+    simulation, path, expected = written
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    mcap_files = list(path.glob("*.mcap"))
+    assert len(mcap_files) == 1
+    with mcap_files[0].open("rb") as stream:
+        reader = make_reader(stream)
+        summary = reader.get_summary()
+        assert {c.compression for c in summary.chunk_indexes} == {"zstd"}
+        counts: dict[str, int] = {}
+        depth_bytes = {}
+        for schema, channel, message in reader.iter_messages():
+            assert schema.name == expected_topics(simulation)[channel.topic]
+            assert channel.message_encoding == "cdr"
+            counts[channel.topic] = counts.get(channel.topic, 0) + 1
+            if channel.topic.endswith("depth/image_rect_raw"):
+                msg = typestore.deserialize_cdr(message.data, schema.name)
+                assert message.log_time >= stamp_ns(msg)
+                depth_bytes[(channel.topic, stamp_ns(msg))] = bytes(msg.data)
+    assert counts == dict.fromkeys(expected_topics(simulation), FRAMES)
+    for frame in expected:
+        key = (topic_name("/rig", frame.camera.name, "depth"), frame.stamp_ns)
+        assert depth_bytes[key] == frame.depth_raw.tobytes()
+
+
+def test_ground_truth_and_rig_configuration_beside_the_bag(written):
+    simulation, path, _ = written
+    shape, document = load_truth(path)
+    np.testing.assert_allclose(shape.notch_bend, simulation.shape.notch_bend)
+    assert document["scene"] == "unit" and document["seed"] == 7
+    centerline = np.asarray(document["centerline_m"])
+    assert np.diff(document["centerline_s_m"]).max() <= 0.1e-3
+    np.testing.assert_allclose(centerline[-1], document["tip"]["position_m"], atol=1e-12)
+    assert len(document["notches"]) == 16
+    config = load_rig_config(path / "rig.yaml")
+    assert config.camera_names == ("left_cam", "right_cam")
+    assert config.topics.namespace == "/rig"
+    assert config.robot == TubeGeometry.from_mapping(document["robot"])
+    for name, camera in config.cameras.items():
+        truth_camera = document["cameras"][name]
+        np.testing.assert_allclose(camera.translation, truth_camera["translation"])
+        np.testing.assert_allclose(camera.rotation, truth_camera["rotation"])
+        assert camera.depth_unit == truth_camera["depth_unit"] == 1e-4
+    json.loads((path / "ground_truth.json").read_text())  # plain JSON
+
+
+def test_simulate_command_refuses_bad_input_clearly(tmp_path, capsys):
+    assert cli.main(["simulate", str(tmp_path / "too_far"), "--bend-deg", "500", "--no-progress"]) == 2
+    assert "theta_max" in capsys.readouterr().err
+    assert not (tmp_path / "too_far").exists()
+    (tmp_path / "taken").mkdir()
+    assert cli.main(["simulate", str(tmp_path / "taken"), "--frames", "1", "--no-progress"]) == 2
+    assert "--overwrite" in capsys.readouterr().err
+    assert cli.main(["simulate", str(tmp_path / "x"), "--notch-side", "sideways", "--no-progress"]) == 2
+    assert "notch side" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == [tmp_path / "taken"]  # nothing half-written left behind
+
+
+def test_render_command_draws_a_png(written, tmp_path):
+    from PIL import Image
+
+    _, path, _ = written
+    out = tmp_path / "render.png"
+    assert cli.main(["render", str(path), "--out", str(out)]) == 0
+    with Image.open(out) as image:
+        assert image.format == "PNG"
+        assert image.width > 800 and image.height > 400
+        pixels = np.asarray(image.convert("RGB"))
+    assert len(np.unique(pixels.reshape(-1, 3), axis=0)) > 100  # a drawing, not a blank canvas
