@@ -15,6 +15,7 @@ The cloud is in the camera's optical frame (the configuration's frame_id) with t
 
 from __future__ import annotations
 
+import sys
 import threading
 import time
 
@@ -188,3 +189,7 @@ class CameraNode(RigNode):
 
 def main(args: list[str] | None = None) -> int:
     return run_node(CameraNode, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

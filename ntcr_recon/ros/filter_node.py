@@ -5,6 +5,8 @@ configuration's `filters` section sets it. Clouds must be in the configured base
 
 from __future__ import annotations
 
+import sys
+
 from sensor_msgs.msg import PointCloud2
 
 from ntcr_recon.core.pipeline import Reconstructor
@@ -32,3 +34,7 @@ class FilterNode(RigNode):
 
 def main(args: list[str] | None = None) -> int:
     return run_node(FilterNode, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -19,6 +19,7 @@ never grows a queue without bound.
 from __future__ import annotations
 
 import dataclasses
+import sys
 from collections import deque
 
 import numpy as np
@@ -154,3 +155,7 @@ class FusionNode(RigNode):
 
 def main(args: list[str] | None = None) -> int:
     return run_node(FusionNode, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

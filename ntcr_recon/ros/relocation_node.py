@@ -15,6 +15,8 @@ A cloud the core cannot reconstruct (too few points, no tube along the base axis
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
@@ -79,3 +81,7 @@ class RelocationNode(RigNode):
 
 def main(args: list[str] | None = None) -> int:
     return run_node(RelocationNode, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,69 @@
+"""The whole graph on a live rig: one camera_node per camera (realsense source), fusion, filter, relocation, mesh.
+
+ros2 launch ntcr_recon rig.launch.py config:=/path/to/my_rig.yaml [rviz:=true] [mesh_rate:=1.0]
+
+The rig configuration (a ROS 2 parameter file, see config/rig_template.yaml) names the cameras (their serial
+numbers, stream profiles and extrinsics), the robot and the stages' settings; every node reads it.
+"""
+
+import os
+
+import yaml
+from ament_index_python.packages import get_package_share_directory
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.conditions import IfCondition
+from launch.substitutions import LaunchConfiguration
+from launch_ros.actions import Node
+
+from launch import LaunchDescription
+
+STAGE_NODES = ("fusion_node", "filter_node", "relocation_node", "mesh_node")
+
+
+def camera_names(config_path: str) -> list[str]:
+    """The rig configuration's camera_names (the parameter file's first ros__parameters section)."""
+    with open(config_path) as stream:
+        document = yaml.safe_load(stream)
+    parameters = next(v["ros__parameters"] for v in document.values() if "ros__parameters" in v)
+    return list(parameters["camera_names"])
+
+
+def graph_nodes(context, source_parameters) -> list[Node]:
+    config = LaunchConfiguration("config").perform(context)
+    use_sim_time = LaunchConfiguration("use_sim_time").perform(context).lower() == "true"
+    nodes = []
+    for index, camera in enumerate(camera_names(config)):
+        parameters = {"camera": camera, **source_parameters(context, index)}
+        nodes.append(Node(package="ntcr_recon", executable="camera_node", name=f"camera_{camera}", output="screen",
+                          parameters=[config, parameters]))
+    for executable in STAGE_NODES:
+        extra = {"use_sim_time": use_sim_time}
+        if executable == "mesh_node":
+            extra["rate"] = float(LaunchConfiguration("mesh_rate").perform(context))
+        nodes.append(Node(package="ntcr_recon", executable=executable, name=executable, output="screen",
+                          parameters=[config, extra]))
+    return nodes
+
+
+def live_cameras(context, index: int) -> dict:
+    return {"source": "realsense"}
+
+
+def common_arguments(default_config: str) -> list:
+    share = get_package_share_directory("ntcr_recon")
+    return [
+        DeclareLaunchArgument("config", default_value=default_config, description="rig configuration (YAML)"),
+        DeclareLaunchArgument("mesh_rate", default_value="1.0", description="meshes per second"),
+        DeclareLaunchArgument("rviz", default_value="false", description="start RViz2 with config/ntcr.rviz"),
+        Node(package="rviz2", executable="rviz2", arguments=["-d", os.path.join(share, "config", "ntcr.rviz")],
+             condition=IfCondition(LaunchConfiguration("rviz"))),
+    ]
+
+
+def generate_launch_description() -> LaunchDescription:
+    share = get_package_share_directory("ntcr_recon")
+    return LaunchDescription([
+        *common_arguments(os.path.join(share, "config", "rig_template.yaml")),
+        DeclareLaunchArgument("use_sim_time", default_value="false"),
+        OpaqueFunction(function=lambda context: graph_nodes(context, live_cameras)),
+    ])

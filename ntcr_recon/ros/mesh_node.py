@@ -1,0 +1,133 @@
+"""mesh_node: `<ns>/relocated/points` (with normal_x/y/z) -> a Poisson mesh (the core's, Eq. 7-8), at `rate`.
+
+Meshing costs more than a frame period, so the node keeps only the newest relocated cloud and meshes it at
+`rate` Hz (node clock: with `use_sim_time` the replayed bag's clock), skipping a tick when nothing new came.
+Publishes, transient-local so RViz or a late subscriber gets the last mesh at once:
+  `<ns>/mesh`      visualization_msgs/Marker TRIANGLE_LIST (base frame)
+  `<ns>/mesh/raw`  shape_msgs/Mesh (vertices + triangles, base frame)
+PLY on request: set the parameter `save_ply_path` (`ros2 param set /mesh_node save_ply_path /tmp/m.ply`) and
+the newest mesh is written there (whole or not at all); with no mesh yet, the first one is. With `output_dir`
+every new mesh is also written to `<output_dir>/mesh.ply`.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+from sensor_msgs.msg import PointCloud2
+from shape_msgs.msg import Mesh
+from visualization_msgs.msg import Marker
+
+from ntcr_recon.ros.messages import mesh_marker, mesh_msg, stage_cloud_and_normals
+from ntcr_recon.ros.node_support import LATCHED_QOS, STAGE_QOS, ParameterError, RigNode, describe, guarded, run_node
+from ntcr_recon.ros.topics import stage_topic
+
+PARAMETERS = {
+    "rate": (1.0, describe("meshes per second (of the node's clock)", minimum=0.01, maximum=30.0)),
+    "save_ply_path": ("", describe("setting it writes the newest mesh to this PLY file")),
+    "output_dir": ("", describe("when set, every new mesh is also written to <output_dir>/mesh.ply")),
+}
+
+
+def write_ply(vertices: np.ndarray, triangles: np.ndarray, path: Path) -> None:
+    """A binary PLY of the mesh, written to a temporary file beside `path` and moved over it."""
+    import open3d as o3d
+
+    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(np.asarray(vertices, float)),
+                                     o3d.utility.Vector3iVector(np.asarray(triangles, np.int32)))
+    handle, temporary = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=".ply", dir=path.parent)
+    os.close(handle)
+    try:
+        if not o3d.io.write_triangle_mesh(temporary, mesh, write_ascii=False):
+            raise OSError(f"open3d could not write {temporary}")
+        os.replace(temporary, path)
+    finally:
+        Path(temporary).unlink(missing_ok=True)
+
+
+class MeshNode(RigNode):
+    def __init__(self) -> None:
+        self._timer = None
+        self._mesh: tuple[np.ndarray, np.ndarray, int] | None = None  # vertices, triangles, stamp
+        self._pending_save: Path | None = None
+        self._params = {"save_ply_path": ""}
+        super().__init__("mesh_node", PARAMETERS)
+        self._newest = None  # (Cloud, normals) not yet meshed
+        self.meshes = 0
+        self._marker = self.create_publisher(Marker, stage_topic(self.rig.topics, "mesh"), LATCHED_QOS)
+        self._raw = self.create_publisher(Mesh, stage_topic(self.rig.topics, "mesh/raw"), LATCHED_QOS)
+        self.create_subscription(PointCloud2, stage_topic(self.rig.topics, "relocated/points"), self._on_cloud,
+                                 STAGE_QOS)
+        self.get_logger().info(f"meshing relocated clouds at {self._params['rate']} Hz")
+
+    def configure(self, rig, params: dict) -> None:
+        save, output = params["save_ply_path"], params["output_dir"]
+        if save and not Path(save).expanduser().parent.is_dir():
+            raise ParameterError(f"parameter 'save_ply_path': the folder of {save!r} does not exist")
+        if output and not Path(output).expanduser().is_dir():
+            raise ParameterError(f"parameter 'output_dir': {output!r} is not an existing folder")
+        save_requested = params["save_ply_path"] and params["save_ply_path"] != self._params["save_ply_path"]
+        rate_changed = self._timer is None or params["rate"] != self._params["rate"]
+        self.rig, self._params = rig, params
+        if save_requested:
+            self._pending_save = Path(params["save_ply_path"]).expanduser()
+            self._save_pending()
+        if rate_changed:
+            if self._timer is not None:
+                self.destroy_timer(self._timer)
+            self._timer = self.create_timer(1.0 / params["rate"], self._tick)
+
+    @guarded
+    def _on_cloud(self, msg: PointCloud2) -> None:
+        cloud, normals = stage_cloud_and_normals(msg, self.rig.base_frame)
+        if normals is None:
+            raise ValueError("relocated cloud has no normal_x/normal_y/normal_z fields (is it relocation_node's?)")
+        self._newest = (cloud, normals)
+
+    def _tick(self) -> None:
+        if self._newest is None:
+            return
+        cloud, normals = self._newest
+        self._newest = None
+        from ntcr_recon.core.mesh import poisson_mesh  # open3d is imported only by who meshes
+
+        try:
+            mesh = poisson_mesh(cloud.xyz, normals, self.rig.mesh)
+        except (ValueError, RuntimeError) as error:
+            self.get_logger().error(f"no mesh from the cloud of {len(cloud)} points at {cloud.stamp_ns} ns: {error}")
+            return
+        vertices, triangles = np.asarray(mesh.vertices, float), np.asarray(mesh.triangles, np.int64)
+        self._mesh = (vertices, triangles, cloud.stamp_ns)
+        self._marker.publish(mesh_marker(vertices, triangles, self.rig.base_frame, cloud.stamp_ns))
+        self._raw.publish(mesh_msg(vertices, triangles))
+        self.meshes += 1
+        if self._params["output_dir"]:
+            self._write(Path(self._params["output_dir"]).expanduser() / "mesh.ply")
+        self._save_pending()
+
+    def _save_pending(self) -> None:
+        if self._pending_save is not None and self._mesh is not None:
+            path, self._pending_save = self._pending_save, None
+            self._write(path)
+
+    def _write(self, path: Path) -> None:
+        vertices, triangles, stamp = self._mesh
+        try:
+            write_ply(vertices, triangles, path)
+        except OSError as error:
+            self.get_logger().error(f"could not write the mesh to {path}: {error}")
+            return
+        self.get_logger().info(f"wrote the mesh of {stamp} ns ({len(vertices)} vertices, {len(triangles)} "
+                               f"triangles) to {path}")
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(MeshNode, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
