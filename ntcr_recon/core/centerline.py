@@ -92,49 +92,70 @@ class Centerline:
         normals = np.cross(binormals, tangents)
         return cls(s, resampled, tangents, normals, binormals)
 
+    @property
+    def _packed(self) -> np.ndarray:
+        """(M, 9) points, tangents and normals side by side: one gather interpolates all three."""
+        packed = self.__dict__.get("_packed_cache")
+        if packed is None:
+            packed = np.concatenate([self.points, self.tangents, self.normals], axis=1)
+            object.__setattr__(self, "_packed_cache", packed)
+        return packed
+
     def frames_at(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Position, tangent, normal and binormal at arc lengths s; beyond the ends along the end tangent."""
         s = np.asarray(s, dtype=float)
         clipped = np.clip(s, 0.0, self.length)
-        index = np.clip(np.searchsorted(self.s, clipped, side="right") - 1, 0, len(self.s) - 2)
-        step = self.s[index + 1] - self.s[index]
-        fraction = ((clipped - self.s[index]) / np.where(step > 0, step, 1.0))[:, None]
-
-        def lerp(values):
-            return values[index] * (1.0 - fraction) + values[index + 1] * fraction
-
-        tangent = lerp(self.tangents)
-        tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
-        position = lerp(self.points) + (s - clipped)[:, None] * tangent
-        normal = lerp(self.normals)
-        normal -= np.einsum("ij,ij->i", normal, tangent)[:, None] * tangent
-        normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+        step = self.s[1] - self.s[0] if len(self.s) > 1 else 1.0
+        position_in_steps = clipped / step
+        index = np.minimum(position_in_steps.astype(np.intp), len(self.s) - 2)
+        fraction = (position_in_steps - index)[:, None]
+        packed = self._packed
+        mixed = packed[index] * (1.0 - fraction) + packed[index + 1] * fraction
+        tangent = mixed[:, 3:6]
+        tangent /= np.sqrt((tangent * tangent).sum(axis=1))[:, None]
+        position = mixed[:, 0:3] + (s - clipped)[:, None] * tangent
+        normal = mixed[:, 6:9]
+        normal -= (normal * tangent).sum(axis=1)[:, None] * tangent
+        normal /= np.sqrt((normal * normal).sum(axis=1))[:, None]
         return position, tangent, normal, np.cross(tangent, normal)
 
-    def project(self, xyz: np.ndarray, tree: cKDTree | None = None) -> TubeCoordinates:
-        """Tube coordinates of points: nearest sample (KD-tree), then slid along the local tangent."""
-        tree = cKDTree(self.points) if tree is None else tree
-        _, nearest = tree.query(xyz)
-        s = self.s[nearest] + np.einsum("ij,ij->i", xyz - self.points[nearest], self.tangents[nearest])
-        position, tangent, normal, binormal = self.frames_at(s)
-        offset = xyz - position
-        # one more correction along the interpolated tangent (curved sections)
-        s = s + np.einsum("ij,ij->i", offset, tangent)
-        position, tangent, normal, binormal = self.frames_at(s)
-        offset = xyz - position
-        return TubeCoordinates(s, np.einsum("ij,ij->i", offset, normal), np.einsum("ij,ij->i", offset, binormal))
+    @property
+    def tree(self) -> cKDTree:
+        tree = self.__dict__.get("_tree_cache")
+        if tree is None:
+            tree = cKDTree(self.points)
+            object.__setattr__(self, "_tree_cache", tree)
+        return tree
 
+    def project(self, xyz: np.ndarray) -> TubeCoordinates:
+        """Tube coordinates of points: nearest sample (KD-tree), then slid along the local tangent."""
+        return self.project_with_frames(xyz)[0]
+
+    def project_with_frames(self, xyz: np.ndarray) -> tuple[TubeCoordinates, tuple]:
+        """project(), and the centreline frames (position, tangent, normal, binormal) at each point's s."""
+        _, nearest = self.tree.query(xyz)
+        s = self.s[nearest] + ((xyz - self.points[nearest]) * self.tangents[nearest]).sum(axis=1)
+        position, tangent, normal, binormal = frames = self.frames_at(s)
+        offset = xyz - position
+        # the along-tangent remainder is second order in the curvature; one more step removes it
+        correction = (offset * tangent).sum(axis=1)
+        s = s + correction
+        offset -= correction[:, None] * tangent
+        coords = TubeCoordinates(s, (offset * normal).sum(axis=1), (offset * binormal).sum(axis=1))
+        return coords, frames
     def to_points(self, s: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Base-frame points of tube coordinates (the inverse of project)."""
         position, _, normal, binormal = self.frames_at(s)
         return position + x[:, None] * normal + y[:, None] * binormal
 
-    def bend_angle(self, s0: float, s1: float) -> float:
-        """Signed turn of the tangent from s0 to s1 about the binormal (positive towards the notch side)."""
-        _, tangent, normal, binormal = self.frames_at(np.array([s0, s1]))
-        cosine = float(np.clip(tangent[0] @ tangent[1], -1.0, 1.0))
-        sign = 1.0 if tangent[1] @ normal[0] >= 0 else -1.0
-        return sign * float(np.arccos(cosine))
+    def bend_angle(self, s0, s1) -> np.ndarray | float:
+        """Signed turn of the tangent from s0 to s1 (scalars or arrays), positive towards the notch side."""
+        s0, s1 = np.broadcast_arrays(np.atleast_1d(np.asarray(s0, float)), np.atleast_1d(np.asarray(s1, float)))
+        _, t0, n0, _ = self.frames_at(s0)
+        _, t1, _, _ = self.frames_at(s1)
+        cosine = np.clip((t0 * t1).sum(axis=1), -1.0, 1.0)
+        angle = np.where((t1 * n0).sum(axis=1) >= 0, 1.0, -1.0) * np.arccos(cosine)
+        return float(angle[0]) if angle.size == 1 else angle
 
 
 @dataclass(frozen=True)

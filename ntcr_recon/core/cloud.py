@@ -14,6 +14,8 @@ class Cloud:
     xyz: (N, 3) float64 metres. rgb: (N,) uint32 0x00RRGGBB or None. camera: (N,) int8 index into the rig's
     camera_names, or None. stamp_ns: the source frames' stamp (the earliest of a pair). pixel_footprint: the
     size in metres of one depth pixel on the robot (median depth / focal length), 0 when unknown.
+    pixel: (N, 2) int32 (u, v) image coordinates in the camera that saw the point, or None (e.g. an
+    unorganised PointCloud2); it lets the filters find neighbours in the image instead of a KD-tree.
     """
 
     xyz: np.ndarray
@@ -21,13 +23,14 @@ class Cloud:
     camera: np.ndarray | None = None
     stamp_ns: int = 0
     pixel_footprint: float = 0.0
+    pixel: np.ndarray | None = None
 
     def __post_init__(self):
         xyz = np.asarray(self.xyz, dtype=np.float64)
         if xyz.ndim != 2 or xyz.shape[1] != 3:
             raise ValueError(f"cloud points must have shape (N, 3), got {xyz.shape}")
         object.__setattr__(self, "xyz", xyz)
-        for name in ("rgb", "camera"):
+        for name in ("rgb", "camera", "pixel"):
             value = getattr(self, name)
             if value is not None and len(value) != len(xyz):
                 raise ValueError(f"cloud {name} has {len(value)} entries for {len(xyz)} points")
@@ -39,7 +42,8 @@ class Cloud:
         """The points picked by a boolean mask or an index array, attributes alike."""
         return replace(self, xyz=self.xyz[selection],
                        rgb=None if self.rgb is None else self.rgb[selection],
-                       camera=None if self.camera is None else self.camera[selection])
+                       camera=None if self.camera is None else self.camera[selection],
+                       pixel=None if self.pixel is None else self.pixel[selection])
 
     def with_points(self, xyz: np.ndarray) -> Cloud:
         """The same points moved (same count and attributes)."""
@@ -52,6 +56,7 @@ class Cloud:
             return Cloud(np.empty((0, 3)))
         rgb = None if any(c.rgb is None for c in clouds) else np.concatenate([c.rgb for c in clouds])
         camera = None if any(c.camera is None for c in clouds) else np.concatenate([c.camera for c in clouds])
+        # pixel coordinates of different frames collide, so a combination has none
         footprints = [c.pixel_footprint for c in clouds if c.pixel_footprint > 0]
         return Cloud(np.concatenate([c.xyz for c in clouds]), rgb, camera, min(c.stamp_ns for c in clouds),
                      float(np.median(footprints)) if footprints else 0.0)

@@ -7,7 +7,7 @@ not 400 000.
 Public API:
     Intrinsics(width, height, fx, fy, cx, cy); Intrinsics.from_camera_info(msg)
     crop_window(intrinsics, extrinsic, box_min, box_max) -> PixelWindow | None   (None: box not in view)
-    depth_to_points(depth, intrinsics, depth_unit, color=None, window=None) -> (xyz (N,3), rgb (N,) | None)
+    depth_to_points(depth, intrinsics, depth_unit, color=None, window=None) -> (xyz (N,3), rgb | None, uv (N,2))
 """
 
 from __future__ import annotations
@@ -81,12 +81,13 @@ def crop_window(intrinsics: Intrinsics, extrinsic: np.ndarray, box_min, box_max)
 
 def depth_to_points(depth: np.ndarray, intrinsics: Intrinsics, depth_unit: float = 1.0,
                     color: np.ndarray | None = None, window: PixelWindow | None = None
-                    ) -> tuple[np.ndarray, np.ndarray | None]:
+                    ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
     """Deproject a depth image (16UC1 raw units times depth_unit, or 32FC1 metres with depth_unit 1).
 
     Zero, NaN and infinite depths are invalid and dropped, as are depths outside the window's range.
     color: (H, W, 3) uint8 RGB registered to the depth image (scaled if its size differs). Returns xyz
-    float64 (N, 3) in the optical frame (x right, y down, z forward) and packed rgb uint32 or None.
+    float64 (N, 3) in the optical frame (x right, y down, z forward), packed rgb uint32 or None, and the
+    pixel (u, v) of each point as int32 (N, 2).
     """
     if depth.ndim != 2:
         raise ValueError(f"a depth image must be 2-D, got shape {depth.shape}")
@@ -114,4 +115,4 @@ def depth_to_points(depth: np.ndarray, intrinsics: Intrinsics, depth_unit: float
         cu = (u * color.shape[1]) // width
         cv = (v * color.shape[0]) // height
         rgb = pack_rgb(color[cv, cu, :3])
-    return xyz, rgb
+    return xyz, rgb, np.stack([u, v], axis=1).astype(np.int32)

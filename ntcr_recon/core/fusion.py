@@ -23,7 +23,8 @@ from ntcr_recon.core.transforms import transform_points
 @dataclass(frozen=True)
 class CameraFrame:
     """One camera's data at one stamp. Either `depth` (+ `intrinsics`, optional RGB `color`, `depth_unit`
-    overriding the configured one, e.g. 1.0 for 32FC1 metres) or `points` (optical frame, + packed `rgb`)."""
+    overriding the configured one, e.g. 1.0 for 32FC1 metres) or `points` (optical frame, + packed `rgb`,
+    + `organised_width` when the cloud is organised)."""
 
     camera: str
     stamp_ns: int
@@ -33,6 +34,7 @@ class CameraFrame:
     depth_unit: float | None = None
     points: np.ndarray | None = None
     rgb: np.ndarray | None = None
+    organised_width: int = 0     # points of an organised cloud (row-major, NaN = no return): its width
 
     def __post_init__(self):
         if (self.depth is None) == (self.points is None):
@@ -83,44 +85,53 @@ def pair_frames(streams: dict[str, list[CameraFrame]], slop_ns: int) -> list[Fra
 
 
 def camera_cloud(frame: CameraFrame, config: RigConfig, box_min: np.ndarray, box_max: np.ndarray
-                 ) -> tuple[np.ndarray, np.ndarray | None, float]:
-    """One camera's points in the base frame, cropped to the box, and the pixel footprint (m, 0 unknown)."""
+                 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, float]:
+    """One camera's points in the base frame cropped to the box, their colours, their pixels (None for an
+    unorganised cloud) and the pixel footprint (m, 0 unknown)."""
     camera = config.cameras[frame.camera]
     extrinsic = camera.extrinsic
     footprint = 0.0
     if frame.depth is not None:
         window = crop_window(frame.intrinsics, extrinsic, box_min, box_max)
         if window is None:
-            return np.empty((0, 3)), None, 0.0
+            return np.empty((0, 3)), None, np.empty((0, 2), np.int32), 0.0
         unit = camera.depth_unit if frame.depth_unit is None else frame.depth_unit
-        xyz, rgb = depth_to_points(frame.depth, frame.intrinsics, unit, frame.color, window)
-        if len(xyz):
-            footprint = float(np.median(xyz[:, 2])) / frame.intrinsics.fx
+        xyz, rgb, pixel = depth_to_points(frame.depth, frame.intrinsics, unit, frame.color, window)
     else:
         xyz = np.asarray(frame.points, dtype=np.float64)
         rgb = frame.rgb
         finite = np.all(np.isfinite(xyz), axis=1)
+        pixel = None
+        if frame.organised_width:  # an organised cloud (row-major) keeps its pixel grid
+            flat = np.flatnonzero(finite)
+            pixel = np.stack([flat % frame.organised_width, flat // frame.organised_width], axis=1).astype(np.int32)
         xyz, rgb = xyz[finite], None if rgb is None else np.asarray(rgb)[finite]
+    depth = xyz[:, 2]
     xyz = transform_points(extrinsic, xyz)
     inside = crop_box_mask(xyz, box_min, box_max)
-    return xyz[inside], None if rgb is None else rgb[inside], footprint
+    if frame.depth is not None and np.any(inside):
+        footprint = float(np.median(depth[inside])) / frame.intrinsics.fx
+    return (xyz[inside], None if rgb is None else rgb[inside], None if pixel is None else pixel[inside],
+            footprint)
 
 
 def fuse(pair: FramePair, config: RigConfig) -> Cloud:
     """Eq. 9 for every camera of the pair, concatenated; unknown camera names are refused."""
     box_min, box_max = config.crop_box()
-    parts, colours, cameras, footprints = [], [], [], []
+    parts, colours, pixels, cameras, footprints = [], [], [], [], []
     for name, frame in pair.frames.items():
         if name not in config.cameras:
             raise ValueError(f"frame from camera {name!r}, which the rig configuration does not list")
-        xyz, rgb, footprint = camera_cloud(frame, config, box_min, box_max)
+        xyz, rgb, pixel, footprint = camera_cloud(frame, config, box_min, box_max)
         parts.append(xyz)
         colours.append(rgb)
+        pixels.append(pixel)
         cameras.append(np.full(len(xyz), config.camera_names.index(name), dtype=np.int8))
         if footprint > 0:
             footprints.append(footprint)
     if not parts:
         return Cloud(np.empty((0, 3)), None, np.empty(0, np.int8), pair.stamp_ns)
     rgb = None if any(c is None for c in colours) else np.concatenate(colours)
+    pixel = None if any(p is None for p in pixels) else np.concatenate(pixels)
     return Cloud(np.concatenate(parts), rgb, np.concatenate(cameras), pair.stamp_ns,
-                 float(np.mean(footprints)) if footprints else 0.0)
+                 float(np.mean(footprints)) if footprints else 0.0, pixel)

@@ -64,7 +64,12 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
     # the window where a notch removes the outer surface, less the angular uncertainty of a point
     margin = np.arcsin(min(1.0, 2.0 * footprint / r_o))
     window = geometry.gap_half_angle - margin
-    on_outer = (np.abs(coords.radius - r_o) < gate) & (np.abs(coords.angle) < window)
+    # Only points on the outer wall count: the spines' cut faces, seen through an obliquely viewed notch,
+    # lie exactly at its edges but inside the wall and would pile up there. The band is the outer wall's
+    # own measured spread (robust), within the gate.
+    offset = coords.radius - r_o
+    band = min(gate, max(3.0 * 1.4826 * float(np.median(np.abs(offset[np.abs(offset) < gate]))), footprint / 2))
+    on_outer = (np.abs(offset) < band) & (np.abs(coords.angle) < window)
     on_outer &= (coords.s > 0) & (coords.s < tip_s)
     s = coords.s[on_outer]
     if len(s) < 10:
@@ -102,21 +107,28 @@ def _assign(gaps: list[tuple[float, float]], centerline: Centerline, geometry: T
     # Expected deformed centres: bending shortens the centreline by ybar * theta per notch; the bend up to
     # each point comes from the estimated centreline.
     undeformed = geometry.notch_centers_s
-    turned = np.array([abs(centerline.bend_angle(0.0, min(c, centerline.length))) for c in undeformed])
+    turned = np.abs(np.atleast_1d(centerline.bend_angle(0.0, np.minimum(undeformed, centerline.length))))
     expected = undeformed - geometry.neutral_axis_offset * turned
     index = np.argmin(np.abs(centres[:, None] - expected[None, :]), axis=1)
+    order = np.argsort(centres)
+    chosen, used = [], set()
+    for g in order:  # a handful of gaps: the first (nearest the base) claims an expected notch
+        i = int(index[g])
+        if i not in used and abs(centres[g] - expected[i]) <= pitch / 2:
+            used.add(i)
+            chosen.append(g)
+    if not chosen:
+        return []
+    chosen = np.array(chosen)
+    low = np.maximum(centres[chosen] - pitch / 2, 0.0)
+    high = np.minimum(centres[chosen] + pitch / 2, centerline.length)
+    bends = np.atleast_1d(centerline.bend_angle(low, np.maximum(high, low)))
     notches = []
-    used: set[int] = set()
-    for (start, end), centre, i in sorted(zip(gaps, centres, index, strict=True), key=lambda g: g[1]):
-        if int(i) in used or abs(centre - expected[i]) > pitch / 2:
-            continue
-        used.add(int(i))
-        low = max(centre - pitch / 2, 0.0)
-        high = min(centre + pitch / 2, centerline.length)
-        bend = centerline.bend_angle(low, high) if high > low else None
-        arc = end - start
-        width = arc - (bend or 0.0) * r_o
-        notches.append(Notch(int(i), float(centre), float(start), float(end), float(max(width, 0.0)), bend))
+    for g, bend in zip(chosen, bends, strict=True):
+        start, end = gaps[g]
+        width = (end - start) - bend * r_o  # s_n (1 - kappa r_o) with kappa s_n = theta
+        notches.append(Notch(int(index[g]), float(centres[g]), float(start), float(end), float(max(width, 0.0)),
+                             float(bend)))
     return notches
 
 

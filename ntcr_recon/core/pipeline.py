@@ -28,7 +28,7 @@ from ntcr_recon.core.config import RigConfig
 from ntcr_recon.core.filters import filter_cloud
 from ntcr_recon.core.fusion import FramePair, fuse
 from ntcr_recon.core.notches import Notch, detect_notches, observed_tip
-from ntcr_recon.core.relocation import RelocatedPoints, relocate_points
+from ntcr_recon.core.relocation import RelocatedPoints, along_rays, relocate_points
 
 
 class ReconstructionError(RuntimeError):
@@ -63,6 +63,8 @@ class Reconstructor:
         self.config = config
         self.geometry = config.robot
         self._prior: Centerline | None = None
+        # optical centre of each camera in the base frame, by camera index (viewing rays for relocation)
+        self._camera_origins = np.array([config.cameras[name].translation for name in config.camera_names], float)
         self.timings_ms: dict[str, float] = {}
 
     def reset(self) -> None:
@@ -99,13 +101,20 @@ class Reconstructor:
             self._prior = None
             raise ReconstructionError("no tube found along the robot's base axis: is the robot in view and the "
                                       "base pose in the configuration right?")
-        coords = centerline.project(cloud.xyz)
+        coords, frames = centerline.project_with_frames(cloud.xyz)
         footprint = cloud.pixel_footprint
-        tip_s = observed_tip(coords, geometry, settings.gate, footprint, settings_config.notch_kernel_px,
+        rays = None
+        measured = coords
+        if cloud.camera is not None and len(cloud.camera):
+            origins = self._camera_origins[cloud.camera]
+            rays = along_rays(coords, frames, origins, geometry.outer_radius, settings.gate)
+            measured = rays[0]
+        tip_s = observed_tip(measured, geometry, settings.gate, footprint, settings_config.notch_kernel_px,
                              centerline.length)
-        notches = detect_notches(coords, centerline, geometry, settings.gate, footprint,
+        notches = detect_notches(measured, centerline, geometry, settings.gate, footprint,
                                  settings_config.notch_kernel_px, settings_config.min_notch_width_fraction, tip_s)
-        moved: RelocatedPoints = relocate_points(coords, centerline, geometry, notches, tip_s, settings.gate)
+        moved: RelocatedPoints = relocate_points(coords, centerline, geometry, notches, tip_s, settings.gate,
+                                                 rays)
         tip = centerline.frames_at(np.array([tip_s]))[0][0]
         relocated = cloud.subset(moved.accepted).with_points(moved.points)
         self._prior = centerline

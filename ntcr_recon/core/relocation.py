@@ -8,8 +8,15 @@ its radial projection at its arc length, which keeps s and the angle), unless th
 gate: then it is rejected and counted. The reference normal of each relocated point is kept (outward from
 the material) for meshing.
 
+Stereo depth is the uncertain coordinate of a point, its pixel's direction is not: where the camera that
+saw a point is known, a point bound for the outer wall moves along its viewing ray to where the ray meets
+the wall (`along_rays`), and only falls back to the radial projection when the ray misses the tube (beyond
+a silhouette). This undoes the flattening of each camera's face instead of squeezing it radially, and keeps
+a notch's edges where the camera saw them even when rays cross the tube obliquely.
+
 Public API:
-    relocate_points(coords, centerline, geometry, notches, tip_s, gate) -> RelocatedPoints
+    along_rays(coords, frames, origins, radius, gate) -> (TubeCoordinates, hit)
+    relocate_points(coords, centerline, geometry, notches, tip_s, gate, ray_coords=None) -> RelocatedPoints
 """
 
 from __future__ import annotations
@@ -43,9 +50,40 @@ class RelocatedPoints:
         return int(np.count_nonzero(~self.accepted))
 
 
+def along_rays(coords: TubeCoordinates, frames: tuple, origins: np.ndarray, radius: float, gate: float
+               ) -> tuple[TubeCoordinates, np.ndarray]:
+    """Tube coordinates of each point moved along its viewing ray onto the tube of `radius`.
+
+    The tube is taken as the local cylinder about the tangent at the point's arc length; of the ray's two
+    intersections the one nearer the camera is the surface the camera saw. hit: the ray meets the tube within
+    `gate` of the point; other points keep their coordinates. frames: Centerline.project_with_frames's.
+    """
+    position, tangent, normal, binormal = frames
+    points = position + coords.x[:, None] * normal + coords.y[:, None] * binormal
+    ray = points - origins
+    ray /= np.linalg.norm(ray, axis=1, keepdims=True)
+    ray_t = np.einsum("ij,ij->i", ray, tangent)
+    ray_x = np.einsum("ij,ij->i", ray, normal)
+    ray_y = np.einsum("ij,ij->i", ray, binormal)
+    a = ray_x**2 + ray_y**2
+    b = coords.x * ray_x + coords.y * ray_y
+    c = coords.x**2 + coords.y**2 - radius**2
+    discriminant = b * b - a * c
+    safe_a = np.where(a > 1e-12, a, 1.0)
+    step = (-b - np.sqrt(np.maximum(discriminant, 0.0))) / safe_a
+    hit = (discriminant >= 0) & (a > 1e-12) & (np.abs(step) <= gate)
+    step = np.where(hit, step, 0.0)
+    moved = TubeCoordinates(coords.s + step * ray_t, coords.x + step * ray_x, coords.y + step * ray_y)
+    return moved, hit
+
+
 def relocate_points(coords: TubeCoordinates, centerline: Centerline, geometry: TubeGeometry,
-                    notches: list[Notch], tip_s: float, gate: float) -> RelocatedPoints:
-    """Move each point onto the nearest existing reference surface within `gate` (vectorised)."""
+                    notches: list[Notch], tip_s: float, gate: float,
+                    ray_coords: tuple[TubeCoordinates, np.ndarray] | None = None) -> RelocatedPoints:
+    """Move each point onto the nearest existing reference surface within `gate` (vectorised).
+
+    ray_coords: `along_rays` output; a point bound for the outer wall whose ray hits it goes there.
+    """
     r_o, r_i, d = geometry.outer_radius, geometry.inner_radius, geometry.chord_offset
     s, x, y = coords.s, coords.x, coords.y
     radius = np.hypot(x, y)
@@ -90,6 +128,12 @@ def relocate_points(coords: TubeCoordinates, centerline: Centerline, geometry: T
     choice = np.argmin(distances, axis=0)
     best = distances[choice, np.arange(count)]
     accepted = best <= gate
+    if ray_coords is not None:
+        on_ray = ray_coords[1] & (choice == 0) & (ray_coords[0].s >= 0) & (ray_coords[0].s <= tip_s)
+        on_ray &= accepted
+        s, x, y = (np.where(on_ray, new, old) for new, old in zip(
+            (ray_coords[0].s, ray_coords[0].x, ray_coords[0].y), (s, x, y), strict=True))
+        angle = np.arctan2(y, x)
     choice, s, x, y, radius, angle = (a[accepted] for a in (choice, s, x, y, radius, angle))
     floor_y, face_s, face_radius = floor_y[accepted], face_s[accepted], face_radius[accepted]
     unit_x = np.cos(angle)
