@@ -29,6 +29,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", type=int, default=3, help="frames per camera (default 3)")
     parser.add_argument("--noise", type=float, default=1.0, help="stereo depth noise level: sigma_d = "
                         "0.08 px times this (default 1)")
+    parser.add_argument("--color-noise", type=float, default=1.0, help="colour imager noise, sigma in 8-bit "
+                        "levels (default 1; 0 keeps colour images small in a bag)")
     parser.add_argument("--ideal", action="store_true", help="no stereo artefacts at all: exact depth, quantised")
     parser.add_argument("--with-points", action="store_true", help="also write <ns>/<cam>/depth/color/points")
     parser.add_argument("--namespace", default="/ntcr", help="topic namespace (default /ntcr)")
@@ -55,7 +57,7 @@ def build_simulation(args: argparse.Namespace) -> Simulation:
     return Simulation(shape, scene_name=args.scene or args.output.name, camera_distance=args.camera_distance,
                       camera_names=tuple(n.strip() for n in args.cameras.split(",")), namespace=args.namespace,
                       frame_count=args.frames, seed=args.seed, emulation=emulation,
-                      color_noise=0.0 if args.ideal else 1.0, with_points=args.with_points)
+                      color_noise=0.0 if args.ideal else args.color_noise, with_points=args.with_points)
 
 
 def main(args: argparse.Namespace) -> int:
