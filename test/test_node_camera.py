@@ -56,8 +56,9 @@ def expected_points(config, frame_index: int, unit_scale: bool):
     depth_m = tiny_rig.render_tube("cam_a")
     depth = np.round(depth_m / tiny_rig.DEPTH_UNIT).astype(np.uint16) if unit_scale else depth_m.astype(np.float32)
     window = crop_window(tiny_rig.INTRINSICS, config.cameras["cam_a"].extrinsic, *config.crop_box())
-    return depth_to_points(depth, tiny_rig.INTRINSICS, tiny_rig.DEPTH_UNIT if unit_scale else 1.0,
-                           tiny_rig.frame_color("cam_a", frame_index), window)
+    xyz, rgb, _ = depth_to_points(depth, tiny_rig.INTRINSICS, tiny_rig.DEPTH_UNIT if unit_scale else 1.0,
+                                  tiny_rig.frame_color("cam_a", frame_index), window)
+    return xyz, rgb, window
 
 
 @pytest.mark.parametrize("case", ["raw16", "float32"])
@@ -66,9 +67,12 @@ def test_depth_frames_are_deprojected_by_the_core(setup, case):
     for msg in received[case][:FRAMES + 2]:
         stamp = stamp_to_ns(msg.header.stamp)
         index = round((stamp - START) / PERIOD) % FRAMES
-        xyz, rgb = cloud_from_msg(msg)
-        want_xyz, want_rgb = expected_points(config, index, unit_scale=case == "raw16")
+        xyz, rgb = cloud_from_msg(msg, drop_nan=True)
+        want_xyz, want_rgb, window = expected_points(config, index, unit_scale=case == "raw16")
         assert msg.header.frame_id == "cam_a_optical_frame"
+        # Organised: the crop window's pixel grid, NaN where the depth is invalid.
+        assert (msg.width, msg.height) == (window.u1 - window.u0, window.v1 - window.v0)
+        assert msg.height > 1 and not msg.is_dense
         assert len(xyz) == len(want_xyz) > 100
         np.testing.assert_allclose(xyz, want_xyz, atol=1e-7)
         np.testing.assert_array_equal(rgb, want_rgb)  # the colour of the frame with the same stamp
@@ -76,7 +80,7 @@ def test_depth_frames_are_deprojected_by_the_core(setup, case):
 
 def test_16bit_depth_is_scaled_by_the_configured_unit(setup):
     _, received, _, _, _ = setup
-    raw16, metres = cloud_from_msg(received["raw16"][0])[0], cloud_from_msg(received["float32"][0])[0]
+    raw16, metres = (cloud_from_msg(received[case][0], drop_nan=True)[0] for case in ("raw16", "float32"))
     # Same scene: 16UC1 in 0.1 mm units equals 32FC1 metres to within the quantisation.
     assert np.abs(raw16[:, 2] - metres[:, 2]).max() <= tiny_rig.DEPTH_UNIT / 2 + 1e-7
     assert 0.085 < np.median(raw16[:, 2]) < 0.09
@@ -101,8 +105,8 @@ def test_recorded_clouds_are_republished_as_recorded(setup):
     msg = received["points"][0]
     index = round((stamp_to_ns(msg.header.stamp) - START) / PERIOD) % FRAMES
     xyz, rgb = cloud_from_msg(msg)
-    want_xyz, want_rgb = depth_to_points(tiny_rig.render_tube("cam_a"), tiny_rig.INTRINSICS, 1.0,
-                                         tiny_rig.frame_color("cam_a", index))
+    want_xyz, want_rgb, _ = depth_to_points(tiny_rig.render_tube("cam_a"), tiny_rig.INTRINSICS, 1.0,
+                                            tiny_rig.frame_color("cam_a", index))
     np.testing.assert_allclose(xyz, want_xyz.astype(np.float32))  # not cropped, not re-deprojected
     np.testing.assert_array_equal(rgb, want_rgb)
 

@@ -23,7 +23,8 @@ PERIOD = 33_333_333
 
 
 def camera_points(camera: str, index: int):
-    return depth_to_points(tiny_rig.render_tube(camera), tiny_rig.INTRINSICS, 1.0, tiny_rig.frame_color(camera, index))
+    return depth_to_points(tiny_rig.render_tube(camera), tiny_rig.INTRINSICS, 1.0,
+                           tiny_rig.frame_color(camera, index))[:2]
 
 
 def camera_msg(camera: str, stamp_ns: int, index: int = 0):
@@ -86,8 +87,13 @@ def test_a_pair_is_fused_as_the_core_fuses_it(fusion):
     np.testing.assert_array_equal(cloud.rgb, expected.rgb)
     np.testing.assert_array_equal(cloud.camera, expected.camera)
     assert set(cloud.camera) == {0, 1}
-    # Pixel footprint: median depth / fx, as the core derives it from depth frames (~90 mm / 300 px).
-    assert cloud.pixel_footprint == pytest.approx(np.median(camera_points("cam_a", 0)[0][:, 2]) / 300.0, rel=1e-5)
+    # Pixel footprint (median depth / fx): what the core derives from the same frames as depth images.
+    depth_frames = {camera: CameraFrame(camera, stamp, depth=tiny_rig.render_tube(camera),
+                                        intrinsics=tiny_rig.INTRINSICS, depth_unit=1.0)
+                    for camera, stamp in (("cam_a", stamp_a), ("cam_b", stamp_b))}
+    from_depth = fuse(FramePair(stamp_a, depth_frames), fusion.config)
+    assert from_depth.pixel_footprint > 0
+    assert cloud.pixel_footprint == pytest.approx(from_depth.pixel_footprint, rel=1e-5)
 
 
 @pytest.mark.parametrize("defect", tiny_rig.MALFORMED)

@@ -120,7 +120,7 @@ def write_bag(path: Path, frames: int = 10, fps: float = 30.0, encoding: str = "
                 messages = {}
                 if points_only:
                     from ntcr_recon.core.deproject import depth_to_points
-                    xyz, rgb = depth_to_points(depth_m, INTRINSICS, 1.0, frame_color(camera, index))
+                    xyz, rgb, _ = depth_to_points(depth_m, INTRINSICS, 1.0, frame_color(camera, index))
                     messages["points"] = cloud_to_msg(xyz, rgb, frame_id=frame_id, stamp_ns=stamp, msgtypes=ROSBAGS)
                 else:
                     messages["info"] = camera_info(frame_id, stamp)

@@ -9,8 +9,9 @@ One instance per camera (parameter `camera`, a name of the rig's camera_names). 
             depth unit kept at the configured value (0.1 mm on a D405);
   file      a librealsense recording (`file_path`) played back through pyrealsense2.
 Every depth frame goes through the core's deprojection (`ntcr_recon.core.deproject`): with `crop_to_robot`
-only the image window that can see the robot's crop box is deprojected, as the offline pipeline does.
-The cloud is in the camera's optical frame (the configuration's frame_id) with the frame's own stamp.
+only the image window that can see the robot's crop box is deprojected, as the offline pipeline does. The
+cloud is organised (the window's pixel grid, NaN where the depth is invalid, so the later stages know each
+point's pixel), in the camera's optical frame (the configuration's frame_id), with the frame's own stamp.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ import numpy as np
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, PointCloud2
 
-from ntcr_recon.core.deproject import Intrinsics, crop_window, depth_to_points
+from ntcr_recon.core.deproject import Intrinsics, PixelWindow, crop_window, depth_to_points
 from ntcr_recon.ros.camera_sources import BagSource, SourceError, SourceFrame
 from ntcr_recon.ros.messages import header, stamp_msg
 from ntcr_recon.ros.node_support import SENSOR_QOS, ParameterError, RigNode, describe, run_node
@@ -67,6 +68,21 @@ def camera_info_msg(frame: SourceFrame, frame_id: str) -> CameraInfo:
     info.r = np.eye(3).reshape(-1)
     info.p = np.array([intrinsics.fx, 0, intrinsics.cx, 0, 0, intrinsics.fy, intrinsics.cy, 0, 0, 0, 1, 0], float)
     return info
+
+
+def organised_window(window: PixelWindow, xyz: np.ndarray, rgb: np.ndarray | None, pixel: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray | None]:
+    """The deprojected points laid out on the window's pixel grid (NaN where the depth was invalid): an
+    organised cloud keeps each point's pixel, by which the filters find neighbours without a KD-tree."""
+    height, width = window.v1 - window.v0, window.u1 - window.u0
+    rows, columns = pixel[:, 1] - window.v0, pixel[:, 0] - window.u0
+    grid = np.full((height, width, 3), np.nan, dtype=np.float32)
+    grid[rows, columns] = xyz
+    colors = None
+    if rgb is not None:
+        colors = np.zeros((height, width), dtype=np.uint32)
+        colors[rows, columns] = rgb
+    return grid, colors
 
 
 def recorded_cloud_msg(recorded, stamp_ns: int) -> PointCloud2:
@@ -161,11 +177,15 @@ class CameraNode(RigNode):
             self.frames_published += 1
             return
         unit = camera.depth_unit if frame.depth_unit is None else frame.depth_unit
-        window = self._window(frame.intrinsics) if self._params["crop_to_robot"] else None
-        if self._params["crop_to_robot"] and window is None:
-            xyz, rgb = np.empty((0, 3)), None  # the camera cannot see the crop box at all
+        if self._params["crop_to_robot"]:
+            window = self._window(frame.intrinsics)
         else:
-            xyz, rgb = depth_to_points(frame.depth, frame.intrinsics, unit, frame.color, window)
+            window = PixelWindow(0, frame.intrinsics.width, 0, frame.intrinsics.height, 0.0, np.inf)
+        if window is None:  # the camera cannot see the crop box at all
+            xyz, rgb = np.empty((0, 0, 3)), None
+        else:
+            xyz, rgb = organised_window(window, *depth_to_points(frame.depth, frame.intrinsics, unit, frame.color,
+                                                                 window))
         self._cloud_publisher.publish(cloud_to_msg(xyz, rgb, frame_id=camera.frame_id, stamp_ns=frame.stamp_ns,
                                                    msgtypes=RCLPY))
         self._info_publisher.publish(camera_info_msg(frame, camera.frame_id))

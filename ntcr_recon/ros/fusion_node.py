@@ -27,6 +27,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from sensor_msgs.msg import CameraInfo, PointCloud2
 
 from ntcr_recon.core.fusion import CameraFrame, FramePair, fuse, pair_frames
+from ntcr_recon.core.transforms import invert_transform, transform_points
 from ntcr_recon.ros.messages import diagnostics, input_cloud, stage_cloud_to_msg
 from ntcr_recon.ros.node_support import SENSOR_QOS, STAGE_QOS, RigNode, describe, guarded, run_node
 from ntcr_recon.ros.pointcloud import stamp_to_ns
@@ -79,12 +80,13 @@ class FusionNode(RigNode):
     @guarded
     def _on_cloud(self, item) -> None:
         name, msg = item
-        xyz, rgb = input_cloud(msg, self.rig.cameras[name].frame_id)
+        xyz, rgb = input_cloud(msg, self.rig.cameras[name].frame_id, keep_nan=msg.height > 1)
         stamp = stamp_to_ns(msg.header.stamp)
         buffer = self._buffers[name]
         if len(buffer) == buffer.maxlen:
             self.counts["dropped"] += 1
-        buffer.append(CameraFrame(camera=name, stamp_ns=stamp, points=xyz, rgb=rgb))
+        buffer.append(CameraFrame(camera=name, stamp_ns=stamp, points=xyz, rgb=rgb,
+                                  organised_width=int(msg.width) if msg.height > 1 else 0))
         self._newest[name] = max(stamp, self._newest.get(name, stamp))
         self._first_stamp = stamp if self._first_stamp is None else self._first_stamp
         self._update_silence()
@@ -124,15 +126,19 @@ class FusionNode(RigNode):
     def _publish(self, pair: FramePair, alone: bool) -> None:
         cloud = fuse(pair, self.rig)
         if cloud.pixel_footprint == 0:
-            cloud = dataclasses.replace(cloud, pixel_footprint=self._pixel_footprint(pair))
+            cloud = dataclasses.replace(cloud, pixel_footprint=self._pixel_footprint(cloud))
         self._publisher.publish(stage_cloud_to_msg(cloud, self.rig.base_frame))
         self.counts["alone" if alone else "pairs"] += 1
 
-    def _pixel_footprint(self, pair: FramePair) -> float:
-        """The size of one depth pixel on the robot (median depth / fx) from the cameras' own clouds, as the
-        core computes it from depth frames; 0 while no camera_info has come."""
-        footprints = [float(np.median(frame.points[:, 2])) / self._focal[name]
-                      for name, frame in pair.frames.items() if name in self._focal and len(frame.points)]
+    def _pixel_footprint(self, cloud) -> float:
+        """The size of one depth pixel on the robot as the core defines it for depth frames (median depth of a
+        camera's fused points / its fx, averaged over the cameras); 0 while no camera_info has come."""
+        footprints = []
+        for index, name in enumerate(self.rig.camera_names):
+            seen = cloud.camera == index
+            if name in self._focal and seen.any():
+                depth = transform_points(invert_transform(self.rig.cameras[name].extrinsic), cloud.xyz[seen])[:, 2]
+                footprints.append(float(np.median(depth)) / self._focal[name])
         return float(np.mean(footprints)) if footprints else 0.0
 
     def _publish_diagnostics(self) -> None:

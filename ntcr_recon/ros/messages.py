@@ -1,11 +1,13 @@
 """Core results <-> ROS messages for the stage nodes (rclpy messages; no algorithm here).
 
 Stage clouds (`<ns>/fused/points`, `<ns>/filtered/points`, `<ns>/relocated/points`) are PointCloud2 with
-x, y, z, rgb float32 as DESIGN.md fixes, plus two fields a later stage needs to compute what the offline
-command computes on the same frames: `camera` (float32, the index of the camera in the rig's camera_names that
-saw the point) and `pixel_footprint` (float32, metres; the size of one depth pixel on the robot, the same for
-every point of a cloud, 0 when unknown); the relocated cloud also carries `normal_x`, `normal_y`, `normal_z`
-(float32, the outward normal of the reference surface, which the mesh stage orients its surface by).
+x, y, z, rgb float32 as DESIGN.md fixes, plus the fields a later stage needs to compute what the offline
+command computes on the same frames, all float32:
+  `camera`            index in the rig's camera_names of the camera that saw the point
+  `pixel_footprint`   metres, the size of one depth pixel on the robot (same for every point; 0 = unknown)
+  `pixel_u`, `pixel_v` the point's pixel in its camera's organised cloud (the filters find neighbours in the
+                      image by it); absent when the camera's cloud was not organised
+  `normal_x/y/z`      relocated cloud only: the reference surface's outward normal (the mesh is oriented by it)
 Readers that know only x, y, z (and rgb) are unaffected.
 
 Notches as `std_msgs/Float64MultiArray` (`<ns>/notches`), readable without this package:
@@ -35,7 +37,6 @@ from ntcr_recon.core.transforms import matrix_to_quaternion
 from ntcr_recon.ros.pointcloud import FLOAT32, RCLPY, cloud_from_msg, cloud_to_msg, stamp_to_ns
 
 NOTCH_LAYOUT_LABEL = "index,center_s_m,width_m,bend_rad"
-_EXTRA_FIELDS = ("camera", "pixel_footprint")
 _NORMAL_FIELDS = ("normal_x", "normal_y", "normal_z")
 
 
@@ -51,31 +52,35 @@ def header(frame_id: str, stamp_ns: int) -> Header:
 # ---- stage clouds ---------------------------------------------------------------------------------------------
 
 def stage_cloud_to_msg(cloud: Cloud, frame_id: str, normals: np.ndarray | None = None) -> PointCloud2:
-    """A Cloud as a PointCloud2: x, y, z, rgb, `camera`, `pixel_footprint` and, when given, `normal_x`,
-    `normal_y`, `normal_z` (the PCL / RViz names) of the reference surface (see the module doc)."""
+    """A Cloud as a PointCloud2: x, y, z, rgb, `camera`, `pixel_footprint`, `pixel_u`/`pixel_v` when the cloud
+    has pixels, and `normal_x`/`normal_y`/`normal_z` when normals are given (see the module doc)."""
     count = len(cloud)
     rgb = cloud.rgb if cloud.rgb is not None else np.zeros(count, np.uint32)
     base = cloud_to_msg(cloud.xyz, rgb, frame_id=frame_id, stamp_ns=cloud.stamp_ns, msgtypes=RCLPY)
-    names = _EXTRA_FIELDS + (_NORMAL_FIELDS if normals is not None else ())
-    extra = np.empty((count, len(names)), dtype="<f4")
-    extra[:, 0] = cloud.camera if cloud.camera is not None else -1
-    extra[:, 1] = cloud.pixel_footprint
+    columns = {"camera": cloud.camera if cloud.camera is not None else -1, "pixel_footprint": cloud.pixel_footprint}
+    if cloud.pixel is not None:
+        columns.update(pixel_u=cloud.pixel[:, 0], pixel_v=cloud.pixel[:, 1])
     if normals is not None:
-        extra[:, 2:] = normals
+        columns.update(zip(_NORMAL_FIELDS, np.asarray(normals).T, strict=True))
+    extra = np.empty((count, len(columns)), dtype="<f4")
+    for column, values in enumerate(columns.values()):
+        extra[:, column] = values
     points = np.frombuffer(bytes(base.data), dtype=np.uint8).reshape(count, base.point_step)
-    data = np.concatenate([points, extra.view(np.uint8).reshape(count, 4 * len(names))], axis=1)
+    data = np.concatenate([points, extra.view(np.uint8).reshape(count, 4 * len(columns))], axis=1)
     offset = base.point_step
     base.fields = list(base.fields) + [PointField(name=name, offset=offset + 4 * i, datatype=FLOAT32, count=1)
-                                       for i, name in enumerate(names)]
-    base.point_step = offset + 4 * len(names)
+                                       for i, name in enumerate(columns)]
+    base.point_step = offset + 4 * len(columns)
     base.row_step = base.point_step * count
     base.data = data.tobytes()
     return base
 
 
-def input_cloud(msg: PointCloud2, expected_frame: str) -> tuple[np.ndarray, np.ndarray | None]:
-    """The finite points (and colours) of an input cloud; ValueError naming the defect for a cloud in another
-    frame than the configuration's, with broken layout, or without a single finite point."""
+def input_cloud(msg: PointCloud2, expected_frame: str, keep_nan: bool = False
+                ) -> tuple[np.ndarray, np.ndarray | None]:
+    """The points (and colours) of an input cloud, NaN points dropped unless `keep_nan` (an organised cloud
+    keeps its grid); ValueError naming the defect for a cloud in another frame than the configuration's, with
+    broken layout, or without a single finite point."""
     require_frame(msg, expected_frame)
     xyz, rgb = cloud_from_msg(msg, drop_nan=False)  # validates the layout and names what is wrong
     if not len(xyz):
@@ -83,31 +88,31 @@ def input_cloud(msg: PointCloud2, expected_frame: str) -> tuple[np.ndarray, np.n
     finite = np.isfinite(xyz).all(axis=1)
     if not finite.any():
         raise ValueError(f"cloud has no finite point ({len(xyz)} points, all NaN or infinite)")
-    return (xyz, rgb) if finite.all() else (xyz[finite], None if rgb is None else rgb[finite])
+    if keep_nan or finite.all():
+        return xyz, rgb
+    return xyz[finite], None if rgb is None else rgb[finite]
 
 
 def stage_cloud_from_msg(msg: PointCloud2, expected_frame: str) -> Cloud:
     """A stage cloud back as a Cloud (checked as `input_cloud` does; NaN points dropped). Any PointCloud2 with
-    x, y, z is accepted: a cloud without the `camera` / `pixel_footprint` fields gets none / 0."""
+    x, y, z is accepted: a cloud without the extra fields gets no camera / pixels and footprint 0."""
     return stage_cloud_and_normals(msg, expected_frame)[0]
 
 
 def stage_cloud_and_normals(msg: PointCloud2, expected_frame: str) -> tuple[Cloud, np.ndarray | None]:
     """`stage_cloud_from_msg` plus the (N, 3) normals when the cloud carries normal_x/y/z, else None."""
-    require_frame(msg, expected_frame)
-    xyz, rgb = cloud_from_msg(msg, drop_nan=False)
-    if not len(xyz):
-        raise ValueError("empty cloud (0 points)")
-    finite = np.isfinite(xyz).all(axis=1)
-    if not finite.any():
-        raise ValueError(f"cloud has no finite point ({len(xyz)} points, all NaN or infinite)")
-    camera_values = _float_field(msg, "camera", len(xyz))
+    xyz, rgb = input_cloud(msg, expected_frame, keep_nan=True)
+    count = len(xyz)
+    camera_values = _float_field(msg, "camera", count)
     camera = camera_values.astype(np.int8) if camera_values is not None and np.all(camera_values >= 0) else None
-    footprints = _float_field(msg, "pixel_footprint", len(xyz))
+    footprints = _float_field(msg, "pixel_footprint", count)
     footprint = float(np.nanmax(footprints)) if footprints is not None and np.isfinite(footprints).any() else 0.0
-    normal_columns = [_float_field(msg, name, len(xyz)) for name in _NORMAL_FIELDS]
+    pixel_columns = [_float_field(msg, name, count) for name in ("pixel_u", "pixel_v")]
+    pixel = None if any(c is None for c in pixel_columns) else np.stack(pixel_columns, axis=1).astype(np.int32)
+    normal_columns = [_float_field(msg, name, count) for name in _NORMAL_FIELDS]
     normals = None if any(c is None for c in normal_columns) else np.stack(normal_columns, axis=1).astype(float)
-    cloud = Cloud(xyz, rgb, camera, stamp_to_ns(msg.header.stamp), footprint)
+    cloud = Cloud(xyz, rgb, camera, stamp_to_ns(msg.header.stamp), footprint, pixel)
+    finite = np.isfinite(xyz).all(axis=1)
     if finite.all():
         return cloud, normals
     return cloud.subset(finite), None if normals is None else normals[finite]
