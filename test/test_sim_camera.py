@@ -147,3 +147,33 @@ def test_depth_outside_the_d405_range_is_invalid():
     raw = emulate_depth(depth, normals, INTRINSICS, StereoEmulation.ideal(), np.random.default_rng(0))
     assert np.all(raw[:, :400] == 0)
     assert np.all(raw[:, 400:] == 2000)
+
+
+@pytest.mark.parametrize("bend_deg", [0.0, 90.0])
+def test_the_whole_robot_is_in_view_and_in_range_of_both_cameras(bend_deg):
+    shape = TubeShape.from_bend_angle(GEOMETRY, math.radians(bend_deg))
+    points, _ = shape.sample_surface(0.5e-3)
+    for camera in facing_pair(0.09):
+        in_camera = camera.to_camera(points)
+        u = INTRINSICS.fx * in_camera[:, 0] / in_camera[:, 2] + INTRINSICS.cx
+        v = INTRINSICS.fy * in_camera[:, 1] / in_camera[:, 2] + INTRINSICS.cy
+        assert np.all((u > 0) & (u < INTRINSICS.width - 1) & (v > 0) & (v < INTRINSICS.height - 1))
+        assert np.all((in_camera[:, 2] > INTRINSICS.min_depth) & (in_camera[:, 2] < 0.1))
+        # the robot's length runs along the image's long side; side-on, its bend stays in the image plane
+        base_u, tip_u = (INTRINSICS.fx * p[0] / p[2] + INTRINSICS.cx
+                         for p in camera.to_camera(shape.centerline([0.0, shape.length])[0]))
+        assert tip_u - base_u > (240 if bend_deg == 0 else 150)
+        assert np.ptp(in_camera[:, 2]) < GEOMETRY.outer_diameter + 1e-6
+
+
+def test_notches_facing_a_camera_show_it_their_cuts():
+    from ntcr_recon.sim.simulate import notch_side_angle
+
+    shape = TubeShape.from_bend_angle(TubeGeometry(notch_side=notch_side_angle("facing")), math.radians(45))
+    cameras = facing_pair(0.09)
+    scene = Scene(shape, cameras)
+    frames = {c.name: scene.render_exact(c) for c in cameras}
+    inside_cut = {name: np.sum((f.robot_part != PART_OUTER_WALL) & (f.label == LABEL_ROBOT))
+                  for name, f in frames.items()}
+    assert inside_cut["cam_a"] > 300
+    assert inside_cut["cam_a"] > 5 * inside_cut["cam_b"]
