@@ -91,7 +91,7 @@ def render_bag(bag: Path, out: Path, config_path: Path | None = None, frame_inde
 def main(args: argparse.Namespace) -> int:
     try:
         counts = render_bag(args.bag, args.out, args.config, args.frame)
-    except (ValueError, OSError) as error:
+    except (ValueError, OSError, RuntimeError) as error:  # RuntimeError: the bag source's SourceError
         print(f"ntcr-recon render: {error}", file=sys.stderr)
         return 2
     print(f"wrote {args.out}: " + ", ".join(f"{name} {count} points" for name, count in counts.items()))
