@@ -101,25 +101,46 @@ class Scene:
         return ExactFrame(depth.reshape(shape2), normal.reshape(*shape2, 3), label.reshape(shape2),
                           color.reshape(*shape2, 3), robot_part.reshape(shape2))
 
+    def _rays_towards(self, camera: CameraPose, corners_base: np.ndarray):
+        """Flat indices of the pixels whose rays can meet a convex body with these corners (all, if the
+        body reaches behind the camera)."""
+        intr = self.intrinsics
+        corners = camera.to_camera(corners_base)
+        if np.any(corners[:, 2] <= 1e-6):
+            return slice(None)
+        u = intr.fx * corners[:, 0] / corners[:, 2] + intr.cx
+        v = intr.fy * corners[:, 1] / corners[:, 2] + intr.cy
+        columns = np.arange(max(int(np.floor(u.min())), 0), min(int(np.ceil(u.max())) + 1, intr.width))
+        rows = np.arange(max(int(np.floor(v.min())), 0), min(int(np.ceil(v.max())) + 1, intr.height))
+        return (rows[:, None] * intr.width + columns[None, :]).ravel()
+
     def _cast_props(self, camera: CameraPose, rays_cam, depth, normal, label) -> None:
         """Analytic ray casting of the post, table, backdrop and the other cameras' bodies."""
         origin = camera.translation
-        directions = rays_cam @ camera.rotation.T  # base frame, scaled so that t = depth along the optical axis
+        all_directions = rays_cam @ camera.rotation.T  # base frame, scaled so that t = depth along the optical axis
         props = self.props
         base = np.asarray(self.shape.geometry.base_position, dtype=float)
         ez = np.array([0.0, 0.0, 1.0])
+        table_z = base[2] - props.post_height
 
-        def keep(t, n_base, which):
-            closer = np.isfinite(t) & (t > 0) & (t < depth)
-            depth[closer] = t[closer]
-            normal[closer] = (n_base[closer] if n_base.ndim == 2 else n_base) @ camera.rotation
-            label[closer] = which
+        def keep(index, t, n_base, which):
+            pixels = np.arange(len(depth))[index]
+            closer = np.isfinite(t) & (t > 0) & (t < depth[pixels])
+            depth[pixels[closer]] = t[closer]
+            normal[pixels[closer]] = (n_base[closer] if n_base.ndim == 2 else n_base) @ camera.rotation
+            label[pixels[closer]] = which
 
         with np.errstate(divide="ignore", invalid="ignore"):
+            # backdrop wall behind the robot, perpendicular to this camera's optical axis
+            keep(slice(None), np.full(len(depth), props.backdrop_distance), np.array([0.0, 0.0, -1.0])
+                 @ camera.rotation.T, LABEL_BACKDROP)
             # table: plane z = base_z - post_height
-            table_z = base[2] - props.post_height
-            keep((table_z - origin[2]) / directions[:, 2], ez, LABEL_TABLE)
+            keep(slice(None), (table_z - origin[2]) / all_directions[:, 2], ez, LABEL_TABLE)
             # post: vertical cylinder under the base, and its top disc
+            corners = base + np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (0, 1)]) * [
+                props.post_radius, props.post_radius, -props.post_height]
+            index = self._rays_towards(camera, corners)
+            directions = all_directions[index]
             rel = origin[:2] - base[:2]
             a = directions[:, 0] ** 2 + directions[:, 1] ** 2
             b = directions[:, :2] @ rel
@@ -129,32 +150,32 @@ class Scene:
             t_side[(hit_z < table_z) | (hit_z > base[2])] = np.nan
             side_normal = np.column_stack([(origin[:2] + t_side[:, None] * directions[:, :2]) - base[:2],
                                            np.zeros(len(t_side))]) / props.post_radius
-            keep(t_side, side_normal, LABEL_POST)
+            keep(index, t_side, side_normal, LABEL_POST)
             t_top = (base[2] - origin[2]) / directions[:, 2]
             top_xy = origin[:2] + t_top[:, None] * directions[:, :2] - base[:2]
             t_top[np.einsum("ij,ij->i", top_xy, top_xy) > props.post_radius**2] = np.nan
-            keep(t_top, ez, LABEL_POST)
+            keep(index, t_top, ez, LABEL_POST)
             # the other cameras' housings: boxes behind their optical centres
-            half = np.array([props.camera_body[0] / 2, props.camera_body[1] / 2])
+            low = np.array([-props.camera_body[0] / 2, -props.camera_body[1] / 2, -props.camera_body[2]])
+            high = np.array([props.camera_body[0] / 2, props.camera_body[1] / 2, 0.0])
+            box_corners = np.array([[x, y, z] for x in (low[0], high[0]) for y in (low[1], high[1])
+                                    for z in (low[2], high[2])])
             for other in self.cameras:
                 if other.name == camera.name:
                     continue
+                index = self._rays_towards(camera, other.to_base(box_corners))
                 o_local = other.rotation.T @ (origin - other.translation)
-                d_local = directions @ other.rotation
-                low = np.array([-half[0], -half[1], -props.camera_body[2]])
-                high = np.array([half[0], half[1], 0.0])
+                d_local = all_directions[index] @ other.rotation
                 t1 = (low - o_local) / d_local
                 t2 = (high - o_local) / d_local
                 t_near = np.nanmax(np.minimum(t1, t2), axis=1)
                 t_far = np.nanmin(np.maximum(t1, t2), axis=1)
                 hit = t_near <= t_far
                 axis = np.argmax(np.minimum(t1, t2), axis=1)
+                rows = np.arange(len(axis))
                 box_normal = np.zeros((len(axis), 3))
-                box_normal[np.arange(len(axis)), axis] = -np.sign(d_local[np.arange(len(axis)), axis])
-                keep(np.where(hit, t_near, np.nan), box_normal @ other.rotation.T, LABEL_CAMERA_BODY)
-            # backdrop wall behind the robot, perpendicular to this camera's optical axis
-            keep(np.where(rays_cam[:, 2] > 0, props.backdrop_distance, np.nan), np.array([0.0, 0.0, -1.0])
-                 @ camera.rotation.T, LABEL_BACKDROP)
+                box_normal[rows, axis] = -np.sign(d_local[rows, axis])
+                keep(index, np.where(hit, t_near, np.nan), box_normal @ other.rotation.T, LABEL_CAMERA_BODY)
 
     def _splat_robot(self, camera: CameraPose, rays_cam):
         """Per pixel: exact depth of the robot (inf: missed), its normal (optical frame) and surface part."""

@@ -29,6 +29,7 @@ import math
 from dataclasses import asdict, dataclass, replace
 
 import numpy as np
+from scipy.ndimage import uniform_filter
 
 from ntcr_recon.sim.camera import D405Intrinsics
 
@@ -96,25 +97,32 @@ def _window_statistics(disparity: np.ndarray, window: int, tolerance: float):
     fraction of the window on other surfaces (missing pixels count as other)."""
     half = window // 2
     height, width = disparity.shape
-    padded = np.pad(disparity, half, mode="edge")  # the image border is no depth edge
-    same_sum = np.zeros_like(disparity)
-    same_count = np.zeros_like(disparity)
-    other_sum = np.zeros_like(disparity)
-    other_count = np.zeros_like(disparity)
+    centre = disparity.astype(np.float32)
+    padded = np.pad(centre, half, mode="edge")  # the image border is no depth edge
+    same_sum = np.zeros_like(centre)
+    same_count = np.zeros_like(centre)
+    difference = np.empty_like(centre)
+    same = np.empty(centre.shape, dtype=bool)
     for dy in range(window):
         for dx in range(window):
             shifted = padded[dy:dy + height, dx:dx + width]
-            valid = shifted > 0
-            same = valid & (np.abs(shifted - disparity) <= tolerance)
-            same_sum += np.where(same, shifted, 0.0)
+            np.subtract(shifted, centre, out=difference)
+            np.abs(difference, out=difference)
+            np.less_equal(difference, tolerance, out=same)
+            same &= shifted > 0
+            np.add(same_sum, shifted, out=same_sum, where=same)
             same_count += same
-            other = valid & ~same
-            other_sum += np.where(other, shifted, 0.0)
-            other_count += other
+    # everything valid in the window, by a (separable) box filter; the rest of it is "other"
+    valid = (centre > 0).astype(np.float32)
+    area = float(window * window)
+    valid_sum = uniform_filter(centre * valid, window, mode="nearest") * area
+    valid_count = np.rint(uniform_filter(valid, window, mode="nearest") * area)
+    other_sum = np.maximum(valid_sum - same_sum, 0.0)
+    other_count = np.maximum(valid_count - same_count, 0.0)
     with np.errstate(divide="ignore", invalid="ignore"):
-        same_mean = same_sum / same_count
-        other_mean = np.where(other_count > 0, other_sum / np.maximum(other_count, 1), 0.0)
-    straddled = 1.0 - same_count / float(window * window)
+        same_mean = (same_sum / same_count).astype(np.float64)
+        other_mean = np.where(other_count > 0, other_sum / np.maximum(other_count, 1), 0.0).astype(np.float64)
+    straddled = 1.0 - same_count.astype(np.float64) / area
     return same_mean, other_mean, straddled
 
 
