@@ -167,6 +167,7 @@ class CenterlineSettings:
     gate: float             # a point farther than this from the reference surface is an outlier
     tolerance: float        # convergence: largest centreline move
     max_iterations: int
+    cell: float             # resolution along s of coverage profiles (about a pixel footprint)
 
 
 def settings_for(geometry: TubeGeometry, pixel_footprint: float, relocation) -> CenterlineSettings:
@@ -179,6 +180,7 @@ def settings_for(geometry: TubeGeometry, pixel_footprint: float, relocation) -> 
         gate=relocation.gate_radius_fraction * r_o + relocation.gate_pixels * footprint,
         tolerance=relocation.tolerance_radius_fraction * r_o,
         max_iterations=relocation.max_iterations,
+        cell=footprint,
     )
 
 
@@ -301,6 +303,44 @@ def _march(xyz: np.ndarray, geometry: TubeGeometry, settings: CenterlineSettings
     return np.array(nodes)
 
 
+def surface_band(offset: np.ndarray, gate: float) -> tuple[float, float]:
+    """Robust level and spread (3 sigma from the MAD) of the points' radial offsets from the outer wall.
+
+    Stereo depth puts the seen wall a little off r_o (flattening) and spreads it (noise); the band
+    level +- spread is where this cloud's outer-wall points lie, cut faces and flying pixels mostly outside.
+    """
+    near = offset[np.abs(offset) < gate]
+    if near.size < 8:
+        return 0.0, gate
+    level = float(np.median(near))
+    spread = 3.0 * 1.4826 * float(np.median(np.abs(near - level)))
+    return level, min(max(spread, 1e-6), gate)
+
+
+def tube_end(coords: TubeCoordinates, radius: float, gate: float, cell: float, sectors: int = 24) -> float:
+    """Arc length where the tube seen in the cloud ends (the tip), to a fraction of `cell`.
+
+    Per slab of length `cell`, the number of angular sectors about the axis holding outer-wall points; the
+    tube ends where that falls below half its typical value along the robot (linear interpolation). Flying
+    pixels trailing off a silhouette along viewing rays fill few sectors, so they do not stretch the tube.
+    """
+    offset = coords.radius - radius
+    level, spread = surface_band(offset, gate)
+    on_wall = (np.abs(offset - level) <= spread) & (coords.s >= 0)
+    if np.count_nonzero(on_wall) < 8:
+        return float(coords.s.max(initial=0.0))
+    slab = (coords.s[on_wall] / cell).astype(np.intp)
+    sector = ((coords.angle[on_wall] + np.pi) / (2 * np.pi) * sectors).astype(np.intp) % sectors
+    occupied = np.bincount(np.unique(slab * sectors + sector) // sectors, minlength=slab.max() + 2).astype(float)
+    occupied = np.convolve(occupied, np.ones(3) / 3.0, mode="same")
+    half = 0.5 * float(np.median(occupied[occupied > 0]))
+    above = np.flatnonzero(occupied >= half)
+    last = int(above[-1])
+    a, b = occupied[last] - half, occupied[last + 1] - half if last + 1 < len(occupied) else -half
+    fraction = a / (a - b) if a != b else 0.5
+    return (last + 0.5 + float(np.clip(fraction, 0.0, 1.0))) * cell
+
+
 def estimate_centerline(xyz: np.ndarray, geometry: TubeGeometry, settings: CenterlineSettings,
                         prior: Centerline | None = None) -> tuple[Centerline, int]:
     """Fit the centreline to a cloud in the base frame; returns it and the number of iterations run.
@@ -324,7 +364,7 @@ def estimate_centerline(xyz: np.ndarray, geometry: TubeGeometry, settings: Cente
         if np.count_nonzero(near_tube) < 16:
             break
         # the curve reaches as far as the tube is seen (it may grow past the previous end)
-        observed_end = float(np.sort(coordinates.s[near_tube])[-min(8, np.count_nonzero(near_tube))])
+        observed_end = tube_end(coordinates, geometry.outer_radius, settings.gate, settings.cell)
         slabs = max(int(np.ceil(observed_end / step)) + 1, 2)
         # each point feeds its two neighbouring nodes with linear (hat) weights, so the fit changes
         # smoothly as points slide along s between iterations
@@ -345,7 +385,16 @@ def estimate_centerline(xyz: np.ndarray, geometry: TubeGeometry, settings: Cente
         targets = position + np.einsum("mij,mj->mi", basis, centre)
         information = np.einsum("mia,mab,mjb->mij", basis, information_2d, basis)
         # slabs too thinly observed to place a circle are left to the smoothness prior
-        information[np.bincount(slab, weights=weight, minlength=slabs) < 6] = 0.0
+        counts = np.bincount(slab, weights=weight, minlength=slabs)
+        information[counts < 6] = 0.0
+        # A slab seen on one side only (e.g. across a notch, where only the spine is left) places the axis
+        # through the radius alone, so any radial bias of stereo depth moves it sideways: such slabs count
+        # less, by 1 - |mean direction of their points about the axis|^2, and the smoothness prior bridges.
+        angle = np.arctan2(y, x)
+        resultant = np.hypot(np.bincount(slab, weights=weight * np.cos(angle), minlength=slabs),
+                             np.bincount(slab, weights=weight * np.sin(angle), minlength=slabs))
+        balance = 1.0 - (resultant / np.maximum(counts, 1e-12)) ** 2
+        information *= balance[:, None, None]
         updated = _smooth_update(position, tangent, targets, information, base, smoothing_steps)
         previous = centerline
         centerline = Centerline.from_points(updated, binormal_hint, step)

@@ -74,7 +74,8 @@ class TopicConfig:
     points: str = "depth/color/points"
 
     def camera_topic(self, camera: str, kind: str) -> str:
-        return "/".join(part.strip("/") for part in ("", self.namespace, camera, getattr(self, kind)) if part)
+        parts = (part.strip("/") for part in (self.namespace, camera, getattr(self, kind)))
+        return "/" + "/".join(part for part in parts if part)
 
 
 @dataclass(frozen=True)
@@ -85,9 +86,9 @@ class FusionConfig:
 
 @dataclass(frozen=True)
 class FilterConfig:
-    # Crop box in the base frame. auto: the robot's reach (base +- (length + outer diameter)), which needs
-    # no tuning per rig; otherwise crop_box_min / crop_box_max in metres.
-    crop_box_auto: bool = True
+    # Crop box in the base frame. auto: the robot's reach on its side of the base (no tuning per rig);
+    # otherwise crop_box_min / crop_box_max in metres.
+    crop_box_auto: bool = True     # see RigConfig.crop_box
     crop_box_min: tuple[float, float, float] = (0.0, 0.0, 0.0)
     crop_box_max: tuple[float, float, float] = (0.0, 0.0, 0.0)
     color_filter: bool = False                      # keep only points whose colour lies in [min, max]
@@ -146,12 +147,17 @@ class RigConfig:
     metrics: MetricsConfig = field(default_factory=MetricsConfig)
 
     def crop_box(self) -> tuple[np.ndarray, np.ndarray]:
-        """The crop box (min, max) in the base frame, resolving `crop_box_auto` from the robot."""
+        """The crop box (min, max) in the base frame, resolving `crop_box_auto` from the robot.
+
+        Automatic: what the robot can reach - within its length (plus a diameter) of the base on the side its
+        axis points to, starting at the base, so the clamp or post it stands on stays out.
+        """
         if not self.filters.crop_box_auto:
             return np.asarray(self.filters.crop_box_min, float), np.asarray(self.filters.crop_box_max, float)
         reach = self.robot.length + self.robot.outer_diameter
-        base = np.asarray(self.robot.base_position, float)
-        return base - reach, base + reach
+        corners = np.array(np.meshgrid([-reach, reach], [-reach, reach], [0.0, reach], indexing="ij")).reshape(3, -1)
+        corners = (self.robot.base_rotation @ corners).T + np.asarray(self.robot.base_position, float)
+        return corners.min(axis=0), corners.max(axis=0)
 
 
 _STAGE_SECTIONS = {
@@ -335,7 +341,7 @@ def _validate_stages(config: RigConfig) -> None:
         raise ConfigError(f"filters.crop_box_max {tuple(box_max)} must exceed crop_box_min {tuple(box_min)} "
                           "on every axis: the crop box excludes everything")
     base = np.asarray(config.robot.base_position, float)
-    if np.any(base < box_min) or np.any(base > box_max):
+    if np.any(base < box_min - 1e-9) or np.any(base > box_max + 1e-9):
         raise ConfigError(f"filters.crop_box {tuple(box_min)}..{tuple(box_max)} does not contain the robot base "
                           f"{tuple(base)}: it would exclude the robot")
 

@@ -5,8 +5,7 @@ notch is the interval [s_start, s_end] of its cut at every angle where the cut o
 (|angle| < gap_half_angle): its faces are the normal planes of the centreline at its ends. The coverage
 profile along s of the outer-surface points in that angular window, smoothed by a kernel of about half a
 pixel footprint, falls to half its local plateau exactly at an edge (each depth pixel stands for a cell of
-one footprint), which gives the edges to a fraction of a pixel. The same detector finds the tip, where the
-coverage at any angle ends.
+one footprint), which gives the edges to a fraction of a pixel.
 
 Width as in contracts.md: the gap on the outer surface line facing the notches, s_n (1 - kappa r_o)
 = s_n - theta r_o, with theta the bend of the centreline across the notch.
@@ -14,7 +13,6 @@ Width as in contracts.md: the gap on the outer surface line facing the notches, 
 Public API:
     coverage_edges(s, lo, hi, kernel) -> (profile grid, density)
     detect_notches(coords, centerline, geometry, gate, footprint, settings) -> list[Notch]
-    observed_tip(coords, geometry, gate, footprint, kernel_px) -> float (arc length of the tip)
 """
 
 from __future__ import annotations
@@ -54,6 +52,30 @@ def _crossing(grid: np.ndarray, density: np.ndarray, level: np.ndarray, i: int, 
         return float(0.5 * (grid[i] + grid[j]))
     t = np.clip(a / (a - b), 0.0, 1.0)
     return float(grid[i] + t * (grid[j] - grid[i]))
+
+
+def silhouette_erosion(coords: TubeCoordinates, frames: tuple, camera: np.ndarray, origins: np.ndarray,
+                       radius: float, usable: np.ndarray, quantile: float = 0.98) -> float:
+    """How much of the tube's rim each camera loses at a depth edge (m), measured on its silhouettes.
+
+    A stereo matcher drops or smears the pixels next to a depth edge. The tube's true half-width across
+    each camera's view is its outer radius, and depth pixels sample the lateral coordinate uniformly, so
+    the rim lost is r_o - q-quantile(|lateral|) / q over the camera's points on plain tube (usable: not in
+    a notch, not at the ends). The median over cameras is returned; 0 when it cannot be measured.
+    """
+    position, _, normal, binormal = frames
+    estimates = []
+    for index in np.unique(camera):
+        mine = usable & (camera == index)
+        if np.count_nonzero(mine) < 50:
+            continue
+        view = origins[index] - position[mine]
+        view_x = (view * normal[mine]).sum(axis=1)
+        view_y = (view * binormal[mine]).sum(axis=1)
+        length = np.hypot(view_x, view_y)
+        lateral = (view_x * coords.y[mine] - view_y * coords.x[mine]) / np.maximum(length, 1e-12)
+        estimates.append(radius - float(np.quantile(np.abs(lateral), quantile)) / quantile)
+    return max(float(np.median(estimates)), 0.0) if estimates else 0.0
 
 
 def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: TubeGeometry, gate: float,
@@ -130,28 +152,3 @@ def _assign(gaps: list[tuple[float, float]], centerline: Centerline, geometry: T
         notches.append(Notch(int(index[g]), float(centres[g]), float(start), float(end), float(max(width, 0.0)),
                              float(bend)))
     return notches
-
-
-def observed_tip(coords: TubeCoordinates, geometry: TubeGeometry, gate: float, footprint: float,
-                 kernel_px: float, rough_end: float) -> float:
-    """Arc length where the outer-surface coverage (any angle) ends: the half-plateau crossing."""
-    r_o = geometry.outer_radius
-    footprint = footprint if footprint > 0 else r_o / 8.0
-    near = np.abs(coords.radius - r_o) < gate
-    lo = max(rough_end - geometry.notch_pitch - geometry.distal_length, 0.0)
-    hi = rough_end + geometry.outer_diameter
-    s = coords.s[near & (coords.s > lo) & (coords.s < hi)]
-    if len(s) < 10:
-        return rough_end
-    cell = footprint / 8.0
-    grid, density = coverage_profile(s, lo, hi, cell, kernel_px * footprint)
-    # plateau of the distal spine: upper quartile of the last distal length before the end
-    above = np.flatnonzero(density > 0)
-    last = above[-1]
-    tail = density[max(last - int(round(max(geometry.distal_length, 4 * footprint) / cell)), 0):last + 1]
-    level = 0.5 * np.percentile(tail, 75)
-    beyond = np.flatnonzero(density[: last + 1] >= level)
-    k = beyond[-1]
-    if k + 1 >= len(grid):
-        return float(grid[k])
-    return _crossing(grid, density, np.full(len(grid), level), k, k + 1)

@@ -22,12 +22,19 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ntcr_recon.core.centerline import Centerline, TubeCoordinates, estimate_centerline, settings_for
+from ntcr_recon.core.centerline import (
+    Centerline,
+    TubeCoordinates,
+    estimate_centerline,
+    settings_for,
+    surface_band,
+    tube_end,
+)
 from ntcr_recon.core.cloud import Cloud
 from ntcr_recon.core.config import RigConfig
 from ntcr_recon.core.filters import filter_cloud
 from ntcr_recon.core.fusion import FramePair, fuse
-from ntcr_recon.core.notches import Notch, detect_notches, observed_tip
+from ntcr_recon.core.notches import Notch, detect_notches, silhouette_erosion
 from ntcr_recon.core.relocation import RelocatedPoints, along_rays, relocate_points
 
 
@@ -109,10 +116,21 @@ class Reconstructor:
             origins = self._camera_origins[cloud.camera]
             rays = along_rays(coords, frames, origins, geometry.outer_radius, settings.gate)
             measured = rays[0]
-        tip_s = observed_tip(measured, geometry, settings.gate, footprint, settings_config.notch_kernel_px,
-                             centerline.length)
+        tip_s = tube_end(measured, geometry.outer_radius, settings.gate, settings.cell)
         notches = detect_notches(measured, centerline, geometry, settings.gate, footprint,
                                  settings_config.notch_kernel_px, settings_config.min_notch_width_fraction, tip_s)
+        if cloud.camera is not None and len(cloud.camera):
+            # The tip's rim, an edge seen against the background, loses what the tube's silhouettes lose
+            # to the stereo matcher; measure that on plain tube and give it back.
+            plain = (coords.s > geometry.outer_diameter) & (coords.s < tip_s - geometry.outer_diameter)
+            for notch in notches:
+                plain &= (coords.s < notch.start_s - 2 * settings.cell) | (coords.s > notch.end_s + 2 * settings.cell)
+            offset = coords.radius - geometry.outer_radius
+            level, spread = surface_band(offset, settings.gate)
+            plain &= np.abs(offset - level) <= spread
+            erosion = silhouette_erosion(coords, frames, cloud.camera, self._camera_origins, geometry.outer_radius,
+                                         plain)
+            tip_s += erosion
         moved: RelocatedPoints = relocate_points(coords, centerline, geometry, notches, tip_s, settings.gate,
                                                  rays)
         tip = centerline.frames_at(np.array([tip_s]))[0][0]
