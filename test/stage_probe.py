@@ -24,10 +24,13 @@ class StageProbe:
         graph.wait_for_subscribers(self.publisher)
 
     def send_and_wait(self, msg, timeout: float = 20.0) -> object:
-        """Publish `msg` (again every second: a best-effort input may drop it) until an output arrives."""
+        """Publish `msg` until an output arrives: once on a reliable input (a node that keeps state, like the
+        relocation's warm start, must see it once), again every second on a best-effort one."""
         count = len(self.received)
-        for _ in range(int(timeout)):
-            self.publisher.publish(msg)
+        reliable = self.publisher.qos_profile.reliability == ReliabilityPolicy.RELIABLE
+        for attempt in range(int(timeout)):
+            if attempt == 0 or not reliable:
+                self.publisher.publish(msg)
             if self.graph.spin_until(lambda: len(self.received) > count, 1.0):
                 return self.received[-1]
         raise AssertionError(f"no output within {timeout} s; logs:\n{self.graph.all_logs()}")

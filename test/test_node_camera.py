@@ -15,6 +15,7 @@ from sensor_msgs.msg import CameraInfo, PointCloud2
 
 from ntcr_recon.core.config import load_rig_config
 from ntcr_recon.core.deproject import crop_window, depth_to_points
+from ntcr_recon.ros.messages import camera_cloud_arrays
 from ntcr_recon.ros.pointcloud import cloud_from_msg, stamp_to_ns
 
 COLLECT_QOS = QoSProfile(depth=200, reliability=ReliabilityPolicy.BEST_EFFORT)
@@ -56,9 +57,8 @@ def expected_points(config, frame_index: int, unit_scale: bool):
     depth_m = tiny_rig.render_tube("cam_a")
     depth = np.round(depth_m / tiny_rig.DEPTH_UNIT).astype(np.uint16) if unit_scale else depth_m.astype(np.float32)
     window = crop_window(tiny_rig.INTRINSICS, config.cameras["cam_a"].extrinsic, *config.crop_box())
-    xyz, rgb, _ = depth_to_points(depth, tiny_rig.INTRINSICS, tiny_rig.DEPTH_UNIT if unit_scale else 1.0,
-                                  tiny_rig.frame_color("cam_a", frame_index), window)
-    return xyz, rgb, window
+    return depth_to_points(depth, tiny_rig.INTRINSICS, tiny_rig.DEPTH_UNIT if unit_scale else 1.0,
+                           tiny_rig.frame_color("cam_a", frame_index), window)
 
 
 @pytest.mark.parametrize("case", ["raw16", "float32"])
@@ -67,12 +67,13 @@ def test_depth_frames_are_deprojected_by_the_core(setup, case):
     for msg in received[case][:FRAMES + 2]:
         stamp = stamp_to_ns(msg.header.stamp)
         index = round((stamp - START) / PERIOD) % FRAMES
-        xyz, rgb = cloud_from_msg(msg, drop_nan=True)
-        want_xyz, want_rgb, window = expected_points(config, index, unit_scale=case == "raw16")
+        xyz, rgb = cloud_from_msg(msg)
+        want_xyz, want_rgb, want_pixel = expected_points(config, index, unit_scale=case == "raw16")
         assert msg.header.frame_id == "cam_a_optical_frame"
-        # Organised: the crop window's pixel grid, NaN where the depth is invalid.
-        assert (msg.width, msg.height) == (window.u1 - window.u0, window.v1 - window.v0)
-        assert msg.height > 1 and not msg.is_dense
+        # Each point's pixel travels with it (the filters' image neighbourhoods).
+        grid, _, width = camera_cloud_arrays(msg, "cam_a_optical_frame")
+        flat = np.flatnonzero(np.isfinite(grid).all(axis=1))
+        np.testing.assert_array_equal(np.stack([flat % width, flat // width], axis=1), want_pixel - want_pixel.min(0))
         assert len(xyz) == len(want_xyz) > 100
         np.testing.assert_allclose(xyz, want_xyz, atol=1e-7)
         np.testing.assert_array_equal(rgb, want_rgb)  # the colour of the frame with the same stamp
@@ -80,7 +81,7 @@ def test_depth_frames_are_deprojected_by_the_core(setup, case):
 
 def test_16bit_depth_is_scaled_by_the_configured_unit(setup):
     _, received, _, _, _ = setup
-    raw16, metres = (cloud_from_msg(received[case][0], drop_nan=True)[0] for case in ("raw16", "float32"))
+    raw16, metres = (cloud_from_msg(received[case][0])[0] for case in ("raw16", "float32"))
     # Same scene: 16UC1 in 0.1 mm units equals 32FC1 metres to within the quantisation.
     assert np.abs(raw16[:, 2] - metres[:, 2]).max() <= tiny_rig.DEPTH_UNIT / 2 + 1e-7
     assert 0.085 < np.median(raw16[:, 2]) < 0.09

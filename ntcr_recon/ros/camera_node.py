@@ -10,8 +10,8 @@ One instance per camera (parameter `camera`, a name of the rig's camera_names). 
   file      a librealsense recording (`file_path`) played back through pyrealsense2.
 Every depth frame goes through the core's deprojection (`ntcr_recon.core.deproject`): with `crop_to_robot`
 only the image window that can see the robot's crop box is deprojected, as the offline pipeline does. The
-cloud is organised (the window's pixel grid, NaN where the depth is invalid, so the later stages know each
-point's pixel), in the camera's optical frame (the configuration's frame_id), with the frame's own stamp.
+cloud holds the valid points with their pixel (fields pixel_u, pixel_v: the later stages find neighbours in
+the image by it), in the camera's optical frame (the configuration's frame_id), with the frame's own stamp.
 """
 
 from __future__ import annotations
@@ -24,11 +24,11 @@ import numpy as np
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, PointCloud2
 
-from ntcr_recon.core.deproject import Intrinsics, PixelWindow, crop_window, depth_to_points
+from ntcr_recon.core.deproject import Intrinsics, crop_window, depth_to_points
 from ntcr_recon.ros.camera_sources import BagSource, SourceError, SourceFrame
-from ntcr_recon.ros.messages import header, stamp_msg
+from ntcr_recon.ros.messages import camera_cloud_to_msg, header, stamp_msg
 from ntcr_recon.ros.node_support import SENSOR_QOS, ParameterError, RigNode, describe, run_node
-from ntcr_recon.ros.pointcloud import RCLPY, cloud_to_msg
+from ntcr_recon.ros.pointcloud import RCLPY
 from ntcr_recon.ros.topics import camera_topic
 
 SOURCES = ("bag", "realsense", "file")
@@ -43,6 +43,11 @@ PARAMETERS = {
     "loop": (False, describe("replay the bag / file again and again (stamps keep increasing)", read_only=True)),
     "publish_clock": (False, describe("publish /clock from the frames' stamps (bag source; one node per graph)",
                                       read_only=True)),
+    "start_time": (0.0, describe("bag / file: wall-clock time (s since the epoch) at which the first frame is due; "
+                                  "camera nodes given the same value replay in step (0: when ready)", minimum=0.0,
+                                  read_only=True)),
+    "wait_for_subscriber": (True, describe("bag / file: start replaying once the cloud topic has a subscriber, so a "
+                                           "graph started together loses no frame", read_only=True)),
     "crop_to_robot": (True, describe("deproject only the pixels that can see the robot's crop box")),
     "spatial_filter": (False, describe("realsense: librealsense spatial edge-preserving filter", read_only=True)),
     "temporal_filter": (False, describe("realsense: librealsense temporal filter", read_only=True)),
@@ -68,21 +73,6 @@ def camera_info_msg(frame: SourceFrame, frame_id: str) -> CameraInfo:
     info.r = np.eye(3).reshape(-1)
     info.p = np.array([intrinsics.fx, 0, intrinsics.cx, 0, 0, intrinsics.fy, intrinsics.cy, 0, 0, 0, 1, 0], float)
     return info
-
-
-def organised_window(window: PixelWindow, xyz: np.ndarray, rgb: np.ndarray | None, pixel: np.ndarray
-                     ) -> tuple[np.ndarray, np.ndarray | None]:
-    """The deprojected points laid out on the window's pixel grid (NaN where the depth was invalid): an
-    organised cloud keeps each point's pixel, by which the filters find neighbours without a KD-tree."""
-    height, width = window.v1 - window.v0, window.u1 - window.u0
-    rows, columns = pixel[:, 1] - window.v0, pixel[:, 0] - window.u0
-    grid = np.full((height, width, 3), np.nan, dtype=np.float32)
-    grid[rows, columns] = xyz
-    colors = None
-    if rgb is not None:
-        colors = np.zeros((height, width), dtype=np.uint32)
-        colors[rows, columns] = rgb
-    return grid, colors
 
 
 def recorded_cloud_msg(recorded, stamp_ns: int) -> PointCloud2:
@@ -145,15 +135,20 @@ class CameraNode(RigNode):
     # ---- the producer thread -------------------------------------------------------------------------------
     def _pump(self) -> None:
         start_wall = start_stamp = None
+        if self._params["wait_for_subscriber"] and self._params["source"] != "realsense":
+            self.get_logger().info(f"waiting for a subscriber on {self._cloud_publisher.topic_name}")
+            while self._cloud_publisher.get_subscription_count() == 0:
+                if self._stop.wait(0.05):
+                    return
         try:
             for frame in self._source:
                 if self._stop.is_set():
                     return
                 rate = self._params["rate"]
                 if rate > 0 and self._params["source"] != "realsense":
-                    if start_wall is None:
-                        start_wall, start_stamp = time.monotonic(), frame.stamp_ns
-                    delay = start_wall + (frame.stamp_ns - start_stamp) * 1e-9 / rate - time.monotonic()
+                    if start_wall is None:  # the first frame is due at start_time (or now): pace from there
+                        start_wall, start_stamp = max(self._params["start_time"], time.time()), frame.stamp_ns
+                    delay = start_wall + (frame.stamp_ns - start_stamp) * 1e-9 / rate - time.time()
                     if delay > 0 and self._stop.wait(delay):
                         return
                 try:
@@ -163,7 +158,7 @@ class CameraNode(RigNode):
         except SourceError as error:
             self.get_logger().error(f"camera source stopped: {error}")
         except Exception as error:  # the context may be shut down under a publish at Ctrl-C
-            if not self._stop.is_set():
+            if not self._stop.is_set() and self.context.ok():
                 self.get_logger().error(f"camera source failed: {type(error).__name__}: {error}")
             return
         self.get_logger().info(f"source finished after {self.frames_published} frames")
@@ -177,17 +172,12 @@ class CameraNode(RigNode):
             self.frames_published += 1
             return
         unit = camera.depth_unit if frame.depth_unit is None else frame.depth_unit
-        if self._params["crop_to_robot"]:
-            window = self._window(frame.intrinsics)
+        window = self._window(frame.intrinsics) if self._params["crop_to_robot"] else None
+        if self._params["crop_to_robot"] and window is None:  # the camera cannot see the crop box at all
+            xyz, rgb, pixel = np.empty((0, 3)), None, np.empty((0, 2), np.int32)
         else:
-            window = PixelWindow(0, frame.intrinsics.width, 0, frame.intrinsics.height, 0.0, np.inf)
-        if window is None:  # the camera cannot see the crop box at all
-            xyz, rgb = np.empty((0, 0, 3)), None
-        else:
-            xyz, rgb = organised_window(window, *depth_to_points(frame.depth, frame.intrinsics, unit, frame.color,
-                                                                 window))
-        self._cloud_publisher.publish(cloud_to_msg(xyz, rgb, frame_id=camera.frame_id, stamp_ns=frame.stamp_ns,
-                                                   msgtypes=RCLPY))
+            xyz, rgb, pixel = depth_to_points(frame.depth, frame.intrinsics, unit, frame.color, window)
+        self._cloud_publisher.publish(camera_cloud_to_msg(xyz, rgb, pixel, camera.frame_id, frame.stamp_ns))
         self._info_publisher.publish(camera_info_msg(frame, camera.frame_id))
         self.frames_published += 1
 

@@ -6,8 +6,9 @@ footprint the later stages scale with). Pairing and fusion are the core's (`core
 `fusion.slop`, `core.fusion.fuse` with each camera's extrinsics); this node decides only when a buffered
 frame is released:
   - as soon as every camera has a frame within the slop (a pair);
-  - alone, once no partner can come any more (the other camera has already sent a later frame), as the
-    offline command fuses an unpaired frame alone;
+  - once no partner can come any more (the other camera has already sent a later frame: the partner was
+    dropped on the way): counted and dropped, or with `publish_unpaired` published alone as the offline
+    command fuses an unpaired frame;
   - alone, when the other camera is silent: its newest stamp lags the newest of all by more than
     `fusion.camera_timeout`. Stamps, not the wall clock, measure the silence, so a bag replayed at any rate
     (and `use_sim_time`) behaves like the live rig. The change is logged, and `/diagnostics` says which
@@ -28,7 +29,7 @@ from sensor_msgs.msg import CameraInfo, PointCloud2
 
 from ntcr_recon.core.fusion import CameraFrame, FramePair, fuse, pair_frames
 from ntcr_recon.core.transforms import invert_transform, transform_points
-from ntcr_recon.ros.messages import diagnostics, input_cloud, stage_cloud_to_msg
+from ntcr_recon.ros.messages import camera_cloud_arrays, diagnostics, stage_cloud_to_msg
 from ntcr_recon.ros.node_support import SENSOR_QOS, STAGE_QOS, RigNode, describe, guarded, run_node
 from ntcr_recon.ros.pointcloud import stamp_to_ns
 from ntcr_recon.ros.topics import camera_topic, stage_topic
@@ -36,6 +37,9 @@ from ntcr_recon.ros.topics import camera_topic, stage_topic
 PARAMETERS = {
     "queue_size": (10, describe("frames buffered per camera while waiting for a partner", minimum=1, maximum=300,
                                 integer=True)),
+    "publish_unpaired": (False, describe("publish a frame whose partner was lost (the other camera is alive but "
+                                         "its frame never came) alone, as the offline command fuses it; false: "
+                                         "drop it and count it")),
     "diagnostics_period": (1.0, describe("seconds between /diagnostics messages", minimum=0.05, maximum=60.0)),
 }
 DIAGNOSTIC_NAME = "ntcr_recon: fusion"
@@ -49,7 +53,7 @@ class FusionNode(RigNode):
         self._first_stamp: int | None = None  # the first stamp of any camera: a camera never heard of is
         self._silent: set[str] = set()        # silent from then on
         self._focal: dict[str, float] = {}
-        self.counts = {"pairs": 0, "alone": 0, "dropped": 0}
+        self.counts = {"pairs": 0, "alone": 0, "unpaired": 0, "dropped": 0}
         self._publisher = self.create_publisher(PointCloud2, stage_topic(self.rig.topics, "fused/points"), STAGE_QOS)
         self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         for name in self.rig.camera_names:
@@ -80,13 +84,12 @@ class FusionNode(RigNode):
     @guarded
     def _on_cloud(self, item) -> None:
         name, msg = item
-        xyz, rgb = input_cloud(msg, self.rig.cameras[name].frame_id, keep_nan=msg.height > 1)
+        xyz, rgb, grid_width = camera_cloud_arrays(msg, self.rig.cameras[name].frame_id)
         stamp = stamp_to_ns(msg.header.stamp)
         buffer = self._buffers[name]
         if len(buffer) == buffer.maxlen:
             self.counts["dropped"] += 1
-        buffer.append(CameraFrame(camera=name, stamp_ns=stamp, points=xyz, rgb=rgb,
-                                  organised_width=int(msg.width) if msg.height > 1 else 0))
+        buffer.append(CameraFrame(camera=name, stamp_ns=stamp, points=xyz, rgb=rgb, organised_width=grid_width))
         self._newest[name] = max(stamp, self._newest.get(name, stamp))
         self._first_stamp = stamp if self._first_stamp is None else self._first_stamp
         self._update_silence()
@@ -116,7 +119,10 @@ class FusionNode(RigNode):
             if any(name not in self._silent and self._newest.get(name, -1) < pair.stamp_ns + self._slop_ns
                    for name in missing):
                 break
-            self._publish(pair, alone=bool(missing))
+            if missing and not self._params["publish_unpaired"] and not set(missing) <= self._silent:
+                self.counts["unpaired"] += 1  # its partner was lost on the way: half a robot is worse than none
+            else:
+                self._publish(pair, alone=bool(missing))
             for name, frame in pair.frames.items():  # by identity: frames hold arrays, == is no use
                 buffer = self._buffers[name]
                 kept = [f for f in buffer if f is not frame]

@@ -22,6 +22,7 @@ from pathlib import Path
 
 STAGE_NODES = ("fusion_node", "filter_node", "relocation_node", "mesh_node")
 GRACE_S = 10.0
+START_DELAY_S = 3.0  # s for the node processes to start before a replay's first frame is due
 
 
 @dataclass
@@ -62,13 +63,17 @@ def node_commands(args: argparse.Namespace, camera_names: list[str]) -> list[Nod
     if args.file and set(files) != set(camera_names):
         raise ValueError(f"--file needs a recording for every camera {camera_names}, got {sorted(files)}")
     commands = []
+    # The camera nodes replay in step: the bag's first frame is due at the same wall-clock instant for all
+    # (after the nodes' start-up), so frames of one instant reach fusion together.
+    start_time = round(time.time() + START_DELAY_S, 3)
     for index, camera in enumerate(camera_names):
         parameters: dict[str, object] = {"camera": camera, "loop": args.loop}
         if args.bag is not None:
             parameters.update(source="bag", bag_path=str(args.bag.resolve()), rate=float(args.rate),
-                              publish_clock=bool(args.use_sim_time and index == 0))
+                              publish_clock=bool(args.use_sim_time and index == 0), start_time=start_time)
         elif files:
-            parameters.update(source="file", file_path=str(Path(files[camera]).resolve()), rate=float(args.rate))
+            parameters.update(source="file", file_path=str(Path(files[camera]).resolve()), rate=float(args.rate),
+                              start_time=start_time)
         else:
             parameters.update(source="realsense")
         commands.append(NodeCommand(f"camera_{camera}", _argv("camera_node", f"camera_{camera}", args.config,

@@ -5,10 +5,14 @@ x, y, z, rgb float32 as DESIGN.md fixes, plus the fields a later stage needs to 
 command computes on the same frames, all float32:
   `camera`            index in the rig's camera_names of the camera that saw the point
   `pixel_footprint`   metres, the size of one depth pixel on the robot (same for every point; 0 = unknown)
-  `pixel_u`, `pixel_v` the point's pixel in its camera's organised cloud (the filters find neighbours in the
-                      image by it); absent when the camera's cloud was not organised
+  `pixel_u`, `pixel_v` the point's pixel in its camera image (the filters find neighbours in the image by
+                      it); absent when the camera's cloud had no pixel layout
   `normal_x/y/z`      relocated cloud only: the reference surface's outward normal (the mesh is oriented by it)
 Readers that know only x, y, z (and rgb) are unaffected.
+
+camera_node's clouds (`<ns>/<cam>/depth/color/points`) are unorganised (only the valid points: a crop window
+organised would be megabytes a frame) with x, y, z, rgb and `pixel_u`, `pixel_v`; an organised cloud (e.g.
+from realsense-ros with ordered_pc) carries its pixels in its layout.
 
 Notches as `std_msgs/Float64MultiArray` (`<ns>/notches`), readable without this package:
     layout.dim[0] = {label: "notch", size: N, stride: 4 * N}
@@ -51,17 +55,12 @@ def header(frame_id: str, stamp_ns: int) -> Header:
 
 # ---- stage clouds ---------------------------------------------------------------------------------------------
 
-def stage_cloud_to_msg(cloud: Cloud, frame_id: str, normals: np.ndarray | None = None) -> PointCloud2:
-    """A Cloud as a PointCloud2: x, y, z, rgb, `camera`, `pixel_footprint`, `pixel_u`/`pixel_v` when the cloud
-    has pixels, and `normal_x`/`normal_y`/`normal_z` when normals are given (see the module doc)."""
-    count = len(cloud)
-    rgb = cloud.rgb if cloud.rgb is not None else np.zeros(count, np.uint32)
-    base = cloud_to_msg(cloud.xyz, rgb, frame_id=frame_id, stamp_ns=cloud.stamp_ns, msgtypes=RCLPY)
-    columns = {"camera": cloud.camera if cloud.camera is not None else -1, "pixel_footprint": cloud.pixel_footprint}
-    if cloud.pixel is not None:
-        columns.update(pixel_u=cloud.pixel[:, 0], pixel_v=cloud.pixel[:, 1])
-    if normals is not None:
-        columns.update(zip(_NORMAL_FIELDS, np.asarray(normals).T, strict=True))
+def cloud_msg_with_fields(xyz: np.ndarray, rgb: np.ndarray | None, frame_id: str, stamp_ns: int,
+                          columns: dict[str, np.ndarray | float]) -> PointCloud2:
+    """An unorganised PointCloud2 of x, y, z, rgb followed by one float32 field per entry of `columns`."""
+    count = len(xyz)
+    rgb = rgb if rgb is not None else np.zeros(count, np.uint32)
+    base = cloud_to_msg(xyz, rgb, frame_id=frame_id, stamp_ns=stamp_ns, msgtypes=RCLPY)
     extra = np.empty((count, len(columns)), dtype="<f4")
     for column, values in enumerate(columns.values()):
         extra[:, column] = values
@@ -74,6 +73,50 @@ def stage_cloud_to_msg(cloud: Cloud, frame_id: str, normals: np.ndarray | None =
     base.row_step = base.point_step * count
     base.data = data.tobytes()
     return base
+
+
+def stage_cloud_to_msg(cloud: Cloud, frame_id: str, normals: np.ndarray | None = None) -> PointCloud2:
+    """A Cloud as a PointCloud2: x, y, z, rgb, `camera`, `pixel_footprint`, `pixel_u`/`pixel_v` when the cloud
+    has pixels, and `normal_x`/`normal_y`/`normal_z` when normals are given (see the module doc)."""
+    columns = {"camera": cloud.camera if cloud.camera is not None else -1, "pixel_footprint": cloud.pixel_footprint}
+    if cloud.pixel is not None:
+        columns.update(pixel_u=cloud.pixel[:, 0], pixel_v=cloud.pixel[:, 1])
+    if normals is not None:
+        columns.update(zip(_NORMAL_FIELDS, np.asarray(normals).T, strict=True))
+    return cloud_msg_with_fields(cloud.xyz, cloud.rgb, frame_id, cloud.stamp_ns, columns)
+
+
+def camera_cloud_to_msg(xyz: np.ndarray, rgb: np.ndarray | None, pixel: np.ndarray, frame_id: str,
+                        stamp_ns: int) -> PointCloud2:
+    """A camera's deprojected points (optical frame) with their pixel (u, v) as `pixel_u`, `pixel_v`."""
+    return cloud_msg_with_fields(xyz, rgb, frame_id, stamp_ns, {"pixel_u": pixel[:, 0], "pixel_v": pixel[:, 1]})
+
+
+def camera_cloud_arrays(msg: PointCloud2, expected_frame: str) -> tuple[np.ndarray, np.ndarray | None, int]:
+    """A camera cloud as the core's CameraFrame takes it: points (NaN = no return) and colours laid out
+    row-major on a pixel grid, and the grid's width (0 when the cloud carries no pixel layout).
+
+    An organised cloud is its own grid; an unorganised one with `pixel_u`/`pixel_v` is scattered onto the
+    grid of the pixels it spans; any other cloud comes back as its finite points, unorganised.
+    """
+    if msg.height > 1:
+        xyz, rgb = input_cloud(msg, expected_frame, keep_nan=True)
+        return xyz, rgb, int(msg.width)
+    xyz, rgb = input_cloud(msg, expected_frame, keep_nan=True)
+    u, v = _float_field(msg, "pixel_u", len(xyz)), _float_field(msg, "pixel_v", len(xyz))
+    finite = np.isfinite(xyz).all(axis=1)
+    if u is None or v is None or not (np.isfinite(u) & np.isfinite(v))[finite].all():
+        return xyz[finite], None if rgb is None else rgb[finite], 0
+    u, v = u[finite].astype(np.int64), v[finite].astype(np.int64)
+    width, height = int(u.max() - u.min() + 1), int(v.max() - v.min() + 1)
+    cell = (v - v.min()) * width + (u - u.min())
+    grid = np.full((height * width, 3), np.nan, dtype=np.float32)
+    grid[cell] = xyz[finite]
+    colors = None
+    if rgb is not None:
+        colors = np.zeros(height * width, dtype=np.uint32)
+        colors[cell] = rgb[finite]
+    return grid, colors, width
 
 
 def input_cloud(msg: PointCloud2, expected_frame: str, keep_nan: bool = False

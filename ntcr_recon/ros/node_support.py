@@ -103,6 +103,10 @@ def run_node(node_factory: Callable[[], Node], args: list[str] | None = None) ->
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except RuntimeError:
+        # A Ctrl-C shuts the context down under a callback being taken; only then is this a clean stop.
+        if rclpy.ok():
+            raise
     except ParameterError as error:  # refused at start-up: say which parameter, exit non-zero
         print(f"error: {error}", file=sys.stderr)
         return 2

@@ -33,8 +33,13 @@ from ntcr_recon.ros.messages import (
     stage_cloud_from_msg,
     stage_cloud_to_msg,
 )
-from ntcr_recon.ros.node_support import STAGE_QOS, RigNode, guarded, run_node
+from ntcr_recon.ros.node_support import STAGE_QOS, RigNode, describe, guarded, run_node
 from ntcr_recon.ros.topics import stage_topic
+
+PARAMETERS = {
+    "warm_start": (True, describe("start each frame's centreline iteration from the previous frame's (as the "
+                                  "offline command does); false: every frame from the base, independently")),
+}
 
 
 def frame_rotations(normals: np.ndarray, binormals: np.ndarray, tangents: np.ndarray) -> np.ndarray:
@@ -44,7 +49,7 @@ def frame_rotations(normals: np.ndarray, binormals: np.ndarray, tangents: np.nda
 
 class RelocationNode(RigNode):
     def __init__(self) -> None:
-        super().__init__("relocation_node", {})
+        super().__init__("relocation_node", PARAMETERS)
         topic = self.rig.topics
         self._cloud = self.create_publisher(PointCloud2, stage_topic(topic, "relocated/points"), STAGE_QOS)
         self._path = self.create_publisher(Path, stage_topic(topic, "centerline"), STAGE_QOS)
@@ -55,13 +60,13 @@ class RelocationNode(RigNode):
         self.get_logger().info("relocating filtered clouds onto the reference robot")
 
     def configure(self, rig, params: dict) -> None:
-        self.rig, self._reconstructor = rig, Reconstructor(rig)
+        self.rig, self._reconstructor, self._warm_start = rig, Reconstructor(rig), params["warm_start"]
 
     @guarded
     def _on_cloud(self, msg: PointCloud2) -> None:
         cloud = stage_cloud_from_msg(msg, self.rig.base_frame)
         try:
-            relocation = self._reconstructor.relocate(cloud)
+            relocation = self._reconstructor.relocate(cloud, warm_start=self._warm_start)
         except ReconstructionError as error:
             raise ValueError(f"cannot reconstruct the cloud of {len(cloud)} points: {error}") from error
         frame, stamp = self.rig.base_frame, cloud.stamp_ns
