@@ -1,0 +1,94 @@
+"""The paper's figures as PNG (matplotlib, no display needed).
+
+Public API (each writes one PNG atomically and returns nothing):
+    density_heatmaps(path, raw_xyz, relocated_xyz, axes, cell)     Fig. 6: points per cell, side by side
+    notch_width_plot(path, widths_mm, nominal_mm, truth_mm=None)   Fig. 7: scatter by notch and box plot
+    side_views(path, raw_xyz, relocated_xyz, mesh, axes)           Fig. 1/5: raw, relocated, mesh
+`axes` is a (2, 3) array: the two in-plane directions of the view (e.g. the robot's notch side and its
+axis), so every figure looks at the bending plane.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(fig, path) -> None:
+    from ntcr_recon.core.mesh import _atomic
+
+    _atomic(Path(path), lambda temp: fig.savefig(temp, dpi=110, format="png"))
+    fig.clf()
+    _pyplot().close(fig)
+
+
+def _project(xyz: np.ndarray, axes: np.ndarray) -> np.ndarray:
+    return np.asarray(xyz) @ np.asarray(axes).T * 1e3  # mm
+
+
+def density_heatmaps(path, raw_xyz: np.ndarray, relocated_xyz: np.ndarray, axes: np.ndarray, cell: float) -> None:
+    plt = _pyplot()
+    raw, relocated = _project(raw_xyz, axes), _project(relocated_xyz, axes)
+    both = np.concatenate([raw, relocated]) if len(raw) + len(relocated) else np.zeros((1, 2))
+    lo, hi = both.min(axis=0) - 1.0, both.max(axis=0) + 1.0
+    bins = [np.arange(lo[d], hi[d] + cell * 1e3, cell * 1e3) for d in range(2)]
+    fig, panels = plt.subplots(1, 2, figsize=(10, 6), sharex=True, sharey=True)
+    counts = [np.histogram2d(p[:, 0], p[:, 1], bins=bins)[0] for p in (relocated, raw)]
+    top = max(float(c.max()) for c in counts) or 1.0
+    for panel, count, title in zip(panels, counts, ("relocated", "raw fused"), strict=True):
+        image = panel.imshow(count.T, origin="lower", extent=(lo[0], hi[0], lo[1], hi[1]), cmap="viridis",
+                             vmin=0, vmax=top, aspect="equal")
+        panel.set_title(f"{title}: points per {cell * 1e3:.1f} mm cell")
+        panel.set_xlabel("mm")
+    panels[0].set_ylabel("mm")
+    fig.colorbar(image, ax=list(panels), label="points")
+    _save(fig, path)
+
+
+def notch_width_plot(path, widths_mm: list[float], nominal_mm: float, truth_mm: list[float] | None = None,
+                     indices: list[int] | None = None) -> None:
+    plt = _pyplot()
+    fig, (scatter, box) = plt.subplots(1, 2, figsize=(10, 4), gridspec_kw={"width_ratios": [3, 1]})
+    index = np.arange(len(widths_mm)) if indices is None else np.asarray(indices)
+    scatter.scatter(index, widths_mm, label="measured", zorder=3)
+    if truth_mm is not None:
+        scatter.scatter(index, truth_mm, marker="x", color="k", label="ground truth", zorder=3)
+    scatter.axhline(nominal_mm, color="r", linestyle="--", label=f"nominal {nominal_mm:.2f} mm")
+    scatter.set_xlabel("notch (0 = nearest the base)")
+    scatter.set_ylabel("width on the notched side (mm)")
+    scatter.legend()
+    if len(widths_mm):
+        box.boxplot(widths_mm)
+    box.axhline(nominal_mm, color="r", linestyle="--")
+    box.set_xticks([1], ["measured"])
+    fig.tight_layout()
+    _save(fig, path)
+
+
+def side_views(path, raw_xyz: np.ndarray, relocated_xyz: np.ndarray, mesh, axes: np.ndarray) -> None:
+    plt = _pyplot()
+    fig, panels = plt.subplots(1, 3, figsize=(12, 6), sharex=True, sharey=True)
+    for panel, xyz, title in ((panels[0], raw_xyz, "raw fused cloud"), (panels[1], relocated_xyz, "relocated cloud")):
+        p = _project(xyz, axes)
+        panel.scatter(p[:, 0], p[:, 1], s=0.3, color="tab:blue")
+        panel.set_title(title)
+    if mesh is not None and len(mesh):
+        v = _project(mesh.vertices, axes)
+        panels[2].triplot(v[:, 0], v[:, 1], mesh.triangles, linewidth=0.1, color="tab:gray")
+    panels[2].set_title("Poisson mesh")
+    for panel in panels:
+        panel.set_aspect("equal")
+        panel.set_xlabel("mm")
+    panels[0].set_ylabel("mm")
+    fig.tight_layout()
+    _save(fig, path)

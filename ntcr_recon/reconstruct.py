@@ -1,0 +1,212 @@
+"""`ntcr-recon reconstruct BAG --config RIG.yaml --out DIR`: a bag in, the reconstructed robot out.
+
+Reads the cameras' depth images (or PointCloud2) from a rosbag2 bag, runs every frame pair through
+fusion, filtering and relocation (core.pipeline.Reconstructor), combines the frames of the still robot
+into one relocated cloud, meshes it and measures it, and writes into DIR:
+
+    relocated.ply  fused_raw.ply  mesh.ply  mesh.stl  result.json
+    density_heatmaps.png  notch_widths.png  side_views.png
+
+Everything is built in a temporary directory beside DIR and moved in file by file only when all of it
+exists, so a failure leaves DIR as it was. result.json (lengths in the unit its key names):
+
+    {"frames", "notch_count_expected", "notches": [{"index", "center_s_mm", "width_mm", "bend_deg"}],
+     "centerline_m", "tip_m", "pdc": {"raw": {"mu", "sigma", "lambda"}, "relocated": {...}},
+     "ground_truth": null | {"notches_detected", "width_mae_mm", "centerline_rmse_mm", "tip_error_mm",
+                             "surface_error_mm": {"raw", "relocated"}},
+     "timings_ms": {stage: median ms per frame pair, or ms for the combined steps}}
+
+Ground truth comes from `ground_truth.json` inside the bag directory when there is one (simulated bags).
+Exit status: 0 done, 2 bad configuration / bag / reconstruction (one message on stderr naming the cause).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+OUTPUT_FILES = ("relocated.ply", "fused_raw.ply", "mesh.ply", "mesh.stl", "result.json", "density_heatmaps.png",
+                "notch_widths.png", "side_views.png")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("bag", type=Path, help="rosbag2 directory (or .mcap file)")
+    parser.add_argument("--config", type=Path, default=None,
+                        help="rig configuration (ROS 2 parameter file); default: rig.yaml inside the bag directory")
+    parser.add_argument("--out", type=Path, required=True, help="output directory")
+    parser.add_argument("--source", choices=("auto", "depth", "points"), default="auto",
+                        help="read depth images or PointCloud2 (auto: depth when the bag has them)")
+    parser.add_argument("--topic", action="append", default=[], metavar="CAM.KIND=TOPIC",
+                        help="remap a camera topic, e.g. cam_a.depth=/cam_a/depth/image_rect_raw "
+                             "(kinds: depth, depth_info, color, points); repeatable")
+    parser.add_argument("--max-frames", type=int, default=0, help="use only the first N frames of each camera")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def main(args: argparse.Namespace) -> int:
+    try:
+        run(args)
+    except ReconstructFailure as failure:
+        print(f"ntcr-recon reconstruct: error: {failure}", file=sys.stderr)
+        return 2
+    return 0
+
+
+class ReconstructFailure(Exception):
+    """Stops the command with one message."""
+
+
+def run(args: argparse.Namespace) -> dict:
+    """The whole command; raises ReconstructFailure with the cause. Returns the result document."""
+    from ntcr_recon.bagio import BagError
+    from ntcr_recon.core.config import ConfigError, load_rig_config
+    from ntcr_recon.core.pipeline import ReconstructionError
+
+    config_path = args.config if args.config is not None else _bag_dir(args.bag) / "rig.yaml"
+    try:
+        config = load_rig_config(config_path)
+    except ConfigError as error:
+        raise ReconstructFailure(f"bad rig configuration: {error}") from error
+    overrides = {}
+    for item in args.topic:
+        key, sep, topic = item.partition("=")
+        if not sep or not key or not topic:
+            raise ReconstructFailure(f"--topic expects CAM.KIND=TOPIC, got {item!r}")
+        overrides[key] = topic
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise ReconstructFailure(f"--out {out} exists and is not a directory")
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(dir=out.parent, prefix=f".{out.name}.partial-"))
+    except OSError as error:
+        raise ReconstructFailure(f"cannot write next to {out}: {error}") from error
+    try:
+        result = _reconstruct(args, config, overrides, staging)
+        _publish(staging, out)
+        return result
+    except (BagError, ReconstructionError, ValueError, OSError) as error:
+        raise ReconstructFailure(str(error)) from error
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+
+
+def _bag_dir(bag: Path) -> Path:
+    return bag if bag.is_dir() else bag.parent
+
+
+def _publish(staging: Path, out: Path) -> None:
+    """Move the finished files into `out` (a fresh directory is renamed into place in one step)."""
+    if not out.exists():
+        staging.chmod(0o755)
+        os.replace(staging, out)
+        staging.mkdir()  # so the caller's cleanup finds something to remove
+        return
+    for name in OUTPUT_FILES:
+        os.replace(staging / name, out / name)
+
+
+def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
+    from tqdm import tqdm
+
+    from ntcr_recon.bagio import read_camera_frames
+    from ntcr_recon.core import figures
+    from ntcr_recon.core.cloud import Cloud
+    from ntcr_recon.core.fusion import pair_frames
+    from ntcr_recon.core.mesh import write_cloud_ply, write_mesh
+    from ntcr_recon.core.metrics import pdc
+    from ntcr_recon.core.pipeline import Reconstructor
+
+    started = time.perf_counter()
+    streams = read_camera_frames(args.bag, config, args.source, overrides, args.max_frames)
+    pairs = pair_frames(streams, int(round(config.fusion.slop * 1e9)))
+    reconstructor = Reconstructor(config)
+    fused, filtered, per_stage = [], [], {}
+    for pair in tqdm(pairs, desc="frame pairs", unit="pair", disable=args.no_progress):
+        frame = reconstructor.process(pair)
+        fused.append(frame.fused)
+        filtered.append(frame.filtered)
+        for stage, ms in frame.timings_ms.items():
+            per_stage.setdefault(stage, []).append(ms)
+    timings = {stage: float(np.median(values)) for stage, values in per_stage.items()}
+    steps = tqdm(total=4, desc="combine, mesh, measure", disable=args.no_progress)
+    raw = Cloud.concatenate(fused)
+    relocation = reconstructor.relocate(Cloud.concatenate(filtered))
+    timings["relocate_combined"] = reconstructor.timings_ms["relocate"]
+    steps.update()
+    mesh = reconstructor.mesh(relocation)
+    timings["mesh"] = reconstructor.timings_ms["mesh"]
+    steps.update()
+
+    geometry = config.robot
+    voxel = config.metrics.pdc_voxel
+    result = {
+        "frames": len(pairs),
+        "notch_count_expected": geometry.notch_count,
+        "notches": [{"index": n.index, "center_s_mm": n.center_s * 1e3, "width_mm": n.width * 1e3,
+                     "bend_deg": None if n.bend is None else float(np.degrees(n.bend))} for n in relocation.notches],
+        "centerline_m": relocation.centerline.points.tolist(),
+        "tip_m": relocation.tip.tolist(),
+        "pdc": {"raw": pdc(raw.xyz, voxel), "relocated": pdc(relocation.relocated.xyz, voxel)},
+        "ground_truth": _ground_truth(args.bag, raw, relocation),
+    }
+    steps.update()
+
+    write_cloud_ply(staging / "relocated.ply", relocation.relocated.xyz, relocation.relocated.rgb,
+                    relocation.normals)
+    write_cloud_ply(staging / "fused_raw.ply", raw.xyz, raw.rgb)
+    write_mesh(staging / "mesh.ply", mesh)
+    write_mesh(staging / "mesh.stl", mesh)
+    view = _view_axes(geometry)
+    figures.density_heatmaps(staging / "density_heatmaps.png", raw.xyz, relocation.relocated.xyz, view, voxel)
+    truth_widths = None
+    if result["ground_truth"] is not None:
+        truth_widths = result["ground_truth"].pop("_widths_mm")
+    figures.notch_width_plot(staging / "notch_widths.png", [n["width_mm"] for n in result["notches"]],
+                             geometry.notch_width * 1e3, truth_widths, [n["index"] for n in result["notches"]])
+    figures.side_views(staging / "side_views.png", raw.xyz, relocation.relocated.xyz, mesh, view)
+    steps.update()
+    steps.close()
+    timings["total"] = (time.perf_counter() - started) * 1e3
+    result["timings_ms"] = timings
+    text = json.dumps(result, indent=1)
+    (staging / "result.json").write_text(text)
+    return result
+
+
+def _view_axes(geometry) -> np.ndarray:
+    """The bending plane: the robot's notch side and its axis, in the base frame."""
+    from ntcr_recon.core.centerline import base_pose
+
+    _, axis, binormal = base_pose(geometry)
+    return np.stack([np.cross(binormal, axis), axis])
+
+
+def _ground_truth(bag: Path, raw, relocation) -> dict | None:
+    from ntcr_recon.core.metrics import centerline_rmse, notch_width_errors
+
+    truth_file = _bag_dir(Path(bag)) / "ground_truth.json"
+    if not truth_file.exists():
+        return None
+    from ntcr_recon.sim.truth import load_truth
+
+    shape, document = load_truth(truth_file)
+    detected, measured, true = notch_width_errors(relocation.notches, document["notches"])
+    by_index = {int(n["index"]): n["width_m"] * 1e3 for n in document["notches"]}
+    return {
+        "notches_detected": detected,
+        "width_mae_mm": float(np.mean(np.abs(measured - true))) * 1e3 if detected else None,
+        "centerline_rmse_mm": centerline_rmse(relocation.centerline.points, np.asarray(document["centerline_m"])) * 1e3,
+        "tip_error_mm": float(np.linalg.norm(relocation.tip - np.asarray(document["tip"]["position_m"]))) * 1e3,
+        "surface_error_mm": {"raw": float(np.mean(shape.surface_distance(raw.xyz))) * 1e3,
+                             "relocated": float(np.mean(shape.surface_distance(relocation.relocated.xyz))) * 1e3},
+        "_widths_mm": [by_index.get(n.index) for n in relocation.notches],
+    }
