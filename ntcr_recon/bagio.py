@@ -97,7 +97,8 @@ def read_camera_frames(bag: str | Path, config: RigConfig, source: str = "auto",
     except BagError:
         raise
     except Exception as error:  # rosbags raises several types for a damaged file  # noqa: BLE001
-        raise BagError(f"cannot read bag {bag}: it is truncated or corrupt ({type(error).__name__}: {error})") from error
+        cause = f"{type(error).__name__}: {error}"
+        raise BagError(f"cannot read bag {bag}: it is truncated or corrupt ({cause})") from error
     frames = {name: (_depth_frames(name, messages[name], config) if source == "depth"
                      else _point_frames(name, messages[name])) for name in wanted}
     if not any(frames.values()):

@@ -54,18 +54,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace) -> int:
     try:
         run(args)
-    except ReconstructFailure as failure:
+    except ReconstructCommandError as failure:
         print(f"ntcr-recon reconstruct: error: {failure}", file=sys.stderr)
         return 2
     return 0
 
 
-class ReconstructFailure(Exception):
+class ReconstructCommandError(Exception):
     """Stops the command with one message."""
 
 
 def run(args: argparse.Namespace) -> dict:
-    """The whole command; raises ReconstructFailure with the cause. Returns the result document."""
+    """The whole command; raises ReconstructCommandError with the cause. Returns the result document."""
     from ntcr_recon.bagio import BagError
     from ntcr_recon.core.config import ConfigError, load_rig_config
     from ntcr_recon.core.pipeline import ReconstructionError
@@ -74,27 +74,27 @@ def run(args: argparse.Namespace) -> dict:
     try:
         config = load_rig_config(config_path)
     except ConfigError as error:
-        raise ReconstructFailure(f"bad rig configuration: {error}") from error
+        raise ReconstructCommandError(f"bad rig configuration: {error}") from error
     overrides = {}
     for item in args.topic:
         key, sep, topic = item.partition("=")
         if not sep or not key or not topic:
-            raise ReconstructFailure(f"--topic expects CAM.KIND=TOPIC, got {item!r}")
+            raise ReconstructCommandError(f"--topic expects CAM.KIND=TOPIC, got {item!r}")
         overrides[key] = topic
     out = Path(args.out)
     if out.exists() and not out.is_dir():
-        raise ReconstructFailure(f"--out {out} exists and is not a directory")
+        raise ReconstructCommandError(f"--out {out} exists and is not a directory")
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         staging = Path(tempfile.mkdtemp(dir=out.parent, prefix=f".{out.name}.partial-"))
     except OSError as error:
-        raise ReconstructFailure(f"cannot write next to {out}: {error}") from error
+        raise ReconstructCommandError(f"cannot write next to {out}: {error}") from error
     try:
         result = _reconstruct(args, config, overrides, staging)
         _publish(staging, out)
         return result
     except (BagError, ReconstructionError, ValueError, OSError) as error:
-        raise ReconstructFailure(str(error)) from error
+        raise ReconstructCommandError(str(error)) from error
     finally:
         shutil.rmtree(staging, ignore_errors=True)
 
