@@ -180,11 +180,8 @@ def simulated_bag(tmp_path_factory, frames: int = 2, bend_deg: float = 45.0) -> 
 
 
 def bag_frame_pairs(bag: Path, config) -> list:
-    """The bag's frame pairs as the core pairs them (depth frames through camera_node's bag reader)."""
-    from ntcr_recon.core.fusion import CameraFrame, pair_frames
-    from ntcr_recon.ros.camera_sources import BagSource
+    """The bag's frame pairs as the offline command pairs them (the core's bag reader, not camera_node's)."""
+    from ntcr_recon.bagio import read_camera_frames
+    from ntcr_recon.core.fusion import pair_frames
 
-    streams = {camera: [CameraFrame(camera, f.stamp_ns, depth=f.depth, intrinsics=f.intrinsics, color=f.color,
-                                    depth_unit=f.depth_unit) for f in BagSource(bag, camera, config.topics)]
-               for camera in config.camera_names}
-    return pair_frames(streams, int(config.fusion.slop * 1e9))
+    return pair_frames(read_camera_frames(bag, config), int(config.fusion.slop * 1e9))

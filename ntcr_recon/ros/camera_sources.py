@@ -6,7 +6,6 @@ PointCloud2 whatever the source. No rclpy import here: the sources are tested wi
 
 Public API:
     SourceFrame
-    image_to_array(msg) -> np.ndarray            # sensor_msgs/Image (either flavour) -> (H, W) or (H, W, 3)
     BagSource(path, camera, topics, loop=False)  # iterate it for SourceFrames, stamps shifted on each loop
 """
 
@@ -21,6 +20,7 @@ from typing import Any
 import numpy as np
 from rosbags.typesys import Stores, get_typestore
 
+from ntcr_recon.bagio import image_to_array
 from ntcr_recon.core.config import TopicConfig
 from ntcr_recon.core.deproject import Intrinsics
 from ntcr_recon.ros.topics import camera_topic
@@ -43,32 +43,6 @@ class SourceFrame:
     color: np.ndarray | None = None
     camera_info: Any = None
     cloud: Any = None
-
-
-_IMAGE_DTYPES = {"16UC1": (np.uint16, 1), "mono16": (np.uint16, 1), "32FC1": (np.float32, 1),
-                 "rgb8": (np.uint8, 3), "bgr8": (np.uint8, 3), "rgba8": (np.uint8, 4), "bgra8": (np.uint8, 4),
-                 "mono8": (np.uint8, 1), "8UC3": (np.uint8, 3)}
-
-
-def image_to_array(msg) -> np.ndarray:
-    """A sensor_msgs/Image as numpy: depth (H, W) uint16 / float32, colour (H, W, 3) uint8 RGB."""
-    if msg.encoding not in _IMAGE_DTYPES:
-        raise ValueError(f"image encoding '{msg.encoding}' is not supported (known: {', '.join(_IMAGE_DTYPES)})")
-    scalar, channels = _IMAGE_DTYPES[msg.encoding]
-    dtype = np.dtype(scalar).newbyteorder(">" if msg.is_bigendian else "<")
-    height, width, step = int(msg.height), int(msg.width), int(msg.step)
-    row_bytes = width * channels * dtype.itemsize
-    data = np.frombuffer(bytes(msg.data) if not isinstance(msg.data, np.ndarray) else msg.data, dtype=np.uint8)
-    if step < row_bytes or data.size < step * (height - 1) + row_bytes:
-        raise ValueError(f"{msg.encoding} image {width}x{height} with step {step} needs "
-                         f"{step * (height - 1) + row_bytes} bytes, has {data.size}")
-    rows = np.lib.stride_tricks.as_strided(data, shape=(height, row_bytes), strides=(step, 1))
-    image = np.ascontiguousarray(rows).view(dtype).reshape(height, width, channels).astype(scalar, copy=False)
-    if msg.encoding.startswith("bgr"):
-        image = image[:, :, 2::-1]
-    elif channels == 4:
-        image = image[:, :, :3]
-    return image[:, :, 0] if channels == 1 else np.ascontiguousarray(image)
 
 
 def _stamp(msg) -> int:
