@@ -1,0 +1,102 @@
+"""The rig configuration loader: defaults, round trips through flat parameters, and refusals that name the key."""
+
+from __future__ import annotations
+
+import copy
+
+import pytest
+import yaml
+
+from ntcr_recon.core.config import (
+    ConfigError,
+    config_to_mapping,
+    flatten_parameters,
+    load_rig_config,
+    rig_config_from_mapping,
+)
+
+
+@pytest.fixture(scope="module")
+def sim_mapping(repo_root):
+    document = yaml.safe_load((repo_root / "config" / "sim_rig.yaml").read_text())
+    return document["/**"]["ros__parameters"]
+
+
+def test_sim_and_template_configs_load(repo_root):
+    sim = load_rig_config(repo_root / "config" / "sim_rig.yaml")
+    template = load_rig_config(repo_root / "config" / "rig_template.yaml")
+    assert sim.camera_names == ("cam_a", "cam_b")
+    assert sim.robot.outer_radius == pytest.approx(1.75e-3)
+    assert template.cameras["cam_a"].depth_unit == pytest.approx(1e-3)
+    # the extrinsic maps the optical axis of cam_a (looking along +y) into the base frame
+    assert sim.cameras["cam_a"].extrinsic[:3, 2] == pytest.approx([0.0, 1.0, 0.0], abs=1e-9)
+    assert sim.topics.camera_topic("cam_b", "depth") == "/ntcr/cam_b/depth/image_rect_raw"
+
+
+def test_flat_parameters_round_trip(sim_mapping):
+    config = rig_config_from_mapping(sim_mapping)
+    flat = flatten_parameters(config)
+    assert flat["relocation.gate_radius_fraction"] == config.relocation.gate_radius_fraction
+    assert flat["robot.base_position"] == [0.0, 0.0, 0.0]
+    assert all(not isinstance(v, (dict, tuple)) for v in flat.values())
+    assert rig_config_from_mapping(flat) == config
+    assert rig_config_from_mapping(config_to_mapping(config)) == config
+
+
+def test_stage_sections_are_optional(sim_mapping):
+    minimal = {k: v for k, v in sim_mapping.items() if k not in ("fusion", "filters", "relocation", "mesh",
+                                                                   "metrics", "topics")}
+    config = rig_config_from_mapping(minimal)
+    assert config.filters.mls and config.filters.sor
+
+
+def test_auto_crop_box_starts_at_the_base(sim_mapping):
+    config = rig_config_from_mapping(sim_mapping)
+    box_min, box_max = config.crop_box()
+    reach = config.robot.length + config.robot.outer_diameter
+    assert box_min == pytest.approx([-reach, -reach, 0.0])
+    assert box_max == pytest.approx([reach, reach, reach])
+    tilted = copy.deepcopy(sim_mapping)
+    tilted["robot"]["base_orientation"] = [1.0, 0.0, 0.0, 0.0]  # robot pointing down -z
+    box_min, box_max = rig_config_from_mapping(tilted).crop_box()
+    assert box_max[2] == pytest.approx(0.0) and box_min[2] == pytest.approx(-reach)
+
+
+@pytest.mark.parametrize(("edit", "message"), [
+    (lambda m: m.pop("robot"), "missing key 'robot'"),
+    (lambda m: m["cam_a"].pop("translation"), "missing key cam_a.translation"),
+    (lambda m: m["robot"].update(outer_diameter=-0.001), "robot.outer_diameter must be > 0"),
+    (lambda m: m["robot"].update(notch_depth=0.004), "robot.notch_depth"),
+    (lambda m: m["filters"].update(sor_alpha=-1.0), "filters.sor_alpha must be > 0"),
+    (lambda m: m["filters"].update(mls_order=3), "filters.mls_order must be 1 or 2"),
+    (lambda m: m["filters"].update(crop_box_auto=False, crop_box_min=[0.01, 0.0, 0.0],
+                                   crop_box_max=[0.0, 0.1, 0.1]), "excludes everything"),
+    (lambda m: m["filters"].update(crop_box_auto=False, crop_box_min=[0.01, 0.01, 0.01],
+                                   crop_box_max=[0.1, 0.1, 0.1]), "would exclude the robot"),
+    (lambda m: m["relocation"].update(gate_radius=1.0), "unknown key relocation.gate_radius"),
+    (lambda m: m["cam_b"].update(rotation=[0.0, 0.0, 0.0, 2.0]), "cam_b.translation/rotation"),
+    (lambda m: m["mesh"].update(poisson_depth="deep"), "mesh.poisson_depth must be of type int"),
+    (lambda m: m.update(camera_names=[]), "camera_names must be a non-empty list"),
+])
+def test_bad_values_are_refused_naming_the_key(sim_mapping, edit, message):
+    mapping = copy.deepcopy(sim_mapping)
+    edit(mapping)
+    with pytest.raises(ConfigError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        rig_config_from_mapping(mapping)
+
+
+def test_unreadable_files_name_the_file(tmp_path):
+    with pytest.raises(ConfigError, match="cannot read rig configuration"):
+        load_rig_config(tmp_path / "missing.yaml")
+    broken = tmp_path / "broken.yaml"
+    broken.write_text("/**: {ros__parameters: [unclosed")
+    with pytest.raises(ConfigError, match="not valid YAML"):
+        load_rig_config(broken)
+    negative = tmp_path / "negative.yaml"
+    document = {"/**": {"ros__parameters": {"base_frame": "b", "camera_names": ["c"],
+                                            "c": {"translation": [0, 0, 0], "rotation": [0, 0, 0, 1],
+                                                  "depth_unit": 0.0001},
+                                            "robot": {"outer_diameter": -1.0}}}}
+    negative.write_text(yaml.safe_dump(document))
+    with pytest.raises(ConfigError, match=r"negative\.yaml: robot\.outer_diameter"):
+        load_rig_config(negative)
