@@ -74,7 +74,8 @@ def test_mesh_is_a_tube_around_the_centreline(scene):
     name, config, shape, _, _, result = scene
     mesh = result.mesh
     distance = shape.surface_distance(mesh.vertices)
-    print(f"\n{name}: mesh {len(mesh.triangles)} triangles, median vertex-to-surface {np.median(distance) * 1e3:.3f} mm")
+    print(f"\n{name}: mesh {len(mesh.triangles)} triangles, "
+          f"median vertex-to-surface {np.median(distance) * 1e3:.3f} mm")
     assert len(mesh.triangles) > 1000
     assert np.median(distance) < 0.1 * config.robot.outer_diameter
 
