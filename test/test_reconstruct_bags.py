@@ -1,0 +1,121 @@
+"""`ntcr-recon reconstruct` on the sample bags (targets of issue 4, each figure printed) and its refusals.
+
+Each bag is reconstructed once (module-scoped fixture); the tests read its result.json and files.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import pytest
+import yaml
+
+from ntcr_recon.cli import main as cli_main
+from ntcr_recon.reconstruct import OUTPUT_FILES
+
+SCENES = ("straight", "bend45", "bend90", "bend45_facing")
+
+
+@pytest.fixture(scope="module", params=SCENES)
+def reconstruction(request, bags_dir, tmp_path_factory):
+    bag = bags_dir / request.param
+    out = tmp_path_factory.mktemp(request.param) / "out"
+    code = cli_main(["reconstruct", str(bag), "--config", str(bag / "rig.yaml"), "--out", str(out), "--no-progress"])
+    assert code == 0
+    result = json.loads((out / "result.json").read_text())
+    truth = result["ground_truth"]
+    print(f"\n{request.param}: notches {truth['notches_detected']}/{result['notch_count_expected']}, "
+          f"width MAE {truth['width_mae_mm']:.3f} mm, centreline RMSE {truth['centerline_rmse_mm']:.3f} mm, "
+          f"tip error {truth['tip_error_mm']:.3f} mm, surface error raw {truth['surface_error_mm']['raw']:.3f} "
+          f"-> relocated {truth['surface_error_mm']['relocated']:.3f} mm, PDC mu {result['pdc']['raw']['mu']:.2f} "
+          f"-> {result['pdc']['relocated']['mu']:.2f}, lambda {result['pdc']['raw']['lambda']:.3f} -> "
+          f"{result['pdc']['relocated']['lambda']:.3f}")
+    return request.param, out, result
+
+
+def test_outputs_and_schema(reconstruction):
+    _, out, result = reconstruction
+    assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUT_FILES)
+    assert set(result) == {"frames", "notch_count_expected", "notches", "centerline_m", "tip_m", "pdc",
+                           "ground_truth", "timings_ms"}
+    assert result["frames"] == 4
+    for notch in result["notches"]:
+        assert set(notch) == {"index", "center_s_mm", "width_mm", "bend_deg"}
+    assert len(result["tip_m"]) == 3 and all(len(p) == 3 for p in result["centerline_m"])
+    assert set(result["ground_truth"]["surface_error_mm"]) == {"raw", "relocated"}
+    assert {"fuse", "filter", "relocate", "mesh"} <= set(result["timings_ms"])
+    assert (out / "mesh.stl").stat().st_size > 10_000
+    assert (out / "relocated.ply").read_bytes().startswith(b"ply\nformat binary_little_endian 1.0")
+
+
+def test_every_notch_detected_and_width_within_target(reconstruction):
+    _, _, result = reconstruction
+    truth = result["ground_truth"]
+    assert truth["notches_detected"] == result["notch_count_expected"]
+    assert sorted(n["index"] for n in result["notches"]) == list(range(result["notch_count_expected"]))
+    assert truth["width_mae_mm"] <= 0.10
+
+
+def test_centerline_and_tip_within_target(reconstruction):
+    _, _, result = reconstruction
+    assert result["ground_truth"]["centerline_rmse_mm"] <= 0.15
+    assert result["ground_truth"]["tip_error_mm"] <= 0.30
+
+
+def test_relocation_halves_the_surface_error_and_evens_the_density(reconstruction):
+    _, _, result = reconstruction
+    surface = result["ground_truth"]["surface_error_mm"]
+    assert surface["relocated"] <= 0.5 * surface["raw"]
+    raw, relocated = result["pdc"]["raw"], result["pdc"]["relocated"]
+    assert relocated["mu"] > raw["mu"]
+    assert relocated["lambda"] < raw["lambda"]
+
+
+def _rig(bags_dir):
+    return yaml.safe_load((bags_dir / "straight" / "rig.yaml").read_text())
+
+
+def _run_expecting_failure(args, out, capsys):
+    code = cli_main(["reconstruct", *map(str, args), "--out", str(out), "--no-progress"])
+    assert code != 0
+    message = capsys.readouterr().err.strip().splitlines()
+    assert len(message) == 1 and message[0].startswith("ntcr-recon reconstruct: error:")
+    return message[0]
+
+
+@pytest.mark.parametrize(("edit", "cause"), [
+    (lambda p: p["robot"].pop("outer_diameter") and p.pop("robot"), "missing key 'robot'"),
+    (lambda p: p["robot"].update(outer_diameter=-0.0035), "robot.outer_diameter must be > 0"),
+    (lambda p: p.setdefault("filters", {}).update(crop_box_auto=False, crop_box_min=[0.1, 0.1, 0.1],
+                                                  crop_box_max=[0.2, 0.2, 0.2]), "exclude the robot"),
+    (lambda p: p.setdefault("filters", {}).update(crop_box_auto=False, crop_box_min=[0.0, 0.0, 0.0],
+                                                  crop_box_max=[0.0, 0.1, 0.1]), "excludes everything"),
+    (lambda p: p["topics"].update(namespace="/elsewhere"), "none of the configured camera topics"),
+])
+def test_bad_configuration_stops_with_one_message_and_no_output(bags_dir, tmp_path, capsys, edit, cause):
+    document = _rig(bags_dir)
+    edit(document["/**"]["ros__parameters"])
+    config = tmp_path / "rig.yaml"
+    config.write_text(yaml.safe_dump(document))
+    out = tmp_path / "out"
+    message = _run_expecting_failure([bags_dir / "straight", "--config", config], out, capsys)
+    assert cause in message
+    assert not out.exists()
+    assert [p.name for p in tmp_path.iterdir()] == ["rig.yaml"]  # no staging directory left behind
+
+
+def test_truncated_bag_stops_and_leaves_an_existing_output_untouched(bags_dir, tmp_path, capsys):
+    bag = tmp_path / "cut"
+    shutil.copytree(bags_dir / "straight", bag)
+    mcap = next(bag.glob("*.mcap"))
+    data = mcap.read_bytes()
+    mcap.write_bytes(data[: len(data) // 2])
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "result.json").write_text("earlier")
+    message = _run_expecting_failure([bag, "--config", bag / "rig.yaml"], out, capsys)
+    assert "truncated" in message or "corrupt" in message
+    assert [p.name for p in out.iterdir()] == ["result.json"]
+    assert (out / "result.json").read_text() == "earlier"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cut", "out"]
