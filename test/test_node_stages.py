@@ -1,4 +1,4 @@
-"""filter_node and relocation_node, each alone as its own process: the output equals the core's on the same
+"""filter_node, relocation_node and mesh_node, each alone as its own process: the output equals the core's on the same
 input (a simulated 45-degree frame pair), a malformed cloud is logged by its defect and the node goes on."""
 
 from __future__ import annotations
@@ -9,24 +9,28 @@ import tiny_rig
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from ros_graph import RosGraph
+from shape_msgs.msg import Mesh
 from stage_probe import COLLECT_RELIABLE, StageProbe
 from std_msgs.msg import Float64MultiArray
-from visualization_msgs.msg import MarkerArray
+from visualization_msgs.msg import Marker, MarkerArray
 
 from ntcr_recon.core.config import load_rig_config
+from ntcr_recon.core.mesh import poisson_mesh
 from ntcr_recon.core.pipeline import Reconstructor
 from ntcr_recon.ros.messages import (
+    mesh_from_msg,
     notches_from_array,
     stage_cloud_and_normals,
     stage_cloud_from_msg,
     stage_cloud_to_msg,
 )
+from ntcr_recon.ros.node_support import LATCHED_QOS
 from ntcr_recon.ros.pointcloud import stamp_to_ns
 
 
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
-    """Fused and filtered stage messages of the simulated bag's frame pairs, as the nodes receive them."""
+    """Fused, filtered and relocated stage messages of the simulated bag's frame pairs, as the nodes get them."""
     bag = tiny_rig.simulated_bag(tmp_path_factory)
     config = load_rig_config(bag / "rig.yaml")
     reconstructor = Reconstructor(config)
@@ -34,7 +38,23 @@ def scene(tmp_path_factory):
              for pair in tiny_rig.bag_frame_pairs(bag, config)]
     filtered = [stage_cloud_to_msg(reconstructor.filter(stage_cloud_from_msg(m, config.base_frame)),
                                    config.base_frame) for m in fused]
-    return bag, config, fused, filtered
+    relocations = [reconstructor.relocate(stage_cloud_from_msg(m, config.base_frame), warm_start=False)
+                   for m in filtered]
+    relocated = [stage_cloud_to_msg(r.relocated, config.base_frame, r.normals) for r in relocations]
+    return bag, config, fused, filtered, relocated
+
+
+def set_parameter(graph, node: str, name: str, value: str):
+    """SetParameters on `node` with a string value; returns the result (successful, reason)."""
+    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+    from rcl_interfaces.srv import SetParameters
+
+    client = graph.node.create_client(SetParameters, f"/{node}/set_parameters")
+    assert client.wait_for_service(timeout_sec=10)
+    future = client.call_async(SetParameters.Request(parameters=[Parameter(
+        name=name, value=ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value))]))
+    assert graph.spin_until(future.done, 10)
+    return future.result().results[0]
 
 
 @pytest.fixture(scope="module")
@@ -58,8 +78,17 @@ def relocation_probe(scene):
         yield probe
 
 
+@pytest.fixture(scope="module")
+def mesh_probe(scene):
+    bag, *_ = scene
+    with RosGraph() as graph:
+        process = graph.start("mesh_node", "--params-file", str(bag / "rig.yaml"), "-p", "rate:=10.0")
+        yield StageProbe(graph, process, "/ntcr/relocated/points", "/ntcr/mesh/raw", output_type=Mesh,
+                         output_qos=LATCHED_QOS)
+
+
 def test_filter_node_filters_as_the_core(scene, filter_probe):
-    _, config, fused, _ = scene
+    _, config, fused, *_ = scene
     out = filter_probe.send_and_wait(fused[0])
     expected = Reconstructor(config).filter(stage_cloud_from_msg(fused[0], config.base_frame))
     cloud = stage_cloud_from_msg(out, config.base_frame)
@@ -71,7 +100,7 @@ def test_filter_node_filters_as_the_core(scene, filter_probe):
 
 
 def test_relocation_node_relocates_as_the_core(scene, relocation_probe):
-    _, config, _, filtered = scene
+    _, config, _, filtered, _ = scene
     probe = relocation_probe
     out = probe.send_and_wait(filtered[0])
     assert probe.graph.spin_until(lambda: all(probe.extra.values()), 10)
@@ -122,3 +151,47 @@ def test_relocation_node_logs_a_cloud_without_a_robot_and_goes_on(scene, relocat
                                   probe.graph.log_of(probe.process)[log_before:], 10)
     assert len(probe.received) == count
     assert probe.send_and_wait(scene[3][0]) is not None
+
+
+def test_mesh_node_meshes_as_the_core_and_late_subscribers_get_it(scene, mesh_probe):
+    _, config, *_, relocated = scene
+    out = mesh_probe.send_and_wait(relocated[0])
+    cloud, normals = stage_cloud_and_normals(relocated[0], config.base_frame)
+    expected = poisson_mesh(cloud.xyz, normals, config.mesh)
+    vertices, triangles = mesh_from_msg(out)
+    assert len(triangles) == len(expected.triangles) > 1000
+    # open3d's Poisson solver is threaded: the same vertices (to summation order), not always in the same order.
+    from scipy.spatial import cKDTree
+    assert cKDTree(expected.vertices).query(vertices)[0].max() < 1e-7
+    assert cKDTree(vertices).query(expected.vertices)[0].max() < 1e-7
+    # A subscriber that comes later still gets the mesh (transient local), as RViz started late would.
+    late: list[Marker] = []
+    mesh_probe.graph.node.create_subscription(Marker, "/ntcr/mesh", late.append, LATCHED_QOS)
+    assert mesh_probe.graph.spin_until(lambda: late, 10)
+    assert late[0].type == Marker.TRIANGLE_LIST and len(late[0].points) == 3 * len(triangles)
+
+
+def test_mesh_node_writes_a_ply_on_request(scene, mesh_probe, tmp_path):
+    mesh_probe.send_and_wait(scene[-1][1])
+    target = tmp_path / "requested.ply"
+    assert set_parameter(mesh_probe.graph, "mesh_node", "save_ply_path", str(target)).successful
+    assert mesh_probe.graph.spin_until(target.exists, 10), mesh_probe.graph.log_of(mesh_probe.process)
+    import open3d as o3d
+    assert len(o3d.io.read_triangle_mesh(str(target)).triangles) > 1000
+    assert not list(tmp_path.glob(".*"))  # no temporary file left behind
+    refused = set_parameter(mesh_probe.graph, "mesh_node", "save_ply_path", "/nonexistent/dir/m.ply")
+    assert not refused.successful and "save_ply_path" in refused.reason
+
+
+@pytest.mark.parametrize("defect", tiny_rig.MALFORMED)
+def test_mesh_node_survives_malformed_clouds(scene, mesh_probe, defect):
+    mesh_probe.assert_refuses(defect, "ntcr_base")
+    good = scene[-1][1]
+    assert mesh_probe.send_and_wait(good) is not None
+
+
+def test_mesh_node_refuses_a_cloud_without_normals(scene, mesh_probe):
+    log_before = len(mesh_probe.graph.log_of(mesh_probe.process))
+    mesh_probe.publisher.publish(scene[3][0])  # a filtered cloud: no normals
+    assert mesh_probe.graph.spin_until(lambda: "has no normal_x" in
+                                       mesh_probe.graph.log_of(mesh_probe.process)[log_before:], 10)

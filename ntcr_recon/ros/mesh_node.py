@@ -6,15 +6,14 @@ Publishes, transient-local so RViz or a late subscriber gets the last mesh at on
   `<ns>/mesh`      visualization_msgs/Marker TRIANGLE_LIST (base frame)
   `<ns>/mesh/raw`  shape_msgs/Mesh (vertices + triangles, base frame)
 PLY on request: set the parameter `save_ply_path` (`ros2 param set /mesh_node save_ply_path /tmp/m.ply`) and
-the newest mesh is written there (whole or not at all); with no mesh yet, the first one is. With `output_dir`
+the newest mesh is written there (whole or not at all, by core.mesh.write_mesh; .stl works too); with no
+mesh yet, the first one is. With `output_dir`
 every new mesh is also written to `<output_dir>/mesh.ply`.
 """
 
 from __future__ import annotations
 
-import os
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -33,26 +32,10 @@ PARAMETERS = {
 }
 
 
-def write_ply(vertices: np.ndarray, triangles: np.ndarray, path: Path) -> None:
-    """A binary PLY of the mesh, written to a temporary file beside `path` and moved over it."""
-    import open3d as o3d
-
-    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(np.asarray(vertices, float)),
-                                     o3d.utility.Vector3iVector(np.asarray(triangles, np.int32)))
-    handle, temporary = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=".ply", dir=path.parent)
-    os.close(handle)
-    try:
-        if not o3d.io.write_triangle_mesh(temporary, mesh, write_ascii=False):
-            raise OSError(f"open3d could not write {temporary}")
-        os.replace(temporary, path)
-    finally:
-        Path(temporary).unlink(missing_ok=True)
-
-
 class MeshNode(RigNode):
     def __init__(self) -> None:
         self._timer = None
-        self._mesh: tuple[np.ndarray, np.ndarray, int] | None = None  # vertices, triangles, stamp
+        self._mesh = None  # (core.mesh.Mesh, stamp) of the newest mesh
         self._pending_save: Path | None = None
         self._params = {"save_ply_path": ""}
         super().__init__("mesh_node", PARAMETERS)
@@ -68,6 +51,8 @@ class MeshNode(RigNode):
         save, output = params["save_ply_path"], params["output_dir"]
         if save and not Path(save).expanduser().parent.is_dir():
             raise ParameterError(f"parameter 'save_ply_path': the folder of {save!r} does not exist")
+        if save and Path(save).suffix.lower() not in (".ply", ".stl"):
+            raise ParameterError(f"parameter 'save_ply_path' must end in .ply (or .stl), got {save!r}")
         if output and not Path(output).expanduser().is_dir():
             raise ParameterError(f"parameter 'output_dir': {output!r} is not an existing folder")
         save_requested = params["save_ply_path"] and params["save_ply_path"] != self._params["save_ply_path"]
@@ -101,7 +86,7 @@ class MeshNode(RigNode):
             self.get_logger().error(f"no mesh from the cloud of {len(cloud)} points at {cloud.stamp_ns} ns: {error}")
             return
         vertices, triangles = np.asarray(mesh.vertices, float), np.asarray(mesh.triangles, np.int64)
-        self._mesh = (vertices, triangles, cloud.stamp_ns)
+        self._mesh = (mesh, cloud.stamp_ns)
         self._marker.publish(mesh_marker(vertices, triangles, self.rig.base_frame, cloud.stamp_ns))
         self._raw.publish(mesh_msg(vertices, triangles))
         self.meshes += 1
@@ -115,14 +100,16 @@ class MeshNode(RigNode):
             self._write(path)
 
     def _write(self, path: Path) -> None:
-        vertices, triangles, stamp = self._mesh
+        from ntcr_recon.core.mesh import write_mesh
+
+        mesh, stamp = self._mesh
         try:
-            write_ply(vertices, triangles, path)
-        except OSError as error:
+            write_mesh(path, mesh)
+        except (OSError, ValueError) as error:
             self.get_logger().error(f"could not write the mesh to {path}: {error}")
             return
-        self.get_logger().info(f"wrote the mesh of {stamp} ns ({len(vertices)} vertices, {len(triangles)} "
-                               f"triangles) to {path}")
+        self.get_logger().info(f"wrote the mesh of {stamp} ns ({len(mesh.vertices)} vertices, "
+                               f"{len(mesh.triangles)} triangles) to {path}")
 
 
 def main(args: list[str] | None = None) -> int:
