@@ -119,16 +119,18 @@ class CameraNode(RigNode):
                 if not params["bag_path"]:
                     raise ParameterError("parameter 'bag_path' must name a rosbag2 directory for the 'bag' source")
                 return BagSource(params["bag_path"], params["camera"], rig.topics, loop=params["loop"])
-            from ntcr_recon.ros.realsense_source import RealSenseFileSource, RealSenseSource
+            from ntcr_recon.ros.realsense_source import RealSenseSource, RecordingSource
 
+            filters = {"spatial": params["spatial_filter"], "temporal": params["temporal_filter"],
+                       "hole_filling": params["hole_filling"]}
             if params["source"] == "file":
                 if not params["file_path"]:
                     raise ParameterError("parameter 'file_path' must name a recording for the 'file' source")
-                return RealSenseFileSource(params["file_path"], loop=params["loop"])
-            camera = rig.cameras[params["camera"]]
-            return RealSenseSource(camera, spatial=params["spatial_filter"], temporal=params["temporal_filter"],
-                                   hole_filling=params["hole_filling"], reconnect_period=params["reconnect_period"],
-                                   log=self.get_logger())
+                # Paced here by the frames' stamps (rate), like a bag: the recording is read as fast as asked.
+                return RecordingSource(params["file_path"], loop=params["loop"], real_time=False,
+                                       log=self.get_logger(), **filters)
+            return RealSenseSource(rig.cameras[params["camera"]], reconnect_period=params["reconnect_period"],
+                                   log=self.get_logger(), **filters)
         except SourceError as error:
             raise ParameterError(f"source '{params['source']}': {error}") from error
 

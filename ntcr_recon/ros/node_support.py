@@ -13,6 +13,7 @@ from typing import Any
 
 import rclpy
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import (
@@ -107,7 +108,7 @@ def run_node(node_factory: Callable[[], Node], args: list[str] | None = None) ->
         # A Ctrl-C shuts the context down under a callback being taken; only then is this a clean stop.
         if rclpy.ok():
             raise
-    except ParameterError as error:  # refused at start-up: say which parameter, exit non-zero
+    except (ParameterError, ParameterException) as error:  # refused at start-up: say which, exit non-zero
         print(f"error: {error}", file=sys.stderr)
         return 2
     finally:
