@@ -127,14 +127,23 @@ class Centerline:
             object.__setattr__(self, "_tree_cache", tree)
         return tree
 
-    def project(self, xyz: np.ndarray) -> TubeCoordinates:
+    def project(self, xyz: np.ndarray, s_guess: np.ndarray | None = None) -> TubeCoordinates:
         """Tube coordinates of points: nearest sample (KD-tree), then slid along the local tangent."""
-        return self.project_with_frames(xyz)[0]
+        return self.project_with_frames(xyz, s_guess)[0]
 
-    def project_with_frames(self, xyz: np.ndarray) -> tuple[TubeCoordinates, tuple]:
-        """project(), and the centreline frames (position, tangent, normal, binormal) at each point's s."""
-        _, nearest = self.tree.query(xyz)
-        s = self.s[nearest] + ((xyz - self.points[nearest]) * self.tangents[nearest]).sum(axis=1)
+    def project_with_frames(self, xyz: np.ndarray, s_guess: np.ndarray | None = None
+                            ) -> tuple[TubeCoordinates, tuple]:
+        """project(), and the centreline frames (position, tangent, normal, binormal) at each point's s.
+
+        s_guess: arc lengths of the same points on a nearby curve (e.g. the previous iteration's), which
+        replaces the KD-tree search by one more step along the tangent.
+        """
+        if s_guess is None:
+            _, nearest = self.tree.query(xyz)
+            s = self.s[nearest] + ((xyz - self.points[nearest]) * self.tangents[nearest]).sum(axis=1)
+        else:
+            position, tangent, _, _ = self.frames_at(s_guess)
+            s = s_guess + ((xyz - position) * tangent).sum(axis=1)
         position, tangent, normal, binormal = frames = self.frames_at(s)
         offset = xyz - position
         # the along-tangent remainder is second order in the curvature; one more step removes it
@@ -143,6 +152,7 @@ class Centerline:
         offset -= correction[:, None] * tangent
         coords = TubeCoordinates(s, (offset * normal).sum(axis=1), (offset * binormal).sum(axis=1))
         return coords, frames
+
     def to_points(self, s: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Base-frame points of tube coordinates (the inverse of project)."""
         position, _, normal, binormal = self.frames_at(s)
@@ -165,7 +175,7 @@ class CenterlineSettings:
     bin_length: float       # slab length along s
     smoothing_length: float
     gate: float             # a point farther than this from the reference surface is an outlier
-    tolerance: float        # convergence: largest centreline move
+    tolerance: float        # convergence: RMS move of the centreline's samples
     max_iterations: int
     cell: float             # resolution along s of coverage profiles (about a pixel footprint)
 
@@ -342,8 +352,9 @@ def tube_end(coords: TubeCoordinates, radius: float, gate: float, cell: float, s
 
 
 def estimate_centerline(xyz: np.ndarray, geometry: TubeGeometry, settings: CenterlineSettings,
-                        prior: Centerline | None = None) -> tuple[Centerline, int]:
-    """Fit the centreline to a cloud in the base frame; returns it and the number of iterations run.
+                        prior: Centerline | None = None) -> tuple[Centerline, int, np.ndarray]:
+    """Fit the centreline to a cloud in the base frame; returns it, the number of iterations run and the
+    points' arc lengths on the last-but-one curve (a starting guess for projecting them onto the result).
 
     The returned centreline runs from the base to just past the last slab with data; the tip is cut to
     the observed end of the tube by the relocation (see relocation.observed_tip).
@@ -357,8 +368,9 @@ def estimate_centerline(xyz: np.ndarray, geometry: TubeGeometry, settings: Cente
         centerline = prior
     smoothing_steps = settings.smoothing_length / step
     iterations = 0
+    coordinates = None
     for iterations in range(1, settings.max_iterations + 1):  # noqa: B007 - reported to the caller
-        coordinates = centerline.project(xyz)
+        coordinates = centerline.project(xyz, None if coordinates is None else coordinates.s)
         near_tube = np.abs(coordinates.radius - geometry.outer_radius) < settings.gate
         near_tube &= coordinates.s > -settings.gate
         if np.count_nonzero(near_tube) < 16:
@@ -402,7 +414,7 @@ def estimate_centerline(xyz: np.ndarray, geometry: TubeGeometry, settings: Cente
         # the previous curve, away from the tip where the extent itself may still move
         settled = min(previous.length, centerline.length) - 2 * settings.smoothing_length - 3 * step
         interior = centerline.points[centerline.s < settled]
-        moved = float(previous.project(interior).radius.max(initial=0.0))
+        moved = float(np.sqrt(np.mean(previous.project(interior).radius ** 2))) if len(interior) else 0.0
         if moved < settings.tolerance:
             break
-    return centerline, iterations
+    return centerline, iterations, None if coordinates is None else coordinates.s

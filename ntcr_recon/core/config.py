@@ -99,7 +99,7 @@ class FilterConfig:
     sor_alpha: float = 2.0
     mls: bool = True                                # moving least squares, Eq. 6
     mls_order: int = 2                              # 1 = plane, 2 = quadric
-    mls_neighbors: int = 16
+    mls_neighbors: int = 12
     mls_radius_px: float = 0.0                      # > 0: only neighbours within this many pixel footprints
     voxel_size: float = 0.0                         # m; 0 = no downsampling
 
@@ -114,7 +114,7 @@ class RelocationConfig:
     bin_radius_fraction: float = 0.25      # slab length = this * outer_radius (at least 2 pixel footprints)
     smoothing_radius_fraction: float = 0.5  # smoothing length along s = this * outer_radius
     max_iterations: int = 12
-    tolerance_radius_fraction: float = 0.005  # stop when the centreline moves less than this * outer_radius
+    tolerance_radius_fraction: float = 0.005  # stop when the centreline moves less than this * r_o (RMS)
     icp: bool = True                       # rigid point-to-point ICP of the reference to the cloud (Eq. 10-11)
     # Notch detection: kernel width of the coverage profile along s, in pixel footprints.
     notch_kernel_px: float = 0.5
