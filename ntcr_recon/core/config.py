@@ -112,7 +112,7 @@ class RelocationConfig:
     gate_pixels: float = 2.0
     # Centreline estimation: slabs along the arc length, a fixed-radius circle fit in each.
     bin_radius_fraction: float = 0.25      # slab length = this * outer_radius (at least 2 pixel footprints)
-    smoothing_radius_fraction: float = 1.5  # smoothing length along s = this * outer_radius
+    smoothing_radius_fraction: float = 1.0  # smoothing length along s = this * outer_radius
     max_iterations: int = 12
     tolerance_radius_fraction: float = 0.005  # stop when the centreline moves less than this * r_o (RMS)
     icp: bool = True                       # rigid point-to-point ICP of the reference to the cloud (Eq. 10-11)
