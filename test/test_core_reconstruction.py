@@ -9,6 +9,7 @@ import pytest
 from synthetic_views import make_config, render_pair
 
 from ntcr_recon.core.fusion import FramePair
+from ntcr_recon.core.mesh import poisson_mesh
 from ntcr_recon.core.metrics import centerline_rmse
 from ntcr_recon.core.pipeline import ReconstructionError, Reconstructor
 from ntcr_recon.core.robot import TubeShape
@@ -70,14 +71,19 @@ def test_relocation_brings_points_onto_the_surface(scene):
     assert np.allclose(np.linalg.norm(normals, axis=1), 1.0)
 
 
-def test_mesh_is_a_tube_around_the_centreline(scene):
+def test_meshes_lie_on_the_true_surface(scene):
     name, config, shape, _, _, result = scene
-    mesh = result.mesh
-    distance = shape.surface_distance(mesh.vertices)
-    print(f"\n{name}: mesh {len(mesh.triangles)} triangles, "
-          f"median vertex-to-surface {np.median(distance) * 1e3:.3f} mm")
-    assert len(mesh.triangles) > 1000
-    assert np.median(distance) < 0.1 * config.robot.outer_diameter
+    tube = result.mesh  # the default mesher
+    poisson = poisson_mesh(result.relocation.relocated.xyz, result.relocation.normals, config.mesh)
+    for kind, mesh in (("tube", tube), ("poisson", poisson)):
+        distance = shape.surface_distance(mesh.vertices)
+        print(f"\n{name}: {kind} mesh {len(mesh.triangles)} triangles, "
+              f"median vertex-to-surface {np.median(distance) * 1e3:.3f} mm")
+        assert len(mesh.triangles) > 1000
+        assert np.median(distance) < 0.02 * config.robot.outer_diameter
+    v, t = tube.vertices, tube.triangles
+    facing = np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]])
+    assert np.all(np.einsum("ij,ij->i", facing, tube.normals[t[:, 0]]) > 0)  # wound outward
 
 
 def test_warm_start_and_one_camera_alone(scene):

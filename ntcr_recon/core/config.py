@@ -123,6 +123,10 @@ class RelocationConfig:
 
 @dataclass(frozen=True)
 class MeshConfig:
+    # tube: the relocated outer wall meshed on the tube's (arc length, angle) grid, holes closed where the
+    # gap is below two cells, notches kept open (milliseconds); poisson: open3d's screened Poisson
+    # reconstruction (paper Eq. 7-8; hundreds of milliseconds)
+    method: str = "tube"
     poisson_depth: int = 8
     density_quantile: float = 0.04   # vertices of the lowest Poisson density quantile are trimmed
     max_points: int = 60000          # the cloud is voxel-thinned to about this many points before meshing
@@ -332,6 +336,8 @@ def _validate_stages(config: RigConfig) -> None:
         raise ConfigError(f"filters.mls_order must be 1 or 2, got {f.mls_order}")
     if f.mls_neighbors < 3 * f.mls_order + 1:
         raise ConfigError(f"filters.mls_neighbors must be >= {3 * f.mls_order + 1} for order {f.mls_order}")
+    if m.method not in ("tube", "poisson"):
+        raise ConfigError(f"mesh.method must be 'tube' or 'poisson', got {m.method!r}")
     if not 0 <= m.density_quantile < 1:
         raise ConfigError(f"mesh.density_quantile must be in [0, 1), got {m.density_quantile}")
     if any(not 0 <= c <= 255 for c in f.color_min + f.color_max):

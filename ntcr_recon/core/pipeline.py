@@ -54,6 +54,8 @@ class Relocation:
     rejected: int                   # points outside the gate
     coordinates: TubeCoordinates    # tube coordinates of the input points (before relocation)
     iterations: int                 # centreline iterations run
+    part: np.ndarray | None = None  # (A,) robot.PART_* of the surface each relocated point lies on
+    relocated_coordinates: TubeCoordinates | None = None  # tube coordinates of the relocated points
 
 
 @dataclass
@@ -138,13 +140,18 @@ class Reconstructor:
         self._prior = centerline
         self._timed("relocate", start)
         return Relocation(_cut(centerline, tip_s), tip, notches, relocated, moved.normals, moved.rejected, coords,
-                          iterations)
+                          iterations, moved.part, moved.coordinates)
 
     def mesh(self, relocation: Relocation):
-        from ntcr_recon.core.mesh import poisson_mesh  # open3d is imported only by who meshes
+        """The configured mesher: `tube` (the relocated outer wall meshed on the tube's own grid) or
+        `poisson` (open3d's screened Poisson, the paper's Eq. 7-8)."""
+        from ntcr_recon.core.mesh import poisson_mesh, tube_mesh  # open3d is imported only by who meshes
 
         start = time.perf_counter()
-        mesh = poisson_mesh(relocation.relocated.xyz, relocation.normals, self.config.mesh)
+        if self.config.mesh.method == "tube":
+            mesh = tube_mesh(relocation, self.geometry)
+        else:
+            mesh = poisson_mesh(relocation.relocated.xyz, relocation.normals, self.config.mesh)
         self._timed("mesh", start)
         return mesh
 

@@ -44,6 +44,7 @@ class RelocatedPoints:
     normals: np.ndarray    # (A, 3) reference surface normals, outward
     part: np.ndarray       # (A,) robot.PART_* of the surface each point went to
     distance: np.ndarray   # (A,) how far each point moved
+    coordinates: TubeCoordinates | None = None  # tube coordinates of the relocated points
 
     @property
     def rejected(self) -> int:
@@ -172,4 +173,4 @@ def relocate_points(coords: TubeCoordinates, centerline: Centerline, geometry: T
     position, tangent, normal, binormal = centerline.frames_at(new_s)
     points = position + new_x[:, None] * normal + new_y[:, None] * binormal
     normals = nx[:, None] * normal + ny[:, None] * binormal + nt[:, None] * tangent
-    return RelocatedPoints(accepted, points, normals, part, best[accepted])
+    return RelocatedPoints(accepted, points, normals, part, best[accepted], TubeCoordinates(new_s, new_x, new_y))
