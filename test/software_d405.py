@@ -5,12 +5,15 @@ with numpy frames that then travel through the real librealsense frame machinery
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pyrealsense2 as rs
 
-from ntcr_recon.core.deproject import Intrinsics
+if TYPE_CHECKING:  # only its fields are read: test/data/make_legacy_bag.py runs this without the package
+    from ntcr_recon.core.deproject import Intrinsics
 
 
 def rs_intrinsics(intrinsics: Intrinsics, scale: int = 1) -> rs.intrinsics:
@@ -77,13 +80,19 @@ class SoftwareD405:
             frame.profile = profile
             self.sensor.on_video_frame(frame)
 
-    def record(self, path: Path, frames) -> Path:
-        """Write `frames` [(depth, colour, timestamp_ms), ...] as a librealsense recording at `path` (.db3)."""
+    def record(self, path: Path, frames, paced: bool = False) -> Path:
+        """Write `frames` [(depth, colour, timestamp_ms), ...] as a librealsense recording at `path` (.db3).
+
+        The recorder files each frame at the time it arrives: `paced` feeds them at their timestamps' intervals,
+        as a camera would, so a real-time playback has a schedule to keep (unpaced, they all arrive at once)."""
         recorder = rs.recorder(str(path), self.device)
         sink = rs.frame_queue(len(frames) * 2 + 2, True)
         self.sensor.open([p for p in (self.depth_profile, self.color_profile) if p is not None])
         self.sensor.start(sink)
+        started = time.monotonic()
         for number, (depth, color, timestamp_ms) in enumerate(frames):
+            if paced:
+                time.sleep(max(0.0, started + (timestamp_ms - frames[0][2]) / 1000 - time.monotonic()))
             self.feed(depth, color, timestamp_ms, number)
         self.sensor.stop()
         self.sensor.close()

@@ -16,7 +16,7 @@ device then reports is what the frames carry: never the 1 mm steps realsense-ros
 Public API (no rclpy import):
     NO_DEVICE                                 # the error text when no device is connected
     RealSenseSource(camera: CameraConfig, *, spatial=False, temporal=False, hole_filling=False, color=True,
-                    reconnect_period=1.0, frame_timeout=2.0, log=None, devices=None)
+                    reconnect_period=1.0, frame_timeout=5.0, log=None, devices=None)
         # opens the device at construction (SourceError: no device / wrong serial / no such profile);
         # iterating re-opens with backoff when frames stop (device dropped); close() ends the iteration.
         # devices: () -> list of rs.device to choose from (default: the connected ones)
@@ -158,8 +158,9 @@ class _BlockingSink:
 class _Streams:
     """A device's depth (+ colour) streams at sensor level, read back as (depth, colour | None) frame pairs."""
 
-    def __init__(self, sensors: Sequence, depth: tuple[int, object], color: tuple[int, object] | None,
+    def __init__(self, device, sensors: Sequence, depth: tuple[int, object], color: tuple[int, object] | None,
                  blocking: bool = False) -> None:
+        self.device = device  # frames must not outlive their device: it is released after them (close)
         self.depth_profile = depth[1]
         self.color_profile = color[1] if color is not None else None
         self.period_ms = 1000.0 / self.depth_profile.fps()
@@ -185,11 +186,21 @@ class _Streams:
             raise SourceError(f"cannot start streaming {', '.join(_profile_text(p) for p in sum(groups.values(), []))}"
                               f": {error}") from error
 
+    def frames(self, timeout_s: float, stop: threading.Event, filters: DepthFilters, stamp_ns: Callable[..., int],
+               ended: Callable[[], bool] = lambda: False) -> Iterator[SourceFrame]:
+        """`pairs` as SourceFrames (depth through `filters`, stamped by `stamp_ns(depth frame)`). The frames'
+        pixels are copied out, so no librealsense frame outlives the streams."""
+        for depth, color in self.pairs(timeout_s, stop, ended):
+            depth = filters(depth)
+            frame = source_frame(depth, color, stamp_ns(depth))
+            del depth, color
+            yield frame
+
     def pairs(self, timeout_s: float, stop: threading.Event, ended: Callable[[], bool] = lambda: False
               ) -> Iterator[tuple]:
         """Depth frames with the colour frame of the same timestamp (within half a frame period), or None when
         it never comes. Ends when `stop` is set or `ended()` (a finished recording); raises FrameTimeoutError when
-        nothing arrives for `timeout_s`."""
+        no depth frame arrives for `timeout_s`."""
         pending = None  # a depth frame whose colour has not come yet
         colors: list = []  # colour frames waiting for their depth (the last few)
         started = last_frame = time.monotonic()
@@ -203,7 +214,7 @@ class _Streams:
                 if time.monotonic() - last_frame > timeout_s:
                     raise FrameTimeoutError(f"no frame for {timeout_s:g} s")
                 continue
-            last_frame, received = time.monotonic(), True
+            received = True
             if frame.profile.stream_type() == rs.stream.color:
                 if pending is not None and self._matches(pending, frame):
                     yield self._paired(pending, frame)
@@ -211,6 +222,7 @@ class _Streams:
                 else:
                     colors = [*colors[-3:], frame]
                 continue
+            last_frame = time.monotonic()  # a device whose depth stopped has dropped, whatever else comes
             if pending is not None:  # the previous depth frame's colour never came: it goes without
                 yield self._paired(pending, None)
                 pending = None
@@ -244,6 +256,11 @@ class _Streams:
                 with contextlib.suppress(RuntimeError):  # already stopped, or the device is gone
                     step()
         self._started = []
+        # Release every frame still held before the device can go: a frame freed after its device crashes.
+        self._composite_parts = []
+        for sink in (self.queue, self._composed):
+            while sink.try_wait_for_frame(0)[0]:
+                pass
 
 
 def source_frame(depth_frame, color_frame, stamp_ns: int) -> SourceFrame:
@@ -259,9 +276,10 @@ def source_frame(depth_frame, color_frame, stamp_ns: int) -> SourceFrame:
                        intrinsics=stream_intrinsics(depth_frame.profile), color=color)
 
 
-def open_streams(device, width: int | None, height: int | None, fps: float | None, color: bool, log,
-                 what: str, blocking: bool = False) -> _Streams:
-    """Depth (z16) and, with `color`, colour of the same size and rate on `device`, streaming."""
+def select_streams(device, width: int | None, height: int | None, fps: float | None, color: bool, log,
+                   what: str) -> tuple[list, tuple, tuple | None]:
+    """(sensors, depth, colour | None) of `device`, each stream as (sensor index, profile): z16 depth at the
+    size and rate asked (None = any) and, with `color`, colour of the same size and rate (else any size)."""
     sensors = list(device.query_sensors())
     depth_index = next((i for i, sensor in enumerate(sensors) if sensor.is_depth_sensor()), None)
     depth = find_profile(sensors, rs.stream.depth, [rs.format.z16], width, height, fps, depth_index)
@@ -279,7 +297,7 @@ def open_streams(device, width: int | None, height: int | None, fps: float | Non
                       or find_profile(sensors, rs.stream.color, formats, None, None, depth[1].fps(), depth[0]))
         if color_pair is None:
             log.warning(f"{what} streams no rgb8/bgr8 colour at {depth[1].fps()} fps: clouds go without colour")
-    return _Streams(sensors, depth, color_pair, blocking)
+    return sensors, depth, color_pair
 
 
 def _serial(device) -> str:
@@ -293,7 +311,7 @@ class RealSenseSource:
 
     def __init__(self, camera: CameraConfig, *, spatial: bool = False, temporal: bool = False,
                  hole_filling: bool = False, color: bool = True, reconnect_period: float = 1.0,
-                 frame_timeout: float = 2.0, log=None,
+                 frame_timeout: float = 5.0, log=None,
                  devices: Callable[[], Sequence] | None = None) -> None:
         self.camera = camera
         self.color = color
@@ -327,8 +345,8 @@ class RealSenseSource:
         device = self._pick_device()
         what = f"RealSense {_serial(device)} (camera '{self.camera.name}')"
         self._configure(device, what)
-        streams = open_streams(device, self.camera.width, self.camera.height, self.camera.fps, self.color,
-                               self.log, what)
+        streams = _Streams(device, *select_streams(device, self.camera.width, self.camera.height,
+                                                   self.camera.fps, self.color, self.log, what))
         self.log.info(f"{what}: streaming depth {_profile_text(streams.depth_profile)}"
                       + (f" + colour {_profile_text(streams.color_profile)}" if streams.color_profile else "")
                       + (" (colour aligned to depth)" if streams.align else ""))
@@ -378,8 +396,7 @@ class RealSenseSource:
                 self.log.info(f"camera '{self.camera.name}': re-opened (reconnect {self.reconnects})")
                 delay = self.reconnect_period
             try:
-                for depth, color in streams.pairs(self.frame_timeout, self._stop):
-                    yield source_frame(self.filters(depth), color, self._stamp_ns(depth))
+                yield from streams.frames(self.frame_timeout, self._stop, self.filters, self._stamp_ns)
             except (FrameTimeoutError, RuntimeError) as error:  # the device dropped: close, open again
                 self.log.warning(f"camera '{self.camera.name}': {error}; closing the device and re-opening it")
                 with self._lock:
@@ -420,7 +437,7 @@ class RecordingSource:
             raise SourceError(f"recording {self.path} is not a librealsense recording "
                               f"({' or '.join(RECORDING_SUFFIXES)})")
         device, _ = self._load()  # refuse an unreadable file or one without depth now, not in the node's thread
-        open_streams(device, None, None, None, False, self.log, f"recording {self.path}").close()
+        select_streams(device, None, None, None, False, self.log, f"recording {self.path}")
 
     def _load(self):
         context = rs.context()  # one per pass: a context refuses to load the same file twice
@@ -438,15 +455,16 @@ class RecordingSource:
             first = last = None
             period_ns = 0
             device, playback = self._load()
-            streams = open_streams(device, None, None, None, self.color, self.log, f"recording {self.path}",
-                                   blocking=True)
+            streams = _Streams(device, *select_streams(device, None, None, None, self.color, self.log,
+                                                       f"recording {self.path}"), blocking=True)
             try:
                 period_ns = int(round(streams.period_ms * 1e6))
-                for depth, color in streams.pairs(math.inf, self._stop, functools.partial(_finished, playback)):
-                    stamp = frame_stamp_ns(depth)
-                    first = stamp if first is None else first
-                    last = stamp
-                    yield source_frame(self.filters(depth), color, stamp + offset_ns)
+                for frame in streams.frames(math.inf, self._stop, self.filters, frame_stamp_ns,
+                                            functools.partial(_finished, playback)):
+                    first = frame.stamp_ns if first is None else first
+                    last = frame.stamp_ns
+                    frame.stamp_ns += offset_ns
+                    yield frame
             finally:
                 streams.close()
             if not self.loop or first is None:
