@@ -194,7 +194,7 @@ def test_a_dropped_device_is_reopened_with_backoff():
     assert [f.stamp_ns for f in received] == [round(scene_frame(i)[3] * 1e6) for i in range(2)]
     assert source.reconnects == 1
     text = "\n".join(log.lines)
-    assert "no frame for 0.3 s; closing the device and re-opening it" in text
+    assert "no depth frame for 0.3 s; closing the device and re-opening it" in text
     assert f"{NO_DEVICE}; retrying in 0.1 s" in text  # the second failed attempt waited twice as long
     assert "re-opened (reconnect 1)" in text
 

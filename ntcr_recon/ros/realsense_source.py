@@ -6,9 +6,9 @@ the colour comes from the depth imager itself and needs none), optionally run li
 temporal / hole-filling filters on the depth, and yield `SourceFrame`s like `BagSource`: raw 16-bit depth
 with the device's own depth unit, intrinsics from the stream profile, the frame's own timestamp. camera_node
 deprojects them like any other source. The device part takes any `rs.device`, so tests hand it a
-`rs.software_device` fed with synthetic frames (librealsense >= 2.56 no longer lists software devices in a
-context, so there is no `rs.pipeline` here: the same sensor-level code serves real, software and playback
-devices).
+`rs.software_device` fed with synthetic frames. No `rs.pipeline`: pyrealsense2 2.59 no longer lists a
+software device added to a context (2.54 did), so a pipeline could not be tested; the same sensor-level
+code serves real, software and playback devices.
 
 The depth unit is set to the configured one (0.1 mm on a D405) when the sensor lets it be set, and what the
 device then reports is what the frames carry: never the 1 mm steps realsense-ros forces.
@@ -212,7 +212,7 @@ class _Streams:
                 if ended() and (received or time.monotonic() - started > 1.0):
                     break
                 if time.monotonic() - last_frame > timeout_s:
-                    raise FrameTimeoutError(f"no frame for {timeout_s:g} s")
+                    raise FrameTimeoutError(f"no depth frame for {timeout_s:g} s")
                 continue
             received = True
             if frame.profile.stream_type() == rs.stream.color:
@@ -344,9 +344,12 @@ class RealSenseSource:
     def _open(self) -> _Streams:
         device = self._pick_device()
         what = f"RealSense {_serial(device)} (camera '{self.camera.name}')"
-        self._configure(device, what)
-        streams = _Streams(device, *select_streams(device, self.camera.width, self.camera.height,
-                                                   self.camera.fps, self.color, self.log, what))
+        try:
+            self._configure(device, what)
+            streams = _Streams(device, *select_streams(device, self.camera.width, self.camera.height,
+                                                       self.camera.fps, self.color, self.log, what))
+        except RuntimeError as error:  # librealsense's own (device busy, gone mid-way...): say which device
+            raise SourceError(f"{what}: {error}") from error
         self.log.info(f"{what}: streaming depth {_profile_text(streams.depth_profile)}"
                       + (f" + colour {_profile_text(streams.color_profile)}" if streams.color_profile else "")
                       + (" (colour aligned to depth)" if streams.align else ""))
@@ -361,7 +364,10 @@ class RealSenseSource:
             for option, value in ((rs.option.depth_units, self.camera.depth_unit),
                                   (rs.option.global_time_enabled, 1.0)):
                 if depth_sensor.supports(option) and not depth_sensor.is_option_read_only(option):
-                    depth_sensor.set_option(option, value)
+                    try:
+                        depth_sensor.set_option(option, value)
+                    except RuntimeError as error:  # out of the device's range: what it keeps is checked below
+                        self.log.warning(f"{what}: cannot set {option} to {value}: {error}")
             actual = float(f"{depth_sensor.get_depth_scale():.7g}")
             if not math.isclose(actual, self.camera.depth_unit, rel_tol=1e-6):
                 self.log.warning(f"{what}: depth unit is {actual} m, not the configured {self.camera.depth_unit} "
@@ -453,7 +459,6 @@ class RecordingSource:
         offset_ns = 0
         while not self._stop.is_set():
             first = last = None
-            period_ns = 0
             device, playback = self._load()
             streams = _Streams(device, *select_streams(device, None, None, None, self.color, self.log,
                                                        f"recording {self.path}"), blocking=True)
