@@ -7,6 +7,7 @@ from __future__ import annotations
 import subprocess
 
 import numpy as np
+import pyrealsense2 as rs
 import pytest
 import tiny_rig
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -20,6 +21,7 @@ from ntcr_recon.ros.pointcloud import cloud_from_msg, stamp_to_ns
 from ntcr_recon.ros.realsense_source import NO_DEVICE
 
 COLLECT_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT)
+ABSENT = "no-such-camera"  # a serial no device has (and not all digits: ROS would read that as an integer)
 FRAMES, START_MS, PERIOD_MS = 4, 1_700_000_000_000.0, 1000.0 / 30
 
 
@@ -71,10 +73,12 @@ def test_file_source_publishes_camera_info_from_the_stream_intrinsics(replay):
     assert stamp_to_ns(info.header.stamp) == stamp_to_ns(clouds[0].header.stamp)
 
 
-def test_realsense_source_without_a_camera_is_refused_by_name(tmp_path):
+def test_realsense_source_without_its_camera_is_refused_by_name(tmp_path):
     rig = tiny_rig.write_rig(tmp_path / "rig.yaml")
     result = subprocess.run([str(VENV_BIN / "camera_node"), "--ros-args", "--params-file", str(rig),
-                             "-p", "camera:=cam_a", "-p", "source:=realsense"],
+                             "-p", "camera:=cam_a", "-p", "source:=realsense", "-p", f"cam_a.serial_number:={ABSENT}"],
                             capture_output=True, text=True, timeout=30)
     assert result.returncode != 0
-    assert f"source 'realsense': {NO_DEVICE}" in result.stderr, result.stderr
+    # On a machine with cameras attached, none of them is the one asked for.
+    expected = NO_DEVICE if len(rs.context().query_devices()) == 0 else f"with serial number '{ABSENT}'"
+    assert f"source 'realsense': {expected}" in result.stderr, result.stderr
