@@ -35,6 +35,15 @@ from scipy.spatial import cKDTree
 from ntcr_recon.core.robot import TubeGeometry
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross product of (N, 3) arrays (np.cross costs more for small N)."""
+    out = np.empty_like(a)
+    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
+    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
+    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    return out
+
+
 @dataclass(frozen=True)
 class TubeCoordinates:
     """Points in the tube's own coordinates: arc length s of their cross-section, offset (x towards the notch
@@ -117,7 +126,7 @@ class Centerline:
         normal = mixed[:, 6:9]
         normal -= (normal * tangent).sum(axis=1)[:, None] * tangent
         normal /= np.sqrt((normal * normal).sum(axis=1))[:, None]
-        return position, tangent, normal, np.cross(tangent, normal)
+        return position, tangent, normal, _cross(tangent, normal)
 
     @property
     def tree(self) -> cKDTree:
@@ -142,16 +151,16 @@ class Centerline:
             _, nearest = self.tree.query(xyz)
             s = self.s[nearest] + ((xyz - self.points[nearest]) * self.tangents[nearest]).sum(axis=1)
         else:
-            position, tangent, _, _ = self.frames_at(s_guess)
-            s = s_guess + ((xyz - position) * tangent).sum(axis=1)
-        position, tangent, normal, binormal = frames = self.frames_at(s)
+            s = s_guess
+        # one step along the tangent at s; the frame is not re-evaluated at the corrected s (the step is
+        # tiny next to the radius of curvature, and the offset is made normal to the tangent used)
+        position, tangent, normal, binormal = self.frames_at(s)
         offset = xyz - position
-        # the along-tangent remainder is second order in the curvature; one more step removes it
         correction = (offset * tangent).sum(axis=1)
-        s = s + correction
         offset -= correction[:, None] * tangent
+        s = s + correction
         coords = TubeCoordinates(s, (offset * normal).sum(axis=1), (offset * binormal).sum(axis=1))
-        return coords, frames
+        return coords, (position + correction[:, None] * tangent, tangent, normal, binormal)
 
     def to_points(self, s: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Base-frame points of tube coordinates (the inverse of project)."""

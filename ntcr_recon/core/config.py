@@ -119,6 +119,9 @@ class RelocationConfig:
     # Notch detection: kernel width of the coverage profile along s, in pixel footprints.
     notch_kernel_px: float = 0.5
     min_notch_width_fraction: float = 0.25  # a coverage gap narrower than this * notch_width is no notch
+    # Region of interest of the next frame: the robot's box grown by this fraction of its length (motion
+    # allowed between frames); a frame with fewer robot points there is fused from the whole crop box.
+    roi_margin_fraction: float = 0.1
 
 
 @dataclass(frozen=True)
@@ -318,6 +321,7 @@ def _validate_stages(config: RigConfig) -> None:
         "relocation.max_iterations": r.max_iterations,
         "relocation.tolerance_radius_fraction": r.tolerance_radius_fraction,
         "relocation.notch_kernel_px": r.notch_kernel_px,
+        "relocation.roi_margin_fraction": r.roi_margin_fraction,
         "mesh.poisson_depth": m.poisson_depth, "mesh.max_points": m.max_points,
         "metrics.pdc_voxel": config.metrics.pdc_voxel,
     }

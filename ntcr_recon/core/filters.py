@@ -7,7 +7,7 @@ Public API (all vectorised; masks are boolean arrays over the points):
     mls_smooth(xyz, k, order, radius=0)              Eq. 6: project each point onto its weighted local
                                                      plane (order 1) or quadric (order 2)
     voxel_downsample(cloud, size)                    one point (the centroid) per occupied voxel
-    nearest_neighbours(cloud, k) -> (distances, index) k nearest of each point, self first: in the image
+    nearest_neighbours(cloud, k) -> (distances, index) k nearest of each point, self included: in the image
                                                      (a pixel window per camera) when the cloud has pixel
                                                      coordinates, else by a KD-tree
     filter_cloud(cloud, config) -> Cloud             the configured chain, in the paper's order
@@ -39,13 +39,15 @@ def statistical_outlier_mask(xyz: np.ndarray, neighbors: int, alpha: float,
                              distances: np.ndarray | None = None) -> np.ndarray:
     """Eq. 5: keep points whose mean distance to their k nearest neighbours is <= mu + alpha * sigma.
 
-    distances: optional (N, >= k + 1) sorted neighbour distances (self first) from an earlier query.
+    distances: optional (N, k + 1) distances to each point's k + 1 nearest, itself included, from an earlier
+    query (any order).
     """
     if len(xyz) <= neighbors:
         return np.ones(len(xyz), dtype=bool)
     if distances is None:
         distances, _ = cKDTree(xyz).query(xyz, k=neighbors + 1, workers=-1)
-    mean_distance = distances[:, 1:neighbors + 1].mean(axis=1)   # inf where neighbours are missing
+    # the point itself is at distance 0, so the sum over k + 1 is the sum over its k neighbours
+    mean_distance = distances[:, : neighbors + 1].sum(axis=1) / neighbors   # inf where neighbours are missing
     finite = np.isfinite(mean_distance)
     if not finite.any():
         return finite
@@ -89,7 +91,8 @@ def mls_smooth(xyz: np.ndarray, neighbors: int, order: int = 2, radius: float = 
     comes from the weighted covariance (normal = least eigenvector); order 1 projects onto that plane,
     order 2 fits the height h(a, b) = c0 + c1 a + c2 b + c3 a^2 + c4 ab + c5 b^2 by weighted least squares
     and moves the point to h at its own (a, b). Points with too few neighbours are left where they are.
-    neighbour_index / neighbour_distance: an earlier k-NN query (N, >= k), entries < 0 for dropped neighbours.
+    neighbour_index / neighbour_distance: an earlier k-NN query (N, k'), all of whose columns are used,
+    entries < 0 for dropped neighbours.
     """
     count = len(xyz)
     minimum = 3 * order + 1
@@ -98,7 +101,7 @@ def mls_smooth(xyz: np.ndarray, neighbors: int, order: int = 2, radius: float = 
     k = min(neighbors, count)
     if neighbour_index is None:
         neighbour_distance, neighbour_index = cKDTree(xyz).query(xyz, k=k, workers=-1)
-    index, distances = neighbour_index[:, :k], neighbour_distance[:, :k]
+    index, distances = neighbour_index, neighbour_distance
     present = (index >= 0) & np.isfinite(distances)
     origin = xyz.mean(axis=0)
     # float32 in metres about the centroid: sub-micrometre resolution, half the memory traffic
@@ -158,8 +161,24 @@ def voxel_downsample(cloud: Cloud, size: float) -> Cloud:
     return picked.with_points(centroids / counts[:, None])
 
 
+def _window_candidates(cloud: Cloud, half: int) -> np.ndarray:
+    """(N, (2 half + 1)^2) indices of the points in each point's pixel window (same camera), -1 where none;
+    column (2 half + 1)^2 // 2 is the point itself. Needs cloud.pixel and cloud.camera."""
+    du, dv = np.meshgrid(np.arange(-half, half + 1), np.arange(-half, half + 1))
+    du, dv = du.ravel(), dv.ravel()
+    u = cloud.pixel[:, 0].astype(np.int64)
+    v = cloud.pixel[:, 1].astype(np.int64)
+    u0, v0 = u.min() - half, v.min() - half
+    width, height = int(u.max() - u0 + half + 1), int(v.max() - v0 + half + 1)
+    cameras = int(cloud.camera.max()) + 1
+    lookup = np.full(cameras * height * width, -1, dtype=np.int64)
+    key = (cloud.camera.astype(np.int64) * height + (v - v0)) * width + (u - u0)
+    lookup[key] = np.arange(len(cloud))
+    return lookup[key[:, None] + dv[None, :] * width + du[None, :]]
+
+
 def nearest_neighbours(cloud: Cloud, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """Distances and indices (N, k) of each point's k nearest neighbours, itself first, sorted.
+    """Distances and indices (N, k) of each point's k nearest neighbours, itself included (in no order).
 
     A cloud deprojected from depth images is organised: a point's 3-D neighbours are among its image
     neighbours, so a (2h+1)^2 pixel window (h from k) of the same camera replaces a KD-tree query, which
@@ -170,17 +189,7 @@ def nearest_neighbours(cloud: Cloud, k: int) -> tuple[np.ndarray, np.ndarray]:
         distances, index = cKDTree(cloud.xyz).query(cloud.xyz, k=min(k, count), workers=-1)
         return distances.reshape(count, -1), index.reshape(count, -1)
     half = max(int(np.ceil((np.sqrt(k + 1.0) - 1.0) / 2.0)), 1)   # the smallest window with k neighbours
-    du, dv = np.meshgrid(np.arange(-half, half + 1), np.arange(-half, half + 1))
-    du, dv = du.ravel(), dv.ravel()
-    u = cloud.pixel[:, 0].astype(np.int64)
-    v = cloud.pixel[:, 1].astype(np.int64)
-    u0, v0 = u.min() - half, v.min() - half
-    width, height = int(u.max() - u0 + half + 1), int(v.max() - v0 + half + 1)
-    cameras = int(cloud.camera.max()) + 1
-    lookup = np.full(cameras * height * width, -1, dtype=np.int64)
-    key = (cloud.camera.astype(np.int64) * height + (v - v0)) * width + (u - u0)
-    lookup[key] = np.arange(count)
-    candidates = lookup[key[:, None] + dv[None, :] * width + du[None, :]]      # (N, window)
+    candidates = _window_candidates(cloud, half)
     xyz = cloud.xyz.astype(np.float32)
     offsets = xyz[np.maximum(candidates, 0)] - xyz[:, None, :]
     squared = np.einsum("nwd,nwd->nw", offsets, offsets)
@@ -190,11 +199,9 @@ def nearest_neighbours(cloud: Cloud, k: int) -> tuple[np.ndarray, np.ndarray]:
         nearest = np.argpartition(squared, take - 1, axis=1)[:, :take]
         squared = np.take_along_axis(squared, nearest, axis=1)
         candidates = np.take_along_axis(candidates, nearest, axis=1)
-    order = np.argsort(squared, axis=1)
-    distances = np.sqrt(np.take_along_axis(squared, order, axis=1)).astype(np.float64)
-    index = np.take_along_axis(candidates, order, axis=1)
-    index[~np.isfinite(distances)] = -1
-    return distances, index
+    distances = np.sqrt(squared).astype(np.float64)
+    candidates[~np.isfinite(distances)] = -1
+    return distances, candidates
 
 
 def filter_cloud(cloud: Cloud, config) -> Cloud:
@@ -209,7 +216,8 @@ def filter_cloud(cloud: Cloud, config) -> Cloud:
     if k and len(cloud) > k:
         distances, index = nearest_neighbours(cloud, k)
         if cloud.pixel_footprint <= 0 and distances.shape[1] > 1:  # unknown intrinsics: nearest spacing
-            cloud = replace(cloud, pixel_footprint=float(np.median(distances[:, 1][np.isfinite(distances[:, 1])])))
+            nearest = np.partition(distances, 1, axis=1)[:, 1]  # [:, 0] is the point itself
+            cloud = replace(cloud, pixel_footprint=float(np.median(nearest[np.isfinite(nearest)])))
         if f.sor:
             keep = statistical_outlier_mask(cloud.xyz, f.sor_neighbors, f.sor_alpha, distances)
             if not keep.all():

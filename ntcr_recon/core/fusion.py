@@ -4,7 +4,8 @@ Public API:
     CameraFrame    one camera's frame: a depth image + intrinsics (+ colour), or points in its optical frame
     FramePair      the frames of one instant, by camera name; one camera alone is allowed
     pair_frames(streams, slop_ns) -> list[FramePair]
-    fuse(pair, config) -> Cloud        # base frame, cropped to the configured box, camera index per point
+    fuse(pair, config, box=None) -> Cloud  # base frame, cropped to the configured box (or a region of
+                                           # interest inside it), camera index and pixel per point
 """
 
 from __future__ import annotations
@@ -115,9 +116,13 @@ def camera_cloud(frame: CameraFrame, config: RigConfig, box_min: np.ndarray, box
             footprint)
 
 
-def fuse(pair: FramePair, config: RigConfig) -> Cloud:
-    """Eq. 9 for every camera of the pair, concatenated; unknown camera names are refused."""
-    box_min, box_max = config.crop_box()
+def fuse(pair: FramePair, config: RigConfig, box: tuple[np.ndarray, np.ndarray] | None = None) -> Cloud:
+    """Eq. 9 for every camera of the pair, concatenated; unknown camera names are refused.
+
+    box: a (min, max) region of interest in the base frame inside the configured crop box (e.g. around the
+    robot of the previous frame); only the pixels that can see it are deprojected.
+    """
+    box_min, box_max = config.crop_box() if box is None else box
     parts, colours, pixels, cameras, footprints = [], [], [], [], []
     for name, frame in pair.frames.items():
         if name not in config.cameras:

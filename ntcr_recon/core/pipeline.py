@@ -11,7 +11,10 @@ Each stage is callable on its own, so each ROS node wraps one:
     mesh = reconstructor.mesh(relocation)               # Poisson mesh (Eq. 7-8), core.mesh.Mesh
 
 `relocate` warm-starts from the previous call's centreline (a still or slowly moving robot converges in
-one or two iterations); `reset()` forgets it. Several frames of a still robot are combined by relocating
+one or two iterations) and `fuse` then deprojects only the pixels that can see a region of interest around
+the robot found last (its bounding box grown by `relocation.roi_margin_fraction` of the robot's length
+on every side); a frame whose robot is not found whole there is fused again from the full crop box.
+`reset()` forgets both. Several frames of a still robot are combined by relocating
 `Cloud.concatenate(filtered clouds)`. Every stage times itself into `timings_ms`.
 """
 
@@ -72,20 +75,29 @@ class Reconstructor:
         self.config = config
         self.geometry = config.robot
         self._prior: Centerline | None = None
+        self._roi: tuple[np.ndarray, np.ndarray] | None = None
+        self._roi_count = 0
         # optical centre of each camera in the base frame, by camera index (viewing rays for relocation)
         self._camera_origins = np.array([config.cameras[name].translation for name in config.camera_names], float)
         self.timings_ms: dict[str, float] = {}
 
     def reset(self) -> None:
-        """Forget the previous centreline (the next relocation starts cold, from the base)."""
+        """Forget the previous centreline and region of interest (the next frame starts cold)."""
         self._prior = None
+        self._roi = None
 
     def _timed(self, stage: str, start: float) -> None:
         self.timings_ms[stage] = (time.perf_counter() - start) * 1e3
 
     def fuse(self, pair: FramePair) -> Cloud:
         start = time.perf_counter()
-        cloud = fuse(pair, self.config)
+        cloud = None
+        if self._roi is not None:
+            cloud = fuse(pair, self.config, self._roi)
+            if len(cloud) < 0.8 * self._roi_count:  # the robot moved out of the region: look everywhere
+                cloud = None
+        if cloud is None:
+            cloud = fuse(pair, self.config)
         self._timed("fuse", start)
         return cloud
 
@@ -138,9 +150,22 @@ class Reconstructor:
         tip = centerline.frames_at(np.array([tip_s]))[0][0]
         relocated = cloud.subset(moved.accepted).with_points(moved.points)
         self._prior = centerline
+        self._update_roi(relocated)
         self._timed("relocate", start)
         return Relocation(_cut(centerline, tip_s), tip, notches, relocated, moved.normals, moved.rejected, coords,
                           iterations, moved.part, moved.coordinates)
+
+    def _update_roi(self, relocated: Cloud) -> None:
+        """Region of interest for the next frame: the robot's bounding box, grown, inside the crop box."""
+        if len(relocated) < 32:
+            self._roi = None
+            return
+        margin = self.config.relocation.roi_margin_fraction * self.geometry.length + self.geometry.outer_diameter
+        box_min, box_max = self.config.crop_box()
+        low = np.maximum(relocated.xyz.min(axis=0) - margin, box_min)
+        high = np.minimum(relocated.xyz.max(axis=0) + margin, box_max)
+        self._roi = (low, high)
+        self._roi_count = len(relocated)
 
     def mesh(self, relocation: Relocation):
         """The configured mesher: `tube` (the relocated outer wall meshed on the tube's own grid) or
