@@ -3,6 +3,7 @@ layout) fed with synthetic frames through the real librealsense machinery, and r
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 
@@ -13,8 +14,12 @@ import tiny_rig
 from software_d405 import SoftwareD405
 
 from ntcr_recon.core.config import CameraConfig
+from ntcr_recon.core.deproject import Intrinsics, depth_to_points
+from ntcr_recon.core.robot import TubeGeometry, TubeShape
 from ntcr_recon.ros.camera_sources import SourceError
 from ntcr_recon.ros.realsense_source import NO_DEVICE, RealSenseSource, RecordingSource
+from ntcr_recon.sim.simulate import Simulation
+from ntcr_recon.sim.stereo import StereoEmulation, emulate_depth
 
 INTRINSICS = tiny_rig.INTRINSICS
 UNIT = tiny_rig.DEPTH_UNIT
@@ -213,6 +218,38 @@ def test_hardware_clock_stamps_keep_the_device_intervals_on_the_host_clock():
         source.close()
     assert np.diff(stamps).tolist() == [33_500_000, 66_500_000]
     assert abs(stamps[0] - time.time_ns()) < 10e9
+
+
+def test_simulated_d405_frames_at_the_default_848x480_profile():
+    # The synthetic rig's cam_a (exact rendering + the D405's stereo artefacts) through a software device with
+    # the D405's real intrinsics; the source asks for the configuration's default profile, 848x480 at 30 fps.
+    shape = TubeShape.from_bend_angle(TubeGeometry(), math.radians(45))
+    sim = Simulation(shape, frame_count=1)
+    exact = sim.scene.render_exact(sim.cameras[0])
+    intrinsics = sim.intrinsics
+    d405 = SoftwareD405(intrinsics, serial=SERIAL)
+    source = RealSenseSource(CameraConfig(name="cam_a", serial_number=SERIAL), devices=lambda: [d405.device])
+    frames = iter(source)
+    try:
+        for index in range(2):
+            raw = emulate_depth(exact.depth, exact.normal, intrinsics, StereoEmulation(),
+                                np.random.default_rng(index))
+            stamp_ns = 1_767_225_600_000_000_000 + index * 33_333_333
+            d405.feed(raw, exact.color, stamp_ns / 1e6, index)
+            frame = next(frames)
+            np.testing.assert_array_equal(frame.depth, raw)
+            np.testing.assert_array_equal(frame.color, exact.color)
+            # librealsense stamps are float64 milliseconds: ~0.2 us resolution at today's epoch times.
+            assert abs(frame.stamp_ns - stamp_ns) < 1_000
+            # librealsense keeps intrinsics in float32, as a real D405 reports them (realsense-ros's K too).
+            pinhole = np.float32([intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy]).tolist()
+            assert frame.intrinsics == Intrinsics(848, 480, *pinhole)
+            xyz, _, _ = depth_to_points(frame.depth, frame.intrinsics, frame.depth_unit)
+            want, _, _ = depth_to_points(raw, frame.intrinsics, intrinsics.depth_unit)
+            assert len(xyz) == (raw > 0).sum() > 10_000
+            np.testing.assert_array_equal(xyz, want)  # metres through the 0.1 mm unit, as from a bag
+    finally:
+        source.close()
 
 
 # ---- the file source --------------------------------------------------------------------------------------
