@@ -92,7 +92,8 @@ def test_loop_keeps_stamps_increasing_and_publishes_clock(setup):
     stamps = [stamp_to_ns(m.header.stamp) for m in received["raw16"]]
     assert np.all(np.diff(stamps) > 0)
     assert stamps[-1] - stamps[0] >= (2 * FRAMES - 1) * PERIOD - 1  # crossed at least one loop boundary
-    assert np.all(np.diff(stamps) % PERIOD == 0)  # on the frame grid across the loop boundary: no repeat
+    steps = np.diff(stamps) / PERIOD
+    assert np.abs(steps - np.round(steps)).max() < 1e-4  # on the frame grid across the loop seam: no repeat
     clock_stamps = [stamp_to_ns(c.clock) for c in clocks]
     assert len(clock_stamps) >= FRAMES and set(stamps) & set(clock_stamps)
     assert np.all(np.diff(clock_stamps) > 0)

@@ -97,7 +97,7 @@ class CameraNode(RigNode):
             CameraInfo, camera_topic(self.rig.topics, self.camera, "depth_info"), SENSOR_QOS)
         self._clock_publisher = self.create_publisher(Clock, "/clock", 10) if self._params["publish_clock"] else None
         self._stop = threading.Event()
-        self.frames_published = 0
+        self.frames_published = self.frames_skipped = 0
         self._thread = threading.Thread(target=self._pump, name="camera_source", daemon=True)
         self._thread.start()
         self.get_logger().info(f"camera '{self.camera}' from the {self._params['source']} source -> {points_topic}")
@@ -135,24 +135,42 @@ class CameraNode(RigNode):
             raise ParameterError(f"source '{params['source']}': {error}") from error
 
     # ---- the producer thread -------------------------------------------------------------------------------
+    def _due(self, stamp_ns: int) -> float | None:
+        """Wall-clock time (s) at which the frame of `stamp_ns` is due at `rate`; None when not paced."""
+        rate = self._params["rate"]
+        if rate <= 0 or self._params["source"] == "realsense" or self._pace_origin is None:
+            return None
+        start_wall, start_stamp = self._pace_origin
+        return start_wall + (stamp_ns - start_stamp) * 1e-9 / rate
+
+    def _too_late(self, stamp_ns: int) -> bool:
+        """A paced replay more than 1.5 frame periods behind skips the frame, as a live camera drops frames
+        rather than falling behind: the cameras stay in step with the clock, and so with each other."""
+        due = self._due(stamp_ns)
+        period = 1.0 / (self.rig.cameras[self.camera].fps * self._params["rate"]) if due is not None else 0.0
+        late = due is not None and time.time() - due > 1.5 * period
+        self.frames_skipped += late
+        return late
+
     def _pump(self) -> None:
-        start_wall = start_stamp = None
+        self._pace_origin = None
         if self._params["wait_for_subscriber"] and self._params["source"] != "realsense":
             self.get_logger().info(f"waiting for a subscriber on {self._cloud_publisher.topic_name}")
             while self._cloud_publisher.get_subscription_count() == 0:
                 if self._stop.wait(0.05):
                     return
+        if hasattr(self._source, "skip"):
+            self._source.skip = self._too_late
         try:
             for frame in self._source:
                 if self._stop.is_set():
                     return
-                rate = self._params["rate"]
-                if rate > 0 and self._params["source"] != "realsense":
-                    if start_wall is None:  # the first frame is due at start_time (or now): pace from there
-                        start_wall, start_stamp = max(self._params["start_time"], time.time()), frame.stamp_ns
-                    delay = start_wall + (frame.stamp_ns - start_stamp) * 1e-9 / rate - time.time()
-                    if delay > 0 and self._stop.wait(delay):
-                        return
+                if self._pace_origin is None:  # the first frame is due at start_time (even if that has passed:
+                    # then this node skips frames to catch up, in step with the others) or now
+                    self._pace_origin = (self._params["start_time"] or time.time(), frame.stamp_ns)
+                due = self._due(frame.stamp_ns)
+                if due is not None and due > time.time() and self._stop.wait(due - time.time()):
+                    return
                 try:
                     self._publish(frame)
                 except ValueError as error:  # one bad frame (wrong size, bad encoding): say so, go on
@@ -163,7 +181,8 @@ class CameraNode(RigNode):
             if not self._stop.is_set() and self.context.ok():
                 self.get_logger().error(f"camera source failed: {type(error).__name__}: {error}")
             return
-        self.get_logger().info(f"source finished after {self.frames_published} frames")
+        self.get_logger().info(f"source finished after {self.frames_published} frames "
+                               f"({self.frames_skipped} skipped to keep up)")
 
     def _publish(self, frame: SourceFrame) -> None:
         if self._clock_publisher is not None:

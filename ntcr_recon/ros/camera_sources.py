@@ -12,7 +12,8 @@ Public API:
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Iterator
+import dataclasses
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -24,6 +25,8 @@ from ntcr_recon.bagio import image_to_array
 from ntcr_recon.core.config import TopicConfig
 from ntcr_recon.core.deproject import Intrinsics
 from ntcr_recon.ros.topics import camera_topic
+
+CACHE_BYTES = 256 * 2**20  # a looping bag up to this size is decoded once and replayed from memory
 
 
 class SourceError(RuntimeError):
@@ -54,7 +57,8 @@ class BagSource:
 
     Depth + camera_info (+ colour paired by stamp) when the bag has the camera's depth topic; otherwise the
     recorded `.../depth/color/points` clouds. With `loop`, the bag repeats with stamps shifted by its
-    duration plus one frame period, so time keeps moving forward for the graph.
+    duration plus one frame period, so time keeps moving forward for the graph. `skip` (stamp -> bool), when
+    set, drops a frame before its images are decoded (a replay that has fallen behind catches up).
     """
 
     def __init__(self, path: str | Path, camera: str, topics: TopicConfig, loop: bool = False) -> None:
@@ -62,6 +66,7 @@ class BagSource:
 
         self.path = Path(path)
         self.loop = loop
+        self.skip: Callable[[int], bool] | None = None  # stamp -> True to skip the frame without decoding it
         if not self.path.exists():
             raise SourceError(f"bag {self.path} does not exist")
         self._reader_class = AnyReader
@@ -69,6 +74,7 @@ class BagSource:
         with self._open() as reader:
             present = {c.topic for c in reader.connections}
             self.duration_ns = int(reader.duration)
+            counts = {c.topic: c.msgcount for c in reader.connections}
         if self.topics["depth"] in present:
             self.mode = "depth"
             if self.topics["depth_info"] not in present:
@@ -79,6 +85,7 @@ class BagSource:
         else:
             raise SourceError(f"bag {self.path} has neither {self.topics['depth']} nor {self.topics['points']} "
                               f"(topics: {', '.join(sorted(present)) or 'none'})")
+        self._frame_count = counts[self.topics[self.mode]]
 
     @contextlib.contextmanager
     def _open(self):
@@ -93,19 +100,35 @@ class BagSource:
             reader.close()
 
     def __iter__(self) -> Iterator[SourceFrame]:
-        offset_ns, first, last, period = 0, None, None, 0
+        # Shift per loop: the bag's duration plus its mean frame period, the same for every camera of the bag,
+        # so cameras replayed by separate nodes stay paired loop after loop.
+        loop_shift = self.duration_ns + max(self.duration_ns // max(self._frame_count - 1, 1), 1)
+        bag_bytes = sum(f.stat().st_size for f in self.path.rglob("*") if f.is_file()) if self.path.is_dir() \
+            else self.path.stat().st_size
+        if self.loop and bag_bytes <= CACHE_BYTES:
+            # A small looping bag is decoded once and kept: every later loop costs no reading or decoding.
+            skip, self.skip = self.skip, None
+            cached = list(self._one_pass(0))
+            self.skip = skip
+            offset_ns = 0
+            while cached:
+                for frame in cached:
+                    if self.skip is None or not self.skip(frame.stamp_ns + offset_ns):
+                        yield dataclasses.replace(frame, stamp_ns=frame.stamp_ns + offset_ns)
+                offset_ns += loop_shift
+            return
+        offset_ns = 0
         while True:
-            for frame in self._one_pass():
-                first = frame.stamp_ns if first is None else first
-                period = frame.stamp_ns - last if last is not None and period == 0 else period
-                last = frame.stamp_ns
-                frame.stamp_ns += offset_ns
-                yield frame
-            if not self.loop or first is None:
+            yield from self._one_pass(offset_ns)
+            if not self.loop or not self._frame_count:
                 return
-            offset_ns += last - first + max(period, 1)
+            offset_ns += loop_shift
 
-    def _one_pass(self) -> Iterator[SourceFrame]:
+    def _wanted(self, stamp: int, offset_ns: int) -> bool:
+        """False when the consumer asked to skip this frame (decoding it would be wasted)."""
+        return self.skip is None or not self.skip(stamp + offset_ns)
+
+    def _one_pass(self, offset_ns: int) -> Iterator[SourceFrame]:
         wanted = ("depth", "depth_info", "color") if self.mode == "depth" else ("points",)
         topics = {self.topics[kind]: kind for kind in wanted}
         with self._open() as reader:
@@ -113,7 +136,8 @@ class BagSource:
             if self.mode == "points":
                 for connection, _, raw in reader.messages(connections=connections):
                     msg = reader.deserialize(raw, connection.msgtype)
-                    yield SourceFrame(stamp_ns=_stamp(msg), cloud=msg)
+                    if self._wanted(_stamp(msg), offset_ns):
+                        yield SourceFrame(stamp_ns=_stamp(msg) + offset_ns, cloud=msg)
                 return
             info, intrinsics = None, None
             colors: dict[int, np.ndarray] = {}
@@ -126,7 +150,7 @@ class BagSource:
                     continue
                 stamp = _stamp(msg)
                 if kind == "color":
-                    if waiting is not None and waiting.stamp_ns == stamp:
+                    if waiting is not None and waiting.stamp_ns == stamp + offset_ns:
                         waiting.color = image_to_array(msg)
                         yield waiting
                         waiting = None
@@ -138,11 +162,11 @@ class BagSource:
                 if waiting is not None:  # its colour never came: it goes without
                     yield waiting
                     waiting = None
-                if intrinsics is None:
-                    continue  # no camera_info yet: the frame cannot be deprojected
+                if intrinsics is None or not self._wanted(stamp, offset_ns):
+                    continue  # no camera_info yet (cannot be deprojected), or skipped
                 depth = image_to_array(msg)
-                frame = SourceFrame(stamp_ns=stamp, depth=depth, depth_unit=1.0 if depth.dtype == np.float32 else None,
-                                    intrinsics=intrinsics, camera_info=info)
+                frame = SourceFrame(stamp_ns=stamp + offset_ns, depth=depth, intrinsics=intrinsics, camera_info=info,
+                                    depth_unit=1.0 if depth.dtype == np.float32 else None)
                 color = colors.pop(stamp, None)
                 if color is not None or not self.has_color:
                     frame.color = None if color is None else image_to_array(color)
