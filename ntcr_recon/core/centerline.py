@@ -361,12 +361,14 @@ def tube_end(coords: TubeCoordinates, radius: float, gate: float, cell: float, s
 
 
 def estimate_centerline(xyz: np.ndarray, geometry: TubeGeometry, settings: CenterlineSettings,
-                        prior: Centerline | None = None) -> tuple[Centerline, int, np.ndarray]:
-    """Fit the centreline to a cloud in the base frame; returns it, the number of iterations run and the
-    points' arc lengths on the last-but-one curve (a starting guess for projecting them onto the result).
+                        prior: Centerline | None = None) -> tuple[Centerline, int, tuple]:
+    """Fit the centreline to a cloud in the base frame.
 
-    The returned centreline runs from the base to just past the last slab with data; the tip is cut to
-    the observed end of the tube by the relocation (see relocation.observed_tip).
+    Returns the centreline (base to just past the last slab with data; the pipeline cuts it at the observed
+    tip), the number of iterations run, and (coordinates, frames, exact): the points' projection onto the
+    returned curve when exact, else onto the curve before it (its arc lengths a guess for projecting again).
+    On convergence the curve the points were last projected onto is returned: the update beyond it moved
+    less than the tolerance, and its projection is then exact for free.
     """
     base, _, binormal_hint = base_pose(geometry)
     step = settings.bin_length
@@ -377,9 +379,9 @@ def estimate_centerline(xyz: np.ndarray, geometry: TubeGeometry, settings: Cente
         centerline = prior
     smoothing_steps = settings.smoothing_length / step
     iterations = 0
-    coordinates = None
+    coordinates, frames = None, None
     for iterations in range(1, settings.max_iterations + 1):  # noqa: B007 - reported to the caller
-        coordinates = centerline.project(xyz, None if coordinates is None else coordinates.s)
+        coordinates, frames = centerline.project_with_frames(xyz, None if coordinates is None else coordinates.s)
         near_tube = np.abs(coordinates.radius - geometry.outer_radius) < settings.gate
         near_tube &= coordinates.s > -settings.gate
         if np.count_nonzero(near_tube) < 16:
@@ -399,7 +401,7 @@ def estimate_centerline(xyz: np.ndarray, geometry: TubeGeometry, settings: Cente
         y = np.tile(coordinates.y[near_tube], 2)[keep]
         slab, weight = slab[keep], weight[keep]
         centre, information_2d = fixed_radius_circle_fit(slab, x, y, slabs, geometry.outer_radius, settings.gate,
-                                                          point_weight=weight)
+                                                          iterations=3, point_weight=weight)
         s_nodes = np.arange(slabs) * step
         position, tangent, normal, binormal = centerline.frames_at(s_nodes)
         basis = np.stack([normal, binormal], axis=2)                      # (M, 3, 2)
@@ -425,5 +427,5 @@ def estimate_centerline(xyz: np.ndarray, geometry: TubeGeometry, settings: Cente
         interior = centerline.points[centerline.s < settled]
         moved = float(np.sqrt(np.mean(previous.project(interior).radius ** 2))) if len(interior) else 0.0
         if moved < settings.tolerance:
-            break
-    return centerline, iterations, None if coordinates is None else coordinates.s
+            return previous, iterations, (coordinates, frames, True)
+    return centerline, iterations, (coordinates, frames, False)

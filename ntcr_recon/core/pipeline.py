@@ -117,12 +117,13 @@ class Reconstructor:
                                       "robot in view and inside the crop box?")
         settings = settings_for(geometry, cloud.pixel_footprint, settings_config)
         prior = self._prior if warm_start else None
-        centerline, iterations, s_guess = estimate_centerline(cloud.xyz, geometry, settings, prior)
+        centerline, iterations, (coords, frames, exact) = estimate_centerline(cloud.xyz, geometry, settings, prior)
         if centerline.length < 2 * settings.bin_length:
             self._prior = None
             raise ReconstructionError("no tube found along the robot's base axis: is the robot in view and the "
                                       "base pose in the configuration right?")
-        coords, frames = centerline.project_with_frames(cloud.xyz, s_guess)
+        if not exact:
+            coords, frames = centerline.project_with_frames(cloud.xyz, None if coords is None else coords.s)
         footprint = cloud.pixel_footprint
         rays = None
         measured = coords
