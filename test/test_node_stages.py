@@ -15,16 +15,17 @@ from std_msgs.msg import Float64MultiArray
 from visualization_msgs.msg import Marker, MarkerArray
 
 from ntcr_recon.core.config import load_rig_config
-from ntcr_recon.core.mesh import poisson_mesh
 from ntcr_recon.core.pipeline import Reconstructor
 from ntcr_recon.ros.messages import (
+    centerline_path_msg,
     mesh_from_msg,
     notches_from_array,
+    relocation_cloud_msg,
     stage_cloud_and_normals,
     stage_cloud_from_msg,
     stage_cloud_to_msg,
 )
-from ntcr_recon.ros.node_support import LATCHED_QOS
+from ntcr_recon.ros.node_support import LATCHED_QOS, STAGE_QOS
 from ntcr_recon.ros.pointcloud import stamp_to_ns
 
 
@@ -40,7 +41,8 @@ def scene(tmp_path_factory):
                                    config.base_frame) for m in fused]
     relocations = [reconstructor.relocate(stage_cloud_from_msg(m, config.base_frame), warm_start=False)
                    for m in filtered]
-    relocated = [stage_cloud_to_msg(r.relocated, config.base_frame, r.normals) for r in relocations]
+    relocated = [(relocation_cloud_msg(r, config.base_frame),
+                  centerline_path_msg(r.centerline, config.base_frame, r.relocated.stamp_ns), r) for r in relocations]
     return bag, config, fused, filtered, relocated
 
 
@@ -83,8 +85,18 @@ def mesh_probe(scene):
     bag, *_ = scene
     with RosGraph() as graph:
         process = graph.start("mesh_node", "--params-file", str(bag / "rig.yaml"), "-p", "rate:=10.0")
-        yield StageProbe(graph, process, "/ntcr/relocated/points", "/ntcr/mesh/raw", output_type=Mesh,
-                         output_qos=LATCHED_QOS)
+        probe = StageProbe(graph, process, "/ntcr/relocated/points", "/ntcr/mesh/raw", output_type=Mesh,
+                           output_qos=LATCHED_QOS)
+        probe.centerline = graph.node.create_publisher(Path, "/ntcr/centerline", STAGE_QOS)
+        graph.wait_for_subscribers(probe.centerline)
+        yield probe
+
+
+def send_relocation(probe, relocated) -> Mesh:
+    """relocation_node's cloud and centreline of one frame, as it publishes them; the mesh they make."""
+    cloud_msg, path, _ = relocated
+    probe.centerline.publish(path)
+    return probe.send_and_wait(cloud_msg)
 
 
 def test_filter_node_filters_as_the_core(scene, filter_probe):
@@ -155,15 +167,14 @@ def test_relocation_node_logs_a_cloud_without_a_robot_and_goes_on(scene, relocat
 
 def test_mesh_node_meshes_as_the_core_and_late_subscribers_get_it(scene, mesh_probe):
     _, config, *_, relocated = scene
-    out = mesh_probe.send_and_wait(relocated[0])
-    cloud, normals = stage_cloud_and_normals(relocated[0], config.base_frame)
-    expected = poisson_mesh(cloud.xyz, normals, config.mesh)
+    out = send_relocation(mesh_probe, relocated[0])
+    expected = Reconstructor(config).mesh(relocated[0][2])
     vertices, triangles = mesh_from_msg(out)
     assert len(triangles) == len(expected.triangles) > 1000
-    # open3d's Poisson solver is threaded: the same vertices (to summation order), not always in the same order.
+    # The same vertices (up to float32 on the wire and, with the Poisson mesher, open3d's thread order).
     from scipy.spatial import cKDTree
-    assert cKDTree(expected.vertices).query(vertices)[0].max() < 1e-7
-    assert cKDTree(vertices).query(expected.vertices)[0].max() < 1e-7
+    assert cKDTree(expected.vertices).query(vertices)[0].max() < 1e-6
+    assert cKDTree(vertices).query(expected.vertices)[0].max() < 1e-6
     # A subscriber that comes later still gets the mesh (transient local), as RViz started late would.
     late: list[Marker] = []
     mesh_probe.graph.node.create_subscription(Marker, "/ntcr/mesh", late.append, LATCHED_QOS)
@@ -172,12 +183,12 @@ def test_mesh_node_meshes_as_the_core_and_late_subscribers_get_it(scene, mesh_pr
 
 
 def test_mesh_node_writes_a_ply_on_request(scene, mesh_probe, tmp_path):
-    mesh_probe.send_and_wait(scene[-1][1])
+    send_relocation(mesh_probe, scene[-1][1])
     target = tmp_path / "requested.ply"
     assert set_parameter(mesh_probe.graph, "mesh_node", "save_ply_path", str(target)).successful
     assert mesh_probe.graph.spin_until(target.exists, 10), mesh_probe.graph.log_of(mesh_probe.process)
-    import open3d as o3d
-    assert len(o3d.io.read_triangle_mesh(str(target)).triangles) > 1000
+    from test_graph_replay import ply_face_count
+    assert ply_face_count(target) > 1000
     assert not list(tmp_path.glob(".*"))  # no temporary file left behind
     refused = set_parameter(mesh_probe.graph, "mesh_node", "save_ply_path", "/nonexistent/dir/m.ply")
     assert not refused.successful and "save_ply_path" in refused.reason
@@ -186,8 +197,7 @@ def test_mesh_node_writes_a_ply_on_request(scene, mesh_probe, tmp_path):
 @pytest.mark.parametrize("defect", tiny_rig.MALFORMED)
 def test_mesh_node_survives_malformed_clouds(scene, mesh_probe, defect):
     mesh_probe.assert_refuses(defect, "ntcr_base")
-    good = scene[-1][1]
-    assert mesh_probe.send_and_wait(good) is not None
+    assert send_relocation(mesh_probe, scene[-1][1]) is not None
 
 
 def test_mesh_node_refuses_a_cloud_without_normals(scene, mesh_probe):

@@ -99,10 +99,14 @@ class BagSource:
         finally:
             reader.close()
 
+    @property
+    def loop_shift_ns(self) -> int:
+        """How much later each loop's stamps are: the bag's duration plus its mean frame period, the same for
+        every camera of the bag, so cameras replayed by separate nodes stay paired loop after loop."""
+        return self.duration_ns + max(self.duration_ns // max(self._frame_count - 1, 1), 1)
+
     def __iter__(self) -> Iterator[SourceFrame]:
-        # Shift per loop: the bag's duration plus its mean frame period, the same for every camera of the bag,
-        # so cameras replayed by separate nodes stay paired loop after loop.
-        loop_shift = self.duration_ns + max(self.duration_ns // max(self._frame_count - 1, 1), 1)
+        loop_shift = self.loop_shift_ns
         bag_bytes = sum(f.stat().st_size for f in self.path.rglob("*") if f.is_file()) if self.path.is_dir() \
             else self.path.stat().st_size
         if self.loop and bag_bytes <= CACHE_BYTES:

@@ -1,4 +1,8 @@
-"""mesh_node: `<ns>/relocated/points` (with normal_x/y/z) -> a Poisson mesh (the core's, Eq. 7-8), at `rate`.
+"""mesh_node: `<ns>/relocated/points` + `<ns>/centerline` of the same stamp -> the core's mesh, at `rate`.
+
+The mesher is the rig configuration's `mesh.method` (core.pipeline.Reconstructor.mesh: `tube`, the relocated
+outer wall on the tube's own grid, or `poisson`, Eq. 7-8); relocation_node's cloud carries what it reads
+(normals, surface parts, tube coordinates), the Path the centreline.
 
 Meshing costs more than a frame period, so the node keeps only the newest relocated cloud and meshes it at
 `rate` Hz (node clock: with `use_sim_time` the replayed bag's clock), skipping a tick when nothing new came.
@@ -14,16 +18,21 @@ every new mesh is also written to `<output_dir>/mesh.ply`.
 from __future__ import annotations
 
 import sys
-from pathlib import Path
+from pathlib import Path as PathLib
 
 import numpy as np
+from nav_msgs.msg import Path
 from sensor_msgs.msg import PointCloud2
 from shape_msgs.msg import Mesh
 from visualization_msgs.msg import Marker
 
-from ntcr_recon.ros.messages import mesh_marker, mesh_msg, stage_cloud_and_normals
+from ntcr_recon.core.pipeline import Reconstructor
+from ntcr_recon.ros.messages import mesh_marker, mesh_msg, relocation_from_msgs, stage_cloud_and_normals
 from ntcr_recon.ros.node_support import LATCHED_QOS, STAGE_QOS, ParameterError, RigNode, describe, guarded, run_node
+from ntcr_recon.ros.pointcloud import stamp_to_ns
 from ntcr_recon.ros.topics import stage_topic
+
+CENTERLINES_KEPT = 4
 
 PARAMETERS = {
     "rate": (1.0, describe("meshes per second (of the node's clock)", minimum=0.01, maximum=30.0)),
@@ -39,27 +48,29 @@ class MeshNode(RigNode):
         self._pending_save: Path | None = None
         self._params = {"save_ply_path": ""}
         super().__init__("mesh_node", PARAMETERS)
-        self._newest = None  # (Cloud, normals) not yet meshed
+        self._newest = None  # the newest relocated cloud message not yet meshed
+        self._centerlines: dict[int, Path] = {}  # the last few centrelines by stamp
         self.meshes = 0
         self._marker = self.create_publisher(Marker, stage_topic(self.rig.topics, "mesh"), LATCHED_QOS)
         self._raw = self.create_publisher(Mesh, stage_topic(self.rig.topics, "mesh/raw"), LATCHED_QOS)
         self.create_subscription(PointCloud2, stage_topic(self.rig.topics, "relocated/points"), self._on_cloud,
                                  STAGE_QOS)
+        self.create_subscription(Path, stage_topic(self.rig.topics, "centerline"), self._on_centerline, STAGE_QOS)
         self.get_logger().info(f"meshing relocated clouds at {self._params['rate']} Hz")
 
     def configure(self, rig, params: dict) -> None:
         save, output = params["save_ply_path"], params["output_dir"]
-        if save and not Path(save).expanduser().parent.is_dir():
+        if save and not PathLib(save).expanduser().parent.is_dir():
             raise ParameterError(f"parameter 'save_ply_path': the folder of {save!r} does not exist")
-        if save and Path(save).suffix.lower() not in (".ply", ".stl"):
+        if save and PathLib(save).suffix.lower() not in (".ply", ".stl"):
             raise ParameterError(f"parameter 'save_ply_path' must end in .ply (or .stl), got {save!r}")
-        if output and not Path(output).expanduser().is_dir():
+        if output and not PathLib(output).expanduser().is_dir():
             raise ParameterError(f"parameter 'output_dir': {output!r} is not an existing folder")
         save_requested = params["save_ply_path"] and params["save_ply_path"] != self._params["save_ply_path"]
         rate_changed = self._timer is None or params["rate"] != self._params["rate"]
-        self.rig, self._params = rig, params
+        self.rig, self._params, self._reconstructor = rig, params, Reconstructor(rig)
         if save_requested:
-            self._pending_save = Path(params["save_ply_path"]).expanduser()
+            self._pending_save = PathLib(params["save_ply_path"]).expanduser()
             self._save_pending()
         if rate_changed:
             if self._timer is not None:
@@ -68,30 +79,38 @@ class MeshNode(RigNode):
 
     @guarded
     def _on_cloud(self, msg: PointCloud2) -> None:
-        cloud, normals = stage_cloud_and_normals(msg, self.rig.base_frame)
+        _, normals = stage_cloud_and_normals(msg, self.rig.base_frame)  # refuse a bad cloud now, by name
         if normals is None:
             raise ValueError("relocated cloud has no normal_x/normal_y/normal_z fields (is it relocation_node's?)")
-        self._newest = (cloud, normals)
+        self._newest = msg
+
+    @guarded
+    def _on_centerline(self, msg: Path) -> None:
+        self._centerlines[stamp_to_ns(msg.header.stamp)] = msg
+        for stamp in sorted(self._centerlines)[:-CENTERLINES_KEPT]:
+            del self._centerlines[stamp]
 
     def _tick(self) -> None:
         if self._newest is None:
             return
-        cloud, normals = self._newest
-        self._newest = None
-        from ntcr_recon.core.mesh import poisson_mesh  # open3d is imported only by who meshes
-
+        stamp = stamp_to_ns(self._newest.header.stamp)
+        centerline = self._centerlines.get(stamp)
+        if centerline is None:
+            return  # its centreline is on the way (published right after the cloud)
+        msg, self._newest = self._newest, None
         try:
-            mesh = poisson_mesh(cloud.xyz, normals, self.rig.mesh)
+            relocation = relocation_from_msgs(msg, centerline, self.rig.base_frame)
+            mesh = self._reconstructor.mesh(relocation)
         except (ValueError, RuntimeError) as error:
-            self.get_logger().error(f"no mesh from the cloud of {len(cloud)} points at {cloud.stamp_ns} ns: {error}")
+            self.get_logger().error(f"no mesh from the relocated cloud at {stamp} ns: {error}")
             return
         vertices, triangles = np.asarray(mesh.vertices, float), np.asarray(mesh.triangles, np.int64)
-        self._mesh = (mesh, cloud.stamp_ns)
-        self._marker.publish(mesh_marker(vertices, triangles, self.rig.base_frame, cloud.stamp_ns))
+        self._mesh = (mesh, stamp)
+        self._marker.publish(mesh_marker(vertices, triangles, self.rig.base_frame, stamp))
         self._raw.publish(mesh_msg(vertices, triangles))
         self.meshes += 1
         if self._params["output_dir"]:
-            self._write(Path(self._params["output_dir"]).expanduser() / "mesh.ply")
+            self._write(PathLib(self._params["output_dir"]).expanduser() / "mesh.ply")
         self._save_pending()
 
     def _save_pending(self) -> None:
@@ -99,7 +118,7 @@ class MeshNode(RigNode):
             path, self._pending_save = self._pending_save, None
             self._write(path)
 
-    def _write(self, path: Path) -> None:
+    def _write(self, path: PathLib) -> None:
         from ntcr_recon.core.mesh import write_mesh
 
         mesh, stamp = self._mesh

@@ -8,6 +8,9 @@ command computes on the same frames, all float32:
   `pixel_u`, `pixel_v` the point's pixel in its camera image (the filters find neighbours in the image by
                       it); absent when the camera's cloud had no pixel layout
   `normal_x/y/z`      relocated cloud only: the reference surface's outward normal (the mesh is oriented by it)
+  `part`, `tube_s`, `tube_x`, `tube_y`   relocated cloud only: the robot surface each point lies on
+                      (core.robot.PART_*) and its tube coordinates (arc length, offset towards the notch side,
+                      offset along the binormal): with the centreline Path, what the mesh stage needs
 Readers that know only x, y, z (and rgb) are unaffected.
 
 camera_node's clouds (`<ns>/<cam>/depth/color/points`) are unorganised (only the valid points: a crop window
@@ -37,7 +40,7 @@ from std_msgs.msg import ColorRGBA, Float64MultiArray, Header, MultiArrayDimensi
 from visualization_msgs.msg import Marker, MarkerArray
 
 from ntcr_recon.core.cloud import Cloud
-from ntcr_recon.core.transforms import matrix_to_quaternion
+from ntcr_recon.core.transforms import matrix_to_quaternion, quaternion_to_matrix
 from ntcr_recon.ros.pointcloud import FLOAT32, RCLPY, cloud_from_msg, cloud_to_msg, stamp_to_ns
 
 NOTCH_LAYOUT_LABEL = "index,center_s_m,width_m,bend_rad"
@@ -75,15 +78,58 @@ def cloud_msg_with_fields(xyz: np.ndarray, rgb: np.ndarray | None, frame_id: str
     return base
 
 
-def stage_cloud_to_msg(cloud: Cloud, frame_id: str, normals: np.ndarray | None = None) -> PointCloud2:
+def stage_cloud_to_msg(cloud: Cloud, frame_id: str, normals: np.ndarray | None = None,
+                       extra: dict[str, np.ndarray] | None = None) -> PointCloud2:
     """A Cloud as a PointCloud2: x, y, z, rgb, `camera`, `pixel_footprint`, `pixel_u`/`pixel_v` when the cloud
-    has pixels, and `normal_x`/`normal_y`/`normal_z` when normals are given (see the module doc)."""
+    has pixels, `normal_x`/`normal_y`/`normal_z` when normals are given, then `extra` float32 fields."""
     columns = {"camera": cloud.camera if cloud.camera is not None else -1, "pixel_footprint": cloud.pixel_footprint}
     if cloud.pixel is not None:
         columns.update(pixel_u=cloud.pixel[:, 0], pixel_v=cloud.pixel[:, 1])
     if normals is not None:
         columns.update(zip(_NORMAL_FIELDS, np.asarray(normals).T, strict=True))
+    columns.update(extra or {})
     return cloud_msg_with_fields(cloud.xyz, cloud.rgb, frame_id, cloud.stamp_ns, columns)
+
+
+def relocation_cloud_msg(relocation, frame_id: str) -> PointCloud2:
+    """The relocated cloud of a core Relocation with its normals, the surface `part` of each point and its
+    tube coordinates `tube_s`, `tube_x`, `tube_y` (what the mesh stage needs besides the centreline)."""
+    extra = {}
+    if relocation.part is not None:
+        extra["part"] = relocation.part
+    coordinates = relocation.relocated_coordinates
+    if coordinates is not None:
+        extra.update(tube_s=coordinates.s, tube_x=coordinates.x, tube_y=coordinates.y)
+    return stage_cloud_to_msg(relocation.relocated, frame_id, relocation.normals, extra)
+
+
+def relocation_from_msgs(cloud_msg: PointCloud2, path: Path, expected_frame: str):
+    """A core Relocation rebuilt from relocation_node's cloud (`relocation_cloud_msg`) and centreline Path of
+    the same stamp: what the core's mesher reads (centreline, relocated cloud, normals, parts, tube
+    coordinates). Notches and rejected counts are not carried (0 / empty)."""
+    from ntcr_recon.core.centerline import Centerline, TubeCoordinates
+    from ntcr_recon.core.pipeline import Relocation
+
+    require_frame(path, expected_frame)
+    cloud, normals = stage_cloud_and_normals(cloud_msg, expected_frame)
+    if normals is None:
+        raise ValueError("relocated cloud has no normal_x/normal_y/normal_z fields (is it relocation_node's?)")
+    if len(path.poses) < 2:
+        raise ValueError(f"centreline has {len(path.poses)} poses, needs at least 2")
+    columns = {name: _float_field(cloud_msg, name, int(cloud_msg.width) * int(cloud_msg.height))
+               for name in ("part", "tube_s", "tube_x", "tube_y")}
+    finite = np.isfinite(cloud_from_msg(cloud_msg)[0]).all(axis=1)
+    part = None if columns["part"] is None else columns["part"][finite].astype(np.int8)
+    coordinates = None
+    if all(columns[name] is not None for name in ("tube_s", "tube_x", "tube_y")):
+        coordinates = TubeCoordinates(*(columns[name][finite].astype(float) for name in ("tube_s", "tube_x", "tube_y")))
+    points = np.array([[p.pose.position.x, p.pose.position.y, p.pose.position.z] for p in path.poses])
+    quaternions = np.array([[p.pose.orientation.x, p.pose.orientation.y, p.pose.orientation.z,
+                             p.pose.orientation.w] for p in path.poses])
+    rotations = np.stack([quaternion_to_matrix(q) for q in quaternions])
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    centerline = Centerline(s, points, rotations[:, :, 2], rotations[:, :, 0], rotations[:, :, 1])
+    return Relocation(centerline, points[-1], [], cloud, normals, 0, coordinates, 0, part, coordinates)
 
 
 def camera_cloud_to_msg(xyz: np.ndarray, rgb: np.ndarray | None, pixel: np.ndarray, frame_id: str,
@@ -194,6 +240,17 @@ def path_msg(points: np.ndarray, rotations: np.ndarray | None, frame_id: str, st
     poses = [PoseStamped(header=head, pose=pose(p, None if rotations is None else rotations[i]))
              for i, p in enumerate(np.asarray(points, dtype=float))]
     return Path(header=head, poses=poses)
+
+
+def frame_rotations(normals: np.ndarray, binormals: np.ndarray, tangents: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) rotations whose columns are x = normal (notch side), y = binormal, z = tangent."""
+    return np.stack([normals, binormals, tangents], axis=-1)
+
+
+def centerline_path_msg(centerline, frame_id: str, stamp_ns: int) -> Path:
+    """A core Centerline as nav_msgs/Path: poses base to tip, x axis to the notch side, z along the tangent."""
+    rotations = frame_rotations(centerline.normals, centerline.binormals, centerline.tangents)
+    return path_msg(centerline.points, rotations, frame_id, stamp_ns)
 
 
 def pose_stamped(position: Sequence[float], rotation: np.ndarray | None, frame_id: str, stamp_ns: int

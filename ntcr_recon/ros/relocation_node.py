@@ -2,7 +2,7 @@
 
 Publishes (reliable, depth 1; all in the base frame, stamped with the input cloud's stamp):
   `<ns>/relocated/points`   PointCloud2: the accepted points moved onto the reference surface, with the
-                            surface's outward normals (normal_x/y/z) for the mesh stage
+                            surface's outward normals, parts and tube coordinates for the mesh stage
   `<ns>/centerline`         nav_msgs/Path, base to tip; each pose's x axis points to the notch side, z along
                             the tangent (the robot kinematics' convention)
   `<ns>/tip`                geometry_msgs/PoseStamped, same axes
@@ -26,12 +26,13 @@ from visualization_msgs.msg import MarkerArray
 
 from ntcr_recon.core.pipeline import ReconstructionError, Reconstructor
 from ntcr_recon.ros.messages import (
+    centerline_path_msg,
+    frame_rotations,
     notch_markers,
     notches_array,
-    path_msg,
     pose_stamped,
+    relocation_cloud_msg,
     stage_cloud_from_msg,
-    stage_cloud_to_msg,
 )
 from ntcr_recon.ros.node_support import STAGE_QOS, RigNode, describe, guarded, run_node
 from ntcr_recon.ros.topics import stage_topic
@@ -40,11 +41,6 @@ PARAMETERS = {
     "warm_start": (True, describe("start each frame's centreline iteration from the previous frame's (as the "
                                   "offline command does); false: every frame from the base, independently")),
 }
-
-
-def frame_rotations(normals: np.ndarray, binormals: np.ndarray, tangents: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) rotations whose columns are x = normal (notch side), y = binormal, z = tangent."""
-    return np.stack([normals, binormals, tangents], axis=-1)
 
 
 class RelocationNode(RigNode):
@@ -71,10 +67,11 @@ class RelocationNode(RigNode):
             raise ValueError(f"cannot reconstruct the cloud of {len(cloud)} points: {error}") from error
         frame, stamp = self.rig.base_frame, cloud.stamp_ns
         centerline = relocation.centerline
-        rotations = frame_rotations(centerline.normals, centerline.binormals, centerline.tangents)
-        self._cloud.publish(stage_cloud_to_msg(relocation.relocated, frame, relocation.normals))
-        self._path.publish(path_msg(centerline.points, rotations, frame, stamp))
-        self._tip.publish(pose_stamped(relocation.tip, rotations[-1], frame, stamp))
+        self._cloud.publish(relocation_cloud_msg(relocation, frame))
+        path = centerline_path_msg(centerline, frame, stamp)
+        self._path.publish(path)
+        end = frame_rotations(centerline.normals[-1:], centerline.binormals[-1:], centerline.tangents[-1:])[0]
+        self._tip.publish(pose_stamped(relocation.tip, end, frame, stamp))
         notches = [{"index": n.index, "center_s": n.center_s, "width": n.width, "bend": n.bend}
                    for n in relocation.notches]
         self._notches.publish(notches_array(notches))
