@@ -146,6 +146,7 @@ class Reconstructor:
             erosion = silhouette_erosion(coords, frames, cloud.camera, self._camera_origins, geometry.outer_radius,
                                          plain)
             tip_s += erosion
+        notches = _calibrate_rims(notches, geometry)
         moved: RelocatedPoints = relocate_points(coords, centerline, geometry, notches, tip_s, settings.gate,
                                                  rays)
         tip = centerline.frames_at(np.array([tip_s]))[0][0]
@@ -189,6 +190,25 @@ class Reconstructor:
         relocation = self.relocate(filtered)
         mesh = self.mesh(relocation) if with_mesh else None
         return FrameResult(fused, filtered, relocation, mesh, dict(self.timings_ms))
+
+
+def _calibrate_rims(notches: list[Notch], geometry) -> list[Notch]:
+    """Correct the notch edges for what the stereo matcher does to rims at depth edges.
+
+    A matcher erodes (or, where it averages across a shallow gap, extends) the rim on both sides of every
+    notch by about the same amount e. The spines between notches are rigid, of the robot's nominal length
+    pitch - width whatever the bend, so e = (nominal - observed spine length) / 2, the median over the
+    spines between consecutive detected notches; every edge moves back by e. (A robot whose spines are all
+    shorter than its drawing says would have that read as erosion.)
+    """
+    by_index = {n.index: n for n in notches}
+    spine = geometry.notch_pitch - geometry.notch_width
+    observed = [by_index[i + 1].start_s - by_index[i].end_s for i in sorted(by_index) if i + 1 in by_index]
+    if len(observed) < 3:
+        return notches
+    erosion = float(np.median(spine - np.array(observed))) / 2.0
+    return [Notch(n.index, n.center_s, n.start_s + erosion, n.end_s - erosion, max(n.width - 2 * erosion, 0.0),
+                  n.bend) for n in notches]
 
 
 def _cut(centerline: Centerline, tip_s: float) -> Centerline:
