@@ -400,8 +400,11 @@ def estimate_centerline(xyz: np.ndarray, geometry: TubeGeometry, settings: Cente
         x = np.tile(coordinates.x[near_tube], 2)[keep]
         y = np.tile(coordinates.y[near_tube], 2)[keep]
         slab, weight = slab[keep], weight[keep]
-        centre, information_2d = fixed_radius_circle_fit(slab, x, y, slabs, geometry.outer_radius, settings.gate,
-                                                          iterations=3, point_weight=weight)
+        # stereo depth puts the seen wall a little inside (flattening) or outside the true one, about equally
+        # all round: the circle is fitted at the radius this cloud's wall points lie at, its centre is the axis
+        level, _ = surface_band(coordinates.radius - geometry.outer_radius, settings.gate)
+        centre, information_2d = fixed_radius_circle_fit(slab, x, y, slabs, geometry.outer_radius + level,
+                                                          settings.gate, iterations=3, point_weight=weight)
         s_nodes = np.arange(slabs) * step
         position, tangent, normal, binormal = centerline.frames_at(s_nodes)
         basis = np.stack([normal, binormal], axis=2)                      # (M, 3, 2)
