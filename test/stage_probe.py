@@ -12,6 +12,12 @@ from ntcr_recon.ros.node_support import STAGE_QOS
 COLLECT_RELIABLE = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 
 
+def ply_face_count(path) -> int:
+    """The face count a PLY header declares (the file is written whole or not at all)."""
+    header = path.read_bytes().split(b"end_header", 1)[0].decode("ascii")
+    return int(next(line.split()[2] for line in header.splitlines() if line.startswith("element face")))
+
+
 class StageProbe:
     """Publishes clouds on `input_topic` and collects what the node under test publishes on `output_topic`."""
 

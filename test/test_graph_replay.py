@@ -17,7 +17,7 @@ from ros_graph import RosGraph
 from scipy.spatial import cKDTree
 from sensor_msgs.msg import PointCloud2
 from shape_msgs.msg import Mesh
-from stage_probe import COLLECT_RELIABLE
+from stage_probe import COLLECT_RELIABLE, ply_face_count
 from std_msgs.msg import Float64MultiArray
 from visualization_msgs.msg import Marker
 
@@ -121,12 +121,8 @@ def test_a_mesh_arrives_and_is_written(replay):
     extent = vertices.max(axis=0) - vertices.min(axis=0)
     assert 0.03 < extent.max() < 0.07
     assert ply_face_count(output / "mesh.ply") > 1000
+    assert (output / "relocated.ply").stat().st_size > 4000 * 12  # the newest relocated cloud beside it
 
-
-def ply_face_count(path: Path) -> int:
-    """The face count a PLY header declares (the file is written whole or not at all)."""
-    header = path.read_bytes().split(b"end_header", 1)[0].decode("ascii")
-    return int(next(line.split()[2] for line in header.splitlines() if line.startswith("element face")))
 
 
 def test_ctrl_c_stops_every_node(replay):

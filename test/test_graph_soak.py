@@ -58,8 +58,9 @@ def test_graph_at_30_hz_for_60_s_of_bag_time_keeps_memory_flat_and_no_backlog(tm
             lambda m: relocated.append((clock[-1] if clock else 0, stamp_to_ns(m.header.stamp))), COLLECT_RELIABLE)
         graph.node.create_subscription(
             DiagnosticArray, "/diagnostics",
-            lambda m: fusion_counts.extend({kv.key: kv.value for kv in s.values} for s in m.status
-                                           if s.name == "ntcr_recon: fusion"), COLLECT_RELIABLE)
+            lambda m: fusion_counts.extend({"stamp": stamp_to_ns(m.header.stamp), **{kv.key: kv.value for kv in
+                                            s.values}} for s in m.status if s.name == "ntcr_recon: fusion"),
+            COLLECT_RELIABLE)
         log_path = tmp_path / "run.log"
         with log_path.open("w") as log:
             process = subprocess.Popen([str(RUN), "run", "--config", str(BAG / "rig.yaml"), "--bag", str(BAG),
@@ -108,6 +109,9 @@ def test_graph_at_30_hz_for_60_s_of_bag_time_keeps_memory_flat_and_no_backlog(tm
           f"{np.median(lags[:quarter]):.3f} s, last quarter median {np.median(lags[-quarter:]):.3f} s, "
           f"max {lags.max():.3f} s")
 
+    # use_sim_time: fusion_node's clock (its diagnostics' stamps, its 1 s timer) is the bag's, not the wall's.
+    diagnostic_stamps = [int(c["stamp"]) for c in fusion_counts[-5:]]
+    assert all(clock_start <= stamp <= clock[-1] + 2e9 for stamp in diagnostic_stamps), diagnostic_stamps
     for name in nodes:
         # Flat: bounded buffers fill and empty (a few frames of ~1 MB), but the second half never needs
         # more than the first did; a leak of even one cloud a second (~0.5 MB) would add ~15 MB.

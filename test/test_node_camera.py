@@ -113,6 +113,17 @@ def test_recorded_clouds_are_republished_as_recorded(setup):
     np.testing.assert_array_equal(rgb, want_rgb)
 
 
+def test_a_truncated_bag_is_refused_by_name(tmp_path):
+    rig = tiny_rig.write_rig(tmp_path / "rig.yaml")
+    bag = tiny_rig.write_bag(tmp_path / "bag", frames=3, cameras=("cam_a",))
+    mcap = next(bag.glob("*.mcap"))
+    mcap.write_bytes(mcap.read_bytes()[: mcap.stat().st_size // 2])
+    result = subprocess.run([str(VENV_BIN / "camera_node"), "--ros-args", "--params-file", str(rig),
+                             "-p", f"bag_path:={bag}"], capture_output=True, text=True, timeout=30)
+    assert result.returncode != 0
+    assert f"cannot read bag {bag}" in result.stderr, result.stderr
+
+
 @pytest.mark.parametrize("override, expected", [
     (("-p", "bag_path:=/nonexistent/bag"), "/nonexistent/bag does not exist"),
     (("-p", "camera:=cam_z"), "parameter 'camera' is 'cam_z'"),

@@ -10,7 +10,7 @@ from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from ros_graph import RosGraph
 from shape_msgs.msg import Mesh
-from stage_probe import COLLECT_RELIABLE, StageProbe
+from stage_probe import COLLECT_RELIABLE, StageProbe, ply_face_count
 from std_msgs.msg import Float64MultiArray
 from visualization_msgs.msg import Marker, MarkerArray
 
@@ -187,7 +187,6 @@ def test_mesh_node_writes_a_ply_on_request(scene, mesh_probe, tmp_path):
     target = tmp_path / "requested.ply"
     assert set_parameter(mesh_probe.graph, "mesh_node", "save_ply_path", str(target)).successful
     assert mesh_probe.graph.spin_until(target.exists, 10), mesh_probe.graph.log_of(mesh_probe.process)
-    from test_graph_replay import ply_face_count
     assert ply_face_count(target) > 1000
     assert not list(tmp_path.glob(".*"))  # no temporary file left behind
     refused = set_parameter(mesh_probe.graph, "mesh_node", "save_ply_path", "/nonexistent/dir/m.ply")

@@ -44,7 +44,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--loop", action="store_true", help="replay the bag or recordings again and again")
     parser.add_argument("--use-sim-time", action="store_true",
                         help="the bag's stamps drive the graph's clock (/clock from the first camera_node)")
-    parser.add_argument("--output", type=Path, help="folder where mesh_node writes mesh.ply on every mesh")
+    parser.add_argument("--output", type=Path, help="folder where the graph leaves the newest mesh.ply (mesh_node) "
+                                                    "and relocated.ply (relocation_node)")
     parser.add_argument("--duration", type=float, default=0.0, help="stop after this many seconds (0: run until "
                                                                      "Ctrl-C)")
     parser.add_argument("--no-mesh", action="store_true", help="leave out mesh_node")
@@ -83,7 +84,7 @@ def node_commands(args: argparse.Namespace, camera_names: list[str]) -> list[Nod
         if node == "mesh_node" and args.no_mesh:
             continue
         parameters = {"use_sim_time": True} if args.use_sim_time else {}
-        if node == "mesh_node" and args.output is not None:
+        if node in ("mesh_node", "relocation_node") and args.output is not None:
             parameters["output_dir"] = str(args.output.resolve())
         parameters.update(extra.pop(node, {}))
         commands.append(NodeCommand(node, _argv(node, node, args.config, parameters), parameters))

@@ -16,6 +16,7 @@ A cloud the core cannot reconstruct (too few points, no tube along the base axis
 from __future__ import annotations
 
 import sys
+from pathlib import Path as PathLib
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped
@@ -34,10 +35,11 @@ from ntcr_recon.ros.messages import (
     relocation_cloud_msg,
     stage_cloud_from_msg,
 )
-from ntcr_recon.ros.node_support import STAGE_QOS, RigNode, describe, guarded, run_node
+from ntcr_recon.ros.node_support import STAGE_QOS, ParameterError, RigNode, describe, guarded, run_node
 from ntcr_recon.ros.topics import stage_topic
 
 PARAMETERS = {
+    "output_dir": ("", describe("when set, the newest relocated cloud is also written to <output_dir>/relocated.ply")),
     "warm_start": (True, describe("start each frame's centreline iteration from the previous frame's (as the "
                                   "offline command does); false: every frame from the base, independently")),
 }
@@ -56,13 +58,15 @@ class RelocationNode(RigNode):
         self.get_logger().info("relocating filtered clouds onto the reference robot")
 
     def configure(self, rig, params: dict) -> None:
-        self.rig, self._reconstructor, self._warm_start = rig, Reconstructor(rig), params["warm_start"]
+        if params["output_dir"] and not PathLib(params["output_dir"]).expanduser().is_dir():
+            raise ParameterError(f"parameter 'output_dir': {params['output_dir']!r} is not an existing folder")
+        self.rig, self._reconstructor, self._params = rig, Reconstructor(rig), params
 
     @guarded
     def _on_cloud(self, msg: PointCloud2) -> None:
         cloud = stage_cloud_from_msg(msg, self.rig.base_frame)
         try:
-            relocation = self._reconstructor.relocate(cloud, warm_start=self._warm_start)
+            relocation = self._reconstructor.relocate(cloud, warm_start=self._params["warm_start"])
         except ReconstructionError as error:
             raise ValueError(f"cannot reconstruct the cloud of {len(cloud)} points: {error}") from error
         frame, stamp = self.rig.base_frame, cloud.stamp_ns
@@ -79,6 +83,16 @@ class RelocationNode(RigNode):
         position, tangent, normal, binormal = centerline.frames_at(centres)
         self._markers.publish(notch_markers(notches, position, frame_rotations(normal, binormal, tangent),
                                             self.rig.robot.outer_radius, frame, stamp))
+        if self._params["output_dir"]:
+            self._write(PathLib(self._params["output_dir"]).expanduser() / "relocated.ply", relocation)
+
+    def _write(self, path: PathLib, relocation) -> None:
+        from ntcr_recon.core.mesh import write_cloud_ply
+
+        try:
+            write_cloud_ply(path, relocation.relocated.xyz, relocation.relocated.rgb, relocation.normals)
+        except (OSError, ValueError) as error:
+            self.get_logger().error(f"could not write the relocated cloud to {path}: {error}")
 
 
 def main(args: list[str] | None = None) -> int:
