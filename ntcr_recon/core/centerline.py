@@ -293,6 +293,7 @@ def _march(xyz: np.ndarray, geometry: TubeGeometry, settings: CenterlineSettings
     tangent = axis
     limit = int(np.ceil(1.5 * geometry.length / step)) + 2
     misses = 0
+    allowed_misses = max(3, int(np.ceil(geometry.proximal_length / step)) + 1)
     for _ in range(limit):
         predicted = nodes[-1] + step * tangent
         offset = xyz - predicted
@@ -300,8 +301,10 @@ def _march(xyz: np.ndarray, geometry: TubeGeometry, settings: CenterlineSettings
         lateral = offset - along[:, None] * tangent
         near = (np.abs(along) <= step / 2) & (np.einsum("ij,ij->i", lateral, lateral) <= reach**2)
         if np.count_nonzero(near) < 8:
+            # a stretch without data (the base hidden by its clamp, an occlusion): carry on straight for up
+            # to the proximal length (straight by construction) or a few steps
             misses += 1
-            if misses > 1:
+            if misses > allowed_misses:
                 break
             nodes.append(predicted)
             continue

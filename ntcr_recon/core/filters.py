@@ -46,8 +46,13 @@ def statistical_outlier_mask(xyz: np.ndarray, neighbors: int, alpha: float,
         return np.ones(len(xyz), dtype=bool)
     if distances is None:
         distances, _ = cKDTree(xyz).query(xyz, k=neighbors + 1, workers=-1)
-    # the point itself is at distance 0, so the sum over k + 1 is the sum over its k neighbours
-    mean_distance = distances[:, : neighbors + 1].sum(axis=1) / neighbors   # inf where neighbours are missing
+    # the point itself is at distance 0 and counts out; neighbours missing from an image window (inf) count
+    # out too, so a point at a hole or a thin part of the image is judged by the neighbours it has
+    near = distances[:, : neighbors + 1]
+    present = np.isfinite(near)
+    count = present.sum(axis=1) - 1
+    mean_distance = np.where(present, near, 0.0).sum(axis=1) / np.maximum(count, 1)
+    mean_distance[count < 3] = np.inf                                     # (almost) alone: an outlier
     finite = np.isfinite(mean_distance)
     if not finite.any():
         return finite
