@@ -114,7 +114,7 @@ class RelocationConfig:
     bin_radius_fraction: float = 0.25      # slab length = this * outer_radius (at least 2 pixel footprints)
     smoothing_radius_fraction: float = 1.0  # smoothing length along s = this * outer_radius
     max_iterations: int = 12
-    tolerance_radius_fraction: float = 0.005  # stop when the centreline moves less than this * r_o (RMS)
+    tolerance_radius_fraction: float = 0.01  # stop when the centreline moves less than this * r_o (RMS)
     icp: bool = True                       # rigid point-to-point ICP of the reference to the cloud (Eq. 10-11)
     # Notch detection: kernel width of the coverage profile along s, in pixel footprints.
     notch_kernel_px: float = 0.5

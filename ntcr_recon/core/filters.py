@@ -141,9 +141,9 @@ def mls_smooth(xyz: np.ndarray, neighbors: int, order: int = 2, radius: float = 
         h = in_frame[:, :, 2:]
         basis = np.stack([np.ones_like(a), a, b, a * a, a * b, b * b], axis=2)   # (N, k, 6)
         weighted_basis = (basis * weights[:, :, None]).transpose(0, 2, 1)
-        normal_matrix = (weighted_basis @ basis).astype(np.float64) + 1e-9 * np.eye(6)
-        rhs = (weighted_basis @ h).astype(np.float64)
-        coefficients = np.linalg.solve(normal_matrix, rhs)[:, :, 0].astype(np.float32)
+        # a and b are scaled to the neighbourhood, so the 6x6 system is well conditioned in float32
+        normal_matrix = weighted_basis @ basis + np.float32(1e-6) * np.eye(6, dtype=np.float32)
+        coefficients = np.linalg.solve(normal_matrix, weighted_basis @ h)[:, :, 0]
         own_frame = (own[:, None, :] @ frame)[:, 0, :]
         a0 = own_frame[:, 0] / scale[:, 0]
         b0 = own_frame[:, 1] / scale[:, 0]
