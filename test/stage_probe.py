@@ -12,6 +12,18 @@ from ntcr_recon.ros.node_support import STAGE_QOS
 COLLECT_RELIABLE = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 
 
+def set_parameter(graph, node: str, name: str, value):
+    """SetParameters on `node` (a str, float or bool value); returns the result (successful, reason)."""
+    from rcl_interfaces.srv import SetParameters
+    from rclpy.parameter import Parameter
+
+    client = graph.node.create_client(SetParameters, f"/{node}/set_parameters")
+    assert client.wait_for_service(timeout_sec=10)
+    future = client.call_async(SetParameters.Request(parameters=[Parameter(name, value=value).to_parameter_msg()]))
+    assert graph.spin_until(future.done, 10)
+    return future.result().results[0]
+
+
 def ply_face_count(path) -> int:
     """The face count a PLY header declares (the file is written whole or not at all)."""
     header = path.read_bytes().split(b"end_header", 1)[0].decode("ascii")

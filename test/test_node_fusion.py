@@ -10,7 +10,7 @@ import tiny_rig
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from ros_graph import RosGraph
 from sensor_msgs.msg import CameraInfo, PointCloud2
-from stage_probe import COLLECT_RELIABLE, StageProbe
+from stage_probe import COLLECT_RELIABLE, StageProbe, set_parameter
 
 from ntcr_recon.core.config import load_rig_config
 from ntcr_recon.core.deproject import depth_to_points
@@ -101,7 +101,6 @@ def test_malformed_cloud_is_logged_and_fusion_goes_on(fusion, defect):
     fusion.assert_refuses(defect, "cam_a_optical_frame")
     test_a_pair_is_fused_as_the_core_fuses_it(fusion)
 
-
 def test_one_camera_stopped_mid_stream_then_back(fusion):
     graph, timeout_frames = fusion.graph, int(0.3 / (PERIOD * 1e-9)) + 1
     start = 1000 * PERIOD
@@ -130,3 +129,12 @@ def test_one_camera_stopped_mid_stream_then_back(fusion):
     assert sum(set(np.unique(c.camera)) == {0, 1} for c in back) >= 10
     assert any(s.level == DiagnosticStatus.OK for d in diagnostics for s in d.status)
     assert "camera 'cam_b' is back" in graph.log_of(fusion.process)
+
+
+def test_a_bad_rig_parameter_change_is_refused_by_its_key_and_fusion_goes_on(fusion):
+    # Runs after the stop-and-return test, whose stamps were later: the jump back restarts the pairing.
+    refused = set_parameter(fusion.graph, "fusion_node", "fusion.slop", -0.01)
+    assert not refused.successful and "fusion.slop must be > 0" in refused.reason
+    assert set_parameter(fusion.graph, "fusion_node", "fusion.slop", 0.012).successful
+    test_a_pair_is_fused_as_the_core_fuses_it(fusion)
+    assert "stamps jumped back" in fusion.graph.log_of(fusion.process)

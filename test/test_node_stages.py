@@ -10,7 +10,7 @@ from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from ros_graph import RosGraph
 from shape_msgs.msg import Mesh
-from stage_probe import COLLECT_RELIABLE, StageProbe, ply_face_count
+from stage_probe import COLLECT_RELIABLE, StageProbe, ply_face_count, set_parameter
 from std_msgs.msg import Float64MultiArray
 from visualization_msgs.msg import Marker, MarkerArray
 
@@ -44,19 +44,6 @@ def scene(tmp_path_factory):
     relocated = [(relocation_cloud_msg(r, config.base_frame),
                   centerline_path_msg(r.centerline, config.base_frame, r.relocated.stamp_ns), r) for r in relocations]
     return bag, config, fused, filtered, relocated
-
-
-def set_parameter(graph, node: str, name: str, value: str):
-    """SetParameters on `node` with a string value; returns the result (successful, reason)."""
-    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
-    from rcl_interfaces.srv import SetParameters
-
-    client = graph.node.create_client(SetParameters, f"/{node}/set_parameters")
-    assert client.wait_for_service(timeout_sec=10)
-    future = client.call_async(SetParameters.Request(parameters=[Parameter(
-        name=name, value=ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value))]))
-    assert graph.spin_until(future.done, 10)
-    return future.result().results[0]
 
 
 @pytest.fixture(scope="module")

@@ -53,7 +53,7 @@ PARAMETERS = {
     "temporal_filter": (False, describe("realsense: librealsense temporal filter", read_only=True)),
     "hole_filling": (False, describe("realsense: librealsense hole-filling filter", read_only=True)),
     "reconnect_period": (1.0, describe("realsense: seconds between attempts to (re)open the device",
-                                       minimum=0.1, maximum=60.0)),
+                                       minimum=0.1, maximum=60.0, read_only=True)),
 }
 
 

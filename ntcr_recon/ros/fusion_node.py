@@ -13,6 +13,7 @@ frame is released:
     `fusion.camera_timeout`. Stamps, not the wall clock, measure the silence, so a bag replayed at any rate
     (and `use_sim_time`) behaves like the live rig. The change is logged, and `/diagnostics` says which
     camera is missing (WARN) until it returns (OK).
+Stamps that jump back by more than the timeout (a bag played again) restart the pairing.
 Each camera's buffer holds at most `queue_size` frames (the oldest goes first): the node never blocks and
 never grows a queue without bound.
 """
@@ -86,6 +87,14 @@ class FusionNode(RigNode):
         name, msg = item
         xyz, rgb, grid_width = camera_cloud_arrays(msg, self.rig.cameras[name].frame_id)
         stamp = stamp_to_ns(msg.header.stamp)
+        if stamp < self._newest.get(name, stamp) - self._timeout_ns:
+            # Time went back (a bag played again, `ros2 bag play --loop`): what is buffered belongs to another
+            # run of the clock, so pairing starts afresh.
+            back_s = (self._newest[name] - stamp) * 1e-9
+            self.get_logger().warning(f"camera '{name}' stamps jumped back by {back_s:.3f} s: pairing starts afresh")
+            self._newest, self._first_stamp, self._silent = {}, None, set()
+            for buffer in self._buffers.values():
+                buffer.clear()
         buffer = self._buffers[name]
         if len(buffer) == buffer.maxlen:
             self.counts["dropped"] += 1
