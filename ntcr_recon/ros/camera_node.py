@@ -41,7 +41,7 @@ PARAMETERS = {
     "rate": (1.0, describe("replay speed relative to the recorded rate; 0 = as fast as possible", minimum=0.0,
                            maximum=100.0)),
     "loop": (False, describe("replay the bag / file again and again (stamps keep increasing)", read_only=True)),
-    "publish_clock": (False, describe("publish /clock from the frames' stamps (bag source; one node per graph)",
+    "publish_clock": (False, describe("publish /clock from the frames' stamps (bag / file; one node per graph)",
                                       read_only=True)),
     "start_time": (0.0, describe("bag / file: wall-clock time (s since the epoch) at which the first frame is due; "
                                   "camera nodes given the same value replay in step (0: when ready)", minimum=0.0,

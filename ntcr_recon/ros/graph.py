@@ -43,7 +43,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="bag replay speed relative to the recorded rate, 0 = as fast as possible (default 1)")
     parser.add_argument("--loop", action="store_true", help="replay the bag or recordings again and again")
     parser.add_argument("--use-sim-time", action="store_true",
-                        help="the bag's stamps drive the graph's clock (/clock from the first camera_node)")
+                        help="the bag's / recordings' stamps drive the graph's clock (/clock from the first "
+                             "camera_node)")
     parser.add_argument("--output", type=Path, help="folder where the graph leaves the newest mesh.ply (mesh_node) "
                                                     "and relocated.ply (relocation_node)")
     parser.add_argument("--duration", type=float, default=0.0, help="stop after this many seconds (0: run until "
@@ -74,7 +75,7 @@ def node_commands(args: argparse.Namespace, camera_names: list[str]) -> list[Nod
                               publish_clock=bool(args.use_sim_time and index == 0), start_time=start_time)
         elif files:
             parameters.update(source="file", file_path=str(Path(files[camera]).resolve()), rate=float(args.rate),
-                              start_time=start_time)
+                              publish_clock=bool(args.use_sim_time and index == 0), start_time=start_time)
         else:
             parameters.update(source="realsense")
         commands.append(NodeCommand(f"camera_{camera}", _argv("camera_node", f"camera_{camera}", args.config,
