@@ -28,8 +28,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse
-import scipy.sparse.linalg
+import scipy.linalg
 from scipy.spatial import cKDTree
 
 from ntcr_recon.core.robot import TubeGeometry
@@ -261,26 +260,28 @@ def _smooth_update(nodes: np.ndarray, tangents: np.ndarray, targets: np.ndarray,
     typical = float(np.median(traces[traces > 0])) if np.any(traces > 0) else 1.0
     weak = 1e-4 * typical
     lam = typical * smoothing_steps**4
-    rows, cols, values = [], [], []
     along = typical * np.einsum("mi,mj->mij", tangents, tangents)
     block = information + along + weak * np.eye(3)[None]
     block[0] += 1e3 * typical * np.eye(3)                      # the base is clamped at the configured pose
-    for i in range(3):
-        for j in range(3):
-            rows.append(np.arange(count) * 3 + i)
-            cols.append(np.arange(count) * 3 + j)
-            values.append(block[:, i, j])
-    data_matrix = scipy.sparse.csr_matrix((np.concatenate(values), (np.concatenate(rows), np.concatenate(cols))),
-                                          shape=(3 * count, 3 * count))
     rhs = np.einsum("mij,mj->mi", information, targets) + np.einsum("mij,mj->mi", along, nodes) + weak * nodes
     rhs[0] += 1e3 * typical * anchor
+    # The system couples a node with itself (3x3 block) and, through the second differences, with the next
+    # two: symmetric, positive definite and banded (8 above the diagonal in x, y, z order per node).
+    size = 3 * count
+    system = np.zeros((size, size))
+    first = np.arange(count) * 3
     if count >= 3:
-        second = scipy.sparse.diags([1.0, -2.0, 1.0], [0, 1, 2], shape=(count - 2, count))
-        penalty = scipy.sparse.kron(second.T @ second, scipy.sparse.identity(3))
-        system = (data_matrix + lam * penalty).tocsc()
-    else:
-        system = data_matrix.tocsc()
-    return scipy.sparse.linalg.spsolve(system, rhs.reshape(-1)).reshape(count, 3)
+        second = np.diff(np.eye(count), 2, axis=0)
+        penalty = lam * (second.T @ second)
+        for axis in range(3):
+            system[np.ix_(first + axis, first + axis)] += penalty
+    rows = first[:, None, None] + np.arange(3)[None, :, None]
+    cols = first[:, None, None] + np.arange(3)[None, None, :]
+    system[rows, cols] += block
+    bands = np.zeros((9, size))
+    for offset in range(9):
+        bands[8 - offset, offset:] = np.diagonal(system, offset)
+    return scipy.linalg.solveh_banded(bands, rhs.reshape(-1)).reshape(count, 3)
 
 
 def _march(xyz: np.ndarray, geometry: TubeGeometry, settings: CenterlineSettings) -> np.ndarray:
