@@ -103,7 +103,7 @@ def replay(reference, tmp_path_factory):
                 # Subscribed late on purpose: transient-local QoS still hands over the newest mesh.
                 graph.node.create_subscription(Marker, "/ntcr/mesh", out["mesh"].append, LATCHED_QOS)
                 graph.node.create_subscription(Mesh, "/ntcr/mesh/raw", out["mesh_raw"].append, LATCHED_QOS)
-                graph.spin_until(lambda: out["mesh"] and out["mesh_raw"], 60)
+                graph.spin_until(lambda: out["mesh"] and out["mesh_raw"] and (output / "mesh.ply").exists(), 60)
                 children = children_of(process.pid)
                 process.send_signal(signal.SIGINT)
                 exit_code = process.wait(timeout=30)

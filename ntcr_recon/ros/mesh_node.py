@@ -26,6 +26,7 @@ from sensor_msgs.msg import PointCloud2
 from shape_msgs.msg import Mesh
 from visualization_msgs.msg import Marker
 
+from ntcr_recon.core.mesh import write_mesh
 from ntcr_recon.core.pipeline import Reconstructor
 from ntcr_recon.ros.messages import mesh_marker, mesh_msg, relocation_from_msgs, stage_cloud_and_normals
 from ntcr_recon.ros.node_support import LATCHED_QOS, STAGE_QOS, ParameterError, RigNode, describe, guarded, run_node
@@ -47,6 +48,9 @@ class MeshNode(RigNode):
         self._mesh = None  # (core.mesh.Mesh, stamp) of the newest mesh
         self._pending_save: Path | None = None
         self._params = {"save_ply_path": ""}
+        # open3d (the Poisson mesher, the mesh writer) loads in seconds: at start-up, not in the first tick.
+        import open3d  # noqa: F401
+
         super().__init__("mesh_node", PARAMETERS)
         self._newest = None  # the newest relocated cloud message not yet meshed
         self._centerlines: dict[int, Path] = {}  # the last few centrelines by stamp
@@ -119,8 +123,6 @@ class MeshNode(RigNode):
             self._write(path)
 
     def _write(self, path: PathLib) -> None:
-        from ntcr_recon.core.mesh import write_mesh
-
         mesh, stamp = self._mesh
         try:
             write_mesh(path, mesh)
