@@ -15,7 +15,7 @@ from sensor_msgs.msg import CameraInfo, PointCloud2
 
 from ntcr_recon.core.config import load_rig_config
 from ntcr_recon.core.deproject import crop_window, depth_to_points
-from ntcr_recon.ros.messages import camera_cloud_arrays
+from ntcr_recon.ros.messages import camera_cloud_from_msg
 from ntcr_recon.ros.pointcloud import cloud_from_msg, stamp_to_ns
 
 COLLECT_QOS = QoSProfile(depth=200, reliability=ReliabilityPolicy.BEST_EFFORT)
@@ -71,9 +71,8 @@ def test_depth_frames_are_deprojected_by_the_core(setup, case):
         want_xyz, want_rgb, want_pixel = expected_points(config, index, unit_scale=case == "raw16")
         assert msg.header.frame_id == "cam_a_optical_frame"
         # Each point's pixel travels with it (the filters' image neighbourhoods).
-        grid, _, width = camera_cloud_arrays(msg, "cam_a_optical_frame")
-        flat = np.flatnonzero(np.isfinite(grid).all(axis=1))
-        np.testing.assert_array_equal(np.stack([flat % width, flat // width], axis=1), want_pixel - want_pixel.min(0))
+        _, _, pixel, _ = camera_cloud_from_msg(msg, "cam_a_optical_frame")
+        np.testing.assert_array_equal(pixel, want_pixel)
         assert len(xyz) == len(want_xyz) > 100
         np.testing.assert_allclose(xyz, want_xyz, atol=1e-7)
         np.testing.assert_array_equal(rgb, want_rgb)  # the colour of the frame with the same stamp

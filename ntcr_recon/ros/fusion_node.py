@@ -30,7 +30,7 @@ from sensor_msgs.msg import CameraInfo, PointCloud2
 
 from ntcr_recon.core.fusion import CameraFrame, FramePair, fuse, pair_frames
 from ntcr_recon.core.transforms import invert_transform, transform_points
-from ntcr_recon.ros.messages import camera_cloud_arrays, diagnostics, stage_cloud_to_msg
+from ntcr_recon.ros.messages import camera_cloud_from_msg, camera_frame, diagnostics, stage_cloud_to_msg
 from ntcr_recon.ros.node_support import SENSOR_QOS, STAGE_QOS, RigNode, describe, guarded, run_node
 from ntcr_recon.ros.pointcloud import stamp_to_ns
 from ntcr_recon.ros.topics import camera_topic, stage_topic
@@ -49,6 +49,7 @@ DIAGNOSTIC_NAME = "ntcr_recon: fusion"
 class FusionNode(RigNode):
     def __init__(self) -> None:
         self._buffers: dict[str, deque] = {}
+        self._pixels: dict[int, np.ndarray] = {}  # id of a buffered frame -> its points' pixels (see camera_frame)
         super().__init__("fusion_node", PARAMETERS)
         self._newest: dict[str, int] = {}     # newest stamp received per camera
         self._first_stamp: int | None = None  # the first stamp of any camera: a camera never heard of is
@@ -71,8 +72,11 @@ class FusionNode(RigNode):
         self._slop_ns = int(rig.fusion.slop * 1e9)
         self._timeout_ns = int(rig.fusion.camera_timeout * 1e9)
         for name in rig.camera_names:
-            old = self._buffers.get(name, ())
-            self._buffers[name] = deque(old, maxlen=int(params["queue_size"]))
+            size = int(params["queue_size"])
+            old = list(self._buffers.get(name, ()))
+            for frame in old[:-size]:
+                self._pixels.pop(id(frame), None)
+            self._buffers[name] = deque(old[-size:], maxlen=size)
 
     @guarded
     def _on_info(self, item) -> None:
@@ -85,7 +89,7 @@ class FusionNode(RigNode):
     @guarded
     def _on_cloud(self, item) -> None:
         name, msg = item
-        xyz, rgb, grid_width = camera_cloud_arrays(msg, self.rig.cameras[name].frame_id)
+        xyz, rgb, pixel, organised_width = camera_cloud_from_msg(msg, self.rig.cameras[name].frame_id)
         stamp = stamp_to_ns(msg.header.stamp)
         if stamp < self._newest.get(name, stamp) - self._timeout_ns:
             # Time went back (a bag played again, `ros2 bag play --loop`): what is buffered belongs to another
@@ -95,10 +99,15 @@ class FusionNode(RigNode):
             self._newest, self._first_stamp, self._silent = {}, None, set()
             for buffer in self._buffers.values():
                 buffer.clear()
+            self._pixels.clear()
         buffer = self._buffers[name]
-        if len(buffer) == buffer.maxlen:
+        if len(buffer) == buffer.maxlen:  # the oldest goes first
+            self._pixels.pop(id(buffer.popleft()), None)
             self.counts["dropped"] += 1
-        buffer.append(CameraFrame(camera=name, stamp_ns=stamp, points=xyz, rgb=rgb, organised_width=grid_width))
+        frame = CameraFrame(camera=name, stamp_ns=stamp, points=xyz, rgb=rgb, organised_width=organised_width)
+        buffer.append(frame)
+        if pixel is not None:
+            self._pixels[id(frame)] = pixel
         self._newest[name] = max(stamp, self._newest.get(name, stamp))
         self._first_stamp = stamp if self._first_stamp is None else self._first_stamp
         self._update_silence()
@@ -137,9 +146,12 @@ class FusionNode(RigNode):
                 kept = [f for f in buffer if f is not frame]
                 buffer.clear()
                 buffer.extend(kept)
+                self._pixels.pop(id(frame), None)
 
     def _publish(self, pair: FramePair, alone: bool) -> None:
-        cloud = fuse(pair, self.rig)
+        frames = {name: camera_frame(name, f.stamp_ns, f.points, f.rgb, self._pixels.get(id(f)), f.organised_width)
+                  for name, f in pair.frames.items()}
+        cloud = fuse(FramePair(pair.stamp_ns, frames), self.rig)
         if cloud.pixel_footprint == 0:
             cloud = dataclasses.replace(cloud, pixel_footprint=self._pixel_footprint(cloud))
         self._publisher.publish(stage_cloud_to_msg(cloud, self.rig.base_frame))

@@ -40,6 +40,7 @@ from std_msgs.msg import ColorRGBA, Float64MultiArray, Header, MultiArrayDimensi
 from visualization_msgs.msg import Marker, MarkerArray
 
 from ntcr_recon.core.cloud import Cloud
+from ntcr_recon.core.fusion import CameraFrame
 from ntcr_recon.core.transforms import matrix_to_quaternion, quaternion_to_matrix
 from ntcr_recon.ros.pointcloud import FLOAT32, RCLPY, cloud_from_msg, cloud_to_msg, stamp_to_ns
 
@@ -138,31 +139,42 @@ def camera_cloud_to_msg(xyz: np.ndarray, rgb: np.ndarray | None, pixel: np.ndarr
     return cloud_msg_with_fields(xyz, rgb, frame_id, stamp_ns, {"pixel_u": pixel[:, 0], "pixel_v": pixel[:, 1]})
 
 
-def camera_cloud_arrays(msg: PointCloud2, expected_frame: str) -> tuple[np.ndarray, np.ndarray | None, int]:
-    """A camera cloud as the core's CameraFrame takes it: points (NaN = no return) and colours laid out
-    row-major on a pixel grid, and the grid's width (0 when the cloud carries no pixel layout).
+def camera_cloud_from_msg(msg: PointCloud2, expected_frame: str
+                          ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, int]:
+    """A camera cloud, compact: (points, colours, pixels (N, 2) or None, organised width).
 
-    An organised cloud is its own grid; an unorganised one with `pixel_u`/`pixel_v` is scattered onto the
-    grid of the pixels it spans; any other cloud comes back as its finite points, unorganised.
+    An organised cloud comes back whole (NaN = no return) with its width; an unorganised one as its finite
+    points with their `pixel_u`/`pixel_v` when it carries them (width 0). `camera_frame` makes the core's
+    CameraFrame of it; kept apart so that a frame waiting for its partner costs its points, not a grid.
     """
-    if msg.height > 1:
-        xyz, rgb = input_cloud(msg, expected_frame, keep_nan=True)
-        return xyz, rgb, int(msg.width)
     xyz, rgb = input_cloud(msg, expected_frame, keep_nan=True)
+    if msg.height > 1:
+        return xyz, rgb, None, int(msg.width)
     u, v = _float_field(msg, "pixel_u", len(xyz)), _float_field(msg, "pixel_v", len(xyz))
     finite = np.isfinite(xyz).all(axis=1)
+    xyz, rgb = xyz[finite], None if rgb is None else rgb[finite]
     if u is None or v is None or not (np.isfinite(u) & np.isfinite(v))[finite].all():
-        return xyz[finite], None if rgb is None else rgb[finite], 0
-    u, v = u[finite].astype(np.int64), v[finite].astype(np.int64)
-    width, height = int(u.max() - u.min() + 1), int(v.max() - v.min() + 1)
-    cell = (v - v.min()) * width + (u - u.min())
+        return xyz, rgb, None, 0
+    return xyz, rgb, np.stack([u[finite], v[finite]], axis=1).astype(np.int64), 0
+
+
+def camera_frame(camera: str, stamp_ns: int, xyz: np.ndarray, rgb: np.ndarray | None, pixel: np.ndarray | None,
+                 organised_width: int) -> CameraFrame:
+    """The core's CameraFrame of a camera cloud (`camera_cloud_from_msg`): points with pixels are laid out
+    row-major on the grid of the pixels they span (NaN where none), which the core reads as an organised
+    cloud; others go as they are."""
+    if pixel is None or not len(xyz):
+        return CameraFrame(camera, stamp_ns, points=xyz, rgb=rgb, organised_width=organised_width)
+    u, v = pixel[:, 0] - pixel[:, 0].min(), pixel[:, 1] - pixel[:, 1].min()
+    width, height = int(u.max() + 1), int(v.max() + 1)
+    cell = v * width + u
     grid = np.full((height * width, 3), np.nan, dtype=np.float32)
-    grid[cell] = xyz[finite]
+    grid[cell] = xyz
     colors = None
     if rgb is not None:
         colors = np.zeros(height * width, dtype=np.uint32)
-        colors[cell] = rgb[finite]
-    return grid, colors, width
+        colors[cell] = rgb
+    return CameraFrame(camera, stamp_ns, points=grid, rgb=colors, organised_width=width)
 
 
 def input_cloud(msg: PointCloud2, expected_frame: str, keep_nan: bool = False
