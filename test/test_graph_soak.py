@@ -101,10 +101,12 @@ def test_graph_at_30_hz_for_60_s_of_bag_time_keeps_memory_flat_and_no_backlog(tm
               f"{peak_second[name]:.1f} MB in the second")
     pairs = int(counts_end["pairs"]) - int(counts_start.get("pairs", 0))
     unpaired = int(counts_end["unpaired"]) - int(counts_start.get("unpaired", 0))
+    superseded = int(counts_end["superseded"]) - int(counts_start.get("superseded", 0))
     outputs = relocated[outputs_start:]
     lags = np.array([(received - stamp) * 1e-9 for received, stamp in outputs])
     quarter = max(len(lags) // 4, 1)
-    print(f"  fused pairs {pairs / bag_time:.1f} Hz (frames whose partner was lost: {unpaired}), relocated output "
+    print(f"  fused pairs {pairs / bag_time:.1f} Hz (frames whose partner was lost: {unpaired}, pairs superseded by "
+          f"a newer one: {superseded}), relocated output "
           f"{len(outputs) / bag_time:.1f} Hz; lag behind the bag clock: first quarter median "
           f"{np.median(lags[:quarter]):.3f} s, last quarter median {np.median(lags[-quarter:]):.3f} s, "
           f"max {lags.max():.3f} s")

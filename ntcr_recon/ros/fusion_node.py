@@ -14,6 +14,7 @@ frame is released:
     (and `use_sim_time`) behaves like the live rig. The change is logged, and `/diagnostics` says which
     camera is missing (WARN) until it returns (OK).
 Stamps that jump back by more than the timeout (a bag played again) restart the pairing.
+Of several pairs ready at once only the newest is fused (the others are counted as superseded).
 Each camera's buffer holds at most `queue_size` frames (the oldest goes first): the node never blocks and
 never grows a queue without bound.
 """
@@ -55,7 +56,7 @@ class FusionNode(RigNode):
         self._first_stamp: int | None = None  # the first stamp of any camera: a camera never heard of is
         self._silent: set[str] = set()        # silent from then on
         self._focal: dict[str, float] = {}
-        self.counts = {"pairs": 0, "alone": 0, "unpaired": 0, "dropped": 0}
+        self.counts = {"pairs": 0, "alone": 0, "unpaired": 0, "superseded": 0, "dropped": 0}
         self._publisher = self.create_publisher(PointCloud2, stage_topic(self.rig.topics, "fused/points"), STAGE_QOS)
         self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         for name in self.rig.camera_names:
@@ -129,27 +130,38 @@ class FusionNode(RigNode):
             self._publish_diagnostics()
 
     def _release(self) -> None:
-        """Publish, in stamp order, every buffered pair that is complete or can no longer be completed."""
+        """Take, in stamp order, every buffered pair that is complete or can no longer be completed; publish
+        the newest of them (an older one is superseded: the stages keep only the newest anyway, and fusing it
+        would only make the node fall behind)."""
         streams = {name: list(buffer) for name, buffer in self._buffers.items()}
+        ready: list[tuple[FramePair, bool, dict]] = []
         for pair in pair_frames(streams, self._slop_ns):
             missing = [name for name in self.rig.camera_names if name not in pair.frames]
             # A missing camera that is alive and has not yet sent anything later than this pair may still do so.
             if any(name not in self._silent and self._newest.get(name, -1) < pair.stamp_ns + self._slop_ns
                    for name in missing):
                 break
+            pixels = self._take(pair)
             if missing and not self._params["publish_unpaired"] and not set(missing) <= self._silent:
                 self.counts["unpaired"] += 1  # its partner was lost on the way: half a robot is worse than none
             else:
-                self._publish(pair, alone=bool(missing))
-            for name, frame in pair.frames.items():  # by identity: frames hold arrays, == is no use
-                buffer = self._buffers[name]
-                kept = [f for f in buffer if f is not frame]
-                buffer.clear()
-                buffer.extend(kept)
-                self._pixels.pop(id(frame), None)
+                ready.append((pair, bool(missing), pixels))
+        self.counts["superseded"] += max(len(ready) - 1, 0)
+        if ready:
+            self._publish(*ready[-1])
 
-    def _publish(self, pair: FramePair, alone: bool) -> None:
-        frames = {name: camera_frame(name, f.stamp_ns, f.points, f.rgb, self._pixels.get(id(f)), f.organised_width)
+    def _take(self, pair: FramePair) -> dict[str, np.ndarray | None]:
+        """Remove the pair's frames from the buffers (by identity: frames hold arrays, == is no use); their
+        pixels by camera."""
+        for name, frame in pair.frames.items():
+            buffer = self._buffers[name]
+            kept = [f for f in buffer if f is not frame]
+            buffer.clear()
+            buffer.extend(kept)
+        return {name: self._pixels.pop(id(frame), None) for name, frame in pair.frames.items()}
+
+    def _publish(self, pair: FramePair, alone: bool, pixels: dict[str, np.ndarray | None]) -> None:
+        frames = {name: camera_frame(name, f.stamp_ns, f.points, f.rgb, pixels[name], f.organised_width)
                   for name, f in pair.frames.items()}
         cloud = fuse(FramePair(pair.stamp_ns, frames), self.rig)
         if cloud.pixel_footprint == 0:
