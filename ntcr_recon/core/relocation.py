@@ -101,29 +101,36 @@ def relocate_points(coords: TubeCoordinates, centerline: Centerline, geometry: T
         in_notch = np.zeros(count, dtype=bool)
     in_cut = in_notch & (x > -d)          # where the cut removed material
     along = np.clip(s, 0.0, tip_s)
-    inf = np.full(count, np.inf)
+    cos_angle = np.cos(angle)
 
     # candidate 1: outer wall, where it exists (not in a notch's open window, not beyond the ends)
-    outer_exists = ~(in_notch & (r_o * np.cos(angle) > -d))
-    outer_distance = np.where(outer_exists, np.hypot(radius - r_o, s - along), inf)
-    # candidate 2: bore, inside a notch where the cut exposes it (behind the floor)
-    bore_exists = in_notch & (r_i * np.cos(angle) < -d)
-    bore_distance = np.where(bore_exists, np.abs(radius - r_i), inf)
-    # candidate 3: notch floor, the chord x = -d between bore and outer wall
-    half_o = np.sqrt(max(r_o**2 - d**2, 0.0))
-    half_i = np.sqrt(max(r_i**2 - d**2, 0.0)) if abs(d) < r_i else 0.0
-    floor_y = np.sign(y) * np.clip(np.abs(y), half_i, half_o)
-    floor_distance = np.where(in_notch, np.hypot(x + d, y - floor_y), inf)
-    # candidate 4: the cut faces at the notch's ends (annulus part removed by the cut)
-    if notches:
-        to_start, to_end = s - starts[k], ends[k] - s
-        face_s = np.where(to_start < to_end, starts[k], ends[k])
-    else:
-        face_s = s
+    outer_exists = ~(in_notch & (r_o * cos_angle > -d))
+    outer_distance = np.where(outer_exists, np.hypot(radius - r_o, s - along), np.inf)
+    # candidates 2-4 exist only inside a notch, 5 only beyond the tip: computed for those points alone
+    bore_distance = np.full(count, np.inf)
+    floor_distance = np.full(count, np.inf)
+    face_distance = np.full(count, np.inf)
+    cap_distance = np.full(count, np.inf)
+    floor_y = np.zeros(count)
+    face_s = s.copy()
     face_radius = np.clip(radius, r_i, r_o)
-    face_distance = np.where(in_cut, np.hypot(s - face_s, radius - face_radius), inf)
+    inside = np.flatnonzero(in_notch)
+    if len(inside):
+        xi, yi, ri, si, ki = x[inside], y[inside], radius[inside], s[inside], k[inside]
+        # candidate 2: bore, where the cut exposes it (behind the floor)
+        bore_distance[inside] = np.where(r_i * cos_angle[inside] < -d, np.abs(ri - r_i), np.inf)
+        # candidate 3: notch floor, the chord x = -d between bore and outer wall
+        half_o = np.sqrt(max(r_o**2 - d**2, 0.0))
+        half_i = np.sqrt(max(r_i**2 - d**2, 0.0)) if abs(d) < r_i else 0.0
+        floor_y[inside] = np.sign(yi) * np.clip(np.abs(yi), half_i, half_o)
+        floor_distance[inside] = np.hypot(xi + d, yi - floor_y[inside])
+        # candidate 4: the cut faces at the notch's ends (annulus part removed by the cut)
+        face_s[inside] = np.where(si - starts[ki] < ends[ki] - si, starts[ki], ends[ki])
+        face_distance[inside] = np.where(in_cut[inside], np.hypot(si - face_s[inside], ri - face_radius[inside]),
+                                         np.inf)
     # candidate 5: the tip cap, for points beyond the tip
-    cap_distance = np.where(s > tip_s, np.hypot(s - tip_s, radius - np.clip(radius, r_i, r_o)), inf)
+    beyond = s > tip_s
+    cap_distance[beyond] = np.hypot(s[beyond] - tip_s, radius[beyond] - face_radius[beyond])
 
     distances = np.stack([outer_distance, bore_distance, floor_distance, face_distance, cap_distance])
     choice = np.argmin(distances, axis=0)
