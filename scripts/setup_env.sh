@@ -41,8 +41,14 @@ requirements="$root/requirements.txt"
 stamp="$venv/.ntcr-installed-$(cat "$requirements" "$root/requirements.txt" "$root/setup.py" | sha1sum | cut -c1-12)"
 if [ ! -e "$stamp" ]; then
   echo "[setup] installing dependencies into $venv (the first time takes a few minutes)"
-  "$venv/bin/python" -m pip install --quiet --upgrade pip
-  "$venv/bin/python" -m pip install --quiet -r "$requirements"
-  "$venv/bin/python" -m pip install --quiet --no-deps -e "$root"
+  log="$venv/pip-install.log"
+  # pip's chatter goes to a log, shown only when something fails.
+  if ! { "$venv/bin/python" -m pip install --upgrade pip \
+         && "$venv/bin/python" -m pip install -r "$requirements" \
+         && "$venv/bin/python" -m pip install --no-deps -e "$root"; } >"$log" 2>&1; then
+    tail -n 40 "$log" >&2
+    echo "[setup] error: pip install failed (full log: $log)" >&2
+    exit 1
+  fi
   touch "$stamp"
 fi
