@@ -100,3 +100,13 @@ def test_unreadable_files_name_the_file(tmp_path):
     negative.write_text(yaml.safe_dump(document))
     with pytest.raises(ConfigError, match=r"negative\.yaml: robot\.outer_diameter"):
         load_rig_config(negative)
+
+
+def test_digit_only_serial_number_is_read_as_text(sim_mapping):
+    # YAML (and `-p cam_a.serial_number:=...`) turn an unquoted D405 serial into an integer
+    mapping = copy.deepcopy(sim_mapping)
+    mapping["cam_a"]["serial_number"] = 230322270001
+    assert rig_config_from_mapping(mapping).cameras["cam_a"].serial_number == "230322270001"
+    mapping["cam_a"]["frame_id"] = 5
+    with pytest.raises(ConfigError, match="cam_a.frame_id"):
+        rig_config_from_mapping(mapping)

@@ -299,6 +299,9 @@ def _convert(dotted: str, cls: type, key: str, value: Any):
                 raise ConfigError(f"{dotted} must be finite, got {value!r}")
             return converted
         if isinstance(template, str):
+            # D405 serial numbers are all digits, so YAML and `-p` hand them over as integers
+            if dotted.endswith("serial_number") and isinstance(value, int) and not isinstance(value, bool):
+                return str(value)
             if not isinstance(value, str):
                 raise TypeError
             return value
