@@ -172,7 +172,8 @@ def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
         truth_widths = result["ground_truth"].pop("_widths_mm")
     figures.notch_width_plot(staging / "notch_widths.png", [n["width_mm"] for n in result["notches"]],
                              geometry.notch_width * 1e3, truth_widths, [n["index"] for n in result["notches"]])
-    figures.side_views(staging / "side_views.png", raw.xyz, relocation.relocated.xyz, mesh, view)
+    mesh_title = "Poisson mesh" if config.mesh.method == "poisson" else "tube-grid mesh"
+    figures.side_views(staging / "side_views.png", raw.xyz, relocation.relocated.xyz, mesh, view, mesh_title)
     steps.update()
     steps.close()
     timings["total"] = (time.perf_counter() - started) * 1e3

@@ -75,7 +75,8 @@ def notch_width_plot(path, widths_mm: list[float], nominal_mm: float, truth_mm: 
     _save(fig, path)
 
 
-def side_views(path, raw_xyz: np.ndarray, relocated_xyz: np.ndarray, mesh, axes: np.ndarray) -> None:
+def side_views(path, raw_xyz: np.ndarray, relocated_xyz: np.ndarray, mesh, axes: np.ndarray,
+               mesh_title: str = "mesh") -> None:
     plt = _pyplot()
     fig, panels = plt.subplots(1, 3, figsize=(12, 6), sharex=True, sharey=True)
     for panel, xyz, title in ((panels[0], raw_xyz, "raw fused cloud"), (panels[1], relocated_xyz, "relocated cloud")):
@@ -85,7 +86,7 @@ def side_views(path, raw_xyz: np.ndarray, relocated_xyz: np.ndarray, mesh, axes:
     if mesh is not None and len(mesh):
         v = _project(mesh.vertices, axes)
         panels[2].triplot(v[:, 0], v[:, 1], mesh.triangles, linewidth=0.1, color="tab:gray")
-    panels[2].set_title("Poisson mesh")
+    panels[2].set_title(mesh_title)
     for panel in panels:
         panel.set_aspect("equal")
         panel.set_xlabel("mm")
