@@ -86,6 +86,94 @@ def smallest_eigenvectors(matrices: np.ndarray) -> np.ndarray:
     return vector / length[:, None]
 
 
+def _smallest_eigenvectors_of(xx, xy, xz, yy, yz, zz) -> np.ndarray:
+    """smallest_eigenvectors for matrices given by their six distinct entries (each (N,) float64)."""
+    trace = (xx + yy + zz) / 3.0
+    dx, dy, dz = xx - trace, yy - trace, zz - trace
+    p = np.sqrt(np.maximum((dx * dx + dy * dy + dz * dz + 2.0 * (xy * xy + xz * xz + yz * yz)) / 6.0, 1e-300))
+    # det(shifted / p) / 2
+    det = dx * (dy * dz - yz * yz) - xy * (xy * dz - yz * xz) + xz * (xy * yz - dy * xz)
+    half_det = np.clip(det / (2.0 * p * p * p), -1.0, 1.0)
+    smallest = trace + 2.0 * p * np.cos(np.arccos(half_det) / 3.0 + 2.0 * np.pi / 3.0)
+    mx, my, mz = xx - smallest, yy - smallest, zz - smallest
+    # rows of (A - lambda I): r0 = (mx, xy, xz), r1 = (xy, my, yz), r2 = (xz, yz, mz); crosses r0xr1, r0xr2, r1xr2
+    crosses = np.stack([
+        np.stack([xy * yz - xz * my, xz * xy - mx * yz, mx * my - xy * xy]),
+        np.stack([xy * mz - xz * yz, xz * xz - mx * mz, mx * yz - xy * xz]),
+        np.stack([my * mz - yz * yz, yz * xz - xy * mz, xy * yz - my * xz]),
+    ])                                                                         # (3 crosses, 3, N)
+    squared = np.einsum("cdn,cdn->cn", crosses, crosses)
+    best = np.argmax(squared, axis=0)
+    columns = np.arange(len(xx))
+    vector = crosses[best, :, columns]                                         # (N, 3)
+    length = np.sqrt(squared[best, columns])
+    degenerate = length < 1e-300
+    vector[degenerate] = (0.0, 0.0, 1.0)
+    length[degenerate] = 1.0
+    return vector / length[:, None]
+
+
+_QUADRIC_EXPONENTS = ((2, 0), (1, 1), (0, 2), (1, 0), (0, 1), (0, 0))   # the constant last: c0 is then
+# the last unknown, which forward substitution alone yields
+
+
+def _quadric_height(a: np.ndarray, b: np.ndarray, h: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """c0 of the weighted least-squares quadric h ~ c0 + c1 a + c2 b + c3 a^2 + c4 ab + c5 b^2 per column.
+
+    a, b, h, weights: (k, N). The 6x6 normal matrix is assembled from the 15 weighted moments sum w a^i b^j
+    (i + j <= 4) and solved by a Cholesky factorisation vectorised over the N systems (a loop over rows).
+    """
+    # every weighted product in one buffer summed in one pass (many live temporaries cost more than the
+    # arithmetic); row of w a^i b^j in the moments, then the six w h a^i b^j of the right-hand side
+    rows = {(0, 0): 0}
+    for degree in range(1, 5):
+        for i in range(degree, -1, -1):
+            rows[(i, degree - i)] = len(rows)
+    products = np.empty((len(rows) + len(_QUADRIC_EXPONENTS),) + a.shape, dtype=np.float32)
+    products[0] = weights
+    for (i, j), row in list(rows.items())[1:]:
+        if i:
+            np.multiply(products[rows[(i - 1, j)]], a, out=products[row])
+        else:
+            np.multiply(products[rows[(0, j - 1)]], b, out=products[row])
+    # w h a^i b^j, each from the one of lower degree
+    rhs_rows = {(0, 0): len(rows)}
+    np.multiply(weights, h, out=products[len(rows)])
+    for n, (i, j) in enumerate(((1, 0), (0, 1), (2, 0), (1, 1), (0, 2)), start=len(rows) + 1):
+        if i:
+            np.multiply(products[rhs_rows[(i - 1, j)]], a, out=products[n])
+        else:
+            np.multiply(products[rhs_rows[(0, j - 1)]], b, out=products[n])
+        rhs_rows[(i, j)] = n
+    sums = products.sum(axis=1)
+    moments = {key: sums[row] for key, row in rows.items()}
+    rhs = [sums[rhs_rows[e]] for e in _QUADRIC_EXPONENTS]
+    regularisation = np.float32(1e-6)
+    tiny = np.float32(1e-30)
+    lower: list[list[np.ndarray]] = []
+    inverse_diagonal: list[np.ndarray] = []
+    solution: list[np.ndarray] = []
+    for row, (ri, rj) in enumerate(_QUADRIC_EXPONENTS):
+        lower.append([])
+        for column in range(row + 1):
+            ci, cj = _QUADRIC_EXPONENTS[column]
+            entry = moments[(ri + ci, rj + cj)]
+            if row == column:
+                entry = entry + regularisation
+            for m in range(column):
+                entry = entry - lower[row][m] * lower[column][m]
+            if row == column:
+                inverse_diagonal.append(1.0 / np.sqrt(np.maximum(entry, tiny)))
+                lower[row].append(None)
+            else:
+                lower[row].append(entry * inverse_diagonal[column])
+        value = rhs[row]
+        for m in range(row):
+            value = value - lower[row][m] * solution[m]
+        solution.append(value * inverse_diagonal[row])
+    return solution[-1] * inverse_diagonal[-1]
+
+
 def mls_smooth(xyz: np.ndarray, neighbors: int, order: int = 2, radius: float = 0.0,
                neighbour_index: np.ndarray | None = None, neighbour_distance: np.ndarray | None = None
                ) -> np.ndarray:
@@ -106,51 +194,47 @@ def mls_smooth(xyz: np.ndarray, neighbors: int, order: int = 2, radius: float = 
     k = min(neighbors, count)
     if neighbour_index is None:
         neighbour_distance, neighbour_index = cKDTree(xyz).query(xyz, k=k, workers=-1)
-    index, distances = neighbour_index, neighbour_distance
+    # neighbour-major (k, N) layout: every per-neighbour quantity is a contiguous row, sums over neighbours
+    # are row additions
+    index, distances = neighbour_index.T, neighbour_distance.T
     present = (index >= 0) & np.isfinite(distances)
     origin = xyz.mean(axis=0)
     # float32 in metres about the centroid: sub-micrometre resolution, half the memory traffic
-    local = (xyz - origin).astype(np.float32)
+    local = np.ascontiguousarray((xyz - origin).T, dtype=np.float32)      # (3, N)
     known = np.where(present, distances, 0.0).astype(np.float32)
-    scale = np.maximum(known.max(axis=1, keepdims=True), np.float32(1e-12))
-    weights = np.where(present, np.exp(-((known / scale) ** 2)), np.float32(0.0))
+    scale = np.maximum(known.max(axis=0), np.float32(1e-12))
+    weights = np.where(present, np.exp(-np.square(known / scale)), np.float32(0.0))
     if radius > 0:
         weights[known > radius] = 0.0
-    enough = np.count_nonzero(weights > 0, axis=1) >= minimum
-    neighbourhood = local[np.where(present, index, 0)]                     # (N, k, 3)
-    weight_sum = np.maximum(weights.sum(axis=1, keepdims=True), np.float32(1e-30))
-    centroid = (weights[:, None, :] @ neighbourhood)[:, 0, :] / weight_sum
+    enough = np.count_nonzero(weights > 0, axis=0) >= minimum
+    neighbourhood = local[:, np.where(present, index, 0)]                   # (3, k, N)
+    weight_sum = np.maximum(weights.sum(axis=0), np.float32(1e-30))
+    centroid = (neighbourhood * weights).sum(axis=1) / weight_sum          # (3, N)
     offsets = neighbourhood - centroid[:, None, :]
-    weighted = offsets * weights[:, :, None]
-    covariance = (weighted.transpose(0, 2, 1) @ offsets).astype(np.float64)
-    normal = smallest_eigenvectors(covariance).astype(np.float32)
-    own = local - centroid
-    own_height = (own * normal).sum(axis=1)
+    weighted = offsets * weights
+    entries = [(weighted[i] * offsets[j]).sum(axis=0).astype(np.float64) for i, j in
+               ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))]
+    normal = _smallest_eigenvectors_of(*entries).T.astype(np.float32)      # (3, N)
     if order == 1:
-        smoothed = local - own_height[:, None] * normal
+        own_height = ((local - centroid) * normal).sum(axis=0)
+        smoothed = local - own_height * normal
     else:
-        # any orthonormal tangent pair: the quadric's basis spans the same space under rotation about the normal
-        helper = np.where(np.abs(normal[:, :1]) < 0.9, np.float32([[1, 0, 0]]), np.float32([[0, 1, 0]]))
-        axis_a = np.cross(normal, helper)
-        axis_a /= np.linalg.norm(axis_a, axis=1, keepdims=True)
-        axis_b = np.cross(normal, axis_a)
-        frame = np.stack([axis_a, axis_b, normal], axis=2)                 # (N, 3, 3) columns a, b, n
-        in_frame = offsets @ frame                                          # (N, k, 3)
-        a = in_frame[:, :, 0] / scale
-        b = in_frame[:, :, 1] / scale
-        h = in_frame[:, :, 2:]
-        basis = np.stack([np.ones_like(a), a, b, a * a, a * b, b * b], axis=2)   # (N, k, 6)
-        weighted_basis = (basis * weights[:, :, None]).transpose(0, 2, 1)
-        # a and b are scaled to the neighbourhood, so the 6x6 system is well conditioned in float32
-        normal_matrix = weighted_basis @ basis + np.float32(1e-6) * np.eye(6, dtype=np.float32)
-        coefficients = np.linalg.solve(normal_matrix, weighted_basis @ h)[:, :, 0]
-        own_frame = (own[:, None, :] @ frame)[:, 0, :]
-        a0 = own_frame[:, 0] / scale[:, 0]
-        b0 = own_frame[:, 1] / scale[:, 0]
-        own_basis = np.stack([np.ones_like(a0), a0, b0, a0 * a0, a0 * b0, b0 * b0], axis=1)
-        surface_height = (own_basis * coefficients).sum(axis=1)
-        smoothed = local + (surface_height - own_height)[:, None] * normal
-    return np.where(enough[:, None], smoothed, local).astype(np.float64) + origin
+        # any orthonormal tangent pair: the quadric's basis spans the same space under rotation about the
+        # normal, and under translation, so the basis is centred at the point itself: its height is then c0
+        use_x = np.abs(normal[0]) < 0.9
+        zero = np.zeros_like(normal[0])
+        # normal x (1, 0, 0) = (0, n_z, -n_y); normal x (0, 1, 0) = (-n_z, 0, n_x)
+        axis_a = np.stack([np.where(use_x, zero, -normal[2]), np.where(use_x, normal[2], zero),
+                           np.where(use_x, -normal[1], normal[0])])
+        axis_a /= np.sqrt((axis_a * axis_a).sum(axis=0))
+        axis_b = np.cross(normal, axis_a, axis=0)
+        relative = neighbourhood - local[:, None, :]                         # (3, k, N)
+        inverse_scale = 1.0 / scale
+        a = (relative * (axis_a * inverse_scale)[:, None, :]).sum(axis=0)
+        b = (relative * (axis_b * inverse_scale)[:, None, :]).sum(axis=0)
+        h = (relative * normal[:, None, :]).sum(axis=0)
+        smoothed = local + _quadric_height(a, b, h, weights) * normal
+    return np.where(enough, smoothed, local).T.astype(np.float64) + origin
 
 
 def voxel_downsample(cloud: Cloud, size: float) -> Cloud:
