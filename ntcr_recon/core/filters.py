@@ -280,14 +280,21 @@ def nearest_neighbours(cloud: Cloud, k: int) -> tuple[np.ndarray, np.ndarray]:
     half = max(int(np.ceil((np.sqrt(k + 1.0) - 1.0) / 2.0)), 1)   # the smallest window with k neighbours
     candidates = _window_candidates(cloud, half)
     xyz = cloud.xyz.astype(np.float32)
-    offsets = xyz[np.maximum(candidates, 0)] - xyz[:, None, :]
-    squared = np.einsum("nwd,nwd->nw", offsets, offsets)
+    safe = np.maximum(candidates, 0)
+    # one coordinate at a time: gathers of (N, W) scalars, no (N, W, 3) temporaries
+    squared = np.zeros(candidates.shape, dtype=np.float32)
+    for axis in range(3):
+        coordinate = xyz[:, axis]
+        difference = coordinate[safe] - coordinate[:, None]
+        squared += difference * difference
     squared[candidates < 0] = np.inf
-    take = min(k, squared.shape[1])
-    if take < squared.shape[1]:
+    window = squared.shape[1]
+    take = min(k, window)
+    if take < window:
         nearest = np.argpartition(squared, take - 1, axis=1)[:, :take]
-        squared = np.take_along_axis(squared, nearest, axis=1)
-        candidates = np.take_along_axis(candidates, nearest, axis=1)
+        nearest += np.arange(count)[:, None] * window               # flat positions: np.take is the fast gather
+        squared = np.take(squared, nearest)
+        candidates = np.take(candidates, nearest)
     distances = np.sqrt(squared).astype(np.float64)
     candidates[~np.isfinite(distances)] = -1
     return distances, candidates
