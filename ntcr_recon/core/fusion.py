@@ -110,7 +110,7 @@ def camera_cloud(frame: CameraFrame, config: RigConfig, box_min: np.ndarray, box
     depth = xyz[:, 2]
     xyz = transform_points(extrinsic, xyz)
     inside = crop_box_mask(xyz, box_min, box_max)
-    if frame.depth is not None and np.any(inside):
+    if frame.intrinsics is not None and np.any(inside):  # a point frame gives it too when its camera_info came
         footprint = float(np.median(depth[inside])) / frame.intrinsics.fx
     return (xyz[inside], None if rgb is None else rgb[inside], None if pixel is None else pixel[inside],
             footprint)

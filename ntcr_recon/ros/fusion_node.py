@@ -21,7 +21,6 @@ never grows a queue without bound.
 
 from __future__ import annotations
 
-import dataclasses
 import sys
 from collections import deque
 
@@ -29,8 +28,8 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from sensor_msgs.msg import CameraInfo, PointCloud2
 
+from ntcr_recon.core.deproject import Intrinsics
 from ntcr_recon.core.fusion import CameraFrame, FramePair, fuse, pair_frames
-from ntcr_recon.core.transforms import invert_transform, transform_points
 from ntcr_recon.ros.messages import camera_cloud_from_msg, camera_frame, diagnostics, stage_cloud_to_msg
 from ntcr_recon.ros.node_support import SENSOR_QOS, STAGE_QOS, RigNode, describe, guarded, run_node
 from ntcr_recon.ros.pointcloud import stamp_to_ns
@@ -55,7 +54,7 @@ class FusionNode(RigNode):
         self._newest: dict[str, int] = {}     # newest stamp received per camera
         self._first_stamp: int | None = None  # the first stamp of any camera: a camera never heard of is
         self._silent: set[str] = set()        # silent from then on
-        self._focal: dict[str, float] = {}
+        self._intrinsics: dict[str, Intrinsics] = {}
         self.counts = {"pairs": 0, "alone": 0, "unpaired": 0, "superseded": 0, "dropped": 0}
         self._publisher = self.create_publisher(PointCloud2, stage_topic(self.rig.topics, "fused/points"), STAGE_QOS)
         self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
@@ -82,10 +81,10 @@ class FusionNode(RigNode):
     @guarded
     def _on_info(self, item) -> None:
         name, msg = item
-        fx = float(msg.k[0])
-        if not fx > 0:
-            raise ValueError(f"camera_info of {name} has focal length {fx}")
-        self._focal[name] = fx
+        try:
+            self._intrinsics[name] = Intrinsics.from_camera_info(msg)
+        except ValueError as error:
+            raise ValueError(f"camera_info of {name}: {error}") from error
 
     @guarded
     def _on_cloud(self, item) -> None:
@@ -161,24 +160,13 @@ class FusionNode(RigNode):
         return {name: self._pixels.pop(id(frame), None) for name, frame in pair.frames.items()}
 
     def _publish(self, pair: FramePair, alone: bool, pixels: dict[str, np.ndarray | None]) -> None:
-        frames = {name: camera_frame(name, f.stamp_ns, f.points, f.rgb, pixels[name], f.organised_width)
+        # with camera_info known, the core gives the fused cloud its pixel footprint (0 until then)
+        frames = {name: camera_frame(name, f.stamp_ns, f.points, f.rgb, pixels[name], f.organised_width,
+                                     self._intrinsics.get(name))
                   for name, f in pair.frames.items()}
         cloud = fuse(FramePair(pair.stamp_ns, frames), self.rig)
-        if cloud.pixel_footprint == 0:
-            cloud = dataclasses.replace(cloud, pixel_footprint=self._pixel_footprint(cloud))
         self._publisher.publish(stage_cloud_to_msg(cloud, self.rig.base_frame))
         self.counts["alone" if alone else "pairs"] += 1
-
-    def _pixel_footprint(self, cloud) -> float:
-        """The size of one depth pixel on the robot as the core defines it for depth frames (median depth of a
-        camera's fused points / its fx, averaged over the cameras); 0 while no camera_info has come."""
-        footprints = []
-        for index, name in enumerate(self.rig.camera_names):
-            seen = cloud.camera == index
-            if name in self._focal and seen.any():
-                depth = transform_points(invert_transform(self.rig.cameras[name].extrinsic), cloud.xyz[seen])[:, 2]
-                footprints.append(float(np.median(depth)) / self._focal[name])
-        return float(np.mean(footprints)) if footprints else 0.0
 
     def _publish_diagnostics(self) -> None:
         if self._silent:

@@ -40,6 +40,7 @@ from std_msgs.msg import ColorRGBA, Float64MultiArray, Header, MultiArrayDimensi
 from visualization_msgs.msg import Marker, MarkerArray
 
 from ntcr_recon.core.cloud import Cloud
+from ntcr_recon.core.deproject import Intrinsics
 from ntcr_recon.core.fusion import CameraFrame
 from ntcr_recon.core.transforms import matrix_to_quaternion, quaternion_to_matrix
 from ntcr_recon.ros.pointcloud import FLOAT32, RCLPY, cloud_from_msg, cloud_to_msg, stamp_to_ns
@@ -159,12 +160,13 @@ def camera_cloud_from_msg(msg: PointCloud2, expected_frame: str
 
 
 def camera_frame(camera: str, stamp_ns: int, xyz: np.ndarray, rgb: np.ndarray | None, pixel: np.ndarray | None,
-                 organised_width: int) -> CameraFrame:
+                 organised_width: int, intrinsics: Intrinsics | None = None) -> CameraFrame:
     """The core's CameraFrame of a camera cloud (`camera_cloud_from_msg`): points with pixels are laid out
     row-major on the grid of the pixels they span (NaN where none), which the core reads as an organised
     cloud; others go as they are."""
     if pixel is None or not len(xyz):
-        return CameraFrame(camera, stamp_ns, points=xyz, rgb=rgb, organised_width=organised_width)
+        return CameraFrame(camera, stamp_ns, points=xyz, rgb=rgb, organised_width=organised_width,
+                           intrinsics=intrinsics)
     u, v = pixel[:, 0] - pixel[:, 0].min(), pixel[:, 1] - pixel[:, 1].min()
     width, height = int(u.max() + 1), int(v.max() + 1)
     cell = v * width + u
@@ -174,7 +176,7 @@ def camera_frame(camera: str, stamp_ns: int, xyz: np.ndarray, rgb: np.ndarray | 
     if rgb is not None:
         colors = np.zeros(height * width, dtype=np.uint32)
         colors[cell] = rgb
-    return CameraFrame(camera, stamp_ns, points=grid, rgb=colors, organised_width=width)
+    return CameraFrame(camera, stamp_ns, points=grid, rgb=colors, organised_width=width, intrinsics=intrinsics)
 
 
 def input_cloud(msg: PointCloud2, expected_frame: str, keep_nan: bool = False
