@@ -17,7 +17,7 @@ import numpy as np
 from ntcr_recon.core.config import RigConfig
 from ntcr_recon.core.deproject import Intrinsics
 from ntcr_recon.core.fusion import CameraFrame
-from ntcr_recon.ros.pointcloud import cloud_from_msg
+from ntcr_recon.ros.pointcloud import cloud_from_msg, stamp_to_ns
 
 _KINDS = ("depth", "depth_info", "color", "points")
 
@@ -60,10 +60,6 @@ def image_to_array(msg) -> np.ndarray:
     elif channels == 1 and kind == "u1":
         array = np.repeat(array, 3, axis=2)
     return array[:, :, 0] if channels == 1 and kind != "u1" else array
-
-
-def _stamp(msg) -> int:
-    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
 
 
 def read_camera_frames(bag: str | Path, config: RigConfig, source: str = "auto",
@@ -122,14 +118,14 @@ def _choose_source(bag: Path, wanted: dict[str, dict[str, str]], available: set[
 
 
 def _depth_frames(name: str, messages: dict[str, list], config: RigConfig) -> list[CameraFrame]:
-    infos = sorted(messages["depth_info"], key=_stamp)
+    infos = sorted(messages["depth_info"], key=lambda m: stamp_to_ns(m.header.stamp))
     if not infos:
         return []
-    info_stamps = np.array([_stamp(m) for m in infos])
-    colours = {_stamp(m): m for m in messages["color"]}
+    info_stamps = np.array([stamp_to_ns(m.header.stamp) for m in infos])
+    colours = {stamp_to_ns(m.header.stamp): m for m in messages["color"]}
     frames = []
     for msg in messages["depth"]:
-        stamp = _stamp(msg)
+        stamp = stamp_to_ns(msg.header.stamp)
         info = infos[max(int(np.searchsorted(info_stamps, stamp, side="right")) - 1, 0)]
         depth = image_to_array(msg)
         unit = 1.0 if depth.dtype.kind == "f" else None   # 32FC1 is metres; 16UC1 uses the configured unit
@@ -145,6 +141,6 @@ def _point_frames(name: str, messages: dict[str, list]) -> list[CameraFrame]:
     for msg in messages["points"]:
         xyz, rgb = cloud_from_msg(msg)
         organised = int(msg.width) if int(msg.height) > 1 else 0
-        frames.append(CameraFrame(name, _stamp(msg), points=xyz.astype(np.float64), rgb=rgb,
+        frames.append(CameraFrame(name, stamp_to_ns(msg.header.stamp), points=xyz.astype(np.float64), rgb=rgb,
                                   organised_width=organised))
     return sorted(frames, key=lambda f: f.stamp_ns)

@@ -24,6 +24,7 @@ from rosbags.typesys import Stores, get_typestore
 from ntcr_recon.bagio import image_to_array
 from ntcr_recon.core.config import TopicConfig
 from ntcr_recon.core.deproject import Intrinsics
+from ntcr_recon.ros.pointcloud import stamp_to_ns
 from ntcr_recon.ros.topics import camera_topic
 
 CACHE_BYTES = 256 * 2**20  # a looping bag up to this size is decoded once and replayed from memory
@@ -46,10 +47,6 @@ class SourceFrame:
     color: np.ndarray | None = None
     camera_info: Any = None
     cloud: Any = None
-
-
-def _stamp(msg) -> int:
-    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
 
 
 class BagSource:
@@ -140,8 +137,8 @@ class BagSource:
             if self.mode == "points":
                 for connection, _, raw in reader.messages(connections=connections):
                     msg = reader.deserialize(raw, connection.msgtype)
-                    if self._wanted(_stamp(msg), offset_ns):
-                        yield SourceFrame(stamp_ns=_stamp(msg) + offset_ns, cloud=msg)
+                    if self._wanted(stamp_to_ns(msg.header.stamp), offset_ns):
+                        yield SourceFrame(stamp_ns=stamp_to_ns(msg.header.stamp) + offset_ns, cloud=msg)
                 return
             info, intrinsics = None, None
             colors: dict[int, np.ndarray] = {}
@@ -152,7 +149,7 @@ class BagSource:
                 if kind == "depth_info":
                     info, intrinsics = msg, Intrinsics.from_camera_info(msg)
                     continue
-                stamp = _stamp(msg)
+                stamp = stamp_to_ns(msg.header.stamp)
                 if kind == "color":
                     if waiting is not None and waiting.stamp_ns == stamp + offset_ns:
                         waiting.color = image_to_array(msg)
