@@ -266,21 +266,25 @@ def _smooth_update(nodes: np.ndarray, tangents: np.ndarray, targets: np.ndarray,
     rhs = np.einsum("mij,mj->mi", information, targets) + np.einsum("mij,mj->mi", along, nodes) + weak * nodes
     rhs[0] += 1e3 * typical * anchor
     # The system couples a node with itself (3x3 block) and, through the second differences, with the next
-    # two: symmetric, positive definite and banded (8 above the diagonal in x, y, z order per node).
+    # two: symmetric, positive definite and banded (8 above the diagonal in x, y, z order per node). It is
+    # assembled in LAPACK's upper band storage, bands[8 - offset, column] = system[column - offset, column]:
+    # no dense matrix, no matrix product (which would wake BLAS threads for nothing).
     size = 3 * count
-    system = np.zeros((size, size))
-    first = np.arange(count) * 3
-    if count >= 3:
-        second = np.diff(np.eye(count), 2, axis=0)
-        penalty = lam * (second.T @ second)
-        for axis in range(3):
-            system[np.ix_(first + axis, first + axis)] += penalty
-    rows = first[:, None, None] + np.arange(3)[None, :, None]
-    cols = first[:, None, None] + np.arange(3)[None, None, :]
-    system[rows, cols] += block
     bands = np.zeros((9, size))
-    for offset in range(9):
-        bands[8 - offset, offset:] = np.diagonal(system, offset)
+    for row in range(3):
+        for column in range(row, 3):
+            bands[8 - (column - row), column::3] += block[:, row, column]
+    if count >= 3:
+        # second difference of nodes i, i+1, i+2 with coefficients (1, -2, 1): lam * D^T D, per axis
+        coefficients = (1.0, -2.0, 1.0)
+        for first in range(3):
+            for second in range(first, 3):
+                offset = 3 * (second - first)
+                value = lam * coefficients[first] * coefficients[second]
+                for axis in range(3):
+                    # node pairs (i + first, i + second), i = 0 .. count - 3, at column 3 (i + second) + axis
+                    start = 3 * second + axis
+                    bands[8 - offset, start:start + 3 * (count - 2):3] += value
     return scipy.linalg.solveh_banded(bands, rhs.reshape(-1)).reshape(count, 3)
 
 
