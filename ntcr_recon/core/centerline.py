@@ -34,13 +34,9 @@ from scipy.spatial import cKDTree
 from ntcr_recon.core.robot import TubeGeometry
 
 
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise cross product of (N, 3) arrays (np.cross costs more for small N)."""
-    out = np.empty_like(a)
-    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
-    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
-    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
-    return out
+def _cross_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross products of (3, N) arrays of column vectors, row by row (np.cross costs more for them)."""
+    return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
 @dataclass(frozen=True)
@@ -101,31 +97,40 @@ class Centerline:
         return cls(s, resampled, tangents, normals, binormals)
 
     @property
-    def _packed(self) -> np.ndarray:
-        """(M, 9) points, tangents and normals side by side: one gather interpolates all three."""
-        packed = self.__dict__.get("_packed_cache")
-        if packed is None:
-            packed = np.concatenate([self.points, self.tangents, self.normals], axis=1)
-            object.__setattr__(self, "_packed_cache", packed)
-        return packed
+    def _rows(self) -> tuple[np.ndarray, np.ndarray]:
+        """(9, M) points, tangents and normals as rows, and (9, M - 1) their steps to the next sample: one
+        gather of each interpolates all three, and per-point arithmetic runs along contiguous rows (numpy is
+        slow on (N, 3) arrays, whose inner loops are three long)."""
+        rows = self.__dict__.get("_rows_cache")
+        if rows is None:
+            samples = np.concatenate([self.points, self.tangents, self.normals], axis=1).T.copy()
+            rows = (samples, np.diff(samples, axis=1))
+            object.__setattr__(self, "_rows_cache", rows)
+        return rows
 
     def frames_at(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Position, tangent, normal and binormal at arc lengths s; beyond the ends along the end tangent."""
         s = np.asarray(s, dtype=float)
+        if len(self.s) < 2:
+            count = len(s)
+            return (self.points[:1] + (s - self.s[0])[:, None] * self.tangents[:1],
+                    np.repeat(self.tangents[:1], count, axis=0),
+                    np.repeat(self.normals[:1], count, axis=0), np.repeat(self.binormals[:1], count, axis=0))
         clipped = np.clip(s, 0.0, self.length)
-        step = self.s[1] - self.s[0] if len(self.s) > 1 else 1.0
-        position_in_steps = clipped / step
+        position_in_steps = clipped / (self.s[1] - self.s[0])
         index = np.minimum(position_in_steps.astype(np.intp), len(self.s) - 2)
-        fraction = (position_in_steps - index)[:, None]
-        packed = self._packed
-        mixed = packed[index] * (1.0 - fraction) + packed[index + 1] * fraction
-        tangent = mixed[:, 3:6]
-        tangent /= np.sqrt((tangent * tangent).sum(axis=1))[:, None]
-        position = mixed[:, 0:3] + (s - clipped)[:, None] * tangent
-        normal = mixed[:, 6:9]
-        normal -= (normal * tangent).sum(axis=1)[:, None] * tangent
-        normal /= np.sqrt((normal * normal).sum(axis=1))[:, None]
-        return position, tangent, normal, _cross(tangent, normal)
+        samples, steps = self._rows
+        mixed = np.take(samples, index, axis=1)
+        mixed += np.take(steps, index, axis=1) * (position_in_steps - index)
+        tangent, normal = mixed[3:6], mixed[6:9]
+        tangent /= np.sqrt(tangent[0] * tangent[0] + tangent[1] * tangent[1] + tangent[2] * tangent[2])
+        position = mixed[0:3]
+        position += (s - clipped) * tangent
+        normal -= (normal[0] * tangent[0] + normal[1] * tangent[1] + normal[2] * tangent[2]) * tangent
+        normal /= np.sqrt(normal[0] * normal[0] + normal[1] * normal[1] + normal[2] * normal[2])
+        binormal = _cross_rows(tangent, normal)
+        # back to (N, 3) rows in C order, which is what the callers index and combine
+        return position.T.copy(), tangent.T.copy(), normal.T.copy(), binormal.T.copy()
 
     @property
     def tree(self) -> cKDTree:
