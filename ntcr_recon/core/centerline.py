@@ -25,6 +25,7 @@ Public API:
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -50,11 +51,19 @@ class TubeCoordinates:
 
     @property
     def radius(self) -> np.ndarray:
-        return np.hypot(self.x, self.y)
+        radius = self.__dict__.get("_radius_cache")  # asked for by several stages of the same coordinates
+        if radius is None:
+            radius = np.sqrt(self.x * self.x + self.y * self.y)  # np.hypot is 3x slower (overflow-safe)
+            object.__setattr__(self, "_radius_cache", radius)
+        return radius
 
     @property
     def angle(self) -> np.ndarray:
-        return np.arctan2(self.y, self.x)
+        angle = self.__dict__.get("_angle_cache")
+        if angle is None:
+            angle = np.arctan2(self.y, self.x)
+            object.__setattr__(self, "_angle_cache", angle)
+        return angle
 
 
 @dataclass(frozen=True)
@@ -153,17 +162,17 @@ class Centerline:
         """
         if s_guess is None:
             _, nearest = self.tree.query(xyz)
-            s = self.s[nearest] + ((xyz - self.points[nearest]) * self.tangents[nearest]).sum(axis=1)
+            s = self.s[nearest] + np.einsum("ij,ij->i", xyz - self.points[nearest], self.tangents[nearest])
         else:
             s = s_guess
         # one step along the tangent at s; the frame is not re-evaluated at the corrected s (the step is
         # tiny next to the radius of curvature, and the offset is made normal to the tangent used)
         position, tangent, normal, binormal = self.frames_at(s)
         offset = xyz - position
-        correction = (offset * tangent).sum(axis=1)
+        correction = np.einsum("ij,ij->i", offset, tangent)  # (einsum: (N, 3).sum(axis=1) is 3x slower)
         offset -= correction[:, None] * tangent
         s = s + correction
-        coords = TubeCoordinates(s, (offset * normal).sum(axis=1), (offset * binormal).sum(axis=1))
+        coords = TubeCoordinates(s, np.einsum("ij,ij->i", offset, normal), np.einsum("ij,ij->i", offset, binormal))
         return coords, (position + correction[:, None] * tangent, tangent, normal, binormal)
 
     def to_points(self, s: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -207,13 +216,20 @@ def settings_for(geometry: TubeGeometry, pixel_footprint: float, relocation) -> 
     )
 
 
+@functools.lru_cache(maxsize=16)
 def base_pose(geometry: TubeGeometry) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Base position, robot axis and bend-plane normal (the robot's y: axis x notch side) in the base frame."""
+    """Base position, robot axis and bend-plane normal (the robot's y: axis x notch side) in the base frame.
+
+    Cached per geometry (frozen, hashable): every frame asks, and the rotation costs more than the frame's
+    use of it. The arrays are read-only, as they are shared.
+    """
     rotation = geometry.base_rotation
     side = np.array([np.cos(geometry.notch_side), np.sin(geometry.notch_side), 0.0])
     notch_side = rotation @ side
-    axis = rotation[:, 2]
-    return np.asarray(geometry.base_position, float), axis, np.cross(axis, notch_side)
+    pose = np.array(geometry.base_position, float), rotation[:, 2].copy(), np.cross(rotation[:, 2], notch_side)
+    for array in pose:
+        array.flags.writeable = False
+    return pose
 
 
 def fixed_radius_circle_fit(slab: np.ndarray, x: np.ndarray, y: np.ndarray, slabs: int, radius: float,
@@ -230,7 +246,7 @@ def fixed_radius_circle_fit(slab: np.ndarray, x: np.ndarray, y: np.ndarray, slab
     information = np.zeros((slabs, 2, 2))
     for _ in range(iterations):
         dx, dy = x - centre[slab, 0], y - centre[slab, 1]
-        distance = np.maximum(np.hypot(dx, dy), 1e-12)
+        distance = np.maximum(np.sqrt(dx * dx + dy * dy), 1e-12)
         residual = distance - radius
         nx, ny = dx / distance, dy / distance
         scaled = np.where(residual < 0, 2.0 * residual, residual) / gate
@@ -307,7 +323,7 @@ def _march(xyz: np.ndarray, geometry: TubeGeometry, settings: CenterlineSettings
     for _ in range(limit):
         predicted = nodes[-1] + step * tangent
         offset = xyz - predicted
-        along = offset @ tangent
+        along = np.einsum("ij,j->i", offset, tangent)  # not `@`: a BLAS product would wake its threads
         lateral = offset - along[:, None] * tangent
         near = (np.abs(along) <= step / 2) & (np.einsum("ij,ij->i", lateral, lateral) <= reach**2)
         if np.count_nonzero(near) < 8:
@@ -323,7 +339,8 @@ def _march(xyz: np.ndarray, geometry: TubeGeometry, settings: CenterlineSettings
         e2 /= np.linalg.norm(e2)
         e1 = np.cross(e2, tangent)
         local = lateral[near]
-        centre, _ = fixed_radius_circle_fit(np.zeros(len(local), dtype=np.intp), local @ e1, local @ e2, 1, r_o,
+        centre, _ = fixed_radius_circle_fit(np.zeros(len(local), dtype=np.intp), np.einsum("ij,j->i", local, e1),
+                                            np.einsum("ij,j->i", local, e2), 1, r_o,
                                             settings.gate, iterations=8)
         node = predicted + centre[0, 0] * e1 + centre[0, 1] * e2
         direction = node - nodes[max(len(nodes) - 2, 0)]
@@ -363,7 +380,9 @@ def tube_end(coords: TubeCoordinates, radius: float, gate: float, cell: float, s
         return float(coords.s.max(initial=0.0))
     slab = (coords.s[on_wall] / cell).astype(np.intp)
     sector = ((coords.angle[on_wall] + np.pi) / (2 * np.pi) * sectors).astype(np.intp) % sectors
-    occupied = np.bincount(np.unique(slab * sectors + sector) // sectors, minlength=slab.max() + 2).astype(float)
+    grid = np.zeros((slab.max() + 2, sectors), dtype=bool)
+    grid[slab, sector] = True
+    occupied = np.count_nonzero(grid, axis=1).astype(float)
     occupied = np.convolve(occupied, np.ones(3) / 3.0, mode="same")
     half = 0.5 * float(np.median(occupied[occupied > 0]))
     above = np.flatnonzero(occupied >= half)
