@@ -209,10 +209,13 @@ class TubeGeometry:
         """Half the angle about the axis over which a notch is open on the outer surface: acos(-d / r_o)."""
         return math.acos(-self.chord_offset / self.outer_radius)
 
-    @property
+    @cached_property
     def base_rotation(self) -> np.ndarray:
-        """Rotation of the robot base pose (its +z = the robot's axis) in the base frame."""
-        return quaternion_to_matrix(self.base_orientation)
+        """Rotation of the robot base pose (its +z = the robot's axis) in the base frame (computed once: every
+        frame asks; read-only, as it is shared)."""
+        rotation = quaternion_to_matrix(self.base_orientation)
+        rotation.flags.writeable = False
+        return rotation
 
 
 @dataclass
