@@ -33,6 +33,9 @@ def _threads_from_argv(default: int = 2) -> int:
 
 for _variable in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[_variable] = str(_threads_from_argv())
+# open3d's OpenMP threads otherwise spin after each parallel region, taking a core from whatever runs next
+# (on 2 cores: a quarter of the chain's time, and of the baseline's); a shared machine wants them asleep
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import numpy as np  # noqa: E402
 

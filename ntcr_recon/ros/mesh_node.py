@@ -17,6 +17,7 @@ every new mesh is also written to `<output_dir>/mesh.ply`.
 
 from __future__ import annotations
 
+import os
 import sys
 from pathlib import Path as PathLib
 
@@ -49,6 +50,9 @@ class MeshNode(RigNode):
         self._pending_save: Path | None = None
         self._params = {"save_ply_path": ""}
         # open3d (the Poisson mesher, the mesh writer) loads in seconds: at start-up, not in the first tick.
+        # Its OpenMP threads sleep between solves rather than spin: on a 2-core rig a spinning thread takes
+        # a core from the chain's nodes (read when OpenMP starts, so before the import).
+        os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
         import open3d  # noqa: F401
 
         super().__init__("mesh_node", PARAMETERS)
