@@ -61,13 +61,15 @@ def main() -> int:
     ours: dict[str, list[float]] = {}
     baseline: dict[str, list[float]] = {}
     points = []
+    # Three phases, each over every bag: the chain, the meshers on what the chain's last pass relocated, the
+    # baseline. In the graph each runs in a process of its own; sharing one here, open3d's large allocations
+    # and thread pool slow down whatever numpy code runs after them, so nothing runs between chain calls.
+    replays = []
     for bag in bags:
         config = load_rig_config(bag / "rig.yaml")
         pairs = pair_frames(read_camera_frames(bag, config), int(round(config.fusion.slop * 1e9)))
         reconstructor = Reconstructor(config)
         reconstructor.process(pairs[0])  # first call: imports and caches, not what a running node pays
-        # the chain passes first, the meshers after on what the last pass relocated: in the graph the mesh
-        # runs in its own node, and open3d's Poisson between two chain calls would evict their caches
         for _ in range(args.repeat):
             results = []
             for pair in pairs:
@@ -78,6 +80,9 @@ def main() -> int:
                     ours.setdefault(stage, []).append(ms)
                 points.append(len(result.fused))
                 results.append(result)
+        replays.append((bag, config, pairs, reconstructor, results))
+        print(f"{bag.name}: {len(pairs)} frame pairs", flush=True)
+    for _, config, _, reconstructor, results in replays:
         for result in results:
             start = time.perf_counter()
             reconstructor.mesh(result.relocation)
@@ -85,11 +90,12 @@ def main() -> int:
             start = time.perf_counter()
             poisson_mesh(result.relocation.relocated.xyz, result.relocation.normals, config.mesh)
             ours.setdefault("poisson", []).append((time.perf_counter() - start) * 1e3)
+    print("meshes done; the baseline ...", flush=True)
+    for _, config, pairs, _, _ in replays:
         for _ in range(args.baseline_repeat):
             for pair in pairs:
                 for stage, ms in plain_open3d(pair, config).items():
                     baseline.setdefault(stage, []).append(ms)
-        print(f"{bag.name}: {len(pairs)} frame pairs", flush=True)
 
     print(f"\n{len(ours['chain'])} frame pairs, median {int(np.median(points))} robot points each, "
           f"{args.threads} threads, load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs\n")
