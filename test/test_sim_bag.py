@@ -128,6 +128,46 @@ def test_simulate_command_refuses_bad_input_clearly(tmp_path, capsys):
     assert list(tmp_path.iterdir()) == [tmp_path / "taken"]  # nothing half-written left behind
 
 
+def test_simulate_renders_the_robot_of_a_description_file(tmp_path, capsys):
+    """--robot takes a mapping of geometry fields or a rig configuration's robot section; the bag's rig.yaml
+    and ground truth then describe that robot, and a bad description is refused naming its field."""
+    thin = {"outer_diameter": 2.5e-3, "inner_diameter": 1.8e-3, "notch_count": 10, "notch_width": 1.0e-3,
+            "notch_pitch": 2.2e-3, "notch_side": math.radians(20.0)}
+    (tmp_path / "thin.yaml").write_text(json.dumps(thin))  # JSON is YAML
+    assert cli.main(["simulate", str(tmp_path / "thin"), "--robot", str(tmp_path / "thin.yaml"), "--frames", "1",
+                     "--bend-deg", "30", "--no-progress"]) == 0
+    robot = load_rig_config(tmp_path / "thin" / "rig.yaml").robot
+    for field, value in thin.items():  # notch_side too: from the file, as no --notch-side was given
+        assert getattr(robot, field) == pytest.approx(value), field
+    shape, _ = load_truth(tmp_path / "thin")
+    assert len(shape.notch_bend) == 10 and math.degrees(shape.notch_bend.sum()) == pytest.approx(30.0)
+    # a rig configuration works too (its robot section); --notch-side overrides the file's
+    assert cli.main(["simulate", str(tmp_path / "again"), "--robot", str(tmp_path / "thin" / "rig.yaml"),
+                     "--notch-side", "facing", "--frames", "1", "--no-progress"]) == 0
+    again = load_rig_config(tmp_path / "again" / "rig.yaml").robot
+    assert again.outer_diameter == 2.5e-3 and again.notch_side == pytest.approx(-math.pi / 2)
+    capsys.readouterr()
+    (tmp_path / "bad.yaml").write_text("outer_diameter: -0.001\n")
+    assert cli.main(["simulate", str(tmp_path / "bad_robot"), "--robot", str(tmp_path / "bad.yaml"),
+                     "--no-progress"]) == 2
+    error = capsys.readouterr().err
+    assert "bad.yaml" in error and "robot.outer_diameter" in error
+    (tmp_path / "unknown.yaml").write_text("outer_diameter: 0.003\nwall_colour: 3\n")
+    assert cli.main(["simulate", str(tmp_path / "bad_robot"), "--robot", str(tmp_path / "unknown.yaml"),
+                     "--no-progress"]) == 2
+    assert "robot.wall_colour" in capsys.readouterr().err
+    assert not (tmp_path / "bad_robot").exists()
+
+
+def test_simulate_warns_when_the_robot_is_nearer_than_the_d405_sees(tmp_path, capsys):
+    assert cli.main(["simulate", str(tmp_path / "near"), "--camera-distance", "0.07", "--frames", "1",
+                     "--no-progress"]) == 0
+    assert "minimum depth" in capsys.readouterr().err
+    assert cli.main(["simulate", str(tmp_path / "far"), "--camera-distance", "0.08", "--frames", "1",
+                     "--no-progress"]) == 0
+    assert "minimum depth" not in capsys.readouterr().err
+
+
 def test_render_command_draws_a_png(written, tmp_path):
     from PIL import Image
 

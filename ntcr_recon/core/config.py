@@ -194,6 +194,27 @@ def load_rig_config(path) -> RigConfig:
         raise ConfigError(f"{path}: {error}") from error
 
 
+def load_robot_geometry(path) -> TubeGeometry:
+    """The robot of a YAML file: a rig configuration (its `robot` section) or a mapping of TubeGeometry
+    fields alone. ConfigError names the file and the field."""
+    path = Path(path)
+    try:
+        document = yaml.safe_load(path.read_text())
+    except OSError as error:
+        raise ConfigError(f"cannot read robot description {path}: {error.strerror or error}") from error
+    except yaml.YAMLError as error:
+        raise ConfigError(f"robot description {path} is not valid YAML: {error}") from error
+    try:
+        parameters = _parameters_of(document)
+        mapping = parameters.get("robot", parameters)
+        robot = TubeGeometry.from_mapping(mapping)
+        robot.validate()
+    except (ConfigError, ValueError) as error:
+        message = str(error)
+        raise ConfigError(f"{path}: {message if message.startswith('robot') else 'robot.' + message}") from error
+    return robot
+
+
 def _parameters_of(document: Any) -> Mapping:
     """The `ros__parameters` mapping of a parameter file (first node entry), or the document itself."""
     if not isinstance(document, Mapping):

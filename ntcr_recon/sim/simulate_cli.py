@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import sys
 from pathlib import Path
 
+from ntcr_recon.core.config import ConfigError, load_robot_geometry
 from ntcr_recon.core.robot import TubeGeometry, TubeShape
+from ntcr_recon.sim.camera import D405Intrinsics
 from ntcr_recon.sim.simulate import Simulation, notch_side_angle
 from ntcr_recon.sim.stereo import StereoEmulation
 
@@ -20,9 +23,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                       "(degrees, default 0: straight)")
     pose.add_argument("--tendon-pull-mm", type=float, help="tendon displacement per notch (mm)")
     pose.add_argument("--notch-bends-deg", type=str, help="comma-separated bend of each notch (degrees)")
-    parser.add_argument("--notch-side", default="side-on", help="'side-on' (bending plane perpendicular to the "
+    parser.add_argument("--robot", type=Path, metavar="YAML",
+                        help="the robot to render: a rig configuration (its `robot` section) or a YAML mapping of "
+                             "the robot's geometry fields (metres); default: the 3.5 mm, 16-notch sample robot")
+    parser.add_argument("--notch-side", default=None, help="'side-on' (bending plane perpendicular to the "
                         "cameras' axis), 'facing' (notches face the first camera) or an angle in degrees about "
-                        "the robot axis (default side-on)")
+                        "the robot axis (default: the --robot file's notch_side, else side-on)")
     parser.add_argument("--camera-distance", type=float, default=0.09, metavar="M",
                         help="distance of each camera from the robot (metres, default 0.09)")
     parser.add_argument("--seed", type=int, default=1, help="random seed (default 1): same seed, same bag")
@@ -41,7 +47,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def build_simulation(args: argparse.Namespace) -> Simulation:
-    geometry = TubeGeometry(notch_side=notch_side_angle(args.notch_side))
+    geometry = load_robot_geometry(args.robot) if args.robot else TubeGeometry()
+    if args.notch_side is not None or args.robot is None:
+        geometry = dataclasses.replace(geometry, notch_side=notch_side_angle(args.notch_side or "side-on"))
     if args.tendon_pull_mm is not None:
         shape = TubeShape.from_tendon_pull(geometry, args.tendon_pull_mm * 1e-3)
     elif args.notch_bends_deg:
@@ -64,9 +72,14 @@ def main(args: argparse.Namespace) -> int:
     try:
         simulation = build_simulation(args)
         path = simulation.write_bag(args.output, overwrite=args.overwrite, progress=not args.no_progress)
-    except (ValueError, FileExistsError) as error:
+    except (ValueError, ConfigError, FileExistsError) as error:
         print(f"ntcr-recon simulate: {error}", file=sys.stderr)
         return 2
+    near = args.camera_distance - simulation.shape.geometry.outer_radius
+    if near < D405Intrinsics.min_depth:
+        print(f"ntcr-recon simulate: warning: the robot's near side is {near * 1e3:.1f} mm from the cameras, nearer "
+              f"than the D405's minimum depth at 848x480 ({D405Intrinsics.min_depth * 1e3:.0f} mm): it reads no "
+              "depth there", file=sys.stderr)
     tip, _ = simulation.shape.tip_pose()
     print(f"wrote {path}: {simulation.frame_count} frames x {len(simulation.cameras)} cameras, "
           f"bend {math.degrees(simulation.shape.notch_bend.sum()):.1f} deg, tip at "
