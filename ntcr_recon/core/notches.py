@@ -79,8 +79,14 @@ def silhouette_erosion(coords: TubeCoordinates, frames: tuple, camera: np.ndarra
 
 
 def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: TubeGeometry, gate: float,
-                   footprint: float, kernel_px: float, min_width_fraction: float, tip_s: float) -> list[Notch]:
-    """Gaps in outer-surface coverage within the open angular window, matched to the robot's notches."""
+                   footprint: float, kernel_px: float, min_width_fraction: float, tip_s: float,
+                   observed: TubeCoordinates | None = None) -> list[Notch]:
+    """Gaps in outer-surface coverage within the open angular window, matched to the robot's notches.
+
+    observed: the points' coordinates as measured, when `coords` are those points moved (e.g. along their
+    viewing rays onto the wall): which points lie on the outer wall is judged by where they were seen, as a
+    cut face seen through a notch would otherwise be moved onto the wall inside the notch and fill it.
+    """
     r_o = geometry.outer_radius
     footprint = footprint if footprint > 0 else r_o / 8.0
     # the window where a notch removes the outer surface, less the angular uncertainty of a point
@@ -89,7 +95,9 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
     # Only points on the outer wall count: the spines' cut faces, seen through an obliquely viewed notch,
     # lie exactly at its edges but inside the wall and would pile up there. The band is the outer wall's
     # own measured spread (robust), within the gate.
-    offset = coords.radius - r_o
+    offset = (coords if observed is None else observed).radius - r_o
+    level = 0.0 if observed is None else float(np.median(offset[np.abs(offset) < gate]))
+    offset = offset - level
     band = min(gate, max(3.0 * 1.4826 * float(np.median(np.abs(offset[np.abs(offset) < gate]))), footprint / 2))
     on_outer = (np.abs(offset) < band) & (np.abs(coords.angle) < window)
     on_outer &= (coords.s > 0) & (coords.s < tip_s)

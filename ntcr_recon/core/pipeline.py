@@ -133,7 +133,8 @@ class Reconstructor:
             measured = rays[0]
         tip_s = tube_end(measured, geometry.outer_radius, settings.gate, settings.cell)
         notches = detect_notches(measured, centerline, geometry, settings.gate, footprint,
-                                 settings_config.notch_kernel_px, settings_config.min_notch_width_fraction, tip_s)
+                                 settings_config.notch_kernel_px, settings_config.min_notch_width_fraction, tip_s,
+                                 observed=coords)
         if cloud.camera is not None and len(cloud.camera):
             # The tip's rim, an edge seen against the background, loses what the tube's silhouettes lose
             # to the stereo matcher; measure that on plain tube and give it back.
