@@ -10,6 +10,7 @@ from synthetic_views import INTRINSICS, make_config
 from ntcr_recon.core.cloud import Cloud
 from ntcr_recon.core.deproject import Intrinsics, crop_window, depth_to_points
 from ntcr_recon.core.filters import (
+    _smallest_eigenvectors_of,
     color_mask,
     crop_box_mask,
     mls_smooth,
@@ -116,6 +117,24 @@ def test_mls_projects_noise_onto_the_local_surface(order):
     rng = np.random.default_rng(2)
     plane = np.column_stack([rng.random((500, 2)), np.zeros(500)])
     assert np.allclose(mls_smooth(plane, 16, order)[:, 2], 0.0, atol=1e-7)
+
+
+@pytest.mark.parametrize("order", [1, 2])
+def test_mls_leaves_coincident_points_finite_and_where_they_are(order):
+    """A neighbourhood of coincident points (a pixel seen twice, a merged cloud) has no spread to fit: MLS must
+    neither warn nor turn it into NaN."""
+    rng = np.random.default_rng(4)
+    plane = np.column_stack([rng.random((300, 2)) * 1e-3, np.zeros(300)])
+    xyz = np.vstack([plane, np.repeat([[2e-3, 2e-3, 1e-4]], 30, axis=0)])
+    with np.errstate(divide="raise", invalid="raise"):  # (float32 underflow of tiny weights is harmless)
+        smoothed = mls_smooth(xyz, 12, order)
+    assert np.isfinite(smoothed).all()
+    np.testing.assert_allclose(smoothed[300:], xyz[300:], atol=1e-9)
+    # the closed form itself, on the all-zero moments of coincident points (p = 0: its cube once underflowed)
+    zero = np.zeros(2)
+    with np.errstate(divide="raise", invalid="raise"):
+        assert np.isfinite(_smallest_eigenvectors_of(zero, zero, zero, zero, zero, zero)).all()
+        assert np.isfinite(smallest_eigenvectors(np.zeros((2, 3, 3)))).all()
 
 
 def test_closed_form_normals_match_eigh():

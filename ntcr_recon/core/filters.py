@@ -60,6 +60,11 @@ def statistical_outlier_mask(xyz: np.ndarray, neighbors: int, alpha: float,
     return mean_distance <= threshold
 
 
+# floor of p^2 (the spread of a 3x3 matrix's eigenvalues) in the closed-form eigensolver: a neighbourhood of
+# coincident points has p = 0, and p^3 of the old 1e-300 floor underflowed to 0 (0 / 0 = NaN normals)
+_TINY_SPREAD = 1e-60
+
+
 def smallest_eigenvectors(matrices: np.ndarray) -> np.ndarray:
     """Unit eigenvector of the smallest eigenvalue of each symmetric 3x3 matrix (closed form, vectorised).
 
@@ -69,7 +74,7 @@ def smallest_eigenvectors(matrices: np.ndarray) -> np.ndarray:
     a = matrices
     trace = np.trace(a, axis1=1, axis2=2) / 3.0
     shifted = a - trace[:, None, None] * np.eye(3)
-    p = np.sqrt(np.maximum(np.einsum("nij,nij->n", shifted, shifted) / 6.0, 1e-300))
+    p = np.sqrt(np.maximum(np.einsum("nij,nij->n", shifted, shifted) / 6.0, _TINY_SPREAD))
     b = shifted / p[:, None, None]
     half_det = np.clip(np.linalg.det(b) / 2.0, -1.0, 1.0)
     phi = np.arccos(half_det) / 3.0
@@ -90,7 +95,8 @@ def _smallest_eigenvectors_of(xx, xy, xz, yy, yz, zz) -> np.ndarray:
     """smallest_eigenvectors for matrices given by their six distinct entries (each (N,) float64)."""
     trace = (xx + yy + zz) / 3.0
     dx, dy, dz = xx - trace, yy - trace, zz - trace
-    p = np.sqrt(np.maximum((dx * dx + dy * dy + dz * dz + 2.0 * (xy * xy + xz * xz + yz * yz)) / 6.0, 1e-300))
+    p = np.sqrt(np.maximum((dx * dx + dy * dy + dz * dz + 2.0 * (xy * xy + xz * xz + yz * yz)) / 6.0,
+                           _TINY_SPREAD))
     # det(shifted / p) / 2
     det = dx * (dy * dz - yz * yz) - xy * (xy * dz - yz * xz) + xz * (xy * yz - dy * xz)
     half_det = np.clip(det / (2.0 * p * p * p), -1.0, 1.0)
