@@ -6,10 +6,10 @@ with open3d built-ins, both measured in this run.
 Per stage and for the chain (fusion + filters + relocation), the median milliseconds per frame pair and the
 frame rate; the mesh separately, on the relocated clouds of the last replay. Frames of each bag are
 replayed in a loop (`--repeat` times), relocation warm-starting from the previous frame as the relocation
-node does. The baseline per frame pair: each
-camera's depth image deprojected by open3d (create_from_depth_image, whole image), moved to the base frame,
-cropped (AxisAlignedBoundingBox), remove_statistical_outlier, point-to-point ICP to the reference (the
-configured robot, straight, sampled), and Poisson at depth 8.
+node does. The baseline per frame pair: each camera's depth image deprojected by open3d
+(create_from_depth_image, whole image), moved to the base frame, cropped (AxisAlignedBoundingBox),
+remove_statistical_outlier, point-to-point ICP to the reference (the configured robot, straight, sampled),
+and Poisson at depth 8.
 """
 
 from __future__ import annotations
@@ -63,7 +63,7 @@ def main() -> int:
     points = []
     # Three phases, each over every bag: the chain, the meshers on what the chain's last pass relocated, the
     # baseline. In the graph each runs in a process of its own; sharing one here, open3d's large allocations
-    # and thread pool slow down whatever numpy code runs after them, so nothing runs between chain calls.
+    # and thread pool slowed the numpy code run after them (by about 10 %), so nothing runs between chain calls.
     replays = []
     for bag in bags:
         config = load_rig_config(bag / "rig.yaml")

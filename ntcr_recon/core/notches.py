@@ -94,10 +94,12 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
     window = geometry.gap_half_angle - margin
     # Only points on the outer wall count: the spines' cut faces, seen through an obliquely viewed notch,
     # lie exactly at its edges but inside the wall and would pile up there. The band is the outer wall's
-    # own measured spread (robust), within the gate.
+    # own measured spread (robust) about its measured level (stereo flattening), within the gate.
     offset = (coords if observed is None else observed).radius - r_o
-    level = 0.0 if observed is None else float(np.median(offset[np.abs(offset) < gate]))
-    offset = offset - level
+    near = offset[np.abs(offset) < gate]
+    if near.size < 10:
+        return []
+    offset = offset - (float(np.median(near)) if observed is not None else 0.0)
     band = min(gate, max(3.0 * 1.4826 * float(np.median(np.abs(offset[np.abs(offset) < gate]))), footprint / 2))
     on_outer = (np.abs(offset) < band) & (np.abs(coords.angle) < window)
     on_outer &= (coords.s > 0) & (coords.s < tip_s)
