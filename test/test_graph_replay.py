@@ -23,6 +23,7 @@ from std_msgs.msg import Float64MultiArray
 from visualization_msgs.msg import Marker
 
 from ntcr_recon.core.config import load_rig_config
+from ntcr_recon.core.fusion import FramePair
 from ntcr_recon.core.pipeline import Reconstructor
 from ntcr_recon.ros.camera_sources import BagSource
 from ntcr_recon.ros.messages import mesh_from_msg, notches_from_array, stage_cloud_and_normals
@@ -47,10 +48,16 @@ def reference():
     pairs = tiny_rig.bag_frame_pairs(BAG, config)
     reconstructor = Reconstructor(config)
     results = {}
-    for pair in pairs:
+    # Each pair, and each of its frames alone: on 2 cores a camera node can fall behind by more than the
+    # camera timeout, and fusion_node then publishes the other camera's frame alone, as it should.
+    frames = list(pairs)
+    frames += [FramePair(frame.stamp_ns, {name: frame}) for pair in pairs for name, frame in pair.frames.items()]
+    for frames_of in frames:
         reconstructor.reset()  # no state from the previous frame (centreline, region of interest)
-        filtered = reconstructor.filter(reconstructor.fuse(pair))
-        results[pair.stamp_ns - pairs[0].stamp_ns] = reconstructor.relocate(filtered, warm_start=False)
+        filtered = reconstructor.filter(reconstructor.fuse(frames_of))
+        cameras = tuple(sorted(config.camera_names.index(name) for name in frames_of.frames))
+        results[frames_of.stamp_ns - pairs[0].stamp_ns, cameras] = reconstructor.relocate(filtered,
+                                                                                           warm_start=False)
     loop_shift = BagSource(BAG, config.camera_names[0], config.topics).loop_shift_ns  # as camera_node loops
     return config, results, pairs[0].stamp_ns, loop_shift
 
@@ -118,8 +125,9 @@ def test_relocated_clouds_and_notches_match_the_core(reference, replay):
     out, *_ = replay
     # relocation_node publishes cloud and notches of a frame together, in order; both reliable.
     for cloud_msg, notch_msg in list(zip(out["relocated"], out["notches"], strict=False))[:OUTPUTS]:
-        expected = by_offset[(stamp_to_ns(cloud_msg.header.stamp) - first) % loop_span]
         cloud, normals = stage_cloud_and_normals(cloud_msg, config.base_frame)
+        cameras = tuple(int(c) for c in np.unique(cloud.camera))
+        expected = by_offset[(stamp_to_ns(cloud_msg.header.stamp) - first) % loop_span, cameras]
         # Same core, same frames; the only difference is float32 on the wire between the stages (DESIGN.md).
         assert abs(len(cloud) - len(expected.relocated)) <= 0.005 * len(expected.relocated)
         distance = cKDTree(expected.relocated.xyz).query(cloud.xyz)[0]
@@ -130,7 +138,8 @@ def test_relocated_clouds_and_notches_match_the_core(reference, replay):
         assert np.median(distance) < 1e-6 and np.percentile(distance, 99) < 30e-6
         notches = notches_from_array(notch_msg)
         assert [n["index"] for n in notches] == [n.index for n in expected.notches]
-        assert len(notches) == config.robot.notch_count
+        if len(cameras) == len(config.camera_names):
+            assert len(notches) == config.robot.notch_count
         center_error = max(abs(a["center_s"] - b.center_s) for a, b in zip(notches, expected.notches, strict=True))
         width_error = max(abs(a["width"] - b.width) for a, b in zip(notches, expected.notches, strict=True))
         print(f"notches: centre within {center_error * 1e6:.2f} um, width within {width_error * 1e6:.2f} um")
@@ -142,8 +151,11 @@ def test_the_first_frame_matches_ntcr_recon_reconstruct(reference, reconstructed
     config, _, first, loop_shift = reference
     result, points = reconstructed
     out, *_ = replay
-    index = next(i for i, m in enumerate(out["relocated"]) if (stamp_to_ns(m.header.stamp) - first) % loop_shift == 0)
-    cloud, _ = stage_cloud_and_normals(out["relocated"][index], config.base_frame)
+    clouds = [stage_cloud_and_normals(m, config.base_frame)[0] for m in out["relocated"]]
+    index = next(i for i, (m, cloud) in enumerate(zip(out["relocated"], clouds, strict=True))
+                 if (stamp_to_ns(m.header.stamp) - first) % loop_shift == 0
+                 and len(np.unique(cloud.camera)) == len(config.camera_names))  # the pair, not a frame alone
+    cloud = clouds[index]
     distance = cKDTree(points).query(cloud.xyz)[0]
     print(f"frame 0 vs ntcr-recon reconstruct: {len(cloud)} / {len(points)} points, median distance "
           f"{np.median(distance) * 1e6:.2f} um")
