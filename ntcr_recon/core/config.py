@@ -115,7 +115,6 @@ class RelocationConfig:
     smoothing_radius_fraction: float = 1.0  # smoothing length along s = this * outer_radius
     max_iterations: int = 12
     tolerance_radius_fraction: float = 0.01  # stop when the centreline moves less than this * r_o (RMS)
-    icp: bool = True                       # rigid point-to-point ICP of the reference to the cloud (Eq. 10-11)
     # Notch detection: kernel width of the coverage profile along s, in pixel footprints.
     notch_kernel_px: float = 0.5
     min_notch_width_fraction: float = 0.25  # a coverage gap narrower than this * notch_width is no notch
