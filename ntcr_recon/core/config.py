@@ -179,16 +179,9 @@ _STAGE_SECTIONS = {
 def load_rig_config(path) -> RigConfig:
     """Read a ROS 2 parameter file (or a plain mapping file) and validate it."""
     path = Path(path)
+    parameters = _read_parameters(path, "rig configuration")
     try:
-        text = path.read_text()
-    except OSError as error:
-        raise ConfigError(f"cannot read rig configuration {path}: {error.strerror or error}") from error
-    try:
-        document = yaml.safe_load(text)
-    except yaml.YAMLError as error:
-        raise ConfigError(f"rig configuration {path} is not valid YAML: {error}") from error
-    try:
-        return rig_config_from_mapping(_parameters_of(document))
+        return rig_config_from_mapping(parameters)
     except ConfigError as error:
         raise ConfigError(f"{path}: {error}") from error
 
@@ -197,21 +190,36 @@ def load_robot_geometry(path) -> TubeGeometry:
     """The robot of a YAML file: a rig configuration (its `robot` section) or a mapping of TubeGeometry
     fields alone. ConfigError names the file and the field."""
     path = Path(path)
+    parameters = _read_parameters(path, "robot description")
     try:
-        document = yaml.safe_load(path.read_text())
+        return _robot(parameters.get("robot", parameters))
+    except ConfigError as error:
+        raise ConfigError(f"{path}: {error}") from error
+
+
+def _read_parameters(path: Path, what: str) -> Mapping:
+    """The parameters of a YAML file (`_parameters_of`); ConfigError naming the file when it cannot be read."""
+    try:
+        text = path.read_text()
     except OSError as error:
-        raise ConfigError(f"cannot read robot description {path}: {error.strerror or error}") from error
-    except yaml.YAMLError as error:
-        raise ConfigError(f"robot description {path} is not valid YAML: {error}") from error
+        raise ConfigError(f"cannot read {what} {path}: {error.strerror or error}") from error
     try:
-        parameters = _parameters_of(document)
-        mapping = parameters.get("robot", parameters)
-        robot = TubeGeometry.from_mapping(mapping)
-        robot.validate()
-    except (ConfigError, ValueError) as error:
+        document = yaml.safe_load(text)
+    except yaml.YAMLError as error:
+        raise ConfigError(f"{what} {path} is not valid YAML: {error}") from error
+    try:
+        return _parameters_of(document)
+    except ConfigError as error:
+        raise ConfigError(f"{path}: {error}") from error
+
+
+def _robot(mapping: Mapping) -> TubeGeometry:
+    """The validated robot geometry of a `robot` mapping; ConfigError names the `robot.<field>`."""
+    try:
+        return TubeGeometry.from_mapping(mapping)  # validates
+    except (ValueError, TypeError) as error:
         message = str(error)
-        raise ConfigError(f"{path}: {message if message.startswith('robot') else 'robot.' + message}") from error
-    return robot
+        raise ConfigError(message if message.startswith("robot") else f"robot.{message}") from error
 
 
 def _parameters_of(document: Any) -> Mapping:
@@ -234,13 +242,7 @@ def rig_config_from_mapping(parameters: Mapping) -> RigConfig:
     if len(set(camera_names)) != len(camera_names):
         raise ConfigError("camera_names has duplicates")
     cameras = {name: _camera(name, _require(parameters, name, Mapping)) for name in camera_names}
-    robot_mapping = _require(parameters, "robot", Mapping)
-    try:
-        robot = TubeGeometry.from_mapping(robot_mapping)
-        robot.validate()
-    except (ValueError, TypeError) as error:
-        message = str(error)
-        raise ConfigError(message if message.startswith("robot.") else f"robot.{message}") from error
+    robot = _robot(_require(parameters, "robot", Mapping))
     sections = {name: _section(name, cls, parameters.get(name, {})) for name, cls in _STAGE_SECTIONS.items()}
     config = RigConfig(base_frame=base_frame, camera_names=tuple(camera_names), cameras=cameras, robot=robot,
                        **sections)
