@@ -29,7 +29,6 @@ from ntcr_recon.ros.camera_sources import BagSource, SourceError, SourceFrame
 from ntcr_recon.ros.messages import camera_cloud_to_msg, header, stamp_msg
 from ntcr_recon.ros.node_support import SENSOR_QOS, ParameterError, RigNode, describe, run_node
 from ntcr_recon.ros.pointcloud import RCLPY
-from ntcr_recon.ros.topics import camera_topic
 
 SOURCES = ("bag", "realsense", "file")
 
@@ -91,10 +90,10 @@ class CameraNode(RigNode):
     def __init__(self) -> None:
         self._source = None
         super().__init__("camera_node", PARAMETERS)
-        points_topic = camera_topic(self.rig.topics, self.camera, "points")
+        points_topic = self.rig.topics.camera_topic(self.camera, "points")
         self._cloud_publisher = self.create_publisher(PointCloud2, points_topic, SENSOR_QOS)
         self._info_publisher = self.create_publisher(
-            CameraInfo, camera_topic(self.rig.topics, self.camera, "depth_info"), SENSOR_QOS)
+            CameraInfo, self.rig.topics.camera_topic(self.camera, "depth_info"), SENSOR_QOS)
         self._clock_publisher = self.create_publisher(Clock, "/clock", 10) if self._params["publish_clock"] else None
         self._stop = threading.Event()
         self.frames_published = self.frames_skipped = 0

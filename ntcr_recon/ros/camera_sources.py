@@ -25,7 +25,6 @@ from ntcr_recon.bagio import image_to_array
 from ntcr_recon.core.config import TopicConfig
 from ntcr_recon.core.deproject import Intrinsics
 from ntcr_recon.ros.pointcloud import stamp_to_ns
-from ntcr_recon.ros.topics import camera_topic
 
 CACHE_BYTES = 256 * 2**20  # a looping bag up to this size is decoded once and replayed from memory
 
@@ -67,7 +66,7 @@ class BagSource:
         if not self.path.exists():
             raise SourceError(f"bag {self.path} does not exist")
         self._reader_class = AnyReader
-        self.topics = {kind: camera_topic(topics, camera, kind) for kind in ("depth", "depth_info", "color", "points")}
+        self.topics = {kind: topics.camera_topic(camera, kind) for kind in ("depth", "depth_info", "color", "points")}
         with self._open() as reader:
             present = {c.topic for c in reader.connections}
             self.duration_ns = int(reader.duration)

@@ -33,7 +33,7 @@ from ntcr_recon.core.fusion import CameraFrame, FramePair, fuse, pair_frames
 from ntcr_recon.ros.messages import camera_cloud_from_msg, camera_frame, diagnostics, stage_cloud_to_msg
 from ntcr_recon.ros.node_support import SENSOR_QOS, STAGE_QOS, RigNode, describe, guarded, run_node
 from ntcr_recon.ros.pointcloud import stamp_to_ns
-from ntcr_recon.ros.topics import camera_topic, stage_topic
+from ntcr_recon.ros.topics import stage_topic
 
 PARAMETERS = {
     "queue_size": (10, describe("frames buffered per camera while waiting for a partner", minimum=1, maximum=300,
@@ -59,9 +59,9 @@ class FusionNode(RigNode):
         self._publisher = self.create_publisher(PointCloud2, stage_topic(self.rig.topics, "fused/points"), STAGE_QOS)
         self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         for name in self.rig.camera_names:
-            self.create_subscription(PointCloud2, camera_topic(self.rig.topics, name, "points"),
+            self.create_subscription(PointCloud2, self.rig.topics.camera_topic(name, "points"),
                                      lambda msg, name=name: self._on_cloud((name, msg)), SENSOR_QOS)
-            self.create_subscription(CameraInfo, camera_topic(self.rig.topics, name, "depth_info"),
+            self.create_subscription(CameraInfo, self.rig.topics.camera_topic(name, "depth_info"),
                                      lambda msg, name=name: self._on_info((name, msg)), SENSOR_QOS)
         self.create_timer(self._params["diagnostics_period"], self._publish_diagnostics)
         self.get_logger().info(f"fusing {', '.join(self.rig.camera_names)} within {self.rig.fusion.slop * 1e3:.1f} ms "

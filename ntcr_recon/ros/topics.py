@@ -1,17 +1,13 @@
 """Topic names of the graph, from the rig configuration's `topics` section (no rclpy import).
 
-Camera topics follow realsense-ros: `<ns>/<cam>/depth/image_rect_raw`, `.../depth/camera_info`,
-`.../color/image_rect_raw`, `.../depth/color/points`; stage topics sit under `<ns>` (default `/ntcr`).
+Camera topics follow realsense-ros (`TopicConfig.camera_topic`): `<ns>/<cam>/depth/image_rect_raw`,
+`.../depth/camera_info`, `.../color/image_rect_raw`, `.../depth/color/points`; stage topics sit under `<ns>`
+(default `/ntcr`).
 """
 
 from __future__ import annotations
 
 from ntcr_recon.core.config import TopicConfig
-
-
-def camera_topic(topics: TopicConfig, camera: str, kind: str) -> str:
-    """The absolute topic name of `kind` ("depth", "depth_info", "color", "points") for `camera`."""
-    return "/" + topics.camera_topic(camera, kind).lstrip("/")
 
 
 def stage_topic(topics: TopicConfig, name: str) -> str:
