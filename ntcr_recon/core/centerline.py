@@ -40,6 +40,15 @@ def _cross_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
+def resample_polyline(points: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
+    """Arc lengths s (uniform, at most `step` apart, from 0 to the length) and the polyline's points there
+    (linear between its vertices)."""
+    chord = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    arc = np.concatenate([[0.0], np.cumsum(chord)])
+    s = np.linspace(0.0, arc[-1], max(int(np.ceil(arc[-1] / step)), 1) + 1)
+    return s, np.stack([np.interp(s, arc, points[:, d]) for d in range(3)], axis=1)
+
+
 @dataclass(frozen=True)
 class TubeCoordinates:
     """Points in the tube's own coordinates: arc length s of their cross-section, offset (x towards the notch
@@ -91,12 +100,8 @@ class Centerline:
         The binormal is the hint (the bend plane's normal of a robot bending towards its notches) made
         perpendicular to the tangent, so the frame does not twist and needs no sequential transport.
         """
-        chord = np.linalg.norm(np.diff(points, axis=0), axis=1)
-        arc = np.concatenate([[0.0], np.cumsum(chord)])
-        length = float(arc[-1])
-        count = max(int(np.ceil(length / step)), 1) + 1
-        s = np.linspace(0.0, length, count)
-        resampled = np.stack([np.interp(s, arc, points[:, d]) for d in range(3)], axis=1)
+        s, resampled = resample_polyline(points, step)
+        count = len(s)
         tangents = np.gradient(resampled, s, axis=0) if count > 2 else np.repeat(
             (resampled[-1:] - resampled[:1]), count, axis=0)
         tangents /= np.linalg.norm(tangents, axis=1, keepdims=True)

@@ -13,6 +13,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ntcr_recon.core.centerline import resample_polyline
+
 
 def pdc(xyz: np.ndarray, voxel: float) -> dict[str, float]:
     """Point density consistency: counts of points per occupied voxel, their mean, std and ratio."""
@@ -25,17 +27,10 @@ def pdc(xyz: np.ndarray, voxel: float) -> dict[str, float]:
     return {"mu": mu, "sigma": sigma, "lambda": sigma / mu}
 
 
-def densify(polyline: np.ndarray, step: float) -> np.ndarray:
-    """The polyline re-sampled at most `step` apart (linear between its vertices)."""
-    chord = np.linalg.norm(np.diff(polyline, axis=0), axis=1)
-    arc = np.concatenate([[0.0], np.cumsum(chord)])
-    s = np.linspace(0.0, arc[-1], max(int(np.ceil(arc[-1] / step)) + 1, 2))
-    return np.stack([np.interp(s, arc, polyline[:, d]) for d in range(3)], axis=1)
-
-
 def centerline_rmse(estimated: np.ndarray, truth: np.ndarray, step: float = 5e-6) -> float:
     """RMS of the distances of the estimated centreline's samples to the true centreline."""
-    distance, _ = cKDTree(densify(np.asarray(truth, float), step)).query(np.asarray(estimated, float))
+    _, dense = resample_polyline(np.asarray(truth, float), step)  # so the truth's own sampling does not count
+    distance, _ = cKDTree(dense).query(np.asarray(estimated, float))
     return float(np.sqrt(np.mean(distance**2)))
 
 
