@@ -419,8 +419,7 @@ def config_to_mapping(config: RigConfig) -> dict[str, Any]:
         camera = plain(config.cameras[name])
         camera.pop("name")
         mapping[name] = camera
-    robot = plain(config.robot)
-    mapping["robot"] = {k: v for k, v in robot.items() if v is not None}
+    mapping["robot"] = {k: v for k, v in config.robot.to_dict().items() if v is not None}
     for name in _STAGE_SECTIONS:
         mapping[name] = plain(getattr(config, name))
     return mapping
