@@ -29,6 +29,7 @@ import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -57,10 +58,13 @@ class CameraConfig:
     translation: tuple[float, float, float] = (0.0, 0.0, 0.0)
     rotation: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
 
-    @property
+    @cached_property
     def extrinsic(self) -> np.ndarray:
-        """4x4 transform taking points of the optical frame into the base frame (Eq. 9)."""
-        return rigid_transform(self.translation, self.rotation)
+        """4x4 transform taking points of the optical frame into the base frame (Eq. 9); computed once, as
+        fusion asks every frame (read-only, as it is shared)."""
+        matrix = rigid_transform(self.translation, self.rotation)
+        matrix.flags.writeable = False
+        return matrix
 
 
 @dataclass(frozen=True)
