@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import scipy.linalg
@@ -58,21 +59,14 @@ class TubeCoordinates:
     x: np.ndarray
     y: np.ndarray
 
-    @property
+    # cached: several stages ask for them of the same coordinates
+    @cached_property
     def radius(self) -> np.ndarray:
-        radius = self.__dict__.get("_radius_cache")  # asked for by several stages of the same coordinates
-        if radius is None:
-            radius = np.sqrt(self.x * self.x + self.y * self.y)  # np.hypot is 3x slower (overflow-safe)
-            object.__setattr__(self, "_radius_cache", radius)
-        return radius
+        return np.sqrt(self.x * self.x + self.y * self.y)  # np.hypot is 3x slower (overflow-safe)
 
-    @property
+    @cached_property
     def angle(self) -> np.ndarray:
-        angle = self.__dict__.get("_angle_cache")
-        if angle is None:
-            angle = np.arctan2(self.y, self.x)
-            object.__setattr__(self, "_angle_cache", angle)
-        return angle
+        return np.arctan2(self.y, self.x)
 
 
 @dataclass(frozen=True)
@@ -110,17 +104,13 @@ class Centerline:
         normals = np.cross(binormals, tangents)
         return cls(s, resampled, tangents, normals, binormals)
 
-    @property
+    @cached_property
     def _rows(self) -> tuple[np.ndarray, np.ndarray]:
         """(9, M) points, tangents and normals as rows, and (9, M - 1) their steps to the next sample: one
         gather of each interpolates all three, and per-point arithmetic runs along contiguous rows (numpy is
         slow on (N, 3) arrays, whose inner loops are three long)."""
-        rows = self.__dict__.get("_rows_cache")
-        if rows is None:
-            samples = np.concatenate([self.points, self.tangents, self.normals], axis=1).T.copy()
-            rows = (samples, np.diff(samples, axis=1))
-            object.__setattr__(self, "_rows_cache", rows)
-        return rows
+        samples = np.concatenate([self.points, self.tangents, self.normals], axis=1).T.copy()
+        return samples, np.diff(samples, axis=1)
 
     def frames_at(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Position, tangent, normal and binormal at arc lengths s; beyond the ends along the end tangent."""
@@ -146,13 +136,9 @@ class Centerline:
         # back to (N, 3) rows in C order, which is what the callers index and combine
         return position.T.copy(), tangent.T.copy(), normal.T.copy(), binormal.T.copy()
 
-    @property
+    @cached_property
     def tree(self) -> cKDTree:
-        tree = self.__dict__.get("_tree_cache")
-        if tree is None:
-            tree = cKDTree(self.points)
-            object.__setattr__(self, "_tree_cache", tree)
-        return tree
+        return cKDTree(self.points)
 
     def project(self, xyz: np.ndarray, s_guess: np.ndarray | None = None) -> TubeCoordinates:
         """Tube coordinates of points: nearest sample (KD-tree), then slid along the local tangent."""
