@@ -92,8 +92,7 @@ def relocate_points(coords: TubeCoordinates, centerline: Centerline, geometry: T
     """
     r_o, r_i, d = geometry.outer_radius, geometry.inner_radius, geometry.chord_offset
     s, x, y = coords.s, coords.x, coords.y
-    radius = coords.radius
-    angle = np.arctan2(y, x)
+    radius, angle = coords.radius, coords.angle
     count = len(s)
     # which detected notch (if any) each point's arc length falls in
     starts = np.array([n.start_s for n in notches])
