@@ -48,11 +48,11 @@ def main() -> int:
     parser.add_argument("--threads", type=int, default=2, help="threads for BLAS/OpenMP (the target: 2 cores)")
     args = parser.parse_args()
 
-    from ntcr_recon.bagio import read_camera_frames
     from ntcr_recon.core.config import load_rig_config
     from ntcr_recon.core.fusion import pair_frames
     from ntcr_recon.core.mesh import poisson_mesh
     from ntcr_recon.core.pipeline import Reconstructor
+    from ntcr_recon.io.bag import read_camera_frames
 
     bags = sorted(p for p in args.bags.iterdir() if (p / "metadata.yaml").exists())
     if not bags:

@@ -66,9 +66,9 @@ class ReconstructCommandError(Exception):
 
 def run(args: argparse.Namespace) -> dict:
     """The whole command; raises ReconstructCommandError with the cause. Returns the result document."""
-    from ntcr_recon.bagio import BagError
     from ntcr_recon.core.config import ConfigError, load_rig_config
     from ntcr_recon.core.pipeline import ReconstructionError
+    from ntcr_recon.io.bag import BagError
 
     config_path = args.config if args.config is not None else _bag_dir(args.bag) / "rig.yaml"
     try:
@@ -117,13 +117,13 @@ def _publish(staging: Path, out: Path) -> None:
 def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
     from tqdm import tqdm
 
-    from ntcr_recon.bagio import read_camera_frames
     from ntcr_recon.core import figures
     from ntcr_recon.core.cloud import Cloud
     from ntcr_recon.core.fusion import pair_frames
     from ntcr_recon.core.mesh import write_cloud_ply, write_mesh
     from ntcr_recon.core.metrics import pdc
     from ntcr_recon.core.pipeline import Reconstructor
+    from ntcr_recon.io.bag import read_camera_frames
 
     started = time.perf_counter()
     streams = read_camera_frames(args.bag, config, args.source, overrides, args.max_frames)

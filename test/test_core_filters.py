@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from synthetic_views import INTRINSICS, make_config
 
-from ntcr_recon.core.cloud import Cloud
+from ntcr_recon.core.cloud import Cloud, pack_rgb
 from ntcr_recon.core.deproject import Intrinsics, crop_window, depth_to_points
 from ntcr_recon.core.filters import (
     _smallest_eigenvectors_of,
@@ -20,7 +20,6 @@ from ntcr_recon.core.filters import (
     voxel_downsample,
 )
 from ntcr_recon.core.fusion import CameraFrame, fuse, pair_frames
-from ntcr_recon.ros.pointcloud import pack_rgb
 
 
 def test_depth_to_points_inverts_the_pinhole_projection():

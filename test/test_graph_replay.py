@@ -25,10 +25,10 @@ from visualization_msgs.msg import Marker
 from ntcr_recon.core.config import load_rig_config
 from ntcr_recon.core.fusion import FramePair
 from ntcr_recon.core.pipeline import Reconstructor
-from ntcr_recon.ros.camera_sources import BagSource
+from ntcr_recon.io.camera_sources import BagSource
+from ntcr_recon.io.pointcloud import stamp_to_ns
 from ntcr_recon.ros.messages import mesh_from_msg, notches_from_array, stage_cloud_and_normals
 from ntcr_recon.ros.node_support import LATCHED_QOS
-from ntcr_recon.ros.pointcloud import stamp_to_ns
 
 BAG = Path(__file__).resolve().parents[1] / "bags" / "bend45"
 RUN = Path(sys.executable).parent / "ntcr-recon"

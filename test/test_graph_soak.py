@@ -19,7 +19,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import PointCloud2
 from stage_probe import COLLECT_RELIABLE
 
-from ntcr_recon.ros.pointcloud import stamp_to_ns
+from ntcr_recon.io.pointcloud import stamp_to_ns
 
 REPO = Path(__file__).resolve().parents[1]
 BAG = REPO / "bags" / "bend45"

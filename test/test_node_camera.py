@@ -15,8 +15,8 @@ from sensor_msgs.msg import CameraInfo, PointCloud2
 
 from ntcr_recon.core.config import load_rig_config
 from ntcr_recon.core.deproject import crop_window, depth_to_points
+from ntcr_recon.io.pointcloud import cloud_from_msg, stamp_to_ns
 from ntcr_recon.ros.messages import camera_cloud_from_msg
-from ntcr_recon.ros.pointcloud import cloud_from_msg, stamp_to_ns
 
 COLLECT_QOS = QoSProfile(depth=200, reliability=ReliabilityPolicy.BEST_EFFORT)
 FRAMES, FPS, START = 6, 30.0, 1_000_000_000

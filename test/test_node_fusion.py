@@ -15,9 +15,9 @@ from stage_probe import COLLECT_RELIABLE, StageProbe, set_parameter
 from ntcr_recon.core.config import load_rig_config
 from ntcr_recon.core.deproject import depth_to_points
 from ntcr_recon.core.fusion import CameraFrame, FramePair, fuse
+from ntcr_recon.io.pointcloud import cloud_to_msg, stamp_to_ns
 from ntcr_recon.ros.messages import header, stage_cloud_from_msg
 from ntcr_recon.ros.node_support import SENSOR_QOS
-from ntcr_recon.ros.pointcloud import cloud_to_msg, stamp_to_ns
 
 PERIOD = 33_333_333
 

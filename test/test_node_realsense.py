@@ -17,8 +17,8 @@ from software_d405 import SoftwareD405
 
 from ntcr_recon.core.config import load_rig_config
 from ntcr_recon.core.deproject import crop_window, depth_to_points
-from ntcr_recon.ros.pointcloud import cloud_from_msg, stamp_to_ns
-from ntcr_recon.ros.realsense_source import NO_DEVICE
+from ntcr_recon.io.pointcloud import cloud_from_msg, stamp_to_ns
+from ntcr_recon.io.realsense import NO_DEVICE
 
 COLLECT_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT)
 ABSENT = "no-such-camera"  # a serial no device has (and not all digits: ROS would read that as an integer)

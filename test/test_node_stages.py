@@ -16,6 +16,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from ntcr_recon.core.config import load_rig_config
 from ntcr_recon.core.pipeline import Reconstructor
+from ntcr_recon.io.pointcloud import stamp_to_ns
 from ntcr_recon.ros.messages import (
     centerline_path_msg,
     mesh_from_msg,
@@ -27,7 +28,6 @@ from ntcr_recon.ros.messages import (
     stage_cloud_to_msg,
 )
 from ntcr_recon.ros.node_support import LATCHED_QOS, STAGE_QOS
-from ntcr_recon.ros.pointcloud import stamp_to_ns
 
 
 @pytest.fixture(scope="module")

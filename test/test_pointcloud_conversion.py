@@ -9,15 +9,14 @@ from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import PointCloud2, PointField
 
-from ntcr_recon.ros.pointcloud import (
+from ntcr_recon.core.cloud import pack_rgb, unpack_rgb
+from ntcr_recon.io.pointcloud import (
     RCLPY,
     ROSBAGS,
     CloudFormatError,
     cloud_from_msg,
     cloud_to_msg,
-    pack_rgb,
     stamp_to_ns,
-    unpack_rgb,
 )
 
 STAMP_NS = 1_700_000_123_456_789_012

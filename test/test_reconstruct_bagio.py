@@ -7,8 +7,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from ntcr_recon.bagio import BagError, camera_topics, image_to_array, read_camera_frames
 from ntcr_recon.core.config import load_rig_config
+from ntcr_recon.io.bag import BagError, camera_topics, image_to_array, read_camera_frames
 
 
 def _image(array: np.ndarray, encoding: str, big_endian: bool = False, pad: int = 0):

@@ -10,8 +10,9 @@ from ros_graph import VENV_BIN, RosGraph
 from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import PointCloud2
 
+from ntcr_recon.core.cloud import pack_rgb
+from ntcr_recon.io.pointcloud import cloud_from_msg, cloud_to_msg, stamp_to_ns
 from ntcr_recon.ros.node_support import SENSOR_QOS, STAGE_QOS
-from ntcr_recon.ros.pointcloud import cloud_from_msg, cloud_to_msg, pack_rgb, stamp_to_ns
 
 TRANSLATION = [0.01, -0.02, 0.09]
 ROTATION = Rotation.from_euler("xyz", [90, 0, 30], degrees=True).as_quat().tolist()

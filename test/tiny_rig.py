@@ -16,7 +16,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from ntcr_recon.core.deproject import Intrinsics
 from ntcr_recon.core.transforms import rigid_transform
-from ntcr_recon.ros.pointcloud import ROSBAGS, cloud_to_msg
+from ntcr_recon.io.pointcloud import ROSBAGS, cloud_to_msg
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 T = TYPESTORE.types
@@ -181,7 +181,7 @@ def simulated_bag(tmp_path_factory, frames: int = 2, bend_deg: float = 45.0) -> 
 
 def bag_frame_pairs(bag: Path, config) -> list:
     """The bag's frame pairs as the offline command pairs them (the core's bag reader, not camera_node's)."""
-    from ntcr_recon.bagio import read_camera_frames
     from ntcr_recon.core.fusion import pair_frames
+    from ntcr_recon.io.bag import read_camera_frames
 
     return pair_frames(read_camera_frames(bag, config), int(config.fusion.slop * 1e9))

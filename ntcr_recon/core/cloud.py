@@ -1,4 +1,7 @@
-"""The point cloud every stage passes on: positions, packed colours and which camera saw each point."""
+"""The point cloud every stage passes on: positions, packed colours and which camera saw each point.
+
+Colours travel packed as uint32 0x00RRGGBB, the bits of PointCloud2's `rgb` float32 (`pack_rgb` / `unpack_rgb`).
+"""
 
 from __future__ import annotations
 
@@ -61,3 +64,14 @@ class Cloud:
         return Cloud(np.concatenate([c.xyz for c in clouds]), rgb, camera, min(c.stamp_ns for c in clouds),
                      float(np.median(footprints)) if footprints else 0.0)
 
+
+def pack_rgb(rgb_u8: np.ndarray) -> np.ndarray:
+    """(N, 3) uint8 colours -> (N,) uint32 0x00RRGGBB."""
+    rgb = np.asarray(rgb_u8, dtype=np.uint32)
+    return (rgb[..., 0] << 16) | (rgb[..., 1] << 8) | rgb[..., 2]
+
+
+def unpack_rgb(packed: np.ndarray) -> np.ndarray:
+    """(N,) uint32 0x00RRGGBB -> (N, 3) uint8 colours."""
+    packed = np.asarray(packed, dtype=np.uint32)
+    return np.stack([(packed >> 16) & 0xFF, (packed >> 8) & 0xFF, packed & 0xFF], axis=-1).astype(np.uint8)

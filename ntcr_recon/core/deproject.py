@@ -16,8 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ntcr_recon.core.cloud import pack_rgb
 from ntcr_recon.core.transforms import invert_transform, transform_points
-from ntcr_recon.ros.pointcloud import pack_rgb
 
 
 @dataclass(frozen=True)

@@ -20,8 +20,7 @@ from dataclasses import replace
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ntcr_recon.core.cloud import Cloud
-from ntcr_recon.ros.pointcloud import unpack_rgb
+from ntcr_recon.core.cloud import Cloud, unpack_rgb
 
 
 def crop_box_mask(xyz: np.ndarray, box_min, box_max) -> np.ndarray:

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ntcr_recon.ros.pointcloud import unpack_rgb
+from ntcr_recon.core.cloud import unpack_rgb
 
 
 @dataclass(frozen=True)

@@ -25,10 +25,10 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, PointCloud2
 
 from ntcr_recon.core.deproject import Intrinsics, crop_window, depth_to_points
-from ntcr_recon.ros.camera_sources import BagSource, SourceError, SourceFrame
+from ntcr_recon.io.camera_sources import BagSource, SourceError, SourceFrame
+from ntcr_recon.io.pointcloud import RCLPY
 from ntcr_recon.ros.messages import camera_cloud_to_msg, header, stamp_msg
 from ntcr_recon.ros.node_support import SENSOR_QOS, ParameterError, RigNode, describe, run_node
-from ntcr_recon.ros.pointcloud import RCLPY
 
 SOURCES = ("bag", "realsense", "file")
 
@@ -118,7 +118,7 @@ class CameraNode(RigNode):
                 if not params["bag_path"]:
                     raise ParameterError("parameter 'bag_path' must name a rosbag2 directory for the 'bag' source")
                 return BagSource(params["bag_path"], params["camera"], rig.topics, loop=params["loop"])
-            from ntcr_recon.ros.realsense_source import RealSenseSource, RecordingSource
+            from ntcr_recon.io.realsense import RealSenseSource, RecordingSource
 
             filters = {"spatial": params["spatial_filter"], "temporal": params["temporal_filter"],
                        "hole_filling": params["hole_filling"]}

@@ -30,9 +30,9 @@ from sensor_msgs.msg import CameraInfo, PointCloud2
 
 from ntcr_recon.core.deproject import Intrinsics
 from ntcr_recon.core.fusion import CameraFrame, FramePair, fuse, pair_frames
+from ntcr_recon.io.pointcloud import stamp_to_ns
 from ntcr_recon.ros.messages import camera_cloud_from_msg, camera_frame, diagnostics, stage_cloud_to_msg
 from ntcr_recon.ros.node_support import SENSOR_QOS, STAGE_QOS, RigNode, describe, guarded, run_node
-from ntcr_recon.ros.pointcloud import stamp_to_ns
 from ntcr_recon.ros.topics import stage_topic
 
 PARAMETERS = {

@@ -29,9 +29,9 @@ from visualization_msgs.msg import Marker
 
 from ntcr_recon.core.mesh import write_mesh
 from ntcr_recon.core.pipeline import Reconstructor
+from ntcr_recon.io.pointcloud import stamp_to_ns
 from ntcr_recon.ros.messages import mesh_marker, mesh_msg, relocation_from_msgs, stage_cloud_and_normals
 from ntcr_recon.ros.node_support import LATCHED_QOS, STAGE_QOS, ParameterError, RigNode, describe, guarded, run_node
-from ntcr_recon.ros.pointcloud import stamp_to_ns
 from ntcr_recon.ros.topics import stage_topic
 
 CENTERLINES_KEPT = 4

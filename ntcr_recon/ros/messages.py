@@ -1,8 +1,8 @@
 """Core results <-> ROS messages for the stage nodes (rclpy messages; no algorithm here).
 
 Stage clouds (`<ns>/fused/points`, `<ns>/filtered/points`, `<ns>/relocated/points`) are PointCloud2 with
-x, y, z, rgb float32 as DESIGN.md fixes, plus the fields a later stage needs to compute what the offline
-command computes on the same frames, all float32:
+x, y, z, rgb float32, plus the fields a later stage needs to compute what the offline command computes on
+the same frames, all float32 and declared once in `io.pointcloud.STAGE_FIELDS`:
   `camera`            index in the rig's camera_names of the camera that saw the point
   `pixel_footprint`   metres, the size of one depth pixel on the robot (same for every point; 0 = unknown)
   `pixel_u`, `pixel_v` the point's pixel in its camera image (the filters find neighbours in the image by
@@ -34,7 +34,7 @@ from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, Pose, PoseStamped
 from nav_msgs.msg import Path
-from sensor_msgs.msg import PointCloud2, PointField
+from sensor_msgs.msg import PointCloud2
 from shape_msgs.msg import Mesh, MeshTriangle
 from std_msgs.msg import ColorRGBA, Float64MultiArray, Header, MultiArrayDimension, MultiArrayLayout
 from visualization_msgs.msg import Marker, MarkerArray
@@ -43,7 +43,7 @@ from ntcr_recon.core.cloud import Cloud
 from ntcr_recon.core.deproject import Intrinsics
 from ntcr_recon.core.fusion import CameraFrame
 from ntcr_recon.core.transforms import matrix_to_quaternion, quaternion_to_matrix
-from ntcr_recon.ros.pointcloud import FLOAT32, RCLPY, cloud_from_msg, cloud_to_msg, stamp_to_ns
+from ntcr_recon.io.pointcloud import STAGE_FIELDS, cloud_from_msg, cloud_to_msg, read_points, stamp_to_ns
 
 NOTCH_LAYOUT_LABEL = "index,center_s_m,width_m,bend_rad"
 _NORMAL_FIELDS = ("normal_x", "normal_y", "normal_z")
@@ -60,37 +60,18 @@ def header(frame_id: str, stamp_ns: int) -> Header:
 
 # ---- stage clouds ---------------------------------------------------------------------------------------------
 
-def cloud_msg_with_fields(xyz: np.ndarray, rgb: np.ndarray | None, frame_id: str, stamp_ns: int,
-                          columns: dict[str, np.ndarray | float]) -> PointCloud2:
-    """An unorganised PointCloud2 of x, y, z, rgb followed by one float32 field per entry of `columns`."""
-    count = len(xyz)
-    rgb = rgb if rgb is not None else np.zeros(count, np.uint32)
-    base = cloud_to_msg(xyz, rgb, frame_id=frame_id, stamp_ns=stamp_ns, msgtypes=RCLPY)
-    extra = np.empty((count, len(columns)), dtype="<f4")
-    for column, values in enumerate(columns.values()):
-        extra[:, column] = values
-    points = np.frombuffer(bytes(base.data), dtype=np.uint8).reshape(count, base.point_step)
-    data = np.concatenate([points, extra.view(np.uint8).reshape(count, 4 * len(columns))], axis=1)
-    offset = base.point_step
-    base.fields = list(base.fields) + [PointField(name=name, offset=offset + 4 * i, datatype=FLOAT32, count=1)
-                                       for i, name in enumerate(columns)]
-    base.point_step = offset + 4 * len(columns)
-    base.row_step = base.point_step * count
-    base.data = data.tobytes()
-    return base
-
-
 def stage_cloud_to_msg(cloud: Cloud, frame_id: str, normals: np.ndarray | None = None,
                        extra: dict[str, np.ndarray] | None = None) -> PointCloud2:
     """A Cloud as a PointCloud2: x, y, z, rgb, `camera`, `pixel_footprint`, `pixel_u`/`pixel_v` when the cloud
-    has pixels, `normal_x`/`normal_y`/`normal_z` when normals are given, then `extra` float32 fields."""
+    has pixels, `normal_x`/`normal_y`/`normal_z` when normals are given, then `extra` stage fields."""
     columns = {"camera": cloud.camera if cloud.camera is not None else -1, "pixel_footprint": cloud.pixel_footprint}
     if cloud.pixel is not None:
         columns.update(pixel_u=cloud.pixel[:, 0], pixel_v=cloud.pixel[:, 1])
     if normals is not None:
         columns.update(zip(_NORMAL_FIELDS, np.asarray(normals).T, strict=True))
     columns.update(extra or {})
-    return cloud_msg_with_fields(cloud.xyz, cloud.rgb, frame_id, cloud.stamp_ns, columns)
+    rgb = cloud.rgb if cloud.rgb is not None else np.zeros(len(cloud), np.uint32)
+    return cloud_to_msg(cloud.xyz, rgb, frame_id=frame_id, stamp_ns=cloud.stamp_ns, columns=columns)
 
 
 def relocation_cloud_msg(relocation, frame_id: str) -> PointCloud2:
@@ -113,18 +94,16 @@ def relocation_from_msgs(cloud_msg: PointCloud2, path: Path, expected_frame: str
     from ntcr_recon.core.pipeline import Relocation
 
     require_frame(path, expected_frame)
-    cloud, normals = stage_cloud_and_normals(cloud_msg, expected_frame)
+    cloud, columns = _stage_cloud(cloud_msg, expected_frame)
+    normals = _normals(columns)
     if normals is None:
         raise ValueError("relocated cloud has no normal_x/normal_y/normal_z fields (is it relocation_node's?)")
     if len(path.poses) < 2:
         raise ValueError(f"centreline has {len(path.poses)} poses, needs at least 2")
-    columns = {name: _float_field(cloud_msg, name, int(cloud_msg.width) * int(cloud_msg.height))
-               for name in ("part", "tube_s", "tube_x", "tube_y")}
-    finite = np.isfinite(cloud_from_msg(cloud_msg)[0]).all(axis=1)
-    part = None if columns["part"] is None else columns["part"][finite].astype(np.int8)
+    part = columns["part"].astype(np.int8) if "part" in columns else None
     coordinates = None
-    if all(columns[name] is not None for name in ("tube_s", "tube_x", "tube_y")):
-        coordinates = TubeCoordinates(*(columns[name][finite].astype(float) for name in ("tube_s", "tube_x", "tube_y")))
+    if all(name in columns for name in ("tube_s", "tube_x", "tube_y")):
+        coordinates = TubeCoordinates(*(columns[name].astype(float) for name in ("tube_s", "tube_x", "tube_y")))
     points = np.array([[p.pose.position.x, p.pose.position.y, p.pose.position.z] for p in path.poses])
     quaternions = np.array([[p.pose.orientation.x, p.pose.orientation.y, p.pose.orientation.z,
                              p.pose.orientation.w] for p in path.poses])
@@ -137,7 +116,9 @@ def relocation_from_msgs(cloud_msg: PointCloud2, path: Path, expected_frame: str
 def camera_cloud_to_msg(xyz: np.ndarray, rgb: np.ndarray | None, pixel: np.ndarray, frame_id: str,
                         stamp_ns: int) -> PointCloud2:
     """A camera's deprojected points (optical frame) with their pixel (u, v) as `pixel_u`, `pixel_v`."""
-    return cloud_msg_with_fields(xyz, rgb, frame_id, stamp_ns, {"pixel_u": pixel[:, 0], "pixel_v": pixel[:, 1]})
+    rgb = rgb if rgb is not None else np.zeros(len(xyz), np.uint32)
+    return cloud_to_msg(xyz, rgb, frame_id=frame_id, stamp_ns=stamp_ns,
+                        columns={"pixel_u": pixel[:, 0], "pixel_v": pixel[:, 1]})
 
 
 def camera_cloud_from_msg(msg: PointCloud2, expected_frame: str
@@ -151,12 +132,15 @@ def camera_cloud_from_msg(msg: PointCloud2, expected_frame: str
     xyz, rgb = input_cloud(msg, expected_frame, keep_nan=True)
     if msg.height > 1:
         return xyz, rgb, None, int(msg.width)
-    u, v = _float_field(msg, "pixel_u", len(xyz)), _float_field(msg, "pixel_v", len(xyz))
+    pixels = read_points(msg, ("pixel_u", "pixel_v"))
     finite = np.isfinite(xyz).all(axis=1)
     xyz, rgb = xyz[finite], None if rgb is None else rgb[finite]
-    if u is None or v is None or not (np.isfinite(u) & np.isfinite(v))[finite].all():
+    if len(pixels.dtype.names) < 2:
         return xyz, rgb, None, 0
-    return xyz, rgb, np.stack([u[finite], v[finite]], axis=1).astype(np.int64), 0
+    u, v = pixels["pixel_u"][finite], pixels["pixel_v"][finite]
+    if not (np.isfinite(u).all() and np.isfinite(v).all()):
+        return xyz, rgb, None, 0
+    return xyz, rgb, np.stack([u, v], axis=1).astype(np.int64), 0
 
 
 def camera_frame(camera: str, stamp_ns: int, xyz: np.ndarray, rgb: np.ndarray | None, pixel: np.ndarray | None,
@@ -199,35 +183,37 @@ def input_cloud(msg: PointCloud2, expected_frame: str, keep_nan: bool = False
 def stage_cloud_from_msg(msg: PointCloud2, expected_frame: str) -> Cloud:
     """A stage cloud back as a Cloud (checked as `input_cloud` does; NaN points dropped). Any PointCloud2 with
     x, y, z is accepted: a cloud without the extra fields gets no camera / pixels and footprint 0."""
-    return stage_cloud_and_normals(msg, expected_frame)[0]
+    return _stage_cloud(msg, expected_frame)[0]
 
 
 def stage_cloud_and_normals(msg: PointCloud2, expected_frame: str) -> tuple[Cloud, np.ndarray | None]:
     """`stage_cloud_from_msg` plus the (N, 3) normals when the cloud carries normal_x/y/z, else None."""
+    cloud, columns = _stage_cloud(msg, expected_frame)
+    return cloud, _normals(columns)
+
+
+def _stage_cloud(msg: PointCloud2, expected_frame: str) -> tuple[Cloud, dict[str, np.ndarray]]:
+    """A stage cloud's finite points as a Cloud, and the stage fields it carries (finite points only)."""
     xyz, rgb = input_cloud(msg, expected_frame, keep_nan=True)
-    count = len(xyz)
-    camera_values = _float_field(msg, "camera", count)
-    camera = camera_values.astype(np.int8) if camera_values is not None and np.all(camera_values >= 0) else None
-    footprints = _float_field(msg, "pixel_footprint", count)
-    footprint = float(np.nanmax(footprints)) if footprints is not None and np.isfinite(footprints).any() else 0.0
-    pixel_columns = [_float_field(msg, name, count) for name in ("pixel_u", "pixel_v")]
-    pixel = None if any(c is None for c in pixel_columns) else np.stack(pixel_columns, axis=1).astype(np.int32)
-    normal_columns = [_float_field(msg, name, count) for name in _NORMAL_FIELDS]
-    normals = None if any(c is None for c in normal_columns) else np.stack(normal_columns, axis=1).astype(float)
-    cloud = Cloud(xyz, rgb, camera, stamp_to_ns(msg.header.stamp), footprint, pixel)
+    points = read_points(msg, STAGE_FIELDS)
     finite = np.isfinite(xyz).all(axis=1)
-    if finite.all():
-        return cloud, normals
-    return cloud.subset(finite), None if normals is None else normals[finite]
+    if not finite.all():
+        xyz, rgb, points = xyz[finite], None if rgb is None else rgb[finite], points[finite]
+    columns = {name: points[name].astype(np.float32) for name in points.dtype.names}
+    camera = columns.get("camera")
+    camera = camera.astype(np.int8) if camera is not None and np.all(camera >= 0) else None
+    footprints = columns.get("pixel_footprint")
+    footprint = float(np.nanmax(footprints)) if footprints is not None and np.isfinite(footprints).any() else 0.0
+    pixel = None
+    if "pixel_u" in columns and "pixel_v" in columns:
+        pixel = np.stack([columns["pixel_u"], columns["pixel_v"]], axis=1).astype(np.int32)
+    return Cloud(xyz, rgb, camera, stamp_to_ns(msg.header.stamp), footprint, pixel), columns
 
 
-def _float_field(msg: PointCloud2, name: str, count: int) -> np.ndarray | None:
-    """One float32 field of every point (layout already checked by cloud_from_msg), or None when absent."""
-    field = next((f for f in msg.fields if f.name == name and f.datatype == FLOAT32), None)
-    if field is None or field.offset + 4 > msg.point_step or msg.row_step != msg.width * msg.point_step:
+def _normals(columns: dict[str, np.ndarray]) -> np.ndarray | None:
+    if not all(name in columns for name in _NORMAL_FIELDS):
         return None
-    rows = np.frombuffer(msg.data, dtype=np.uint8)[: count * msg.point_step].reshape(count, msg.point_step)
-    return rows[:, field.offset:field.offset + 4].copy().view(">f4" if msg.is_bigendian else "<f4").reshape(-1)
+    return np.stack([columns[name] for name in _NORMAL_FIELDS], axis=1).astype(float)
 
 
 def require_frame(msg, expected: str) -> None:

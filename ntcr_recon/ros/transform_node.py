@@ -13,6 +13,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import PointCloud2
 
 from ntcr_recon.core.transforms import rigid_transform, transform_points
+from ntcr_recon.io.pointcloud import RCLPY, cloud_from_msg, cloud_to_msg, stamp_to_ns
 from ntcr_recon.ros.node_support import (
     SENSOR_QOS,
     STAGE_QOS,
@@ -23,7 +24,6 @@ from ntcr_recon.ros.node_support import (
     run_node,
     validate_on_change,
 )
-from ntcr_recon.ros.pointcloud import RCLPY, cloud_from_msg, cloud_to_msg, stamp_to_ns
 
 PARAMETERS = {
     "translation": ([0.0, 0.0, 0.0], "translation [x, y, z] in metres of the input frame in the target frame"),

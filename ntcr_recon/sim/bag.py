@@ -28,7 +28,7 @@ from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, W
 from rosbags.typesys import Stores, get_typestore
 
 from ntcr_recon.core.deproject import Intrinsics, depth_to_points
-from ntcr_recon.ros.pointcloud import ROSBAGS, cloud_to_msg
+from ntcr_recon.io.pointcloud import ROSBAGS, cloud_to_msg
 from ntcr_recon.sim.camera import CameraPose, D405Intrinsics
 
 TOPIC_KINDS = {

@@ -22,7 +22,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _frame(bag: Path, camera: str, topics, index: int):
-    from ntcr_recon.ros.camera_sources import BagSource
+    from ntcr_recon.io.camera_sources import BagSource
 
     for i, frame in enumerate(BagSource(bag, camera, topics)):
         if i == index and frame.depth is not None:

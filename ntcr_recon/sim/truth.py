@@ -1,4 +1,4 @@
-"""Ground truth of a simulated scene: `<bag_dir>/ground_truth.json` (format in notes/contracts.md).
+"""Ground truth of a simulated scene: `<bag_dir>/ground_truth.json` (the document `truth_document` builds).
 
 Public API:
     truth_document(shape, cameras, intrinsics, scene, seed, base_frame, extra=None) -> dict

@@ -42,7 +42,7 @@ import pyrealsense2 as rs
 
 from ntcr_recon.core.config import CameraConfig
 from ntcr_recon.core.deproject import Intrinsics
-from ntcr_recon.ros.camera_sources import SourceError, SourceFrame
+from ntcr_recon.io.camera_sources import SourceError, SourceFrame
 
 NO_DEVICE = "no RealSense device connected"
 RECORDING_SUFFIXES = (".db3", ".bag")

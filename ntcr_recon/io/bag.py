@@ -17,7 +17,7 @@ import numpy as np
 from ntcr_recon.core.config import RigConfig
 from ntcr_recon.core.deproject import Intrinsics
 from ntcr_recon.core.fusion import CameraFrame
-from ntcr_recon.ros.pointcloud import cloud_from_msg, stamp_to_ns
+from ntcr_recon.io.pointcloud import cloud_from_msg, stamp_to_ns
 
 _KINDS = ("depth", "depth_info", "color", "points")
 

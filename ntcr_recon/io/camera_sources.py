@@ -21,10 +21,10 @@ from typing import Any
 import numpy as np
 from rosbags.typesys import Stores, get_typestore
 
-from ntcr_recon.bagio import image_to_array
 from ntcr_recon.core.config import TopicConfig
 from ntcr_recon.core.deproject import Intrinsics
-from ntcr_recon.ros.pointcloud import stamp_to_ns
+from ntcr_recon.io.bag import image_to_array
+from ntcr_recon.io.pointcloud import stamp_to_ns
 
 CACHE_BYTES = 256 * 2**20  # a looping bag up to this size is decoded once and replayed from memory
 
