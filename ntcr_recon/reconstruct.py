@@ -120,10 +120,10 @@ def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
     from ntcr_recon.core import figures
     from ntcr_recon.core.cloud import Cloud
     from ntcr_recon.core.fusion import pair_frames
-    from ntcr_recon.core.mesh import write_cloud_ply, write_mesh
     from ntcr_recon.core.metrics import pdc
     from ntcr_recon.core.pipeline import Reconstructor
     from ntcr_recon.io.bag import read_camera_frames
+    from ntcr_recon.io.files import write_cloud_ply, write_mesh
 
     started = time.perf_counter()
     streams = read_camera_frames(args.bag, config, args.source, overrides, args.max_frames)

@@ -10,8 +10,6 @@ axis), so every figure looks at the bending plane.
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
 
@@ -25,9 +23,9 @@ def _pyplot():
 
 
 def _save(fig, path) -> None:
-    from ntcr_recon.core.mesh import _atomic
+    from ntcr_recon.io.files import write_atomically
 
-    _atomic(Path(path), lambda temp: fig.savefig(temp, dpi=110, format="png"))
+    write_atomically(path, lambda temp: fig.savefig(temp, dpi=110, format="png"))
     fig.clf()
     _pyplot().close(fig)
 

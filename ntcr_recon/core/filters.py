@@ -34,20 +34,20 @@ def color_mask(rgb: np.ndarray, color_min, color_max) -> np.ndarray:
     return np.all((channels >= np.asarray(color_min)) & (channels <= np.asarray(color_max)), axis=1)
 
 
-def statistical_outlier_mask(xyz: np.ndarray, neighbors: int, alpha: float,
+def statistical_outlier_mask(xyz: np.ndarray, k: int, alpha: float,
                              distances: np.ndarray | None = None) -> np.ndarray:
     """Eq. 5: keep points whose mean distance to their k nearest neighbours is <= mu + alpha * sigma.
 
     distances: optional (N, k + 1) distances to each point's k + 1 nearest, itself included, from an earlier
     query (any order).
     """
-    if len(xyz) <= neighbors:
+    if len(xyz) <= k:
         return np.ones(len(xyz), dtype=bool)
     if distances is None:
-        distances, _ = cKDTree(xyz).query(xyz, k=neighbors + 1, workers=-1)
+        distances, _ = cKDTree(xyz).query(xyz, k=k + 1, workers=-1)
     # the point itself is at distance 0 and counts out; neighbours missing from an image window (inf) count
     # out too, so a point at a hole or a thin part of the image is judged by the neighbours it has
-    near = distances[:, : neighbors + 1]
+    near = distances[:, : k + 1]
     present = np.isfinite(near)
     count = present.sum(axis=1) - 1
     mean_distance = np.where(present, near, 0.0).sum(axis=1) / np.maximum(count, 1)
@@ -65,33 +65,18 @@ _TINY_SPREAD = 1e-60
 
 
 def smallest_eigenvectors(matrices: np.ndarray) -> np.ndarray:
-    """Unit eigenvector of the smallest eigenvalue of each symmetric 3x3 matrix (closed form, vectorised).
+    """Unit eigenvector of the smallest eigenvalue of each symmetric (N, 3, 3) matrix (closed form)."""
+    a = np.asarray(matrices, dtype=float)
+    return _smallest_eigenvectors_of(a[:, 0, 0], a[:, 0, 1], a[:, 0, 2], a[:, 1, 1], a[:, 1, 2], a[:, 2, 2])
+
+
+def _smallest_eigenvectors_of(xx, xy, xz, yy, yz, zz) -> np.ndarray:
+    """Smallest-eigenvalue unit eigenvectors of symmetric 3x3 matrices given by their six distinct entries
+    (each (N,) float64), vectorised over N.
 
     Eigenvalues by the trigonometric solution of the characteristic cubic; the eigenvector is the largest
     cross product of two rows of (A - lambda I), which is orthogonal to both.
     """
-    a = matrices
-    trace = np.trace(a, axis1=1, axis2=2) / 3.0
-    shifted = a - trace[:, None, None] * np.eye(3)
-    p = np.sqrt(np.maximum(np.einsum("nij,nij->n", shifted, shifted) / 6.0, _TINY_SPREAD))
-    b = shifted / p[:, None, None]
-    half_det = np.clip(np.linalg.det(b) / 2.0, -1.0, 1.0)
-    phi = np.arccos(half_det) / 3.0
-    smallest = trace + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
-    m = a - smallest[:, None, None] * np.eye(3)
-    crosses = np.stack([np.cross(m[:, 0], m[:, 1]), np.cross(m[:, 0], m[:, 2]), np.cross(m[:, 1], m[:, 2])], axis=1)
-    norms = np.linalg.norm(crosses, axis=2)
-    best = np.argmax(norms, axis=1)
-    vector = crosses[np.arange(len(a)), best]
-    length = norms[np.arange(len(a)), best]
-    degenerate = length < 1e-300
-    vector[degenerate] = (0.0, 0.0, 1.0)
-    length[degenerate] = 1.0
-    return vector / length[:, None]
-
-
-def _smallest_eigenvectors_of(xx, xy, xz, yy, yz, zz) -> np.ndarray:
-    """smallest_eigenvectors for matrices given by their six distinct entries (each (N,) float64)."""
     trace = (xx + yy + zz) / 3.0
     dx, dy, dz = xx - trace, yy - trace, zz - trace
     p = np.sqrt(np.maximum((dx * dx + dy * dy + dz * dz + 2.0 * (xy * xy + xz * xz + yz * yz)) / 6.0,
@@ -179,8 +164,8 @@ def _quadric_height(a: np.ndarray, b: np.ndarray, h: np.ndarray, weights: np.nda
     return solution[-1] * inverse_diagonal[-1]
 
 
-def mls_smooth(xyz: np.ndarray, neighbors: int, order: int = 2, radius: float = 0.0,
-               neighbour_index: np.ndarray | None = None, neighbour_distance: np.ndarray | None = None
+def mls_smooth(xyz: np.ndarray, k: int, order: int = 2, radius: float = 0.0,
+               neighbour_index: np.ndarray | None = None, neighbour_distances: np.ndarray | None = None
                ) -> np.ndarray:
     """Moving least squares (Eq. 6): each point projected onto a polynomial fitted to its neighbourhood.
 
@@ -189,19 +174,19 @@ def mls_smooth(xyz: np.ndarray, neighbors: int, order: int = 2, radius: float = 
     comes from the weighted covariance (normal = least eigenvector); order 1 projects onto that plane,
     order 2 fits the height h(a, b) = c0 + c1 a + c2 b + c3 a^2 + c4 ab + c5 b^2 by weighted least squares
     and moves the point to h at its own (a, b). Points with too few neighbours are left where they are.
-    neighbour_index / neighbour_distance: an earlier k-NN query (N, k'), all of whose columns are used,
+    neighbour_index / neighbour_distances: an earlier k-NN query (N, k'), all of whose columns are used,
     entries < 0 for dropped neighbours.
     """
     count = len(xyz)
     minimum = 3 * order + 1
     if count < minimum + 1:
         return xyz.copy()
-    k = min(neighbors, count)
+    k = min(k, count)
     if neighbour_index is None:
-        neighbour_distance, neighbour_index = cKDTree(xyz).query(xyz, k=k, workers=-1)
+        neighbour_distances, neighbour_index = cKDTree(xyz).query(xyz, k=k, workers=-1)
     # neighbour-major (k, N) layout: every per-neighbour quantity is a contiguous row, sums over neighbours
     # are row additions
-    index, distances = neighbour_index.T, neighbour_distance.T
+    index, distances = neighbour_index.T, neighbour_distances.T
     present = (index >= 0) & np.isfinite(distances)
     origin = xyz.mean(axis=0)
     # float32 in metres about the centroid: sub-micrometre resolution, half the memory traffic

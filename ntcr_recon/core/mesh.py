@@ -1,24 +1,13 @@
-"""Meshing (paper Eq. 7-8): Poisson surface reconstruction with open3d, low-density vertices trimmed; and
-writing clouds and meshes whole or not at all.
-
-Public API:
-    Mesh(vertices (V,3), triangles (T,3) int, normals (V,3))
-    poisson_mesh(points, normals, mesh_config) -> Mesh       normals: outward (e.g. the relocation's)
-    tube_mesh(relocation, geometry) -> Mesh                   the relocated outer wall on the tube's own grid
-    write_cloud_ply(path, xyz, rgb=None, normals=None)        binary little-endian PLY, atomic
-    write_mesh(path, mesh)                                    .ply or .stl by the extension, atomic
+"""Meshing (paper Eq. 7-8): the relocated outer wall on the tube's own grid (`tube_mesh`, the default), or
+open3d's screened Poisson surface reconstruction with low-density vertices trimmed (`poisson_mesh`).
+Writing meshes to files: `ntcr_recon.io.files`.
 """
 
 from __future__ import annotations
 
-import os
-import tempfile
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
-
-from ntcr_recon.core.cloud import unpack_rgb
 
 
 @dataclass(frozen=True)
@@ -112,63 +101,3 @@ def tube_mesh(relocation, geometry, closing_cells: int = 1) -> Mesh:
     a, b, c, d = a[whole], b[whole], c[whole], d[whole]
     triangles = np.concatenate([np.stack([a, b, c], axis=1), np.stack([a, c, d], axis=1)])
     return Mesh(vertices, triangles, normals)
-
-
-def _atomic(path: Path, write) -> None:
-    """Run write(temp_path) on a temporary file beside `path`, then move it into place."""
-    path = Path(path)
-    handle, temp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=path.suffix)
-    os.close(handle)
-    try:
-        write(Path(temp))
-        os.chmod(temp, 0o644)  # mkstemp's 0600 is for the temporary file, not the result
-        os.replace(temp, path)
-    except BaseException:
-        Path(temp).unlink(missing_ok=True)
-        raise
-
-
-def write_cloud_ply(path, xyz: np.ndarray, rgb: np.ndarray | None = None, normals: np.ndarray | None = None) -> None:
-    """A binary PLY of float32 x y z (+ nx ny nz) (+ uchar red green blue), written atomically."""
-    count = len(xyz)
-    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
-    if normals is not None:
-        fields += [("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4")]
-    if rgb is not None:
-        fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
-    table = np.empty(count, dtype=fields)
-    table["x"], table["y"], table["z"] = np.asarray(xyz, float).T
-    if normals is not None:
-        table["nx"], table["ny"], table["nz"] = np.asarray(normals, float).T
-    if rgb is not None:
-        colours = unpack_rgb(rgb)
-        table["red"], table["green"], table["blue"] = colours.T
-    types = {"<f4": "float", "u1": "uchar"}
-    header = ["ply", "format binary_little_endian 1.0", f"element vertex {count}"]
-    header += [f"property {types[kind]} {name}" for name, kind in fields] + ["end_header", ""]
-
-    def write(temp: Path) -> None:
-        with open(temp, "wb") as handle:
-            handle.write("\n".join(header).encode("ascii"))
-            handle.write(table.tobytes())
-
-    _atomic(Path(path), write)
-
-
-def write_mesh(path, mesh: Mesh) -> None:
-    """A mesh as PLY or STL (by the file's extension), written atomically."""
-    import open3d as o3d
-
-    path = Path(path)
-    if path.suffix.lower() not in (".ply", ".stl"):
-        raise ValueError(f"mesh file must end in .ply or .stl, got {path.name}")
-    triangle_mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(mesh.vertices),
-                                              o3d.utility.Vector3iVector(mesh.triangles))
-    triangle_mesh.compute_triangle_normals()
-    triangle_mesh.vertex_normals = o3d.utility.Vector3dVector(mesh.normals)
-
-    def write(temp: Path) -> None:
-        if not o3d.io.write_triangle_mesh(str(temp), triangle_mesh, write_ascii=False):
-            raise OSError(f"open3d could not write {path.name}")
-
-    _atomic(path, write)

@@ -10,7 +10,7 @@ Publishes, transient-local so RViz or a late subscriber gets the last mesh at on
   `<ns>/mesh`      visualization_msgs/Marker TRIANGLE_LIST (base frame)
   `<ns>/mesh/raw`  shape_msgs/Mesh (vertices + triangles, base frame)
 PLY on request: set the parameter `save_ply_path` (`ros2 param set /mesh_node save_ply_path /tmp/m.ply`) and
-the newest mesh is written there (whole or not at all, by core.mesh.write_mesh; .stl works too); with no
+the newest mesh is written there (whole or not at all, by io.files.write_mesh; .stl works too); with no
 mesh yet, the first one is. With `output_dir`
 every new mesh is also written to `<output_dir>/mesh.ply`.
 """
@@ -27,8 +27,8 @@ from sensor_msgs.msg import PointCloud2
 from shape_msgs.msg import Mesh
 from visualization_msgs.msg import Marker
 
-from ntcr_recon.core.mesh import write_mesh
 from ntcr_recon.core.pipeline import Reconstructor
+from ntcr_recon.io.files import write_mesh
 from ntcr_recon.io.pointcloud import stamp_to_ns
 from ntcr_recon.ros.messages import mesh_marker, mesh_msg, relocation_from_msgs, stage_cloud_and_normals
 from ntcr_recon.ros.node_support import LATCHED_QOS, STAGE_QOS, ParameterError, RigNode, describe, guarded, run_node

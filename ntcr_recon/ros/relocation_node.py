@@ -87,7 +87,7 @@ class RelocationNode(RigNode):
             self._write(PathLib(self._params["output_dir"]).expanduser() / "relocated.ply", relocation)
 
     def _write(self, path: PathLib, relocation) -> None:
-        from ntcr_recon.core.mesh import write_cloud_ply
+        from ntcr_recon.io.files import write_cloud_ply
 
         try:
             write_cloud_ply(path, relocation.relocated.xyz, relocation.relocated.rgb, relocation.normals)
