@@ -45,6 +45,14 @@ def test_colcon_build_gives_the_layout_a_rig_expects(colcon_install):
         assert installed == sources
 
 
+def test_colcon_installs_every_module_of_the_package(colcon_install):
+    # a folder of modules without __init__.py imports from a checkout but is left out by find_packages
+    sources = sorted(str(p.relative_to(REPO)) for p in (REPO / "ntcr_recon").rglob("*.py"))
+    site = next(colcon_install.glob("ntcr_recon/lib/python3*/site-packages"))
+    installed = sorted(str(p.relative_to(site)) for p in (site / "ntcr_recon").rglob("*.py"))
+    assert installed == sources
+
+
 def test_colcon_installed_command_runs(colcon_install):
     # As on a rig: source the workspace, then the installed entry point imports the installed package.
     result = subprocess.run(["bash", "-c", f"source {colcon_install}/setup.bash && "
