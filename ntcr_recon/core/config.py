@@ -62,8 +62,8 @@ _WITHIN_A_LAB = {"minimum": -10.0, "maximum": 10.0}  # m: positions in the base 
 
 @dataclass(frozen=True)
 class CameraConfig:
-    """One depth camera (a section named after it in camera_names): stream profile and the pose of its optical
-    frame in the base frame."""
+    """One depth camera, in a section named after it in camera_names: its stream profile and the pose of its
+    optical frame in the base frame."""
 
     name: str
     serial_number: str = setting("", "serial number of the D405 (rs-enumerate-devices); '' = the only one "

@@ -6,13 +6,14 @@ memory, UTF-8 text, no YAML aliases, identifiers read as written.
   "billion laughs" bomb: a kilobyte of YAML, gigabytes of objects). Anchors and aliases are refused while the
   document is composed, before anything is built.
 - Identifiers: YAML 1.1 reads `0123456` as octal (42798) and `12:34:56` as base 60 (45296); a serial number
-  so read opens the wrong camera. For keys the schema types as text, the scalar's own source text is kept.
+  so read opens the wrong camera. For keys the schema types as text, and for every mapping key (all names),
+  the scalar's own source text is kept.
 - Messages: every refusal is a ConfigError naming the file, with any quoted text cut to a short excerpt.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Hashable
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -53,8 +54,9 @@ def read_config_document(path: Path, what: str, is_text: TextPath) -> Any:
     except UnicodeDecodeError as error:
         raise ConfigError(f"{what} {path} is not UTF-8 text (byte 0x{data[error.start]:02x} at offset "
                           f"{error.start}): is it a YAML file?") from None
-    loader = _NoAliasLoader(text)
+    loader = None
     try:
+        loader = _NoAliasLoader(text)  # its reader refuses control characters already
         node = loader.get_single_node()
         return None if node is None else _construct(loader, node, (), is_text)
     except ConfigError as error:
@@ -64,7 +66,8 @@ def read_config_document(path: Path, what: str, is_text: TextPath) -> Any:
     except RecursionError:
         raise ConfigError(f"{what} {path} is nested too deeply to be a configuration") from None
     finally:
-        loader.dispose()
+        if loader is not None:
+            loader.dispose()
 
 
 def _construct(loader: yaml.SafeLoader, node: yaml.Node, path: tuple[str, ...], is_text: TextPath) -> Any:
@@ -74,9 +77,10 @@ def _construct(loader: yaml.SafeLoader, node: yaml.Node, path: tuple[str, ...], 
         loader.flatten_mapping(node)  # resolves `<<` merge keys (refused above when they use aliases)
         result: dict = {}
         for key_node, value_node in node.value:
-            key = _construct(loader, key_node, path, lambda _: False)
-            if not isinstance(key, Hashable) or isinstance(key, tuple):
-                raise ConfigError(f"line {line}: a key must be a name, got {excerpt(key)}")
+            if not isinstance(key_node, yaml.ScalarNode):
+                raise ConfigError(f"line {key_node.start_mark.line + 1}: a key must be a name, not a "
+                                  f"{'mapping' if isinstance(key_node, yaml.MappingNode) else 'list'}")
+            key = key_node.value  # every key is a name: `0123:` (a camera) is not the octal number 83
             if key in result:
                 raise ConfigError(f"line {key_node.start_mark.line + 1}: key {excerpt(key)} appears twice")
             result[key] = _construct(loader, value_node, path + tuple(str(key).split(".")), is_text)

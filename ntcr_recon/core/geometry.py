@@ -42,7 +42,7 @@ def _segment_area_and_centroid(radius: float, chord_offset: float) -> tuple[floa
 
 @dataclass(frozen=True)
 class TubeGeometry:
-    """The robot description (the rig configuration's ``robot`` section); metres and radians."""
+    """The robot's reference geometry (the rig configuration's `robot` section); metres and radians."""
 
     outer_diameter: float = setting(3.5e-3, "outer diameter of the tube", unit="m", minimum=0.5e-3, maximum=20e-3)
     inner_diameter: float = setting(2.5e-3, "inner diameter (the bore), below outer_diameter", unit="m",

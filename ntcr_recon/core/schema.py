@@ -60,10 +60,10 @@ class Setting:
             return " | ".join(_plain(choice) for choice in self.choices)
         if self.minimum is None and self.maximum is None:
             return ""
-        low = "(-inf" if self.minimum is None else ("(" if self.exclusive_minimum else "[") + f"{self.minimum:g}"
-        high = "inf)" if self.maximum is None else f"{self.maximum:g}" + (")" if self.exclusive_maximum else "]")
+        low = "(-inf" if self.minimum is None else ("(" if self.exclusive_minimum else "[") + _plain(self.minimum)
+        high = "inf)" if self.maximum is None else _plain(self.maximum) + (")" if self.exclusive_maximum else "]")
         text = f"{low}, {high}" + (f" {self.unit}" if self.unit else "")
-        return f"{self.off:g} (off) or {text}" if self.off is not None else text
+        return f"{_plain(self.off)} (off) or {text}" if self.off is not None else text
 
     def admits(self, value) -> bool:
         """Whether a converted scalar lies in the range (or is one of the choices, or the `off` value)."""
