@@ -234,7 +234,6 @@ STAGE_SECTIONS = {
     "mesh": MeshConfig,
     "metrics": MetricsConfig,
 }
-_STAGE_SECTIONS = STAGE_SECTIONS  # the name node code used before
 
 
 def load_rig_config(path) -> RigConfig:

@@ -25,7 +25,6 @@ PART_END_CAP = 4  # the annular ends of the tube (base and tip)
 DISTANCE_SAMPLE_SPACING = 0.04e-3
 
 
-
 @dataclass
 class SurfaceSample:
     """A dense sample of the true surface; base frame."""
