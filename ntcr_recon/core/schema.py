@@ -138,8 +138,9 @@ def excerpt(value: Any) -> str:
         text = _EXCERPT.repr(value)
     except ValueError:  # an int beyond Python's digit limit for str()
         return f"<an integer of {value.bit_length()} bits>"
-    size = len(value) if isinstance(value, str | bytes | list | tuple | Mapping) else 0
-    return f"{text} ({size} characters)" if isinstance(value, str | bytes) and size > _EXCERPT.maxstring else text
+    if isinstance(value, str | bytes) and len(value) > _EXCERPT.maxstring:
+        return f"{text} ({len(value)} characters)"
+    return text
 
 
 def convert(dotted: str, key: Key, value: Any) -> Any:
