@@ -125,7 +125,7 @@ def plain_open3d(pair, config) -> dict[str, float]:
     """The paper's pipeline with open3d built-ins on one frame pair; ms per stage."""
     import open3d as o3d
 
-    from ntcr_recon.core.robot import TubeShape
+    from ntcr_recon.core.kinematics import TubeShape
 
     o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
     timings = {}

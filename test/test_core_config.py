@@ -13,7 +13,10 @@ from ntcr_recon.core.config import (
     flatten_parameters,
     load_rig_config,
     rig_config_from_mapping,
+    rig_parameter_keys,
 )
+from ntcr_recon.core.config_doc import document_rig_config
+from ntcr_recon.core.geometry import TubeGeometry
 
 
 @pytest.fixture(scope="module")
@@ -110,3 +113,39 @@ def test_digit_only_serial_number_is_read_as_text(sim_mapping):
     mapping["cam_a"]["frame_id"] = 5
     with pytest.raises(ConfigError, match="cam_a.frame_id"):
         rig_config_from_mapping(mapping)
+
+
+def test_sim_rig_yaml_is_the_schema_documentation_of_its_values(repo_root):
+    """config/sim_rig.yaml is written from the schema (`python -m ntcr_recon.core.config_doc config/sim_rig.yaml`):
+    every key, each with its description, unit and range as the loader applies them."""
+    path = repo_root / "config" / "sim_rig.yaml"
+    text = path.read_text()
+    expected = document_rig_config(load_rig_config(path), text[: text.index("/**:")])
+    assert text == expected, "regenerate: python -m ntcr_recon.core.config_doc config/sim_rig.yaml"
+    assert "      # outer diameter of the tube; [0.0005, 0.02] m\n      outer_diameter: 0.0035\n" in text
+    assert "      # octree depth of the Poisson solve (memory grows 8x a level); [1, 12]\n" in text
+
+
+def test_sim_rig_yaml_lists_exactly_the_schema_keys(sim_mapping):
+    listed = set(flatten_parameters(sim_mapping))
+    schema = {"camera_names", *rig_parameter_keys(sim_mapping["camera_names"])}
+    assert listed == schema
+    assert {"relocation.method", "relocation.reference_mesh"} <= schema
+
+
+def test_every_key_has_a_description_and_every_number_a_range():
+    quaternions = {"cam_a.rotation", "robot.base_orientation"}  # bounded by their unit norm instead
+    for dotted, key in rig_parameter_keys(["cam_a"]).items():
+        assert key.setting.description, dotted
+        if key.scalar in (int, float) and dotted not in quaternions:
+            assert key.setting.range_text(), dotted
+
+
+def test_the_schema_defaults_are_a_valid_configuration(sim_mapping):
+    minimal = {"camera_names": ["cam_a"], "cam_a": {"translation": [0.0, -0.09, 0.02],
+                                                    "rotation": [-0.5, -0.5, -0.5, 0.5], "depth_unit": 1e-4},
+               "robot": {}}
+    config = rig_config_from_mapping(minimal)
+    assert config.base_frame == "ntcr_base" and config.robot == TubeGeometry()
+    assert config.relocation.method == "centerline" and config.relocation.reference_mesh == ""
+    assert config.cameras["cam_a"].frame_id == "cam_a_optical_frame"

@@ -9,10 +9,10 @@ import pytest
 from synthetic_views import make_config, render_pair
 
 from ntcr_recon.core.fusion import FramePair
+from ntcr_recon.core.kinematics import TubeShape
 from ntcr_recon.core.mesh import poisson_mesh
 from ntcr_recon.core.metrics import centerline_rmse
 from ntcr_recon.core.pipeline import ReconstructionError, Reconstructor
-from ntcr_recon.core.robot import TubeShape
 
 SCENES = {
     # name: (robot mapping, total bend in degrees, camera distance m, camera height m)

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from ntcr_recon.core.robot import TubeGeometry, TubeShape
+from ntcr_recon.core.geometry import TubeGeometry
+from ntcr_recon.core.kinematics import TubeShape
 from ntcr_recon.core.transforms import quaternion_to_matrix
 
 

@@ -5,7 +5,9 @@ import math
 import numpy as np
 import pytest
 
-from ntcr_recon.core.robot import PART_CUT_FACE, PART_OUTER_WALL, TubeGeometry, TubeShape
+from ntcr_recon.core.geometry import TubeGeometry
+from ntcr_recon.core.kinematics import TubeShape
+from ntcr_recon.core.robot_surface import PART_CUT_FACE, PART_OUTER_WALL
 
 SPACING = 0.05e-3
 

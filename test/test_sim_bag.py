@@ -11,7 +11,8 @@ from rosbags.typesys import Stores, get_typestore
 
 from ntcr_recon import cli
 from ntcr_recon.core.config import load_rig_config
-from ntcr_recon.core.robot import TubeGeometry, TubeShape
+from ntcr_recon.core.geometry import TubeGeometry
+from ntcr_recon.core.kinematics import TubeShape
 from ntcr_recon.io.pointcloud import cloud_from_msg
 from ntcr_recon.sim.bag import TOPIC_KINDS, topic_name
 from ntcr_recon.sim.simulate import Simulation

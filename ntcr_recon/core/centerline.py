@@ -33,7 +33,7 @@ import numpy as np
 import scipy.linalg
 from scipy.spatial import cKDTree
 
-from ntcr_recon.core.robot import TubeGeometry
+from ntcr_recon.core.geometry import TubeGeometry
 
 
 def _cross_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -1,62 +1,87 @@
 """The rig configuration: a ROS 2 parameter file read by the CLI, the benchmark and every node.
 
-Layout (see config/sim_rig.yaml for a documented example)::
+Layout (config/sim_rig.yaml is the documented example, generated from this schema by `config_doc`)::
 
     /**:
       ros__parameters:
         base_frame: ntcr_base
         camera_names: [cam_a, cam_b]
-        cam_a: {serial_number, width, height, fps, depth_unit, frame_id, translation, rotation}
+        cam_a: {CameraConfig keys}
         cam_b: {...}
-        robot: {TubeGeometry fields}
+        robot: {TubeGeometry keys}
         topics: {...}  fusion: {...}  filters: {...}  relocation: {...}  mesh: {...}  metrics: {...}
 
-The camera and robot sections are required; every key of the stage sections has a default (the
-dataclasses below), so a real rig's file needs only what differs. Nothing robot-specific is a default in
-millimetres: gates, bins and smoothing lengths are fractions of the robot's outer radius or multiples of
-the camera's pixel footprint (the size of one depth pixel on the robot, measured from the data).
+Every key is declared once, below (and TubeGeometry's in `geometry`), with its default, unit, range and
+description (`schema.setting`); loading, the nodes' parameter descriptors and the documented file all read
+those declarations. The camera and robot sections are required; every key of the stage sections has a default,
+so a real rig's file needs only what differs. Nothing robot-specific is a default in millimetres: gates, bins and
+smoothing lengths are fractions of the robot's outer radius or multiples of the camera's pixel footprint (the
+size of one depth pixel on the robot, measured from the data).
 
-Public API:
-    load_rig_config(path) -> RigConfig            # ValueError naming the dotted key on a bad value
-    rig_config_from_mapping(mapping) -> RigConfig # the same from the `ros__parameters` mapping
+    load_rig_config(path) -> RigConfig            # ConfigError (a ValueError) naming the file and dotted key
+    rig_config_from_mapping(mapping) -> RigConfig # the same from the `ros__parameters` mapping (nested or dotted)
+    load_robot_geometry(path) -> TubeGeometry     # a robot description file, or a rig file's robot section
     flatten_parameters(RigConfig | dict) -> dict  # dotted names -> value, for nodes to declare
     unflatten_parameters(dict) -> dict            # the inverse, for nodes that read declared parameters
+    rig_parameter_keys(camera_names) -> dict      # dotted name -> schema Key, for the nodes' descriptors
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
-from ntcr_recon.core.robot import TubeGeometry
+from ntcr_recon.core.config_yaml import read_config_document
+from ntcr_recon.core.geometry import TubeGeometry
+from ntcr_recon.core.schema import (
+    ConfigError,
+    Key,
+    build_section,
+    convert,
+    excerpt,
+    keys_of,
+    section_mapping,
+    setting,
+    unknown_key_error,
+)
 from ntcr_recon.core.transforms import rigid_transform
 
+__all__ = ["CameraConfig", "ConfigError", "FilterConfig", "FusionConfig", "MeshConfig", "MetricsConfig",
+           "RelocationConfig", "RigConfig", "TopicConfig", "config_to_mapping", "flatten_parameters",
+           "load_rig_config", "load_robot_geometry", "rig_config_from_mapping", "rig_parameter_keys",
+           "unflatten_parameters"]
 
-class ConfigError(ValueError):
-    """A rig configuration that cannot be used; the message names the dotted key."""
+_WITHIN_A_LAB = {"minimum": -10.0, "maximum": 10.0}  # m: positions in the base frame
 
 
 @dataclass(frozen=True)
 class CameraConfig:
-    """One depth camera: stream profile and the pose of its optical frame in the base frame."""
+    """One depth camera, in a section named after it in camera_names: its stream profile and the pose of its
+    optical frame in the base frame."""
 
     name: str
-    serial_number: str = ""
-    width: int = 848
-    height: int = 480
-    fps: float = 30.0
-    depth_unit: float = 1e-4  # metres per raw 16UC1 unit (D405 default; realsense-ros recordings: 0.001)
-    frame_id: str = ""
-    translation: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    rotation: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
+    serial_number: str = setting("", "serial number of the D405 (rs-enumerate-devices); '' = the only one "
+                                 "connected", max_length=64)
+    width: int = setting(848, "depth stream width", unit="px", minimum=1, maximum=4096)
+    height: int = setting(480, "depth stream height", unit="px", minimum=1, maximum=4096)
+    fps: float = setting(30.0, "depth stream frame rate", unit="Hz", minimum=0.0, maximum=1000.0,
+                         exclusive_minimum=True)
+    depth_unit: float = setting(1e-4, "metres per raw 16UC1 depth unit (D405 default 0.0001; realsense-ros "
+                                "recordings: 0.001)", unit="m", minimum=0.0, maximum=1.0, exclusive_minimum=True,
+                                required=True)
+    frame_id: str = setting("", "frame of the camera's clouds; '' = <camera>_optical_frame")
+    translation: tuple[float, float, float] = setting(
+        (0.0, 0.0, 0.0), "position of the optical frame in the base frame (p_base = R p_cam + t)", unit="m",
+        required=True, **_WITHIN_A_LAB)
+    rotation: tuple[float, float, float, float] = setting(
+        (0.0, 0.0, 0.0, 1.0), "orientation of the optical frame in the base frame, a unit quaternion (x, y, z, w)",
+        required=True)
 
     @cached_property
     def extrinsic(self) -> np.ndarray:
@@ -69,13 +94,13 @@ class CameraConfig:
 
 @dataclass(frozen=True)
 class TopicConfig:
-    """Topic names under `<namespace>/<camera>/` (realsense-ros layout)."""
+    """Topic names: <namespace>/<camera>/<kind>, the realsense-ros layout."""
 
-    namespace: str = "/ntcr"
-    depth: str = "depth/image_rect_raw"
-    depth_info: str = "depth/camera_info"
-    color: str = "color/image_rect_raw"
-    points: str = "depth/color/points"
+    namespace: str = setting("/ntcr", "namespace of every topic")
+    depth: str = setting("depth/image_rect_raw", "depth image (16UC1 raw units or 32FC1 metres)")
+    depth_info: str = setting("depth/camera_info", "depth camera intrinsics")
+    color: str = setting("color/image_rect_raw", "colour image")
+    points: str = setting("depth/color/points", "a camera's coloured cloud")
 
     def camera_topic(self, camera: str, kind: str) -> str:
         parts = (part.strip("/") for part in (self.namespace, camera, getattr(self, kind)))
@@ -84,71 +109,101 @@ class TopicConfig:
 
 @dataclass(frozen=True)
 class FusionConfig:
-    slop: float = 0.015            # s; two cameras' frames pair when their stamps differ by at most this
-    camera_timeout: float = 0.5    # s; a node publishes one camera alone after the other is silent this long
+    """Pairing the two cameras' frames by stamp."""
+
+    slop: float = setting(0.015, "two cameras' frames pair when their stamps differ by at most this", unit="s",
+                          minimum=0.0, maximum=1.0, exclusive_minimum=True)
+    camera_timeout: float = setting(0.5, "fusion_node publishes one camera alone after the other is silent this "
+                                    "long", unit="s", minimum=0.0, maximum=3600.0, exclusive_minimum=True)
 
 
 @dataclass(frozen=True)
 class FilterConfig:
-    # Crop box in the base frame. auto: the robot's reach on its side of the base (no tuning per rig);
-    # otherwise crop_box_min / crop_box_max in metres.
-    crop_box_auto: bool = True     # see RigConfig.crop_box
-    crop_box_min: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    crop_box_max: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    color_filter: bool = False                      # keep only points whose colour lies in [min, max]
-    color_min: tuple[int, int, int] = (0, 0, 0)
-    color_max: tuple[int, int, int] = (255, 255, 255)
-    sor: bool = True                                # statistical outlier removal, Eq. 5
-    sor_neighbors: int = 12
-    sor_alpha: float = 2.0
-    mls: bool = True                                # moving least squares, Eq. 6
-    mls_order: int = 2                              # 1 = plane, 2 = quadric
-    mls_neighbors: int = 12
-    mls_radius_px: float = 0.0                      # > 0: only neighbours within this many pixel footprints
-    voxel_size: float = 0.0                         # m; 0 = no downsampling
+    """Conditional filters on space and colour, statistical outlier removal, moving least squares, voxels."""
+
+    crop_box_auto: bool = setting(True, "crop to the robot's reach on its side of the base (no per-rig tuning); "
+                                  "false: crop_box_min / crop_box_max")
+    crop_box_min: tuple[float, float, float] = setting((0.0, 0.0, 0.0), "crop box corner, base frame", unit="m",
+                                                       **_WITHIN_A_LAB)
+    crop_box_max: tuple[float, float, float] = setting((0.0, 0.0, 0.0), "crop box corner, base frame", unit="m",
+                                                       **_WITHIN_A_LAB)
+    color_filter: bool = setting(False, "keep only points whose 8-bit R, G, B lie within [color_min, color_max]")
+    color_min: tuple[int, int, int] = setting((0, 0, 0), "lowest R, G, B kept", minimum=0, maximum=255)
+    color_max: tuple[int, int, int] = setting((255, 255, 255), "highest R, G, B kept", minimum=0, maximum=255)
+    sor: bool = setting(True, "statistical outlier removal (paper Eq. 5)")
+    sor_neighbors: int = setting(12, "neighbours of a point's mean neighbour distance", minimum=2, maximum=100)
+    sor_alpha: float = setting(2.0, "drop points whose mean neighbour distance exceeds mu + alpha sigma",
+                               minimum=0.0, maximum=100.0, exclusive_minimum=True)
+    mls: bool = setting(True, "moving least squares smoothing (paper Eq. 6)")
+    mls_order: int = setting(2, "1 = local plane, 2 = local quadric", choices=(1, 2))
+    mls_neighbors: int = setting(12, "neighbours of the local fit (at least 3 mls_order + 1)", minimum=1,
+                                 maximum=200)
+    mls_radius_px: float = setting(0.0, "> 0: only neighbours within this many pixel footprints; 0 = any",
+                                   unit="px", minimum=0.0, maximum=1000.0)
+    voxel_size: float = setting(0.0, "voxel downsampling; 0 = none", unit="m", minimum=1e-5, maximum=0.1, off=0.0)
 
 
 @dataclass(frozen=True)
 class RelocationConfig:
-    # Gate: a point this close to the reference surface is relocated onto it, others are rejected.
-    # gate = gate_radius_fraction * outer_radius + gate_pixels * pixel_footprint
-    gate_radius_fraction: float = 0.35
-    gate_pixels: float = 2.0
-    # Centreline estimation: slabs along the arc length, a fixed-radius circle fit in each.
-    bin_radius_fraction: float = 0.25      # slab length = this * outer_radius (at least 2 pixel footprints)
-    smoothing_radius_fraction: float = 1.0  # smoothing length along s = this * outer_radius
-    max_iterations: int = 12
-    tolerance_radius_fraction: float = 0.01  # stop when the centreline moves less than this * r_o (RMS)
-    # Notch detection: kernel width of the coverage profile along s, in pixel footprints.
-    notch_kernel_px: float = 0.5
-    min_notch_width_fraction: float = 0.25  # a coverage gap narrower than this * notch_width is no notch
-    # Region of interest of the next frame: the robot's box grown by this fraction of its length (motion
-    # allowed between frames); a frame with fewer robot points there is fused from the whole crop box.
-    roi_margin_fraction: float = 0.1
+    """Reference-guided relocation; lengths relative to the outer radius r_o or to the pixel footprint.
+    gate = gate_radius_fraction r_o + gate_pixels footprints: a point this close to the reference surface is
+    relocated onto it, a farther one rejected."""
+
+    method: str = setting("centerline", "how the reference is aligned to the cloud", choices=("centerline", "icp"))
+    reference_mesh: str = setting("", "mesh file of the robot to align ('' = the reference built from the robot "
+                                  "geometry)", max_length=4096)
+    gate_radius_fraction: float = setting(0.35, "gate, in outer radii", minimum=0.0, maximum=10.0,
+                                          exclusive_minimum=True)
+    gate_pixels: float = setting(2.0, "gate, in pixel footprints (added)", unit="px", minimum=0.0, maximum=100.0)
+    bin_radius_fraction: float = setting(0.25, "centreline slab length, in outer radii (at least 2 footprints)",
+                                         minimum=0.0, maximum=10.0, exclusive_minimum=True)
+    smoothing_radius_fraction: float = setting(1.0, "centreline smoothing length along s, in outer radii",
+                                               minimum=0.0, maximum=100.0, exclusive_minimum=True)
+    max_iterations: int = setting(12, "centreline iterations at most", minimum=1, maximum=1000)
+    tolerance_radius_fraction: float = setting(0.01, "stop when the centreline moves less than this (RMS), in "
+                                               "outer radii", minimum=0.0, maximum=1.0, exclusive_minimum=True)
+    notch_kernel_px: float = setting(0.5, "kernel of the notch coverage profile along s", unit="px", minimum=0.0,
+                                     maximum=100.0, exclusive_minimum=True)
+    min_notch_width_fraction: float = setting(0.25, "coverage gaps narrower than this * notch_width are not "
+                                              "notches", minimum=0.0, maximum=1.0)
+    roi_margin_fraction: float = setting(0.1, "next frame: deproject only around the robot's last box grown by "
+                                         "this fraction of its length (the whole crop box when the robot is not "
+                                         "found there)", minimum=0.0, maximum=10.0, exclusive_minimum=True)
 
 
 @dataclass(frozen=True)
 class MeshConfig:
-    # tube: the relocated outer wall meshed on the tube's (arc length, angle) grid, holes closed where the
-    # gap is below two cells, notches kept open (milliseconds); poisson: open3d's screened Poisson
-    # reconstruction (paper Eq. 7-8; hundreds of milliseconds)
-    method: str = "tube"
-    poisson_depth: int = 8
-    density_quantile: float = 0.04   # vertices of the lowest Poisson density quantile are trimmed
-    max_points: int = 60000          # the cloud is voxel-thinned to about this many points before meshing
+    """Meshing the relocated cloud."""
+
+    method: str = setting("tube", "tube: the relocated outer wall meshed on the tube's (s, angle) grid, notches "
+                          "open (ms); poisson: open3d screened Poisson, paper Eq. 7-8 (slower)",
+                          choices=("tube", "poisson"))
+    poisson_depth: int = setting(8, "octree depth of the Poisson solve (memory grows 8x a level)", minimum=1,
+                                 maximum=12)
+    density_quantile: float = setting(0.04, "trim the vertices of the lowest Poisson density quantile",
+                                      minimum=0.0, maximum=1.0, exclusive_maximum=True)
+    max_points: int = setting(60000, "voxel-thin the cloud to about this many points before meshing", minimum=1,
+                              maximum=5_000_000)
 
 
 @dataclass(frozen=True)
 class MetricsConfig:
-    pdc_voxel: float = 0.5e-3        # m; the paper's voxel for point density consistency (Table I)
+    """Analysis."""
+
+    pdc_voxel: float = setting(0.5e-3, "voxel of the point density consistency (paper Table I)", unit="m",
+                               minimum=1e-5, maximum=0.1)
 
 
 @dataclass(frozen=True)
 class RigConfig:
-    base_frame: str
-    camera_names: tuple[str, ...]
-    cameras: dict[str, CameraConfig]
-    robot: TubeGeometry
+    """The whole rig: its frames and cameras, the robot, and the stages' parameters."""
+
+    base_frame: str = setting("ntcr_base", "frame of the fused cloud and every later output; its +z is the "
+                              "robot's unbent axis")
+    camera_names: tuple[str, ...] = setting(("cam_a", "cam_b"), "the cameras, each with a section of camera keys "
+                                            "named after it", required=True, max_length=64)
+    cameras: dict[str, CameraConfig] = field(default_factory=dict)
+    robot: TubeGeometry = field(default_factory=TubeGeometry)
     topics: TopicConfig = field(default_factory=TopicConfig)
     fusion: FusionConfig = field(default_factory=FusionConfig)
     filters: FilterConfig = field(default_factory=FilterConfig)
@@ -170,7 +225,8 @@ class RigConfig:
         return corners.min(axis=0), corners.max(axis=0)
 
 
-_STAGE_SECTIONS = {
+# Sections with defaults, in the order of the documented file (the cameras' and the robot's come before).
+STAGE_SECTIONS = {
     "topics": TopicConfig,
     "fusion": FusionConfig,
     "filters": FilterConfig,
@@ -196,87 +252,88 @@ def load_robot_geometry(path) -> TubeGeometry:
     path = Path(path)
     parameters = _read_parameters(path, "robot description")
     try:
-        return _robot(parameters.get("robot", parameters))
+        return TubeGeometry.from_mapping(parameters.get("robot", parameters))
     except ConfigError as error:
         raise ConfigError(f"{path}: {error}") from error
 
 
 def _read_parameters(path: Path, what: str) -> Mapping:
-    """The parameters of a YAML file (`_parameters_of`); ConfigError naming the file when it cannot be read."""
-    try:
-        text = path.read_text()
-    except OSError as error:
-        raise ConfigError(f"cannot read {what} {path}: {error.strerror or error}") from error
-    try:
-        document = yaml.safe_load(text)
-    except yaml.YAMLError as error:
-        raise ConfigError(f"{what} {path} is not valid YAML: {error}") from error
-    try:
-        return _parameters_of(document)
-    except ConfigError as error:
-        raise ConfigError(f"{path}: {error}") from error
-
-
-def _robot(mapping: Mapping) -> TubeGeometry:
-    """The validated robot geometry of a `robot` mapping; ConfigError names the `robot.<field>`."""
-    try:
-        return TubeGeometry.from_mapping(mapping)  # validates
-    except (ValueError, TypeError) as error:
-        message = str(error)
-        raise ConfigError(message if message.startswith("robot") else f"robot.{message}") from error
-
-
-def _parameters_of(document: Any) -> Mapping:
     """The `ros__parameters` mapping of a parameter file (first node entry), or the document itself."""
+    document = read_config_document(path, what, _is_text)
     if not isinstance(document, Mapping):
-        raise ConfigError("the rig configuration must be a mapping")
+        kind = "an empty file" if document is None else f"a {type(document).__name__}"
+        raise ConfigError(f"{path}: the {what} must be a mapping of keys, got {kind}")
     for value in document.values():
         if isinstance(value, Mapping) and "ros__parameters" in value:
-            return value["ros__parameters"]
+            parameters = value["ros__parameters"]
+            if not isinstance(parameters, Mapping):
+                raise ConfigError(f"{path}: ros__parameters must be a mapping of keys, got {excerpt(parameters)}")
+            return parameters
     return document
+
+
+def _is_text(path: tuple[str, ...]) -> bool:
+    """Whether the schema types the value at a key path as text (so the YAML reader keeps it as written).
+
+    Paths start at the file's root; a parameter file's `<node>: ros__parameters:` prefix is skipped.
+    """
+    if "ros__parameters" in path:
+        path = path[path.index("ros__parameters") + 1:]
+    if path in (("base_frame",), ("camera_names", "[]")):
+        return True
+    if len(path) != 2 or path[0] == "robot":
+        return False
+    key = keys_of(STAGE_SECTIONS.get(path[0], CameraConfig)).get(path[1])
+    return key is not None and key.scalar is str
 
 
 def rig_config_from_mapping(parameters: Mapping) -> RigConfig:
     """Build and validate a RigConfig from nested (or dotted) parameters; ConfigError names the key."""
-    parameters = unflatten_parameters(parameters) if any("." in str(k) for k in parameters) else parameters
-    base_frame = _require(parameters, "base_frame", str)
-    camera_names = _require(parameters, "camera_names", list)
-    if not camera_names or not all(isinstance(n, str) and n for n in camera_names):
-        raise ConfigError("camera_names must be a non-empty list of camera names")
-    if len(set(camera_names)) != len(camera_names):
-        raise ConfigError("camera_names has duplicates")
-    cameras = {name: _camera(name, _require(parameters, name, Mapping)) for name in camera_names}
-    robot = _robot(_require(parameters, "robot", Mapping))
-    sections = {name: _section(name, cls, parameters.get(name, {})) for name, cls in _STAGE_SECTIONS.items()}
-    config = RigConfig(base_frame=base_frame, camera_names=tuple(camera_names), cameras=cameras, robot=robot,
-                       **sections)
-    _validate_stages(config)
+    if not isinstance(parameters, Mapping):
+        raise ConfigError(f"the rig configuration must be a mapping of keys, got {excerpt(parameters)}")
+    if any("." in str(key) for key in parameters):
+        parameters = unflatten_parameters(parameters)
+    top = keys_of(RigConfig)
+    camera_names = _camera_names(parameters, top["camera_names"])
+    known = {*top, *camera_names, "robot", *STAGE_SECTIONS}
+    for key in parameters:
+        if key not in known:
+            raise unknown_key_error("", key, known)
+    base_frame = convert("base_frame", top["base_frame"], parameters.get("base_frame", top["base_frame"].default))
+    cameras = {name: _camera(name, _require(parameters, name)) for name in camera_names}
+    robot = TubeGeometry.from_mapping(_require(parameters, "robot"))
+    sections = {name: build_section(cls, _optional(parameters, name), name) for name, cls in STAGE_SECTIONS.items()}
+    config = RigConfig(base_frame=base_frame, camera_names=camera_names, cameras=cameras, robot=robot, **sections)
+    _check_consistency(config)
     return config
 
 
-def _require(mapping: Mapping, key: str, kind: type):
-    if key not in mapping or mapping[key] is None:
+def _require(mapping: Mapping, key: str) -> Any:
+    if mapping.get(key) is None:
         raise ConfigError(f"missing key {key!r}")
-    value = mapping[key]
-    if not isinstance(value, kind):
-        raise ConfigError(f"{key} must be a {kind.__name__}, got {value!r}")
-    return value
+    return mapping[key]
 
 
-def _camera(name: str, mapping: Mapping) -> CameraConfig:
-    known = {f.name for f in fields(CameraConfig)} - {"name"}
-    for key in mapping:
-        if key not in known:
-            raise ConfigError(f"unknown key {name}.{key}")
-    for key in ("translation", "rotation", "depth_unit"):
-        if key not in mapping:
-            raise ConfigError(f"missing key {name}.{key}")
-    values = {key: _convert(f"{name}.{key}", CameraConfig, key, mapping[key]) for key in mapping}
-    camera = CameraConfig(name=name, **values)
-    if camera.depth_unit <= 0:
-        raise ConfigError(f"{name}.depth_unit must be > 0, got {camera.depth_unit}")
-    if camera.width <= 0 or camera.height <= 0:
-        raise ConfigError(f"{name}.width and {name}.height must be > 0")
+def _optional(mapping: Mapping, key: str) -> Any:
+    value = mapping.get(key)
+    return {} if value is None else value
+
+
+def _camera_names(parameters: Mapping, key: Key) -> tuple[str, ...]:
+    names = _require(parameters, "camera_names")
+    if not isinstance(names, list | tuple) or not names or not all(isinstance(n, str) and n for n in names):
+        raise ConfigError(f"camera_names must be a non-empty list of camera names, got {excerpt(names)}")
+    names = tuple(convert("camera_names", dataclasses.replace(key, length=len(names)), names))
+    if len(set(names)) != len(names):
+        raise ConfigError("camera_names has duplicates")
+    clash = [name for name in names if name in keys_of(RigConfig) or name in STAGE_SECTIONS or name == "robot"]
+    if clash:
+        raise ConfigError(f"camera_names: {clash[0]!r} is the name of a section, not of a camera")
+    return names
+
+
+def _camera(name: str, mapping: Any) -> CameraConfig:
+    camera = build_section(CameraConfig, mapping, name, name=name)
     try:
         camera.extrinsic  # noqa: B018 - validates translation and quaternion
     except ValueError as error:
@@ -286,95 +343,11 @@ def _camera(name: str, mapping: Mapping) -> CameraConfig:
     return camera
 
 
-def _section(name: str, cls: type, mapping: Any):
-    if not isinstance(mapping, Mapping):
-        raise ConfigError(f"{name} must be a mapping, got {mapping!r}")
-    known = {f.name for f in fields(cls)}
-    for key in mapping:
-        if key not in known:
-            raise ConfigError(f"unknown key {name}.{key}")
-    return cls(**{key: _convert(f"{name}.{key}", cls, key, value) for key, value in mapping.items()})
-
-
-def _convert(dotted: str, cls: type, key: str, value: Any):
-    """Coerce a YAML value to the type of the dataclass field's default, naming the key on failure."""
-    default = next(f for f in fields(cls) if f.name == key)
-    template = default.default if default.default is not dataclasses.MISSING else None
-    try:
-        if isinstance(template, bool):
-            if not isinstance(value, bool):
-                raise TypeError
-            return value
-        if isinstance(template, tuple):
-            items = tuple(value)
-            if len(items) != len(template):
-                raise ConfigError(f"{dotted} needs {len(template)} numbers, got {value!r}")
-            converted = tuple(type(t)(v) for t, v in zip(template, items, strict=True))
-            if not all(math.isfinite(v) for v in converted):
-                raise ConfigError(f"{dotted} must be finite, got {value!r}")
-            return converted
-        if isinstance(template, int):
-            if isinstance(value, bool) or float(value) != int(value):
-                raise TypeError
-            return int(value)
-        if isinstance(template, float):
-            if isinstance(value, bool):
-                raise TypeError
-            converted = float(value)
-            if not math.isfinite(converted):
-                raise ConfigError(f"{dotted} must be finite, got {value!r}")
-            return converted
-        if isinstance(template, str):
-            # D405 serial numbers are all digits, so YAML and `-p` hand them over as integers
-            if dotted.endswith("serial_number") and isinstance(value, int) and not isinstance(value, bool):
-                return str(value)
-            if not isinstance(value, str):
-                raise TypeError
-            return value
-        return value
-    except (TypeError, ValueError) as error:
-        if isinstance(error, ConfigError):
-            raise
-        raise ConfigError(f"{dotted} must be of type {type(template).__name__}, got {value!r}") from error
-
-
-def _validate_stages(config: RigConfig) -> None:
-    f, r, m = config.filters, config.relocation, config.mesh
-    positive = {
-        "fusion.slop": config.fusion.slop, "fusion.camera_timeout": config.fusion.camera_timeout,
-        "filters.sor_neighbors": f.sor_neighbors, "filters.sor_alpha": f.sor_alpha,
-        "filters.mls_neighbors": f.mls_neighbors,
-        "relocation.gate_radius_fraction": r.gate_radius_fraction,
-        "relocation.bin_radius_fraction": r.bin_radius_fraction,
-        "relocation.smoothing_radius_fraction": r.smoothing_radius_fraction,
-        "relocation.max_iterations": r.max_iterations,
-        "relocation.tolerance_radius_fraction": r.tolerance_radius_fraction,
-        "relocation.notch_kernel_px": r.notch_kernel_px,
-        "relocation.roi_margin_fraction": r.roi_margin_fraction,
-        "mesh.poisson_depth": m.poisson_depth, "mesh.max_points": m.max_points,
-        "metrics.pdc_voxel": config.metrics.pdc_voxel,
-    }
-    for key, value in positive.items():
-        if not value > 0:
-            raise ConfigError(f"{key} must be > 0, got {value}")
-    non_negative = {"relocation.gate_pixels": r.gate_pixels, "filters.mls_radius_px": f.mls_radius_px,
-                    "filters.voxel_size": f.voxel_size, "relocation.min_notch_width_fraction":
-                    r.min_notch_width_fraction}
-    for key, value in non_negative.items():
-        if value < 0:
-            raise ConfigError(f"{key} must be >= 0, got {value}")
-    if f.sor_neighbors < 2:
-        raise ConfigError(f"filters.sor_neighbors must be >= 2, got {f.sor_neighbors}")
-    if f.mls_order not in (1, 2):
-        raise ConfigError(f"filters.mls_order must be 1 or 2, got {f.mls_order}")
+def _check_consistency(config: RigConfig) -> None:
+    """What the per-key ranges cannot say: how the keys of a rig fit together."""
+    f = config.filters
     if f.mls_neighbors < 3 * f.mls_order + 1:
         raise ConfigError(f"filters.mls_neighbors must be >= {3 * f.mls_order + 1} for order {f.mls_order}")
-    if m.method not in ("tube", "poisson"):
-        raise ConfigError(f"mesh.method must be 'tube' or 'poisson', got {m.method!r}")
-    if not 0 <= m.density_quantile < 1:
-        raise ConfigError(f"mesh.density_quantile must be in [0, 1), got {m.density_quantile}")
-    if any(not 0 <= c <= 255 for c in f.color_min + f.color_max):
-        raise ConfigError("filters.color_min / color_max must lie in 0..255")
     box_min, box_max = config.crop_box()
     if np.any(box_max <= box_min):
         raise ConfigError(f"filters.crop_box_max {tuple(box_max)} must exceed crop_box_min {tuple(box_min)} "
@@ -383,6 +356,25 @@ def _validate_stages(config: RigConfig) -> None:
     if np.any(base < box_min - 1e-9) or np.any(base > box_max + 1e-9):
         raise ConfigError(f"filters.crop_box {tuple(box_min)}..{tuple(box_max)} does not contain the robot base "
                           f"{tuple(base)}: it would exclude the robot")
+
+
+def rig_parameter_keys(camera_names) -> dict[str, Key]:
+    """Dotted rig parameter name -> its schema Key, for every key a node declares (`camera_names` aside)."""
+    keys = {"base_frame": keys_of(RigConfig)["base_frame"]}
+    for name in camera_names:
+        keys.update({f"{name}.{key}": value for key, value in keys_of(CameraConfig).items()})
+    for section, cls in {"robot": TubeGeometry, **STAGE_SECTIONS}.items():
+        keys.update({f"{section}.{key}": value for key, value in keys_of(cls).items()})
+    return keys
+
+
+def parameter_key(dotted: str, camera_names) -> Key | None:
+    """The schema Key of a dotted rig parameter name, None when it is not one."""
+    section, _, key = dotted.partition(".")
+    if not key:
+        return keys_of(RigConfig).get(section)
+    cls = CameraConfig if section in camera_names else {"robot": TubeGeometry, **STAGE_SECTIONS}.get(section)
+    return keys_of(cls).get(key) if cls is not None else None
 
 
 def flatten_parameters(config: RigConfig | Mapping) -> dict[str, Any]:
@@ -407,23 +399,22 @@ def unflatten_parameters(flat: Mapping[str, Any]) -> dict[str, Any]:
     for dotted, value in flat.items():
         node = nested
         *parents, leaf = str(dotted).split(".")
-        for part in parents:
+        for depth, part in enumerate(parents):
             node = node.setdefault(part, {})
+            if not isinstance(node, dict):
+                raise ConfigError(f"{'.'.join(parents[:depth + 1])} is given both as a value and as a section")
+        if isinstance(node.get(leaf), dict):
+            raise ConfigError(f"{excerpt(str(dotted))[1:-1]} is given both as a value and as a section")
         node[leaf] = value
     return nested
 
 
 def config_to_mapping(config: RigConfig) -> dict[str, Any]:
     """The nested `ros__parameters` mapping of a RigConfig (round-trips through rig_config_from_mapping)."""
-    def plain(obj) -> dict[str, Any]:
-        return {f.name: (list(v) if isinstance(v := getattr(obj, f.name), tuple) else v) for f in fields(obj)}
-
     mapping: dict[str, Any] = {"base_frame": config.base_frame, "camera_names": list(config.camera_names)}
     for name in config.camera_names:
-        camera = plain(config.cameras[name])
-        camera.pop("name")
-        mapping[name] = camera
+        mapping[name] = section_mapping(config.cameras[name])
     mapping["robot"] = {k: v for k, v in config.robot.to_dict().items() if v is not None}
-    for name in _STAGE_SECTIONS:
-        mapping[name] = plain(getattr(config, name))
+    for name in STAGE_SECTIONS:
+        mapping[name] = section_mapping(getattr(config, name))
     return mapping

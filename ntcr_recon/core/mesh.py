@@ -60,7 +60,7 @@ def tube_mesh(relocation, geometry, closing_cells: int = 1) -> Mesh:
     """
     from scipy.ndimage import binary_closing
 
-    from ntcr_recon.core.robot import PART_OUTER_WALL
+    from ntcr_recon.core.robot_surface import PART_OUTER_WALL
 
     coords = relocation.relocated_coordinates
     if coords is None or relocation.part is None:

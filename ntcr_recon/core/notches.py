@@ -23,7 +23,7 @@ import numpy as np
 from scipy.ndimage import gaussian_filter1d, percentile_filter
 
 from ntcr_recon.core.centerline import Centerline, TubeCoordinates
-from ntcr_recon.core.robot import TubeGeometry
+from ntcr_recon.core.geometry import TubeGeometry
 
 
 @dataclass(frozen=True)

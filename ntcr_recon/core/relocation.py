@@ -26,14 +26,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from ntcr_recon.core.centerline import Centerline, TubeCoordinates
+from ntcr_recon.core.geometry import TubeGeometry
 from ntcr_recon.core.notches import Notch
-from ntcr_recon.core.robot import (
+from ntcr_recon.core.robot_surface import (
     PART_CUT_FACE,
     PART_END_CAP,
     PART_INNER_WALL,
     PART_NOTCH_FLOOR,
     PART_OUTER_WALL,
-    TubeGeometry,
 )
 
 

@@ -9,7 +9,7 @@ the same frames, all float32 and declared once in `io.pointcloud.STAGE_FIELDS`:
                       it); absent when the camera's cloud had no pixel layout
   `normal_x/y/z`      relocated cloud only: the reference surface's outward normal (the mesh is oriented by it)
   `part`, `tube_s`, `tube_x`, `tube_y`   relocated cloud only: the robot surface each point lies on
-                      (core.robot.PART_*) and its tube coordinates (arc length, offset towards the notch side,
+                      (core.robot_surface.PART_*) and its tube coordinates (arc length, offset towards the notch side,
                       offset along the binormal): with the centreline Path, what the mesh stage needs
 Readers that know only x, y, z (and rgb) are unaffected.
 

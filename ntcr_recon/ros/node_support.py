@@ -121,29 +121,31 @@ def run_node(node_factory: Callable[[], Node], args: list[str] | None = None) ->
 
 # ---- rig-configured nodes -------------------------------------------------------------------------------------
 # Every stage node reads the same rig configuration (config/*.yaml, passed as a ROS parameter file) as the CLI.
-# Its nested sections become dotted parameters (`cam_a.translation`, `filters.sor_alpha`); each is declared with a
-# descriptor, and the whole set is validated by the core's loader, so a bad value is refused at start and on
-# change with the loader's message, which names the dotted key.
+# Its nested sections become dotted parameters (`cam_a.translation`, `filters.sor_alpha`); each is declared with
+# the descriptor of its key in the core's configuration schema (description, unit, range), and values are checked
+# by that same schema, so a bad value is refused at start and on change with the loader's message, which names
+# the dotted key, its unit and its range.
 
-def _rig_parameter_defaults(camera_names: Sequence[str]) -> dict[str, Any]:
-    """Dotted rig parameter name -> default (None where the configuration must give the value)."""
-    import dataclasses
-
-    from ntcr_recon.core import config as rig
-    from ntcr_recon.core.robot import TubeGeometry
-
-    defaults: dict[str, Any] = {"base_frame": "ntcr_base"}
-    required_camera_keys = {"translation", "rotation", "depth_unit"}
-    for name in camera_names:
-        for field in dataclasses.fields(rig.CameraConfig):
-            if field.name != "name":
-                defaults[f"{name}.{field.name}"] = None if field.name in required_camera_keys else field.default
-    sections = {"robot": TubeGeometry(), **{key: cls() for key, cls in rig._STAGE_SECTIONS.items()}}
-    for section, instance in sections.items():
-        for field in dataclasses.fields(instance):
-            value = getattr(instance, field.name)
-            defaults[f"{section}.{field.name}"] = list(value) if isinstance(value, tuple) else value
-    return defaults
+def rig_parameter_descriptor(key) -> ParameterDescriptor:
+    """The ParameterDescriptor of a schema Key (ntcr_recon.core.schema): its description, unit and range, the
+    range also as integer_range / floating_point_range for scalars so `ros2 param describe` shows the bounds."""
+    setting = key.setting
+    limits = setting.range_text()
+    descriptor = ParameterDescriptor(
+        description=f"{setting.description}" + (f"; {limits}" if limits else f" [{setting.unit}]" if setting.unit
+                                                else ""),
+        additional_constraints=limits, dynamic_typing=True)  # types: the schema accepts 30 for 30.0
+    bounds = list(setting.choices) if setting.choices else [setting.minimum, setting.maximum]
+    if key.length is not None or None in bounds or not all(isinstance(b, int | float) for b in bounds):
+        return descriptor
+    low, high = min(bounds), max(bounds)
+    if setting.off is not None:
+        low = min(low, setting.off)
+    if key.scalar is int:
+        descriptor.integer_range = [IntegerRange(from_value=int(low), to_value=int(high), step=1)]
+    elif key.scalar is float:
+        descriptor.floating_point_range = [FloatingPointRange(from_value=float(low), to_value=float(high))]
+    return descriptor
 
 
 class RigNode(Node):
@@ -155,26 +157,56 @@ class RigNode(Node):
     """
 
     def __init__(self, node_name: str, own_parameters: dict[str, tuple[Any, ParameterDescriptor]]) -> None:
+        from ntcr_recon.core.config import rig_parameter_keys
+
         super().__init__(node_name)
-        # Types are checked by the configuration loader (which accepts 30 for 30.0 and names the key), so the
-        # rig parameters are dynamically typed.
         self.declare_parameter("camera_names", ["cam_a", "cam_b"], ParameterDescriptor(
             description="rig configuration: names of the cameras, each with its own section", dynamic_typing=True))
         camera_names = self.get_parameter("camera_names").value
         if not isinstance(camera_names, list | tuple) or not all(isinstance(n, str) and n for n in camera_names):
             raise ParameterError(f"parameter 'camera_names' must be a list of camera names, got {camera_names!r}")
-        names = ["camera_names"]
-        for name, default in _rig_parameter_defaults(camera_names).items():
+        self._camera_names = tuple(camera_names)
+        rig_keys = rig_parameter_keys(camera_names)
+        for name, key in rig_keys.items():
+            # Declared without the range first: an out-of-range start value is then refused by the schema below,
+            # with its message (naming the key, unit and range), rather than by rclpy's own.
+            default = None if key.setting.required else list(key.default) if isinstance(key.default, tuple) \
+                else key.default
             self.declare_parameter(name, default, ParameterDescriptor(
-                description=f"rig configuration key {name} (see config/sim_rig.yaml)", dynamic_typing=True))
-            names.append(name)
+                description=key.setting.description, dynamic_typing=True))
         for name, (default, descriptor) in own_parameters.items():
             self.declare_parameter(name, default, descriptor)
-            names.append(name)
-        self._rig_names = [n for n in names if n not in own_parameters]
+        self._rig_names = ["camera_names", *rig_keys]
         self._own_names = list(own_parameters)
+        names = self._rig_names + self._own_names
         self._configure_from({name: self.get_parameter(name).value for name in names})
+        for name, key in rig_keys.items():
+            self.set_descriptor(name, rig_parameter_descriptor(key))
         validate_on_change(self, names, self._configure_from)
+
+    def set_parameters_atomically(self, parameter_list):
+        """The schema checks a rig parameter's new value first, so a refusal names the key, its unit and range
+        (rclpy's range check on the descriptor would answer first, in its own words)."""
+        refusal = self._schema_refusal(parameter_list)
+        return refusal if refusal is not None else super().set_parameters_atomically(parameter_list)
+
+    def set_parameters(self, parameter_list):
+        return [self.set_parameters_atomically([parameter]) for parameter in parameter_list]
+
+    def _schema_refusal(self, parameter_list) -> SetParametersResult | None:
+        from ntcr_recon.core.config import ConfigError, parameter_key
+        from ntcr_recon.core.schema import convert
+
+        for parameter in parameter_list:
+            key = parameter_key(parameter.name, self._camera_names)
+            if key is None or parameter.value is None:
+                continue
+            try:
+                convert(parameter.name, key, parameter.value)
+            except ConfigError as error:
+                self.get_logger().error(f"refused parameter change: rig configuration: {error}")
+                return SetParametersResult(successful=False, reason=f"rig configuration: {error}")
+        return None
 
     def _configure_from(self, values: dict[str, Any]) -> None:
         from ntcr_recon.core.config import ConfigError, rig_config_from_mapping, unflatten_parameters

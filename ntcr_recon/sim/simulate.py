@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from ntcr_recon.core.robot import TubeShape
+from ntcr_recon.core.kinematics import TubeShape
 from ntcr_recon.sim.bag import BagContents, CameraFrame, write_rig_bag
 from ntcr_recon.sim.camera import CameraPose, D405Intrinsics, facing_pair
 from ntcr_recon.sim.scene import ExactFrame, RigProps, Scene
