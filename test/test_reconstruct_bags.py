@@ -12,7 +12,7 @@ import pytest
 import yaml
 
 from ntcr_recon.cli import main as cli_main
-from ntcr_recon.reconstruct import OUTPUT_FILES
+from ntcr_recon.cli.reconstruct import OUTPUT_FILES
 
 # Another robot through the same stereo emulation, rendered here: thinner (2.5 mm), fewer and narrower
 # notches (10 of 1.0 mm), a 60 degree bend and the cameras nearer (80 mm). Nothing in the configuration is
