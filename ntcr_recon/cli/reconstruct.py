@@ -162,14 +162,19 @@ def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
             per_stage.setdefault(stage, []).append(ms)
         del frame, pair  # the decoded images go now, not when the next pair replaces them
     timings = {stage: float(np.median(values)) for stage, values in per_stage.items()}
-    warnings = input_warnings(config, cameras, pair_count, one_camera_pairs)
     steps = tqdm(total=4, desc="combine, mesh, measure", disable=args.no_progress)
     raw = Cloud.concatenate([fused for fused, _ in combined.items()])
-    relocation = reconstructor.relocate(Cloud.concatenate([filtered for _, filtered in combined.items()]))
-    if not len(relocation.relocated):
-        raise ReconstructionError(f"relocation kept none of the {len(relocation.coordinates.s)} filtered points "
-                                  "(none lies near the reference surface): nothing to mesh" +
-                                  "".join(f"; {w}" for w in warnings))
+    try:
+        relocation = reconstructor.relocate(Cloud.concatenate([filtered for _, filtered in combined.items()]))
+        if not len(relocation.relocated):
+            raise ReconstructionError(f"relocation kept none of the {len(relocation.coordinates.s)} filtered "
+                                      "points (none lies near the reference surface): nothing to mesh")
+    except ReconstructionError as error:  # the input's faults first: they are the likely cause
+        warnings = input_warnings(config, cameras, pair_count, one_camera_pairs)
+        raise ReconstructionError(str(error) + "".join(f"; {w}" for w in warnings)) from error
+    for index, count in zip(*np.unique(relocation.relocated.camera, return_counts=True), strict=True):
+        cameras[config.camera_names[index]].relocated_points = int(count)
+    warnings = input_warnings(config, cameras, pair_count, one_camera_pairs)
     # the relocation stage's own warnings (fit quality, notches), where the core attaches them
     warnings += list(getattr(relocation, "warnings", ()))
     timings["relocate_combined"] = reconstructor.timings_ms["relocate"]

@@ -19,8 +19,8 @@ import numpy as np
 
 from ntcr_recon.core.config import RigConfig
 
-# A camera giving less than this share of the other's points per frame is reported: two opposed cameras on
-# a rig see about as much of the robot each (on the simulated scenes the smaller share is above 0.7).
+# A camera giving less than this share of the other's points is reported: two opposed cameras on a rig see
+# about as much of the robot each (on the simulated scenes the smaller share is above 0.7).
 FEWER_POINTS_RATIO = 0.25
 # Raw 16-bit depth images of each camera whose values are examined for their quantisation step.
 QUANTISATION_SAMPLE_FRAMES = 3
@@ -34,8 +34,9 @@ class CameraInput:
     frames_without_info: int = 0     # depth images before any camera_info: skipped
     big_endian_frames: int = 0       # depth images flagged is_bigendian (read byte-swapped, as flagged)
     raw_step: int = 0                # gcd of the steps between distinct raw 16-bit values (0: not known)
-    raw_median: float = math.nan     # median of the valid raw values of the first depth image
+    raw_near: float = math.nan       # the nearest valid raw values (2nd percentile) of the first depth image
     fused_points: int = 0            # points it gave inside the crop box, over all frames
+    relocated_points: int = 0        # of its points, those in the combined relocated result
 
     def observe_depth(self, depth: np.ndarray, big_endian: bool) -> None:
         """Count one decoded depth image; sample the first few for their raw value steps."""
@@ -47,8 +48,8 @@ class CameraInput:
         values = values[values > 0]  # 0 = no depth
         if len(values) > 1:
             self.raw_step = math.gcd(self.raw_step, int(np.gcd.reduce(np.diff(values))))
-        if math.isnan(self.raw_median) and len(values):
-            self.raw_median = float(np.median(depth[depth > 0]))
+        if math.isnan(self.raw_near) and len(values):
+            self.raw_near = float(np.percentile(depth[depth > 0], 2))  # the robot, nearest thing in view
 
 
 def input_warnings(config: RigConfig, cameras: dict[str, CameraInput], pairs: int = 0,
@@ -67,8 +68,8 @@ def input_warnings(config: RigConfig, cameras: dict[str, CameraInput], pairs: in
                             "were skipped")
         if facts.big_endian_frames:
             warnings.append(f"{name}: {facts.big_endian_frames} of {facts.frames} depth images are flagged "
-                            "big-endian and were read byte-swapped as the flag says; D405 drivers write "
-                            "little-endian, so if the flag is wrong the depth is too")
+                            "big-endian (read byte-swapped, as flagged; D405 drivers write little-endian, so a "
+                            "wrong flag means wrong depth)")
         if facts.raw_step > 1:
             warnings.append(f"{name}: raw depth comes in steps of {facts.raw_step} units "
                             f"({facts.raw_step * unit * 1e3:.3g} mm), coarser than its depth_unit of "
@@ -78,14 +79,19 @@ def input_warnings(config: RigConfig, cameras: dict[str, CameraInput], pairs: in
             warnings.append(f"{name} contributed no points inside the crop box in {facts.frames} frames: the "
                             f"result rests on {others} alone; check {name}'s depth_unit ({unit:g} m) and pose "
                             f"(translation, rotation){_distance_hint(config, name, facts)}")
-    counted = {name: facts.fused_points / facts.frames for name, facts in seen.items() if facts.fused_points}
-    if len(counted) > 1:
-        most = max(counted, key=counted.get)
-        for name, per_frame in counted.items():
-            if per_frame < FEWER_POINTS_RATIO * counted[most]:
-                warnings.append(f"{name} contributed {per_frame:.0f} points a frame, {per_frame / counted[most]:.0%} "
-                                f"of {most}'s {counted[most]:.0f}: the result leans on {most}; check {name}'s "
-                                "depth_unit, pose and view of the robot")
+    # Who the result rests on: the relocated points once relocation ran (a camera whose points land beside
+    # the robot, e.g. a wrong pose, contributes little there), else the fused points per frame.
+    relocated = any(facts.relocated_points for facts in seen.values())
+    share = {name: facts.relocated_points if relocated else facts.fused_points / facts.frames
+             for name, facts in seen.items() if facts.fused_points}
+    if len(share) > 1:
+        most = max(share, key=share.get)
+        what = "points in the relocated result" if relocated else "points a frame inside the crop box"
+        for name, count in share.items():
+            if count < FEWER_POINTS_RATIO * share[most]:
+                warnings.append(f"{name} contributed {count:.0f} {what}, {count / share[most]:.0%} of {most}'s "
+                                f"{share[most]:.0f}: the result leans on {most}; check {name}'s pose "
+                                "(translation, rotation), depth_unit and view of the robot")
     if one_camera_pairs and len(seen) > 1:
         warnings.append(f"{one_camera_pairs} of {pairs} frame pairs have one camera only (stamps further apart "
                         f"than fusion.slop = {config.fusion.slop * 1e3:g} ms)")
@@ -94,14 +100,14 @@ def input_warnings(config: RigConfig, cameras: dict[str, CameraInput], pairs: in
 
 def _distance_hint(config: RigConfig, name: str, facts: CameraInput) -> str:
     """When the depth read is far from where the robot is, the depth unit that would put it there."""
-    if math.isnan(facts.raw_median):
+    if math.isnan(facts.raw_near):
         return ""
     unit = config.cameras[name].depth_unit
     box_min, box_max = config.crop_box()
     expected = float(np.linalg.norm((np.asarray(box_min) + box_max) / 2 - config.cameras[name].translation))
-    measured = facts.raw_median * unit
+    measured = facts.raw_near * unit
     if expected <= 0 or 0.33 < measured / expected < 3:
         return ""
     suggested = 10.0 ** round(math.log10(unit * expected / measured))
-    return (f"; its depth reads {measured * 1e3:.3g} mm typically while the robot is about {expected * 1e3:.0f} mm "
+    return (f"; its nearest depth reads {measured * 1e3:.3g} mm while the robot is about {expected * 1e3:.0f} mm "
             f"away: a depth_unit of {suggested:g} would put it there")
