@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+from ntcr_recon.cli import run as run_command
 from ntcr_recon.core.config import TopicConfig
 from ntcr_recon.ros import graph
 from ntcr_recon.ros.topics import stage_topic
@@ -58,7 +59,7 @@ def test_rviz_config_shows_what_the_nodes_publish():
 
 def parse(argv: list[str]) -> argparse.Namespace:
     parser = argparse.ArgumentParser()
-    graph.add_arguments(parser)
+    run_command.add_arguments(parser)
     return parser.parse_args(argv)
 
 

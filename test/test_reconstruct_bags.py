@@ -12,7 +12,7 @@ import pytest
 import yaml
 
 from ntcr_recon.cli import main as cli_main
-from ntcr_recon.reconstruct import OUTPUT_FILES
+from ntcr_recon.cli.reconstruct import OUTPUT_FILES
 
 # Another robot through the same stereo emulation, rendered here: thinner (2.5 mm), fewer and narrower
 # notches (10 of 1.0 mm), a 60 degree bend and the cameras nearer (80 mm). Nothing in the configuration is
@@ -55,7 +55,8 @@ def test_outputs_and_schema(reconstruction):
     _, out, result = reconstruction
     assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUT_FILES)
     assert set(result) == {"frames", "notch_count_expected", "notches", "centerline_m", "tip_m", "pdc",
-                           "ground_truth", "timings_ms"}
+                           "ground_truth", "timings_ms", "warnings"}
+    assert result["warnings"] == []  # a clean recording raises no alarm
     assert result["frames"] == 4
     for notch in result["notches"]:
         assert set(notch) == {"index", "center_s_mm", "width_mm", "bend_deg"}

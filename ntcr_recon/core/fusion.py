@@ -4,12 +4,14 @@ Public API:
     CameraFrame    one camera's frame: a depth image + intrinsics (+ colour), or points in its optical frame
     FramePair      the frames of one instant, by camera name; one camera alone is allowed
     pair_frames(streams, slop_ns) -> list[FramePair]
+    pair_frame_stream(frames, slop_ns, silent_after_ns) -> iterator of FramePair   # frames arriving one by one
     fuse(pair, config, box=None) -> Cloud  # base frame, cropped to the configured box (or a region of
                                            # interest inside it), camera index and pixel per point
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -83,6 +85,39 @@ def pair_frames(streams: dict[str, list[CameraFrame]], slop_ns: int) -> list[Fra
     result = [FramePair(min(f.stamp_ns for f in p.values()), p) for p in pairs]
     result += [FramePair(f.stamp_ns, {f.camera: f}) for f in unpaired]
     return sorted(result, key=lambda p: p.stamp_ns)
+
+
+def pair_frame_stream(frames: Iterable[CameraFrame], slop_ns: int, silent_after_ns: int) -> Iterator[FramePair]:
+    """pair_frames for frames that arrive one by one, each camera's in stamp order (a bag read front to
+    back): the same pairs, in stamp order, holding only the frames that may still find a partner.
+
+    A pair is settled once every camera still sending has sent a frame stamped more than slop_ns after all
+    of its frames (no later frame can be its partner). A camera whose newest frame is more than
+    silent_after_ns older than the newest frame of any camera is silent and not waited for, so the frames
+    held never span much more than that.
+    """
+    held: list[CameraFrame] = []
+    latest: dict[str, int] = {}
+    for frame in frames:
+        held.append(frame)
+        latest[frame.camera] = max(latest.get(frame.camera, frame.stamp_ns), frame.stamp_ns)
+        newest = max(latest.values())
+        settled_before = min(s for s in latest.values() if newest - s <= silent_after_ns) - slop_ns
+        pairs = pair_frames(_by_camera(held), slop_ns)
+        held = []
+        for pair in pairs:
+            if held or max(f.stamp_ns for f in pair.frames.values()) >= settled_before:
+                held.extend(pair.frames.values())  # not settled, or after one that is not: keeps stamp order
+            else:
+                yield pair
+    yield from pair_frames(_by_camera(held), slop_ns)
+
+
+def _by_camera(frames: list[CameraFrame]) -> dict[str, list[CameraFrame]]:
+    streams: dict[str, list[CameraFrame]] = {}
+    for frame in frames:
+        streams.setdefault(frame.camera, []).append(frame)
+    return streams
 
 
 def camera_cloud(frame: CameraFrame, config: RigConfig, box_min: np.ndarray, box_max: np.ndarray

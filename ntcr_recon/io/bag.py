@@ -1,25 +1,45 @@
-"""Reading a rig's rosbag2 bag (mcap or sqlite3) with `rosbags`: depth + camera_info (+ colour) per camera,
-or PointCloud2 per camera, as core.fusion.CameraFrame lists ready for pairing.
+"""Reading a rig's rosbag2 bag (mcap or sqlite3) with `rosbags`, streamed: one pass, one message at a time.
+
+The one place where a camera's depth image, the camera_info in force at its stamp and the colour image of
+the same stamp are put together (`DepthFrameMatcher`); camera_node's `BagSource` and the offline command's
+`iter_camera_frames` both read through `BagStream`, so both pair them the same way and hold only the few
+messages still waiting for a partner, whatever the bag's length.
 
 Public API:
-    BagError(ValueError)                                   missing topics, truncated or unreadable bag
-    read_camera_frames(bag, config, source="auto", topics=None, max_frames=0) -> dict[camera, list[CameraFrame]]
-    image_to_array(msg) -> np.ndarray                      16UC1/mono16 -> uint16, 32FC1 -> float32, colour -> RGB
-    camera_topics(config, camera) -> dict[kind, topic]     the configured topic names of a camera
+    BagError(ValueError)                                  missing topics, truncated or unreadable bag
+    camera_topics(config, camera, overrides=None) -> dict[kind, topic]
+    image_to_array(msg) -> np.ndarray                     16UC1/mono16 -> uint16, 32FC1 -> float32, colour -> RGB
+    DepthMessages, DepthFrameMatcher                       depth + camera_info (+ colour) of one frame, matched
+    BagStream(bag, topics_by_camera, mode)                 iterate: (camera, DepthMessages | PointCloud2 message)
+    iter_camera_frames(bag, config, source="auto", topic_overrides=None, max_frames=0, facts=None)
+        -> iterator of core.fusion.CameraFrame, in the bag's order
+    read_camera_frames(...) -> dict[camera, list[CameraFrame]]   the same, collected (small bags, tests)
 """
 
 from __future__ import annotations
 
+import contextlib
+from collections import deque
+from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from ntcr_recon.core.config import RigConfig
 from ntcr_recon.core.deproject import Intrinsics
 from ntcr_recon.core.fusion import CameraFrame
+from ntcr_recon.core.input_checks import CameraInput
 from ntcr_recon.io.pointcloud import cloud_from_msg, stamp_to_ns
 
 _KINDS = ("depth", "depth_info", "color", "points")
+DEPTH_KINDS = ("depth", "depth_info", "color")
+# camera_info messages remembered to find the one in force at a depth frame's stamp (a driver publishes it
+# with every image; a few cover any interleaving of the topics in the bag)
+INFO_HISTORY = 8
+# colour images kept waiting for the depth frame of their stamp; older ones are dropped (bounded memory)
+COLOR_WAIT = 4
 
 
 class BagError(ValueError):
@@ -62,44 +82,195 @@ def image_to_array(msg) -> np.ndarray:
     return array[:, :, 0] if channels == 1 and kind != "u1" else array
 
 
-def read_camera_frames(bag: str | Path, config: RigConfig, source: str = "auto",
+@dataclass(frozen=True)
+class DepthMessages:
+    """One depth frame's messages, matched and not yet decoded: the depth image, the camera_info in force at
+    its stamp (with its intrinsics, computed once per camera_info) and the colour image of the same stamp."""
+
+    stamp_ns: int
+    depth: Any
+    info: Any
+    intrinsics: Intrinsics
+    color: Any = None
+
+    def decode(self) -> tuple[np.ndarray, float | None, np.ndarray | None]:
+        """(depth array, depth unit: 1.0 for 32FC1 metres, None = the configured unit for raw 16UC1, RGB)."""
+        depth = image_to_array(self.depth)
+        unit = 1.0 if depth.dtype.kind == "f" else None
+        return depth, unit, None if self.color is None else image_to_array(self.color)
+
+
+class DepthFrameMatcher:
+    """Puts one camera's depth, camera_info and colour messages together as they stream by (in the bag's
+    order). A depth image takes the newest camera_info stamped at or before it (the nearest later one when
+    none is); one that comes before any camera_info cannot be deprojected and is counted in
+    `frames_without_info`. Its colour is the image of the same stamp, before or after it; a depth frame whose
+    colour has not come by the next depth image goes without."""
+
+    def __init__(self, has_color: bool) -> None:
+        self.has_color = has_color
+        self.frames_without_info = 0
+        self._infos: deque[tuple[int, Any, Intrinsics]] = deque(maxlen=INFO_HISTORY)
+        self._colors: dict[int, Any] = {}
+        self._waiting: DepthMessages | None = None  # a depth frame whose colour has not come yet
+
+    def add(self, kind: str, msg) -> list[DepthMessages]:
+        """Take one message; returns the frames it completes (none, one, or two)."""
+        stamp = stamp_to_ns(msg.header.stamp)
+        if kind == "depth_info":
+            self._infos.append((stamp, msg, Intrinsics.from_camera_info(msg)))
+            return []
+        done = []
+        if kind == "color":
+            if self._waiting is not None and self._waiting.stamp_ns == stamp:
+                done.append(_with_color(self._waiting, msg))
+                self._waiting = None
+            else:
+                self._colors[stamp] = msg
+                for old in sorted(self._colors)[:-COLOR_WAIT]:
+                    del self._colors[old]
+            return done
+        if self._waiting is not None:  # its colour never came: it goes without
+            done.append(self._waiting)
+            self._waiting = None
+        info = self._info_at(stamp)
+        if info is None:
+            self.frames_without_info += 1
+            return done
+        frame = DepthMessages(stamp, msg, info[1], info[2], self._colors.pop(stamp, None))
+        if frame.color is not None or not self.has_color:
+            done.append(frame)
+        else:
+            self._waiting = frame
+        return done
+
+    def finish(self) -> list[DepthMessages]:
+        """The frame still waiting for its colour when the bag ends."""
+        waiting, self._waiting = self._waiting, None
+        return [] if waiting is None else [waiting]
+
+    def _info_at(self, stamp: int) -> tuple[int, Any, Intrinsics] | None:
+        if not self._infos:
+            return None
+        earlier = [entry for entry in self._infos if entry[0] <= stamp]
+        return max(earlier, key=lambda e: e[0]) if earlier else min(self._infos, key=lambda e: e[0])
+
+
+def _with_color(frame: DepthMessages, color) -> DepthMessages:
+    return DepthMessages(frame.stamp_ns, frame.depth, frame.info, frame.intrinsics, color)
+
+
+@contextlib.contextmanager
+def open_bag(bag: Path):
+    """An open rosbags AnyReader (Jazzy message types for bags that carry no definitions); BagError when the
+    bag cannot be opened."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    reader = AnyReader([Path(bag)], default_typestore=get_typestore(Stores.ROS2_JAZZY))
+    try:
+        reader.open()
+    except Exception as error:  # rosbags raises several types for a damaged or foreign file  # noqa: BLE001
+        raise BagError(_unreadable(bag, error)) from error
+    try:
+        yield reader
+    finally:
+        reader.close()
+
+
+def _unreadable(bag: Path, error: Exception) -> str:
+    return f"cannot read bag {bag}: it is truncated or corrupt ({type(error).__name__}: {error})"
+
+
+class BagStream:
+    """One pass over a bag: for each camera (name -> kind -> topic), in the bag's order, its depth frames
+    matched by a DepthFrameMatcher (mode "depth") or its PointCloud2 messages as recorded (mode "points").
+    Iterating yields (camera, DepthMessages | PointCloud2 message); nothing is decoded beyond the message, and
+    only the messages waiting for a partner are held. A bag that breaks off midway raises BagError."""
+
+    def __init__(self, bag: str | Path, topics_by_camera: dict[str, dict[str, str]], mode: str) -> None:
+        self.bag = Path(bag)
+        self.topics_by_camera = topics_by_camera
+        self.mode = mode
+        self.matchers: dict[str, DepthFrameMatcher] = {}
+
+    def __iter__(self) -> Iterator[tuple[str, Any]]:
+        kinds = DEPTH_KINDS if self.mode == "depth" else ("points",)
+        route = {topics[kind]: (camera, kind) for camera, topics in self.topics_by_camera.items() for kind in kinds}
+        with open_bag(self.bag) as reader:
+            connections = [c for c in reader.connections if c.topic in route]
+            present = {c.topic for c in connections}
+            self.matchers = {camera: DepthFrameMatcher(topics["color"] in present)
+                             for camera, topics in self.topics_by_camera.items()}
+            messages = reader.messages(connections=connections)
+            while True:
+                try:
+                    connection, _, raw = next(messages)
+                    msg = reader.deserialize(raw, connection.msgtype)
+                except StopIteration:
+                    break
+                except Exception as error:  # a chunk cut off or damaged midway  # noqa: BLE001
+                    raise BagError(_unreadable(self.bag, error)) from error
+                camera, kind = route[connection.topic]
+                if self.mode == "points":
+                    yield camera, msg
+                    continue
+                for frame in self.matchers[camera].add(kind, msg):
+                    yield camera, frame
+            for camera, matcher in self.matchers.items():
+                for frame in matcher.finish():
+                    yield camera, frame
+
+
+def iter_camera_frames(bag: str | Path, config: RigConfig, source: str = "auto",
                        topic_overrides: dict[str, str] | None = None, max_frames: int = 0,
-                       ) -> dict[str, list[CameraFrame]]:
-    """Every configured camera's frames in the bag (sorted by stamp), from depth images or PointCloud2.
+                       facts: dict[str, CameraInput] | None = None) -> Iterator[CameraFrame]:
+    """Every configured camera's frames in the bag, decoded one at a time in the bag's order, from depth
+    images or PointCloud2.
 
     source: "depth", "points" or "auto" (depth when the bag has the depth topics, else points).
-    max_frames > 0 keeps only the first frames of each camera.
+    max_frames > 0 keeps only the first frames of each camera (the rest is not decoded).
+    facts: camera -> CameraInput, filled in while reading (frames, byte order, raw depth quantisation).
     """
-    from rosbags.highlevel import AnyReader
-
     bag = Path(bag)
     if not bag.exists():
         raise BagError(f"bag {bag} does not exist")
     wanted = {name: camera_topics(config, name, topic_overrides) for name in config.camera_names}
-    try:
-        with AnyReader([bag]) as reader:
-            available = {c.topic for c in reader.connections}
-            source = _choose_source(bag, wanted, available, source)
-            kinds = ("depth", "depth_info", "color") if source == "depth" else ("points",)
-            by_topic = {wanted[name][kind]: (name, kind) for name in wanted for kind in kinds}
-            connections = [c for c in reader.connections if c.topic in by_topic]
-            messages: dict[str, dict[str, list]] = {name: {kind: [] for kind in kinds} for name in wanted}
-            for connection, _, raw in reader.messages(connections=connections):
-                name, kind = by_topic[connection.topic]
-                bucket = messages[name][kind]
-                if max_frames and kind in ("depth", "points") and len(bucket) >= max_frames:
-                    continue
-                bucket.append(reader.deserialize(raw, connection.msgtype))
-    except BagError:
-        raise
-    except Exception as error:  # rosbags raises several types for a damaged file  # noqa: BLE001
-        cause = f"{type(error).__name__}: {error}"
-        raise BagError(f"cannot read bag {bag}: it is truncated or corrupt ({cause})") from error
-    frames = {name: (_depth_frames(name, messages[name], config) if source == "depth"
-                     else _point_frames(name, messages[name])) for name in wanted}
-    if not any(frames.values()):
+    with open_bag(bag) as reader:
+        available = {c.topic for c in reader.connections}
+    source = _choose_source(bag, wanted, available, source)
+    facts = facts if facts is not None else {}
+    for name in wanted:
+        facts[name] = CameraInput()
+    stream = BagStream(bag, wanted, source)
+    taken = dict.fromkeys(wanted, 0)
+    for name, item in stream:
+        if max_frames and taken[name] >= max_frames:
+            if all(count >= max_frames for count in taken.values()):
+                break  # every camera has its frames: the rest of the bag is not read
+            continue
+        taken[name] += 1
+        if source == "points":
+            facts[name].frames += 1
+            yield _point_frame(name, item)
+            continue
+        depth, unit, colour = item.decode()
+        facts[name].observe_depth(depth, bool(item.depth.is_bigendian))
+        yield CameraFrame(name, item.stamp_ns, depth=depth, intrinsics=item.intrinsics, color=colour, depth_unit=unit)
+    for name, matcher in stream.matchers.items():
+        facts[name].frames_without_info = matcher.frames_without_info
+    if not any(taken.values()):
         raise BagError(f"bag {bag} has the configured topics but no {source} frame in them")
-    return frames
+
+
+def read_camera_frames(bag: str | Path, config: RigConfig, source: str = "auto",
+                       topic_overrides: dict[str, str] | None = None, max_frames: int = 0,
+                       ) -> dict[str, list[CameraFrame]]:
+    """iter_camera_frames collected per camera, sorted by stamp: for small bags (tests, benchmarks)."""
+    frames: dict[str, list[CameraFrame]] = {name: [] for name in config.camera_names}
+    for frame in iter_camera_frames(bag, config, source, topic_overrides, max_frames):
+        frames[frame.camera].append(frame)
+    return {name: sorted(camera_frames, key=lambda f: f.stamp_ns) for name, camera_frames in frames.items()}
 
 
 def _choose_source(bag: Path, wanted: dict[str, dict[str, str]], available: set[str], source: str) -> str:
@@ -117,30 +288,8 @@ def _choose_source(bag: Path, wanted: dict[str, dict[str, str]], available: set[
                    f"the bag has: {', '.join(sorted(available)) or 'no topics'}); remap them with --topic")
 
 
-def _depth_frames(name: str, messages: dict[str, list], config: RigConfig) -> list[CameraFrame]:
-    infos = sorted(messages["depth_info"], key=lambda m: stamp_to_ns(m.header.stamp))
-    if not infos:
-        return []
-    info_stamps = np.array([stamp_to_ns(m.header.stamp) for m in infos])
-    colours = {stamp_to_ns(m.header.stamp): m for m in messages["color"]}
-    frames = []
-    for msg in messages["depth"]:
-        stamp = stamp_to_ns(msg.header.stamp)
-        info = infos[max(int(np.searchsorted(info_stamps, stamp, side="right")) - 1, 0)]
-        depth = image_to_array(msg)
-        unit = 1.0 if depth.dtype.kind == "f" else None   # 32FC1 is metres; 16UC1 uses the configured unit
-        colour_msg = colours.get(stamp)
-        colour = image_to_array(colour_msg) if colour_msg is not None else None
-        frames.append(CameraFrame(name, stamp, depth=depth, intrinsics=Intrinsics.from_camera_info(info),
-                                  color=colour, depth_unit=unit))
-    return sorted(frames, key=lambda f: f.stamp_ns)
-
-
-def _point_frames(name: str, messages: dict[str, list]) -> list[CameraFrame]:
-    frames = []
-    for msg in messages["points"]:
-        xyz, rgb = cloud_from_msg(msg)
-        organised = int(msg.width) if int(msg.height) > 1 else 0
-        frames.append(CameraFrame(name, stamp_to_ns(msg.header.stamp), points=xyz.astype(np.float64), rgb=rgb,
-                                  organised_width=organised))
-    return sorted(frames, key=lambda f: f.stamp_ns)
+def _point_frame(name: str, msg) -> CameraFrame:
+    xyz, rgb = cloud_from_msg(msg)
+    organised = int(msg.width) if int(msg.height) > 1 else 0
+    return CameraFrame(name, stamp_to_ns(msg.header.stamp), points=xyz.astype(np.float64), rgb=rgb,
+                       organised_width=organised)

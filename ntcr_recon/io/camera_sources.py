@@ -11,7 +11,6 @@ Public API:
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -19,11 +18,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from rosbags.typesys import Stores, get_typestore
 
 from ntcr_recon.core.config import TopicConfig
 from ntcr_recon.core.deproject import Intrinsics
-from ntcr_recon.io.bag import image_to_array
+from ntcr_recon.io.bag import BagError, BagStream, open_bag
 from ntcr_recon.io.pointcloud import stamp_to_ns
 
 CACHE_BYTES = 256 * 2**20  # a looping bag up to this size is decoded once and replayed from memory
@@ -51,26 +49,28 @@ class SourceFrame:
 class BagSource:
     """One camera's frames from a rosbag2 bag (mcap or sqlite3), in recorded order.
 
-    Depth + camera_info (+ colour paired by stamp) when the bag has the camera's depth topic; otherwise the
-    recorded `.../depth/color/points` clouds. With `loop`, the bag repeats with stamps shifted by its
+    Depth + camera_info (+ colour paired by stamp, as io.bag.DepthFrameMatcher pairs them for the offline
+    command too) when the bag has the camera's depth topic; otherwise the recorded `.../depth/color/points`
+    clouds. With `loop`, the bag repeats with stamps shifted by its
     duration plus one frame period, so time keeps moving forward for the graph. `skip` (stamp -> bool), when
     set, drops a frame before its images are decoded (a replay that has fallen behind catches up).
     """
 
     def __init__(self, path: str | Path, camera: str, topics: TopicConfig, loop: bool = False) -> None:
-        from rosbags.highlevel import AnyReader
-
         self.path = Path(path)
         self.loop = loop
         self.skip: Callable[[int], bool] | None = None  # stamp -> True to skip the frame without decoding it
         if not self.path.exists():
             raise SourceError(f"bag {self.path} does not exist")
-        self._reader_class = AnyReader
+        self.camera = camera
         self.topics = {kind: topics.camera_topic(camera, kind) for kind in ("depth", "depth_info", "color", "points")}
-        with self._open() as reader:
-            present = {c.topic for c in reader.connections}
-            self.duration_ns = int(reader.duration)
-            counts = {c.topic: c.msgcount for c in reader.connections}
+        try:
+            with open_bag(self.path) as reader:
+                present = {c.topic for c in reader.connections}
+                self.duration_ns = int(reader.duration)
+                counts = {c.topic: c.msgcount for c in reader.connections}
+        except BagError as error:
+            raise SourceError(str(error)) from error
         if self.topics["depth"] in present:
             self.mode = "depth"
             if self.topics["depth_info"] not in present:
@@ -82,18 +82,6 @@ class BagSource:
             raise SourceError(f"bag {self.path} has neither {self.topics['depth']} nor {self.topics['points']} "
                               f"(topics: {', '.join(sorted(present)) or 'none'})")
         self._frame_count = counts[self.topics[self.mode]]
-
-    @contextlib.contextmanager
-    def _open(self):
-        reader = self._reader_class([self.path], default_typestore=get_typestore(Stores.ROS2_JAZZY))
-        try:
-            reader.open()
-        except Exception as error:  # rosbags raises its own types for truncated / foreign files
-            raise SourceError(f"cannot read bag {self.path}: {error}") from error
-        try:
-            yield reader
-        finally:
-            reader.close()
 
     @property
     def loop_shift_ns(self) -> int:
@@ -129,49 +117,17 @@ class BagSource:
         return self.skip is None or not self.skip(stamp + offset_ns)
 
     def _one_pass(self, offset_ns: int) -> Iterator[SourceFrame]:
-        wanted = ("depth", "depth_info", "color") if self.mode == "depth" else ("points",)
-        topics = {self.topics[kind]: kind for kind in wanted}
-        with self._open() as reader:
-            connections = [c for c in reader.connections if c.topic in topics]
-            if self.mode == "points":
-                for connection, _, raw in reader.messages(connections=connections):
-                    msg = reader.deserialize(raw, connection.msgtype)
-                    if self._wanted(stamp_to_ns(msg.header.stamp), offset_ns):
-                        yield SourceFrame(stamp_ns=stamp_to_ns(msg.header.stamp) + offset_ns, cloud=msg)
-                return
-            info, intrinsics = None, None
-            colors: dict[int, np.ndarray] = {}
-            waiting: SourceFrame | None = None  # a depth frame whose colour has not come yet
-            for connection, _, raw in reader.messages(connections=connections):
-                kind = topics[connection.topic]
-                msg = reader.deserialize(raw, connection.msgtype)
-                if kind == "depth_info":
-                    info, intrinsics = msg, Intrinsics.from_camera_info(msg)
+        try:
+            for _, item in BagStream(self.path, {self.camera: self.topics}, self.mode):
+                if self.mode == "points":
+                    stamp = stamp_to_ns(item.header.stamp)
+                    if self._wanted(stamp, offset_ns):
+                        yield SourceFrame(stamp_ns=stamp + offset_ns, cloud=item)
                     continue
-                stamp = stamp_to_ns(msg.header.stamp)
-                if kind == "color":
-                    if waiting is not None and waiting.stamp_ns == stamp + offset_ns:
-                        waiting.color = image_to_array(msg)
-                        yield waiting
-                        waiting = None
-                    else:
-                        colors[stamp] = msg
-                        for old in sorted(colors)[:-4]:  # bounded: only the last few wait for their depth
-                            del colors[old]
+                if not self._wanted(item.stamp_ns, offset_ns):
                     continue
-                if waiting is not None:  # its colour never came: it goes without
-                    yield waiting
-                    waiting = None
-                if intrinsics is None or not self._wanted(stamp, offset_ns):
-                    continue  # no camera_info yet (cannot be deprojected), or skipped
-                depth = image_to_array(msg)
-                frame = SourceFrame(stamp_ns=stamp + offset_ns, depth=depth, intrinsics=intrinsics, camera_info=info,
-                                    depth_unit=1.0 if depth.dtype == np.float32 else None)
-                color = colors.pop(stamp, None)
-                if color is not None or not self.has_color:
-                    frame.color = None if color is None else image_to_array(color)
-                    yield frame
-                else:
-                    waiting = frame
-            if waiting is not None:
-                yield waiting
+                depth, unit, color = item.decode()
+                yield SourceFrame(stamp_ns=item.stamp_ns + offset_ns, depth=depth, depth_unit=unit,
+                                  intrinsics=item.intrinsics, color=color, camera_info=item.info)
+        except BagError as error:
+            raise SourceError(str(error)) from error

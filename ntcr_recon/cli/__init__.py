@@ -1,5 +1,7 @@
-"""The `ntcr-recon` command. Each subcommand lives in its own module, imported only when it runs, so
-`ntcr-recon --help` is quick and a subcommand's heavy imports (open3d, rclpy) cost only its own users."""
+"""The `ntcr-recon` command: every subcommand listed here, each in its own module of this package
+(`cli/<subcommand>.py`, exposing `add_arguments(parser)` and `main(args) -> int`). A subcommand's module is
+imported only when it runs, so `ntcr-recon --help` is quick and a subcommand's heavy imports (open3d,
+rclpy) cost only its own users."""
 
 from __future__ import annotations
 
@@ -7,12 +9,12 @@ import argparse
 import importlib
 import sys
 
-# subcommand -> (module exposing add_arguments(parser) and main(args) -> int, one-line help)
+# subcommand (= its module, ntcr_recon.cli.<subcommand>) -> one-line help
 SUBCOMMANDS = {
-    "simulate": ("ntcr_recon.sim.simulate_cli", "render a synthetic dual-D405 scene into a rosbag2 bag"),
-    "render": ("ntcr_recon.sim.render_cli", "draw a bag's depth frame and raw fused cloud as a PNG"),
-    "reconstruct": ("ntcr_recon.reconstruct", "turn a bag into a mesh, a relocated cloud, metrics and figures"),
-    "run": ("ntcr_recon.ros.graph", "start the ROS 2 graph (every node in its own process)"),
+    "simulate": "render a synthetic dual-D405 scene into a rosbag2 bag",
+    "render": "draw a bag's depth frame and raw fused cloud as a PNG",
+    "reconstruct": "turn a bag into a mesh, a relocated cloud, metrics and figures",
+    "run": "start the ROS 2 graph (every node in its own process)",
 }
 
 
@@ -23,7 +25,7 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, argparse.Argument
     )
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     parsers = {name: subparsers.add_parser(name, help=help_text, description=help_text)
-               for name, (_, help_text) in SUBCOMMANDS.items()}
+               for name, help_text in SUBCOMMANDS.items()}
     return parser, parsers
 
 
@@ -34,11 +36,7 @@ def main(argv: list[str] | None = None) -> int:
     chosen = next((arg for arg in argv if not arg.startswith("-")), None)
     module = None
     if chosen in SUBCOMMANDS:
-        module = importlib.import_module(SUBCOMMANDS[chosen][0])
+        module = importlib.import_module(f"{__name__}.{chosen}")
         module.add_arguments(parsers[chosen])
     args = parser.parse_args(argv)
     return int(module.main(args) or 0)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

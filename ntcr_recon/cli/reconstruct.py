@@ -1,20 +1,25 @@
 """`ntcr-recon reconstruct BAG --config RIG.yaml --out DIR`: a bag in, the reconstructed robot out.
 
-Reads the cameras' depth images (or PointCloud2) from a rosbag2 bag, runs every frame pair through
-fusion, filtering and relocation (core.pipeline.Reconstructor), combines the frames of the still robot
-into one relocated cloud, meshes it and measures it, and writes into DIR:
+Streams the cameras' depth images (or PointCloud2) from a rosbag2 bag: each frame is decoded, paired with
+the other camera's by stamp as they come, run through fusion, filtering and relocation
+(core.pipeline.Reconstructor) and released, so memory does not grow with the bag's length. The frames of the
+still robot are then combined (at most COMBINED_FRAMES_MAX of them, evenly spread over the bag) into one
+relocated cloud, meshed and measured, and DIR gets:
 
     relocated.ply  fused_raw.ply  mesh.ply  mesh.stl  result.json
     density_heatmaps.png  notch_widths.png  side_views.png
 
-Everything is built in a temporary directory beside DIR and moved in file by file only when all of it
-exists, so a failure leaves DIR as it was. result.json (lengths in the unit its key names):
+DIR is built whole in a staging directory beside it and swapped in by one rename (io.staging), so a reader
+sees the old result or the new one and a failure leaves DIR as it was. result.json (lengths in the unit its
+key names):
 
     {"frames", "notch_count_expected", "notches": [{"index", "center_s_mm", "width_mm", "bend_deg"}],
      "centerline_m", "tip_m", "pdc": {"raw": {"mu", "sigma", "lambda"}, "relocated": {...}},
      "ground_truth": null | {"notches_detected", "width_mae_mm", "centerline_rmse_mm", "tip_error_mm",
                              "surface_error_mm": {"raw", "relocated"}},
-     "timings_ms": {stage: median ms per frame pair, or ms for the combined steps}}
+     "timings_ms": {stage: median ms per frame pair, or ms for the combined steps},
+     "warnings": [str]}   # what makes the result less trustworthy: one camera only, a camera that saw
+                          # (next to) nothing, coarse or byte-swapped depth... (also printed on stderr)
 
 Ground truth comes from `ground_truth.json` inside the bag directory when there is one (simulated bags).
 Exit status: 0 done, 2 bad configuration / bag / reconstruction (one message on stderr naming the cause).
@@ -24,14 +29,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import shutil
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+
+# Frames combined into the final relocated cloud: a still robot gains little from more, and keeping each
+# frame's cloud would make memory grow with the bag. Longer bags keep this many (down to half), evenly spread.
+COMBINED_FRAMES_MAX = 32
 
 OUTPUT_FILES = ("relocated.ply", "fused_raw.ply", "mesh.ply", "mesh.stl", "result.json", "density_heatmaps.png",
                 "notch_widths.png", "side_views.png")
@@ -41,7 +47,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("bag", type=Path, help="rosbag2 directory (or .mcap file)")
     parser.add_argument("--config", type=Path, default=None,
                         help="rig configuration (ROS 2 parameter file); default: rig.yaml inside the bag directory")
-    parser.add_argument("--out", type=Path, required=True, help="output directory")
+    parser.add_argument("--out", required=True, help="output directory (replaced whole when the run succeeds)")
     parser.add_argument("--source", choices=("auto", "depth", "points"), default="auto",
                         help="read depth images or PointCloud2 (auto: depth when the bag has them)")
     parser.add_argument("--topic", action="append", default=[], metavar="CAM.KIND=TOPIC",
@@ -53,10 +59,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     try:
-        run(args)
+        result = run(args)
     except ReconstructCommandError as failure:
         print(f"ntcr-recon reconstruct: error: {failure}", file=sys.stderr)
         return 2
+    for warning in result["warnings"]:
+        print(f"warning: {warning}", file=sys.stderr)
     return 0
 
 
@@ -69,6 +77,7 @@ def run(args: argparse.Namespace) -> dict:
     from ntcr_recon.core.config import ConfigError, load_rig_config
     from ntcr_recon.core.pipeline import ReconstructionError
     from ntcr_recon.io.bag import BagError
+    from ntcr_recon.io.staging import StagingError, staged_directory
 
     config_path = args.config if args.config is not None else _bag_dir(args.bag) / "rig.yaml"
     try:
@@ -81,37 +90,39 @@ def run(args: argparse.Namespace) -> dict:
         if not sep or not key or not topic:
             raise ReconstructCommandError(f"--topic expects CAM.KIND=TOPIC, got {item!r}")
         overrides[key] = topic
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise ReconstructCommandError(f"--out {out} exists and is not a directory")
     try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        staging = Path(tempfile.mkdtemp(dir=out.parent, prefix=f".{out.name}.partial-"))
-    except OSError as error:
-        raise ReconstructCommandError(f"cannot write next to {out}: {error}") from error
-    try:
-        result = _reconstruct(args, config, overrides, staging)
-        _publish(staging, out)
-        return result
+        with staged_directory(args.out) as staging:
+            return _reconstruct(args, config, overrides, staging)
+    except StagingError as error:
+        raise ReconstructCommandError(f"--out: {error}") from error
     except (BagError, ReconstructionError, ValueError, OSError) as error:
         raise ReconstructCommandError(str(error)) from error
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
 
 
 def _bag_dir(bag: Path) -> Path:
     return bag if bag.is_dir() else bag.parent
 
 
-def _publish(staging: Path, out: Path) -> None:
-    """Move the finished files into `out` (a fresh directory is renamed into place in one step)."""
-    if not out.exists():
-        staging.chmod(0o755)
-        os.replace(staging, out)
-        staging.mkdir()  # so the caller's cleanup finds something to remove
-        return
-    for name in OUTPUT_FILES:
-        os.replace(staging / name, out / name)
+class EvenlySpread:
+    """At most `limit` items of a stream of unknown length, evenly spread over it (every item while there
+    are no more than `limit`; then every 2nd, 4th, ... as it grows), so memory stays bounded."""
+
+    def __init__(self, limit: int) -> None:
+        self.limit = limit
+        self.stride = 1
+        self.seen = 0
+        self.kept: list[tuple[int, object]] = []
+
+    def offer(self, item) -> None:
+        if self.seen % self.stride == 0:
+            self.kept.append((self.seen, item))
+            if len(self.kept) > self.limit:
+                self.stride *= 2
+                self.kept = [(index, kept) for index, kept in self.kept if index % self.stride == 0]
+        self.seen += 1
+
+    def items(self) -> list:
+        return [item for _, item in self.kept]
 
 
 def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
@@ -119,27 +130,53 @@ def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
 
     from ntcr_recon.core import figures
     from ntcr_recon.core.cloud import Cloud
-    from ntcr_recon.core.fusion import pair_frames
+    from ntcr_recon.core.fusion import pair_frame_stream
+    from ntcr_recon.core.input_checks import input_warnings
     from ntcr_recon.core.metrics import pdc
-    from ntcr_recon.core.pipeline import Reconstructor
-    from ntcr_recon.io.bag import read_camera_frames
+    from ntcr_recon.core.pipeline import ReconstructionError, Reconstructor
+    from ntcr_recon.io.bag import iter_camera_frames
     from ntcr_recon.io.files import write_cloud_ply, write_mesh
 
     started = time.perf_counter()
-    streams = read_camera_frames(args.bag, config, args.source, overrides, args.max_frames)
-    pairs = pair_frames(streams, int(round(config.fusion.slop * 1e9)))
+    cameras = {}  # camera -> CameraInput, filled as the frames stream by
+    frames = iter_camera_frames(args.bag, config, args.source, overrides, args.max_frames, cameras)
+    pairs = pair_frame_stream(frames, int(round(config.fusion.slop * 1e9)),
+                              int(round(config.fusion.camera_timeout * 1e9)))
     reconstructor = Reconstructor(config)
-    fused, filtered, per_stage = [], [], {}
+    combined = EvenlySpread(COMBINED_FRAMES_MAX)  # (fused, filtered) of the frames the result combines
+    per_stage: dict[str, list[float]] = {}
+    pair_count = one_camera_pairs = 0
     for pair in tqdm(pairs, desc="frame pairs", unit="pair", disable=args.no_progress):
-        frame = reconstructor.process(pair)
-        fused.append(frame.fused)
-        filtered.append(frame.filtered)
+        try:
+            frame = reconstructor.process(pair)
+        except ReconstructionError as error:  # say what the input showed so far: it often is the cause
+            warnings = input_warnings(config, cameras, pair_count + 1, one_camera_pairs)
+            raise ReconstructionError(f"frame pair {pair_count + 1} (stamp {pair.stamp_ns}): {error}" +
+                                      "".join(f"; {w}" for w in warnings)) from error
+        pair_count += 1
+        one_camera_pairs += len(pair.frames) == 1
+        for index, count in zip(*np.unique(frame.fused.camera, return_counts=True), strict=True):
+            cameras[config.camera_names[index]].fused_points += int(count)
+        combined.offer((frame.fused, frame.filtered))
         for stage, ms in frame.timings_ms.items():
             per_stage.setdefault(stage, []).append(ms)
+        del frame, pair  # the decoded images go now, not when the next pair replaces them
     timings = {stage: float(np.median(values)) for stage, values in per_stage.items()}
     steps = tqdm(total=4, desc="combine, mesh, measure", disable=args.no_progress)
-    raw = Cloud.concatenate(fused)
-    relocation = reconstructor.relocate(Cloud.concatenate(filtered))
+    raw = Cloud.concatenate([fused for fused, _ in combined.items()])
+    try:
+        relocation = reconstructor.relocate(Cloud.concatenate([filtered for _, filtered in combined.items()]))
+        if not len(relocation.relocated):
+            raise ReconstructionError(f"relocation kept none of the {len(relocation.coordinates.s)} filtered "
+                                      "points (none lies near the reference surface): nothing to mesh")
+    except ReconstructionError as error:  # the input's faults first: they are the likely cause
+        warnings = input_warnings(config, cameras, pair_count, one_camera_pairs)
+        raise ReconstructionError(str(error) + "".join(f"; {w}" for w in warnings)) from error
+    for index, count in zip(*np.unique(relocation.relocated.camera, return_counts=True), strict=True):
+        cameras[config.camera_names[index]].relocated_points = int(count)
+    warnings = input_warnings(config, cameras, pair_count, one_camera_pairs)
+    # the relocation stage's own warnings (fit quality, notches), where the core attaches them
+    warnings += list(getattr(relocation, "warnings", ()))
     timings["relocate_combined"] = reconstructor.timings_ms["relocate"]
     steps.update()
     mesh = reconstructor.mesh(relocation)
@@ -149,7 +186,7 @@ def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
     geometry = config.robot
     voxel = config.metrics.pdc_voxel
     result = {
-        "frames": len(pairs),
+        "frames": pair_count,
         "notch_count_expected": geometry.notch_count,
         "notches": [{"index": n.index, "center_s_mm": n.center_s * 1e3, "width_mm": n.width * 1e3,
                      "bend_deg": None if n.bend is None else float(np.degrees(n.bend))} for n in relocation.notches],
@@ -178,6 +215,7 @@ def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
     steps.close()
     timings["total"] = (time.perf_counter() - started) * 1e3
     result["timings_ms"] = timings
+    result["warnings"] = warnings
     text = json.dumps(result, indent=1)
     (staging / "result.json").write_text(text)
     return result

@@ -1,0 +1,113 @@
+"""Bags made from a sample bag's rendered frames for the offline command's tests: repeated with shifted stamps
+(a long recording of the still robot), cropped to the pixels that see the crop box (small enough for CI), or
+with one camera's depth images altered (units, byte order, quantisation)."""
+
+from __future__ import annotations
+
+import dataclasses
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+from rosbags.highlevel import AnyReader
+from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
+
+from ntcr_recon.core.config import load_rig_config
+from ntcr_recon.core.fusion import FramePair, fuse
+from ntcr_recon.io.bag import read_camera_frames
+from ntcr_recon.io.pointcloud import stamp_to_ns
+
+TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+CROP_MARGIN_PX = 24  # kept around the robot's pixels (the filters look at pixel neighbourhoods)
+
+
+def _with_stamp(msg, stamp_ns: int):
+    time = TYPESTORE.types["builtin_interfaces/msg/Time"](sec=stamp_ns // 1_000_000_000,
+                                                          nanosec=stamp_ns % 1_000_000_000)
+    return dataclasses.replace(msg, header=dataclasses.replace(msg.header, stamp=time))
+
+
+def _crop_image(msg, window: tuple[int, int, int, int]):
+    u0, u1, v0, v1 = window
+    channels_bytes = int(msg.step) // int(msg.width)
+    rows = np.asarray(msg.data, np.uint8).reshape(int(msg.height), int(msg.step))
+    data = np.ascontiguousarray(rows[v0:v1, u0 * channels_bytes:u1 * channels_bytes]).reshape(-1)
+    return dataclasses.replace(msg, width=u1 - u0, height=v1 - v0, step=(u1 - u0) * channels_bytes, data=data)
+
+
+def _crop_info(msg, window: tuple[int, int, int, int]):
+    u0, u1, v0, v1 = window
+    k = np.array(msg.k, float)
+    k[2] -= u0
+    k[5] -= v0
+    p = np.array(msg.p, float)
+    p[2] -= u0
+    p[6] -= v0
+    return dataclasses.replace(msg, width=u1 - u0, height=v1 - v0, k=k, p=p)
+
+
+def crop_windows(bag: Path) -> dict[str, tuple[int, int, int, int]]:
+    """Per camera the pixel window (u0, u1, v0, v1) of the points fused from its first frame, with a margin."""
+    config = load_rig_config(bag / "rig.yaml")
+    frames = read_camera_frames(bag, config, max_frames=1)
+    windows = {}
+    for name, (frame,) in frames.items():
+        pixel = fuse(FramePair(frame.stamp_ns, {name: frame}), config).pixel
+        u0, v0 = pixel.min(axis=0) - CROP_MARGIN_PX
+        u1, v1 = pixel.max(axis=0) + CROP_MARGIN_PX + 1
+        height, width = frame.depth.shape
+        windows[name] = (max(int(u0), 0), min(int(u1), width), max(int(v0), 0), min(int(v1), height))
+    return windows
+
+
+def rewrite_bag(source: Path, out: Path, repeat: int = 1, crop: bool = False,
+                edit: Callable[[str, object], object] | None = None) -> Path:
+    """A copy of the rig bag `source` (rig.yaml and ground_truth.json alike) in `out`: its frames `repeat`
+    times, each repetition stamped one recording later; images cropped to the crop box's pixels when `crop`;
+    `edit(topic, msg) -> msg` applied to every message last."""
+    windows = crop_windows(source) if crop else {}
+    with AnyReader([source]) as reader:
+        messages = [(c.topic, c.msgtype, t, reader.deserialize(raw, c.msgtype))
+                    for c, t, raw in reader.messages()]
+    stamps = sorted({stamp_to_ns(m.header.stamp) for topic, _, _, m in messages if topic.endswith("image_rect_raw")})
+    period = round((stamps[-1] - stamps[0]) / max(len(stamps) // 2 - 1, 1))  # two cameras' frames
+    shift = stamps[-1] - stamps[0] + period
+    writer = Writer(out, version=9, storage_plugin=StoragePlugin.MCAP)  # makes `out`, which must not exist
+    writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+    connections = {}
+    with writer:
+        for index in range(repeat):
+            for topic, msgtype, log_time, msg in messages:
+                camera = topic.split("/")[2] if topic.count("/") >= 3 else None
+                if camera in windows:
+                    if msgtype == "sensor_msgs/msg/Image":
+                        msg = _crop_image(msg, windows[camera])
+                    elif msgtype == "sensor_msgs/msg/CameraInfo":
+                        msg = _crop_info(msg, windows[camera])
+                msg = _with_stamp(msg, stamp_to_ns(msg.header.stamp) + index * shift)
+                if edit is not None:
+                    msg = edit(topic, msg)
+                if topic not in connections:
+                    connections[topic] = writer.add_connection(topic, msgtype, typestore=TYPESTORE)
+                writer.write(connections[topic], log_time + index * shift, TYPESTORE.serialize_cdr(msg, msgtype))
+    for name in ("rig.yaml", "ground_truth.json"):
+        shutil.copy(source / name, out / name)
+    return out
+
+
+def depth_edit(camera: str, change: Callable[[object], object]) -> Callable[[str, object], object]:
+    """An `edit` for rewrite_bag that changes one camera's depth images."""
+    def edit(topic: str, msg):
+        return change(msg) if topic.endswith(f"/{camera}/depth/image_rect_raw") else msg
+    return edit
+
+
+def depth_values(msg) -> np.ndarray:
+    return np.frombuffer(bytes(np.asarray(msg.data, np.uint8)), "<u2")
+
+
+def with_depth_values(msg, values: np.ndarray, big_endian: bool = False):
+    data = np.asarray(values, ">u2" if big_endian else "<u2").tobytes()
+    return dataclasses.replace(msg, data=np.frombuffer(data, np.uint8), is_bigendian=int(big_endian))

@@ -1,0 +1,123 @@
+"""No silent degraded result from `ntcr-recon reconstruct` (issue 11): one camera only, a camera that
+contributes nothing or little (wrong depth_unit, wrong pose), depth coarser than its unit, a big-endian
+flag, no point left after relocation. Each is a warning in result.json and on stderr, or a clear refusal."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import yaml
+from bag_edit import depth_edit, depth_values, rewrite_bag, with_depth_values
+
+from ntcr_recon.cli import main as cli_main
+
+FRAMES = "2"  # frame pairs per run: enough to show each fault, quick
+
+
+def _reconstruct(bag, out, capsys, *extra):
+    code = cli_main(["reconstruct", str(bag), "--out", str(out), "--no-progress", "--max-frames", FRAMES,
+                     *map(str, extra)])
+    stderr = capsys.readouterr().err
+    result = json.loads((out / "result.json").read_text()) if code == 0 else None
+    return code, result, stderr
+
+
+def _warned(result, stderr, *phrases) -> list[str]:
+    """The warnings naming all phrases; each is also printed on stderr."""
+    found = [w for w in result["warnings"] if all(p in w for p in phrases)]
+    assert found, result["warnings"]
+    for warning in found:
+        assert f"warning: {warning}" in stderr
+    return found
+
+
+def _rig(bags_dir, tmp_path, edit):
+    document = yaml.safe_load((bags_dir / "straight" / "rig.yaml").read_text())
+    edit(document["/**"]["ros__parameters"])
+    path = tmp_path / "rig.yaml"
+    path.write_text(yaml.safe_dump(document))
+    return path
+
+
+def test_frames_from_one_camera_only_are_reported(bags_dir, tmp_path, capsys):
+    code, result, stderr = _reconstruct(bags_dir / "straight", tmp_path / "out", capsys,
+                                        "--topic", "cam_b.depth=/nowhere")
+    assert code == 0
+    _warned(result, stderr, "cam_b has no frame", "cam_a alone")
+
+
+def test_a_camera_with_the_wrong_depth_unit_is_reported_with_the_unit_that_fits(bags_dir, tmp_path, capsys):
+    config = _rig(bags_dir, tmp_path, lambda p: p["cam_b"].update(depth_unit=0.001))  # realsense-ros's unit
+    code, result, stderr = _reconstruct(bags_dir / "straight", tmp_path / "out", capsys, "--config", config)
+    assert code == 0
+    _warned(result, stderr, "cam_b contributed no points", "depth_unit of 0.0001 would put it there")
+
+
+def test_a_camera_with_a_wrong_pose_is_reported(bags_dir, tmp_path, capsys):
+    def shift(parameters):
+        parameters["cam_b"]["translation"][0] += 0.02  # 2 cm off: its points land beside the robot
+    config = _rig(bags_dir, tmp_path, shift)
+    code, result, stderr = _reconstruct(bags_dir / "straight", tmp_path / "out", capsys, "--config", config)
+    assert code == 0
+    _warned(result, stderr, "cam_b contributed", "the result leans on cam_a")
+
+
+def test_depth_coarser_than_its_unit_is_reported(bags_dir, tmp_path, capsys):
+    # a 1 mm recording (realsense-ros) rescaled to the D405's 0.1 mm unit: every value a multiple of 10
+    coarse = depth_edit("cam_a", lambda m: with_depth_values(m, np.round(depth_values(m) / 10) * 10))
+    bag = rewrite_bag(bags_dir / "straight", tmp_path / "coarse", edit=coarse)
+    code, result, stderr = _reconstruct(bag, tmp_path / "out", capsys)
+    assert code == 0
+    _warned(result, stderr, "cam_a", "steps of 10 units (1 mm)")
+
+
+def test_big_endian_depth_is_read_byte_swapped_and_reported(bags_dir, tmp_path, capsys):
+    swapped = depth_edit("cam_a", lambda m: with_depth_values(m, depth_values(m), big_endian=True))
+    bag = rewrite_bag(bags_dir / "straight", tmp_path / "swapped", edit=swapped)
+    code, result, stderr = _reconstruct(bag, tmp_path / "out", capsys)
+    assert code == 0
+    assert _warned(result, stderr, "cam_a", "flagged big-endian") == result["warnings"]  # nothing else wrong
+    code, plain, _ = _reconstruct(bags_dir / "straight", tmp_path / "plain_out", capsys)
+    assert plain["centerline_m"] == result["centerline_m"] and plain["notches"] == result["notches"]
+
+
+def test_a_wrong_big_endian_flag_is_reported_or_refused(bags_dir, tmp_path, capsys):
+    def flag(m):
+        return dataclasses.replace(m, is_bigendian=1)  # little-endian data flagged big-endian
+
+    bag = rewrite_bag(bags_dir / "straight", tmp_path / "one", edit=depth_edit("cam_a", flag))
+    code, result, stderr = _reconstruct(bag, tmp_path / "out", capsys)
+    assert code == 0
+    _warned(result, stderr, "cam_a", "flagged big-endian")
+    _warned(result, stderr, "cam_a contributed", "the result leans on cam_b")
+
+    # Both cameras: nothing of the robot is left. Before: "open3d could not write mesh.ply"; now a refusal
+    # that names the flag, and no output.
+    def both(topic, msg):
+        return flag(msg) if topic.endswith("depth/image_rect_raw") else msg
+
+    bag = rewrite_bag(bags_dir / "straight", tmp_path / "both", edit=both)
+    code, _, stderr = _reconstruct(bag, tmp_path / "both_out", capsys)
+    assert code == 2
+    (message,) = stderr.strip().splitlines()
+    assert message.startswith("ntcr-recon reconstruct: error:") and "flagged big-endian" in message
+    assert "open3d" not in message
+    assert not (tmp_path / "both_out").exists()
+
+
+def test_no_point_after_relocation_is_refused(bags_dir, tmp_path, capsys, monkeypatch):
+    from ntcr_recon.core import pipeline
+
+    relocate = pipeline.Reconstructor.relocate
+
+    def relocate_losing_every_point(self, cloud, warm_start=True):
+        relocation = relocate(self, cloud, warm_start)
+        return dataclasses.replace(relocation, relocated=relocation.relocated.subset(np.arange(0)))
+
+    monkeypatch.setattr(pipeline.Reconstructor, "relocate", relocate_losing_every_point)
+    code, _, stderr = _reconstruct(bags_dir / "straight", tmp_path / "out", capsys)
+    assert code == 2
+    assert "relocation kept none of the" in stderr and "nothing to mesh" in stderr
+    assert not (tmp_path / "out").exists()
