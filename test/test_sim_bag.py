@@ -14,7 +14,8 @@ from ntcr_recon.core.config import load_rig_config
 from ntcr_recon.core.geometry import TubeGeometry
 from ntcr_recon.core.kinematics import TubeShape
 from ntcr_recon.io.pointcloud import cloud_from_msg
-from ntcr_recon.sim.bag import TOPIC_KINDS, topic_name
+from ntcr_recon.sim.bag import TOPIC_KINDS, BagContents, topic_name, write_rig_bag
+from ntcr_recon.sim.camera import D405Intrinsics
 from ntcr_recon.sim.simulate import Simulation
 from ntcr_recon.sim.truth import load_truth
 
@@ -180,3 +181,27 @@ def test_render_command_draws_a_png(written, tmp_path):
         assert image.width > 800 and image.height > 400
         pixels = np.asarray(image.convert("RGB"))
     assert len(np.unique(pixels.reshape(-1, 3), axis=0)) > 100  # a drawing, not a blank canvas
+
+
+def test_an_overwritten_bag_is_replaced_whole_or_kept(tmp_path):
+    """--overwrite swaps the new bag in by one rename; a failure while writing leaves the old bag as it was,
+    and the staging of a run killed earlier is cleaned up by the next."""
+    target = tmp_path / "scene"
+    target.mkdir()
+    (target / "old.mcap").write_bytes(b"old")
+    stale = tmp_path / ".scene.partial-999999999-x"  # no such process: a killed run's leftovers
+    stale.mkdir()
+
+    def broken_frames():
+        raise RuntimeError("renderer failed")
+        yield
+
+    contents = BagContents("/rig", D405Intrinsics(), broken_frames())
+    with pytest.raises(RuntimeError, match="renderer failed"):
+        write_rig_bag(target, contents, {}, overwrite=True)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene"]
+    assert sorted(p.name for p in target.iterdir()) == ["old.mcap"]
+    write_rig_bag(target, BagContents("/rig", D405Intrinsics(), []), {"note.txt": "new"}, overwrite=True)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene"]
+    assert (target / "note.txt").read_text() == "new" and not (target / "old.mcap").exists()
+    assert (target / "metadata.yaml").is_file()

@@ -17,6 +17,7 @@ Public API:
 
 from __future__ import annotations
 
+import os
 import shutil
 import tempfile
 from collections.abc import Iterable
@@ -29,6 +30,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from ntcr_recon.core.deproject import Intrinsics, depth_to_points
 from ntcr_recon.io.pointcloud import ROSBAGS, cloud_to_msg
+from ntcr_recon.io.staging import STAGING_INFIX, remove_stale_staging, swap_in
 from ntcr_recon.sim.camera import CameraPose, D405Intrinsics
 
 TOPIC_KINDS = {
@@ -118,9 +120,11 @@ def write_rig_bag(out_dir: str | Path, contents: BagContents, extra_files: dict[
     if out_dir.exists() and not overwrite:
         raise FileExistsError(f"{out_dir} exists; choose another output directory or pass --overwrite")
     out_dir.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(dir=out_dir.parent, prefix=f".{out_dir.name}.partial-"))
+    remove_stale_staging(out_dir)
+    # the bag is built one level down: rosbags names the .mcap after its directory, which must be out_dir's name
+    staging = Path(tempfile.mkdtemp(dir=out_dir.parent, prefix=f".{out_dir.name}{STAGING_INFIX}{os.getpid()}-"))
     try:
-        bag_path = staging / out_dir.name  # rosbags names the .mcap after the directory
+        bag_path = staging / out_dir.name
         writer = Writer(bag_path, version=9, storage_plugin=StoragePlugin.MCAP)
         writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)  # zstd mcap chunks
         connections = {}
@@ -135,10 +139,7 @@ def write_rig_bag(out_dir: str | Path, contents: BagContents, extra_files: dict[
                                  TYPESTORE.serialize_cdr(message, msgtype))
         for name, text in extra_files.items():
             (bag_path / name).write_text(text)
-        if out_dir.exists():
-            trash = staging / ".previous"
-            out_dir.rename(trash)
-        bag_path.rename(out_dir)
+        swap_in(bag_path, out_dir)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     return out_dir
