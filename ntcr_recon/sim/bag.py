@@ -11,8 +11,8 @@ Beside the mcap, inside the bag directory: ground_truth.json and rig.yaml (a rig
 
 Public API:
     TOPIC_KINDS, topic_name(namespace, camera, kind)
-    BagContents(namespace, cameras, intrinsics, frames, with_points)
-    write_rig_bag(out_dir, contents, extra_files, overwrite=False, progress=True) -> Path
+    BagContents(namespace, intrinsics, frames, with_points=False)
+    write_rig_bag(out_dir, contents, extra_files, overwrite=False) -> Path
 """
 
 from __future__ import annotations
