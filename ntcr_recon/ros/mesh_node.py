@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import os
 import sys
+import time
 from pathlib import Path as PathLib
 
 import numpy as np
@@ -30,7 +31,15 @@ from visualization_msgs.msg import Marker
 from ntcr_recon.core.mesh import write_mesh
 from ntcr_recon.core.pipeline import Reconstructor
 from ntcr_recon.io.pointcloud import stamp_to_ns
-from ntcr_recon.ros.messages import mesh_marker, mesh_msg, relocation_from_msgs, stage_cloud_and_normals
+from ntcr_recon.ros.messages import (
+    DEFAULT_MAX_POINTS,
+    check_point_count,
+    mesh_marker_bytes,
+    mesh_msg_bytes,
+    relocation_from_msgs,
+    stage_cloud_and_normals,
+)
+from ntcr_recon.ros.node_stats import NodeStats
 from ntcr_recon.ros.node_support import LATCHED_QOS, STAGE_QOS, ParameterError, RigNode, describe, guarded, run_node
 from ntcr_recon.ros.topics import stage_topic
 
@@ -40,6 +49,8 @@ PARAMETERS = {
     "rate": (1.0, describe("meshes per second (of the node's clock)", minimum=0.01, maximum=30.0)),
     "save_ply_path": ("", describe("setting it writes the newest mesh to this PLY file")),
     "output_dir": ("", describe("when set, every new mesh is also written to <output_dir>/mesh.ply")),
+    "max_points": (DEFAULT_MAX_POINTS, describe("largest cloud accepted (points); a larger one is dropped before it "
+                                                "is read", minimum=1, maximum=100_000_000, integer=True)),
 }
 
 
@@ -56,6 +67,7 @@ class MeshNode(RigNode):
         import open3d  # noqa: F401
 
         super().__init__("mesh_node", PARAMETERS)
+        self.stats = NodeStats(self, "ntcr_recon: mesh")
         self._newest = None  # the newest relocated cloud message not yet meshed
         self._centerlines: dict[int, Path] = {}  # the last few centrelines by stamp
         self.meshes = 0
@@ -87,6 +99,8 @@ class MeshNode(RigNode):
 
     @guarded
     def _on_cloud(self, msg: PointCloud2) -> None:
+        self.stats.received()
+        check_point_count(msg, self._params["max_points"])
         _, normals = stage_cloud_and_normals(msg, self.rig.base_frame)  # refuse a bad cloud now, by name
         if normals is None:
             raise ValueError("relocated cloud has no normal_x/normal_y/normal_z fields (is it relocation_node's?)")
@@ -106,6 +120,7 @@ class MeshNode(RigNode):
         if centerline is None:
             return  # its centreline is on the way (published right after the cloud)
         msg, self._newest = self._newest, None
+        started = time.perf_counter()
         try:
             relocation = relocation_from_msgs(msg, centerline, self.rig.base_frame)
             mesh = self._reconstructor.mesh(relocation)
@@ -114,9 +129,11 @@ class MeshNode(RigNode):
             return
         vertices, triangles = np.asarray(mesh.vertices, float), np.asarray(mesh.triangles, np.int64)
         self._mesh = (mesh, stamp)
-        self._marker.publish(mesh_marker(vertices, triangles, self.rig.base_frame, stamp))
-        self._raw.publish(mesh_msg(vertices, triangles))
+        # serialized from the arrays: a Point object per corner cost tens of ms a mesh
+        self._marker.publish(mesh_marker_bytes(vertices, triangles, self.rig.base_frame, stamp))
+        self._raw.publish(mesh_msg_bytes(vertices, triangles))
         self.meshes += 1
+        self.stats.published(stamp, started)
         if self._params["output_dir"]:
             self._write(PathLib(self._params["output_dir"]).expanduser() / "mesh.ply")
         self._save_pending()
