@@ -24,8 +24,8 @@ PARAMETERS = {
 
 
 class FilterNode(RigNode):
-    def __init__(self) -> None:
-        super().__init__("filter_node", PARAMETERS)
+    def __init__(self, node_name: str = "filter_node") -> None:
+        super().__init__(node_name, PARAMETERS)
         self.stats = NodeStats(self, "ntcr_recon: filter")
         self._publisher = self.create_publisher(PointCloud2, stage_topic(self.rig.topics, "filtered/points"),
                                                 STAGE_QOS)

@@ -55,9 +55,9 @@ DIAGNOSTIC_NAME = "ntcr_recon: fusion"
 
 
 class FusionNode(RigNode):
-    def __init__(self) -> None:
+    def __init__(self, node_name: str = "fusion_node") -> None:
         self._pairer: FramePairer | None = None
-        super().__init__("fusion_node", PARAMETERS)
+        super().__init__(node_name, PARAMETERS)
         self._intrinsics: dict[str, Intrinsics] = {}
         self._publisher = self.create_publisher(PointCloud2, stage_topic(self.rig.topics, "fused/points"), STAGE_QOS)
         self.stats = NodeStats(self, DIAGNOSTIC_NAME, diagnostics_period=self._params["diagnostics_period"],

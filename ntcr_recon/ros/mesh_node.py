@@ -55,7 +55,7 @@ PARAMETERS = {
 
 
 class MeshNode(RigNode):
-    def __init__(self) -> None:
+    def __init__(self, node_name: str = "mesh_node") -> None:
         self._timer = None
         self._mesh = None  # (core.mesh.Mesh, stamp) of the newest mesh
         self._pending_save: Path | None = None
@@ -66,7 +66,7 @@ class MeshNode(RigNode):
         os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
         import open3d  # noqa: F401
 
-        super().__init__("mesh_node", PARAMETERS)
+        super().__init__(node_name, PARAMETERS)
         self.stats = NodeStats(self, "ntcr_recon: mesh")
         self._newest = None  # the newest relocated cloud message not yet meshed
         self._centerlines: dict[int, Path] = {}  # the last few centrelines by stamp

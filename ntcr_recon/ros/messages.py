@@ -78,21 +78,25 @@ def check_pixels(pixel: np.ndarray, width: int, height: int, what: str) -> None:
                              f"{width}x{height} image of {what}", "inconsistent")
 
 
-def intrinsics_from_camera_info(msg) -> Intrinsics:
-    """The Intrinsics of a CameraInfo, or a RefusedInputError naming the value that cannot be a camera's (a
-    non-finite or non-positive focal length, a non-finite centre, an empty or absurd image size)."""
-    k = np.asarray(msg.k, dtype=float).reshape(-1)
-    if k.size != 9:
-        raise RefusedInputError(f"K must have 9 entries, got {k.size}", "inconsistent")
-    values = {"fx": k[0], "fy": k[4], "cx": k[2], "cy": k[5]}
+def checked_intrinsics(width: int, height: int, fx: float, fy: float, cx: float, cy: float) -> Intrinsics:
+    """Intrinsics, or a RefusedInputError naming the value that cannot be a camera's (a non-finite or
+    non-positive focal length, a non-finite centre, an empty or absurd image size)."""
+    values = {"fx": float(fx), "fy": float(fy), "cx": float(cx), "cy": float(cy)}
     for name, value in values.items():
         if not math.isfinite(value) or (name in ("fx", "fy") and value <= 0):
             raise RefusedInputError(f"{name} is {value}: a camera's {name} must be a finite"
-                                 f"{' positive' if name in ('fx', 'fy') else ''} number", "inconsistent")
-    width, height = int(msg.width), int(msg.height)
-    if not (0 < width <= 100_000 and 0 < height <= 100_000):
+                                    f"{' positive' if name in ('fx', 'fy') else ''} number", "inconsistent")
+    if not (0 < int(width) <= 100_000 and 0 < int(height) <= 100_000):
         raise RefusedInputError(f"image size {width}x{height} is not a camera's", "inconsistent")
-    return Intrinsics(width, height, values["fx"], values["fy"], values["cx"], values["cy"])
+    return Intrinsics(int(width), int(height), values["fx"], values["fy"], values["cx"], values["cy"])
+
+
+def intrinsics_from_camera_info(msg) -> Intrinsics:
+    """The Intrinsics of a CameraInfo (K row-major), checked as `checked_intrinsics` does."""
+    k = np.asarray(msg.k, dtype=float).reshape(-1)
+    if k.size != 9:
+        raise RefusedInputError(f"K must have 9 entries, got {k.size}", "inconsistent")
+    return checked_intrinsics(int(msg.width), int(msg.height), k[0], k[4], k[2], k[5])
 
 
 def stamp_msg(stamp_ns: int) -> Time:

@@ -54,8 +54,8 @@ PARAMETERS = {
 
 
 class RelocationNode(RigNode):
-    def __init__(self) -> None:
-        super().__init__("relocation_node", PARAMETERS)
+    def __init__(self, node_name: str = "relocation_node") -> None:
+        super().__init__(node_name, PARAMETERS)
         self.stats = NodeStats(self, "ntcr_recon: relocation")
         topic = self.rig.topics
         self._cloud = self.create_publisher(PointCloud2, stage_topic(topic, "relocated/points"), STAGE_QOS)
