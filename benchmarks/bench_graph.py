@@ -149,7 +149,8 @@ def graph_processes(run_pid: int) -> dict[str, psutil.Process]:
         except psutil.Error:
             continue
         names = [a.split(":=", 1)[1] for a in argv if a.startswith("__node:=")]
-        result[names[0] if names else Path(argv[-1]).name] = child
+        single = "ntcr_recon.ros.single_process" in argv
+        result[names[0] if names else ("all nodes" if single else Path(argv[-1]).name)] = child
     return result
 
 
@@ -216,8 +217,9 @@ def main(argv: list[str] | None = None) -> int:
 def report(args, client: Client, start: float, end: float, processes, cpu_start, cpu_end, rss, window_log) -> int:
     seconds = end - start
     in_window = {topic: [(t, s) for t, s in items if start <= t < end] for topic, items in client.received.items()}
-    camera_stamps = sorted({s for topic in CAMERA_TOPICS for _, s in in_window.get(topic, [])})
-    period_ns = float(np.median(np.diff(camera_stamps))) if len(camera_stamps) > 2 else 1e9 / 30
+    from ntcr_recon.core.config import load_rig_config
+
+    period_ns = 1e9 / load_rig_config(args.bag / "rig.yaml").cameras["cam_a"].fps  # the recorded frame period
     recorded_pairs = seconds * args.rate * 1e9 / period_ns  # frames the bag has in the window, per camera
     # When the camera clouds of a stamp reached the client: the later camera completes the pair.
     camera_time: dict[int, float] = {}
