@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import functools
 import os
+import signal
 import sys
+import threading
 import time
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -25,6 +27,7 @@ from rclpy.qos import (
     ReliabilityPolicy,
     qos_profile_sensor_data,
 )
+from rclpy.signals import SignalHandlerOptions
 
 # Camera clouds: best effort, keep the last few (a late cloud is worth less than a fresh one).
 SENSOR_QOS = qos_profile_sensor_data
@@ -123,11 +126,11 @@ def make_executor(context=None):
     return SingleThreadedExecutor(context=context)
 
 
-def spin(executor, context) -> None:
-    """Execute callbacks until the context shuts down. spin_once in a loop: rclpy 7.1.5's EventsExecutor.spin()
-    busy-loops without dispatching anything."""
-    while context.ok():
-        executor.spin_once(timeout_sec=0.5)
+def spin(executor, context, stop: threading.Event | None = None) -> None:
+    """Execute callbacks until the context shuts down or `stop` is set. spin_once in a loop: rclpy 7.1.5's
+    EventsExecutor.spin() busy-loops without dispatching anything."""
+    while context.ok() and not (stop is not None and stop.is_set()):
+        executor.spin_once(timeout_sec=0.25)
 
 
 def _shutting_down(context) -> bool:
@@ -145,9 +148,15 @@ def run_node(node_factory: Callable[[], Node], args: list[str] | None = None) ->
 
 
 def run_nodes(node_factories: Sequence[Callable[[], Node]], args: list[str] | None = None) -> int:
-    """`run_node` for several nodes in one process, on one executor (still separate nodes talking over topics)."""
-    rclpy.init(args=args)
+    """`run_node` for several nodes in one process, on one executor (still separate nodes talking over topics).
+
+    Ctrl-C / SIGTERM only ask the loop to stop after the callback under way (rclpy's own handler raised
+    KeyboardInterrupt inside it, which the EventsExecutor reports as a FATAL traceback, and shut the context
+    down under a take); then the nodes are destroyed and rclpy shut down in order."""
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     context = rclpy.get_default_context()
+    stop = threading.Event()
+    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
     nodes: list[Node] = []
     try:
         for factory in node_factories:
@@ -155,7 +164,7 @@ def run_nodes(node_factories: Sequence[Callable[[], Node]], args: list[str] | No
         executor = make_executor(context)
         for node in nodes:
             executor.add_node(node)
-        spin(executor, context)
+        spin(executor, context, stop)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except RuntimeError:
@@ -171,6 +180,8 @@ def run_nodes(node_factories: Sequence[Callable[[], Node]], args: list[str] | No
             node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
     return 0
 
 
