@@ -227,8 +227,8 @@ class CameraNode(RigNode):
                 try:
                     self._publish(frame)
                 except ValueError as error:  # one bad frame (wrong size, bad encoding): say so, go on
-                    self.stats.dropped(getattr(error, "reason", "invalid"),
-                                       f"frame at {frame.stamp_ns} ns: {error}")
+                    # the same defect in every frame is logged once per log period, not per frame
+                    self.stats.dropped(getattr(error, "reason", "invalid"), f"camera '{self.camera}' frame: {error}")
         except SourceError as error:
             self.get_logger().error(f"camera source stopped: {error}")
         except Exception as error:  # the context may be shut down under a publish at Ctrl-C
