@@ -108,3 +108,14 @@ def test_camera_info_with_an_impossible_value_is_refused_naming_it(field, value,
     values[k[field]] = 400.0
     info.k = values
     assert messages.intrinsics_from_camera_info(info).width == 848
+
+
+def test_notch_markers_are_oriented_by_the_centreline_frames():
+    rotations = random_rotations(3)
+    notches = [{"index": i, "width": 1.5e-3} for i in range(3)]
+    markers = messages.notch_markers(notches, RNG.normal(size=(3, 3)), rotations, 1.75e-3, "ntcr_base", 5).markers
+    discs = [m for m in markers if m.ns == "notches" and m.action == Marker.ADD]
+    assert len(discs) == 3
+    for disc, rotation in zip(discs, rotations, strict=True):
+        q = disc.pose.orientation
+        np.testing.assert_allclose([q.x, q.y, q.z, q.w], matrix_to_quaternion(rotation), atol=1e-12)

@@ -354,9 +354,13 @@ def notch_markers(notches: Sequence[dict], positions: np.ndarray, rotations: np.
     and a text label with the width in mm; a DELETEALL first so vanished notches disappear in RViz."""
     head = header(frame_id, stamp_ns)
     markers = [Marker(header=head, ns="notches", action=Marker.DELETEALL)]
-    for notch, position, rotation in zip(notches, positions, rotations, strict=True):
+    rotations = np.asarray(rotations, dtype=float).reshape(-1, 3, 3)
+    orientations = quaternions(rotations) if len(rotations) else np.empty((0, 4))  # all notches in one call
+    for notch, position, rotation, q in zip(notches, positions, rotations, orientations, strict=True):
         disc = Marker(header=head, ns="notches", id=2 * int(notch["index"]), type=Marker.CYLINDER,
-                      action=Marker.ADD, pose=pose(position, rotation))
+                      action=Marker.ADD, pose=pose(position))
+        o = disc.pose.orientation
+        o.x, o.y, o.z, o.w = (float(v) for v in q)
         disc.scale.x = disc.scale.y = 2.2 * radius
         disc.scale.z = float(notch["width"])
         disc.color = ColorRGBA(r=1.0, g=0.5, b=0.0, a=0.6)
