@@ -83,11 +83,12 @@ class RelocationNode(RigNode):
             raise ValueError(f"cannot reconstruct the cloud of {len(cloud)} points: {error}") from error
         frame, stamp = self.rig.base_frame, cloud.stamp_ns
         centerline = relocation.centerline
-        self._cloud.publish(relocation_cloud_msg(relocation, frame))
-        self._path.publish(centerline_path_bytes(centerline, frame, stamp))
+        # The tip first: it is what a controller waits for; the cloud then its centreline (mesh_node pairs them).
         end = frame_rotations(centerline.normals[-1:], centerline.binormals[-1:], centerline.tangents[-1:])[0]
         self._tip.publish(pose_stamped(relocation.tip, end, frame, stamp))
-        self.stats.published(stamp, started)  # the tip is what a controller waits for
+        self.stats.published(stamp, started)
+        self._cloud.publish(relocation_cloud_msg(relocation, frame))
+        self._path.publish(centerline_path_bytes(centerline, frame, stamp))
         notches = [{"index": n.index, "center_s": n.center_s, "width": n.width, "bend": n.bend}
                    for n in relocation.notches]
         self._notches.publish(notches_array(notches))
