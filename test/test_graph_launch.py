@@ -227,3 +227,32 @@ def test_readme_replay_example_loops():
     readme = (REPO / "README.md").read_text()
     example = next(line for line in readme.splitlines() if "replay.launch.py" in line)
     assert "loop:=true" in example, example
+
+
+def test_run_single_process_hosts_every_node_in_one_process(tmp_path):
+    # --single-process: the same separate nodes (names, topics) on one executor in one process.
+    from geometry_msgs.msg import PoseStamped
+    from ros_graph import RosGraph
+    from stage_probe import COLLECT_RELIABLE
+
+    log_path = tmp_path / "run.log"
+    with RosGraph() as ros:
+        tips = []
+        ros.node.create_subscription(PoseStamped, "/ntcr/tip", tips.append, COLLECT_RELIABLE)
+        with log_path.open("w") as log:
+            run = subprocess.Popen([str(RUN), "run", "--config", "bags/bend45/rig.yaml", "--bag", "bags/bend45",
+                                    "--loop", "--single-process", "--param", "mesh_node:rate:=2.0",
+                                    "--duration", "120"], cwd=REPO, env=ros.env, stdout=log,
+                                   stderr=subprocess.STDOUT)
+        try:
+            assert ros.spin_until(lambda: len(tips) >= 3, 90), log_path.read_text()
+            names = set(ros.node.get_node_names())
+            children = subprocess.run(["pgrep", "-P", str(run.pid)], capture_output=True, text=True).stdout.split()
+        finally:
+            run.send_signal(signal.SIGINT)
+            code = run.wait(timeout=60)
+    assert {"camera_cam_a", "camera_cam_b", *graph.STAGE_NODES} <= names, names
+    assert len(children) == 1
+    assert code == 0, log_path.read_text()
+    assert "Traceback" not in log_path.read_text()
+
