@@ -11,7 +11,8 @@ RViz together would, and after `--warm-up` seconds measures for `--duration` sec
   per topic      rate, share of the recorded frame pairs delivered (distinct stamps / bag frames due in the
                  window), latency from the camera clouds of a stamp (the later of the two, as received by the
                  client) to that topic's message of the same stamp (p50 / p95 / max)
-  per stage      latency between consecutive stages (camera -> fused -> filtered -> relocated -> tip)
+  per stage      latency between consecutive stages (camera -> fused -> filtered -> tip, relocated ->
+                 centreline; relocation_node publishes the tip first)
   lag trend      median camera-to-tip latency of the first and the last quarter of the window
   per process    CPU time per delivered tip and resident memory (start, one minute in, end; psutil)
   per node       processing time and drops as the nodes report them on /diagnostics (ros/node_stats.py)
@@ -51,7 +52,7 @@ OUTPUT_TOPICS = (
     ("/ntcr/filtered/points", "sensor_msgs.msg", "PointCloud2", "/ntcr/fused/points"),
     ("/ntcr/relocated/points", "sensor_msgs.msg", "PointCloud2", "/ntcr/filtered/points"),
     ("/ntcr/centerline", "nav_msgs.msg", "Path", "/ntcr/relocated/points"),
-    ("/ntcr/tip", "geometry_msgs.msg", "PoseStamped", "/ntcr/relocated/points"),
+    ("/ntcr/tip", "geometry_msgs.msg", "PoseStamped", "/ntcr/filtered/points"),  # published first
     ("/ntcr/notches", "std_msgs.msg", "Float64MultiArray", None),
     ("/ntcr/notches/markers", "visualization_msgs.msg", "MarkerArray", None),
     ("/ntcr/mesh", "visualization_msgs.msg", "Marker", None),
