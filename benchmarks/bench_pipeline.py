@@ -49,8 +49,8 @@ def main() -> int:
     args = parser.parse_args()
 
     from ntcr_recon.core.config import load_rig_config
-    from ntcr_recon.core.fusion import pair_frames
     from ntcr_recon.core.mesh import poisson_mesh
+    from ntcr_recon.core.pairing import pair_frames
     from ntcr_recon.core.pipeline import Reconstructor
     from ntcr_recon.io.bag import read_camera_frames
 

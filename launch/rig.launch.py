@@ -3,7 +3,9 @@
 ros2 launch ntcr_recon rig.launch.py config:=/path/to/my_rig.yaml [rviz:=true] [mesh_rate:=1.0]
 
 The rig configuration (a ROS 2 parameter file, see config/rig_template.yaml) names the cameras (their serial
-numbers, stream profiles and extrinsics), the robot and the stages' settings; every node reads it.
+numbers, stream profiles and extrinsics), the robot and the stages' settings; every node reads it. A node that
+dies is started again after `respawn_delay` seconds (as `ntcr-recon run` does), and a camera that is not
+plugged in is waited for by its camera_node (a log line every few seconds, /diagnostics ERROR).
 """
 
 import os
@@ -18,6 +20,7 @@ from launch_ros.actions import Node
 from launch import LaunchDescription
 
 STAGE_NODES = ("fusion_node", "filter_node", "relocation_node", "mesh_node")
+RESPAWN_DELAY_S = 2.0  # a node that dies (a crash, the OOM killer) is started again after this
 
 
 def camera_names(config_path: str) -> list[str]:
@@ -35,13 +38,13 @@ def graph_nodes(context, source_parameters) -> list[Node]:
     for index, camera in enumerate(camera_names(config)):
         parameters = {"camera": camera, **source_parameters(context, index)}
         nodes.append(Node(package="ntcr_recon", executable="camera_node", name=f"camera_{camera}", output="screen",
-                          parameters=[config, parameters]))
+                          parameters=[config, parameters], respawn=True, respawn_delay=RESPAWN_DELAY_S))
     for executable in STAGE_NODES:
         extra = {"use_sim_time": use_sim_time}
         if executable == "mesh_node":
             extra["rate"] = float(LaunchConfiguration("mesh_rate").perform(context))
         nodes.append(Node(package="ntcr_recon", executable=executable, name=executable, output="screen",
-                          parameters=[config, extra]))
+                          parameters=[config, extra], respawn=True, respawn_delay=RESPAWN_DELAY_S))
     return nodes
 
 

@@ -19,7 +19,8 @@ from ntcr_recon.core.filters import (
     statistical_outlier_mask,
     voxel_downsample,
 )
-from ntcr_recon.core.fusion import CameraFrame, fuse, pair_frames
+from ntcr_recon.core.fusion import CameraFrame, fuse
+from ntcr_recon.core.pairing import pair_frames
 
 
 def test_depth_to_points_inverts_the_pinhole_projection():

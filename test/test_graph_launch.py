@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import argparse
 import ast
+import os
 import re
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -99,3 +101,159 @@ def test_run_stops_the_graph_when_a_node_fails(tmp_path):
                             capture_output=True, text=True, cwd=REPO, timeout=90)
     assert result.returncode == 1
     assert "mesh_node exited with code" in result.stderr, result.stderr
+
+
+def test_run_respawns_a_node_that_dies_and_the_graph_goes_on(tmp_path):
+    # issue 11: a killed node (here SIGKILL, as the OOM killer would) is started again with a log line, and
+    # the fused clouds flow again; the other nodes were never stopped.
+    from ros_graph import RosGraph
+    from sensor_msgs.msg import PointCloud2
+    from stage_probe import COLLECT_RELIABLE
+
+    log_path = tmp_path / "run.log"
+    with RosGraph() as graph:
+        fused = []
+        graph.node.create_subscription(PointCloud2, "/ntcr/fused/points", fused.append, COLLECT_RELIABLE)
+        with log_path.open("w") as log:
+            run = subprocess.Popen([str(RUN), "run", "--config", "bags/bend45/rig.yaml", "--bag", "bags/bend45",
+                                    "--loop", "--no-mesh", "--duration", "120"], cwd=REPO, env=graph.env,
+                                   stdout=log, stderr=subprocess.STDOUT)
+        try:
+            assert graph.spin_until(lambda: fused, 60), log_path.read_text()
+            children = {name: pid for pid, name in node_names(run.pid).items()}
+            os.kill(children["fusion_node"], signal.SIGKILL)
+            assert graph.spin_until(lambda: "fusion_node started again" in log_path.read_text(), 30), \
+                log_path.read_text()
+            count = len(fused)
+            assert graph.spin_until(lambda: len(fused) > count, 60), log_path.read_text()
+            after = node_names(run.pid)
+            assert sorted(after.values()) == sorted(children)  # every node there, fusion_node a new process
+            assert {pid for pid, name in after.items() if name == "fusion_node"} != {children["fusion_node"]}
+            assert all(children[name] in after for name in children if name != "fusion_node")
+        finally:
+            run.send_signal(signal.SIGINT)
+            code = run.wait(timeout=60)
+    text = log_path.read_text()
+    assert "fusion_node exited with code -9; starting it again in 1 s" in text, text
+    assert code == 0, text
+
+
+def node_names(run_pid: int) -> dict[int, str]:
+    """pid -> node name of the children of `ntcr-recon run`."""
+    pids = [int(p) for p in subprocess.run(["pgrep", "-P", str(run_pid)], capture_output=True,
+                                           text=True).stdout.split()]
+    names = {}
+    for pid in pids:
+        try:
+            argv = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        names[pid] = next(a.decode().split(":=")[1] for a in argv if a.startswith(b"__node:="))
+    return names
+
+
+def launch_stubs() -> dict:
+    """Just enough of `launch`, `launch_ros` and `ament_index_python` (not on PyPI) to run the launch files'
+    functions and see the nodes they would start, with the arguments they would get."""
+    import types
+
+    class Recorded:
+        def __init__(self, *args, **kwargs):
+            self.args, self.kwargs = args, kwargs
+
+    class LaunchConfiguration(Recorded):
+        def perform(self, context):
+            return context.launch_configurations[self.args[0]]
+
+    modules = {name: types.ModuleType(name) for name in (
+        "launch", "launch.actions", "launch.substitutions", "launch.conditions", "launch_ros",
+        "launch_ros.actions", "ament_index_python", "ament_index_python.packages")}
+    modules["launch"].LaunchDescription = lambda entities: list(entities)
+    modules["launch.actions"].DeclareLaunchArgument = type("DeclareLaunchArgument", (Recorded,), {})
+    modules["launch.actions"].OpaqueFunction = type("OpaqueFunction", (Recorded,), {})
+    modules["launch.substitutions"].LaunchConfiguration = LaunchConfiguration
+    modules["launch.substitutions"].PathJoinSubstitution = type("PathJoinSubstitution", (Recorded,), {})
+    modules["launch.conditions"].IfCondition = type("IfCondition", (Recorded,), {})
+    modules["launch_ros.actions"].Node = type("Node", (Recorded,), {})
+    modules["ament_index_python.packages"].get_package_share_directory = lambda package: str(REPO)
+    return modules
+
+
+def launched_nodes(path: Path, monkeypatch, **arguments) -> list:
+    """The ntcr_recon Node actions `path` yields for `arguments` (defaults as declared)."""
+    import importlib.util
+    import types
+
+    for name, module in launch_stubs().items():
+        monkeypatch.setitem(sys.modules, name, module)
+    spec = importlib.util.spec_from_file_location(f"launch_{path.stem.replace('.', '_')}", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    entities = module.generate_launch_description()
+    context = types.SimpleNamespace(launch_configurations={})
+    nodes = []
+    for entity in entities:
+        kind = type(entity).__name__
+        if kind == "DeclareLaunchArgument":
+            name = entity.args[0]
+            context.launch_configurations[name] = arguments.get(name, entity.kwargs.get("default_value"))
+        elif kind == "OpaqueFunction":
+            nodes += entity.kwargs["function"](context) or []
+    return [n for n in nodes if n.kwargs.get("package") == "ntcr_recon"]
+
+
+def test_launch_files_respawn_every_node(monkeypatch):
+    # issue 11: a node that dies is started again by the launch file, as by `ntcr-recon run`.
+    nodes = launched_nodes(REPO / "launch" / "rig.launch.py", monkeypatch, config="config/sim_rig.yaml")
+    assert sorted(n.kwargs["executable"] for n in nodes) == sorted(["camera_node", "camera_node",
+                                                                    *graph.STAGE_NODES])
+    assert all(n.kwargs["respawn"] is True and n.kwargs["respawn_delay"] > 0 for n in nodes)
+
+
+def test_replay_launch_gives_the_cameras_one_start_time_as_run_does(monkeypatch):
+    # issue 11: without one start_time the cameras replayed out of step.
+    import time
+
+    nodes = launched_nodes(REPO / "launch" / "replay.launch.py", monkeypatch, bag=str(REPO / "bags" / "bend45"),
+                           loop="true")
+    cameras = [dict(n.kwargs["parameters"][1]) for n in nodes if n.kwargs["executable"] == "camera_node"]
+    assert len(cameras) == 2 and all(n.kwargs["respawn"] is True for n in nodes)
+    assert cameras[0]["start_time"] == cameras[1]["start_time"] > time.time()
+    assert all(c["loop"] is True and c["source"] == "bag" for c in cameras)
+    assert [c["publish_clock"] for c in cameras] == [True, False]
+
+
+def test_readme_replay_example_loops():
+    # issue 11: the sample bags are 0.1 s long; the README's replay example without loop gave a handful of tips.
+    readme = (REPO / "README.md").read_text()
+    example = next(line for line in readme.splitlines() if "replay.launch.py" in line)
+    assert "loop:=true" in example, example
+
+
+def test_run_single_process_hosts_every_node_in_one_process(tmp_path):
+    # --single-process: the same separate nodes (names, topics) on one executor in one process.
+    from geometry_msgs.msg import PoseStamped
+    from ros_graph import RosGraph
+    from stage_probe import COLLECT_RELIABLE
+
+    log_path = tmp_path / "run.log"
+    with RosGraph() as ros:
+        tips = []
+        ros.node.create_subscription(PoseStamped, "/ntcr/tip", tips.append, COLLECT_RELIABLE)
+        with log_path.open("w") as log:
+            run = subprocess.Popen([str(RUN), "run", "--config", "bags/bend45/rig.yaml", "--bag", "bags/bend45",
+                                    "--loop", "--single-process", "--param", "mesh_node:rate:=2.0",
+                                    "--duration", "120"], cwd=REPO, env=ros.env, stdout=log,
+                                   stderr=subprocess.STDOUT)
+        try:
+            assert ros.spin_until(lambda: len(tips) >= 3, 90), log_path.read_text()
+            names = set(ros.node.get_node_names())
+            children = subprocess.run(["pgrep", "-P", str(run.pid)], capture_output=True, text=True).stdout.split()
+        finally:
+            run.send_signal(signal.SIGINT)
+            code = run.wait(timeout=60)
+    assert {"camera_cam_a", "camera_cam_b", *graph.STAGE_NODES} <= names, names
+    assert len(children) == 1
+    assert code == 0, log_path.read_text()
+    assert "Traceback" not in log_path.read_text()
+

@@ -56,10 +56,15 @@ def test_graph_at_30_hz_for_60_s_of_bag_time_keeps_memory_flat_and_no_backlog(tm
         graph.node.create_subscription(
             PointCloud2, "/ntcr/relocated/points",
             lambda m: relocated.append((clock[-1] if clock else 0, stamp_to_ns(m.header.stamp))), COLLECT_RELIABLE)
+        reports = {}  # newest /diagnostics values of every node
         graph.node.create_subscription(
             DiagnosticArray, "/diagnostics",
             lambda m: fusion_counts.extend({"stamp": stamp_to_ns(m.header.stamp), **{kv.key: kv.value for kv in
                                             s.values}} for s in m.status if s.name == "ntcr_recon: fusion"),
+            COLLECT_RELIABLE)
+        graph.node.create_subscription(
+            DiagnosticArray, "/diagnostics",
+            lambda m: reports.update({s.name: {kv.key: kv.value for kv in s.values} for s in m.status}),
             COLLECT_RELIABLE)
         log_path = tmp_path / "run.log"
         with log_path.open("w") as log:
@@ -120,6 +125,13 @@ def test_graph_at_30_hz_for_60_s_of_bag_time_keeps_memory_flat_and_no_backlog(tm
         assert peak_second[name] <= peak_first[name] + 8.0, name
         assert rss_end[name] - rss_start[name] < 30.0, name
     assert len(outputs) >= bag_time  # at least 1 Hz of reconstructed robot
+    # Every node says how it is doing: rates, drops, processing time (ros/node_stats.py).
+    expected_reports = {"ntcr_recon: camera cam_a", "ntcr_recon: camera cam_b", "ntcr_recon: fusion",
+                        "ntcr_recon: filter", "ntcr_recon: relocation", "ntcr_recon: mesh"}
+    assert expected_reports <= set(reports), sorted(reports)
+    for name in expected_reports:
+        assert {"input_hz", "output_hz", "dropped", "processing_ms.p50"} <= set(reports[name]), (name, reports[name])
+        assert int(reports[name]["outputs"]) > 0, (name, reports[name])
     stamps = [stamp for _, stamp in outputs]
     assert all(np.diff(stamps) > 0)  # newest first: no stale backlog replayed
     # Bounded lag: what the stages could not take was dropped, not queued.

@@ -135,3 +135,32 @@ def test_bad_start_parameters_are_refused_by_name(setup, tmp_path, override, exp
                              "-p", f"bag_path:={bag}", *override], capture_output=True, text=True, timeout=30)
     assert result.returncode != 0
     assert expected in result.stderr, result.stderr
+
+
+@pytest.mark.parametrize("index, value, expected", [(0, float("inf"), "fx is inf"), (2, float("nan"), "cx is nan")])
+def test_frames_with_impossible_intrinsics_are_dropped_naming_the_value(tmp_path, monkeypatch, index, value,
+                                                                         expected):
+    # issue 11: camera_info fx = inf overflowed the crop window (an OverflowError stopped the source), cx = NaN
+    # gave "cannot convert float NaN to integer"; now each frame is dropped with the cause named, the node lives.
+    recorded_info = tiny_rig.camera_info
+
+    def impossible_info(frame_id: str, stamp_ns: int):
+        info = recorded_info(frame_id, stamp_ns)
+        info.k[index] = value
+        return info
+
+    monkeypatch.setattr(tiny_rig, "camera_info", impossible_info)
+    rig = tiny_rig.write_rig(tmp_path / "rig.yaml")
+    bag = tiny_rig.write_bag(tmp_path / "bag", frames=3, fps=FPS, cameras=("cam_a",))
+    with RosGraph() as graph:
+        clouds = []
+        graph.node.create_subscription(PointCloud2, "/ntcr/cam_a/depth/color/points", clouds.append, COLLECT_QOS)
+        process = graph.start("camera_node", "--params-file", str(rig), "-p", f"bag_path:={bag}", "-p",
+                              "camera:=cam_a", "-p", "loop:=true")
+        assert graph.spin_until(lambda: expected in graph.log_of(process), 30), graph.log_of(process)
+        graph.spin_until(lambda: False, 1.0)  # the loop goes on: more frames, each dropped
+        log = graph.log_of(process)
+        assert process.poll() is None, log
+        assert "Traceback" not in log and "camera source failed" not in log and "Error" not in log, log
+        assert log.count(expected) == 1, log  # logged once, then counted
+        assert not clouds

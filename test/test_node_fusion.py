@@ -138,3 +138,68 @@ def test_a_bad_rig_parameter_change_is_refused_by_its_key_and_fusion_goes_on(fus
     assert set_parameter(fusion.graph, "fusion_node", "fusion.slop", 0.012).successful
     test_a_pair_is_fused_as_the_core_fuses_it(fusion)
     assert "stamps jumped back" in fusion.graph.log_of(fusion.process)
+
+
+# ---- bounded inputs (issue 11): dropped before anything is allocated for them, logged by cause, counted --------
+
+def fusion_drops(probe, reason: str) -> int:
+    """The newest count of drops for `reason` fusion_node reported on /diagnostics (0 before any)."""
+    for msg in reversed(probe.diagnostics):
+        for status in msg.status:
+            if status.name == "ntcr_recon: fusion":
+                return int({kv.key: kv.value for kv in status.values}.get(f"dropped.{reason}", 0))
+    return 0
+
+
+def assert_dropped_and_counted(probe, msg, publisher, expected_log: str, reason: str) -> None:
+    log_before = len(probe.graph.log_of(probe.process))
+    drops_before, count = fusion_drops(probe, reason), len(probe.received)
+    publisher.publish(msg)
+    assert probe.graph.spin_until(lambda: expected_log in probe.graph.log_of(probe.process)[log_before:], 10), \
+        probe.graph.log_of(probe.process)[log_before:]
+    assert probe.graph.spin_until(lambda: fusion_drops(probe, reason) > drops_before, 5)
+    assert probe.process.poll() is None and len(probe.received) == count
+
+
+def test_an_oversized_camera_cloud_is_dropped_before_it_is_read_and_counted(fusion):
+    xyz, rgb = camera_points("cam_a", 0)
+    assert set_parameter(fusion.graph, "fusion_node", "max_points", len(xyz) - 1).successful
+    try:
+        msg = cloud_to_msg(xyz, rgb, frame_id="cam_a_optical_frame", stamp_ns=3_000 * PERIOD)
+        assert_dropped_and_counted(fusion, msg, fusion.publisher,
+                                   f"cloud of {len(xyz)}x1 = {len(xyz)} points exceeds max_points {len(xyz) - 1}",
+                                   "oversized")
+    finally:
+        assert set_parameter(fusion.graph, "fusion_node", "max_points", 10_000_000).successful
+    test_a_pair_is_fused_as_the_core_fuses_it(fusion)
+
+
+@pytest.mark.parametrize("span", [4000, 16000])
+def test_pixels_outside_the_camera_image_are_dropped_before_a_grid_is_allocated(fusion, span):
+    # Two points whose pixels span `span` columns: laid out as they came, span^2 cells (GBs) would be allocated.
+    xyz = np.array([[0.0, 0.0, 0.09], [1e-4, 0.0, 0.09]])
+    msg = cloud_to_msg(xyz, frame_id="cam_a_optical_frame", stamp_ns=3_100 * PERIOD,
+                       columns={"pixel_u": np.array([0, span], np.float32),
+                                "pixel_v": np.array([0, span], np.float32)})
+    width, height = tiny_rig.INTRINSICS.width, tiny_rig.INTRINSICS.height
+    assert_dropped_and_counted(fusion, msg, fusion.publisher,
+                               f"outside the {width}x{height} image of camera cam_a", "inconsistent")
+    test_a_pair_is_fused_as_the_core_fuses_it(fusion)
+
+
+@pytest.mark.parametrize("field, index, value, expected", [
+    ("fx", 0, float("inf"), "camera_info of cam_a: fx is inf"),
+    ("cx", 2, float("nan"), "camera_info of cam_a: cx is nan"),
+])
+def test_camera_info_with_an_impossible_value_is_dropped_naming_it(fusion, field, index, value, expected):
+    publisher = fusion.graph.node.create_publisher(CameraInfo, "/ntcr/cam_a/depth/camera_info", SENSOR_QOS)
+    fusion.graph.wait_for_subscribers(publisher)
+    info = CameraInfo(header=header("cam_a_optical_frame", 0), width=tiny_rig.INTRINSICS.width,
+                      height=tiny_rig.INTRINSICS.height)
+    k = [tiny_rig.INTRINSICS.fx, 0, tiny_rig.INTRINSICS.cx, 0, tiny_rig.INTRINSICS.fy, tiny_rig.INTRINSICS.cy, 0, 0, 1]
+    k[index] = value
+    info.k = np.array(k, float)
+    assert_dropped_and_counted(fusion, info, publisher, expected, "inconsistent")
+    assert "Traceback" not in fusion.graph.log_of(fusion.process)
+    fusion.graph.node.destroy_publisher(publisher)
+    test_a_pair_is_fused_as_the_core_fuses_it(fusion)  # the last good camera_info still serves

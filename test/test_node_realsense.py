@@ -1,6 +1,6 @@
 """camera_node (its own process) on the pyrealsense2 sources: a librealsense recording made here from a software
-D405 replays as the same clouds the core deprojects from its frames; a live source without a camera is
-refused by name."""
+D405 replays as the same clouds the core deprojects from its frames; a live source without its camera waits for
+it (log line, diagnostics ERROR), or with wait_for_device:=false is refused by name."""
 
 from __future__ import annotations
 
@@ -21,6 +21,7 @@ from ntcr_recon.io.pointcloud import cloud_from_msg, stamp_to_ns
 from ntcr_recon.io.realsense import NO_DEVICE
 
 COLLECT_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT)
+COLLECT_RELIABLE_DIAGNOSTICS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 ABSENT = "no-such-camera"  # a serial no device has (and not all digits: ROS would read that as an integer)
 FRAMES, START_MS, PERIOD_MS = 4, 1_700_000_000_000.0, 1000.0 / 30
 
@@ -76,9 +77,34 @@ def test_file_source_publishes_camera_info_from_the_stream_intrinsics(replay):
 def test_realsense_source_without_its_camera_is_refused_by_name(tmp_path):
     rig = tiny_rig.write_rig(tmp_path / "rig.yaml")
     result = subprocess.run([str(VENV_BIN / "camera_node"), "--ros-args", "--params-file", str(rig),
-                             "-p", "camera:=cam_a", "-p", "source:=realsense", "-p", f"cam_a.serial_number:={ABSENT}"],
+                             "-p", "camera:=cam_a", "-p", "source:=realsense", "-p", f"cam_a.serial_number:={ABSENT}",
+                             "-p", "wait_for_device:=false"],
                             capture_output=True, text=True, timeout=30)
     assert result.returncode != 0
     # On a machine with cameras attached, none of them is the one asked for.
     expected = NO_DEVICE if len(rs.context().query_devices()) == 0 else f"with serial number '{ABSENT}'"
     assert f"source 'realsense': {expected}" in result.stderr, result.stderr
+
+
+def test_realsense_source_without_its_camera_waits_for_it(tmp_path):
+    # issue 11: a camera unplugged at start behaves as one unplugged later: the node waits, says so every few
+    # seconds and on /diagnostics (ERROR), instead of exiting and leaving the rig without that camera for good.
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+
+    rig = tiny_rig.write_rig(tmp_path / "rig.yaml")
+    with RosGraph() as graph:
+        statuses = []
+        graph.node.create_subscription(DiagnosticArray, "/diagnostics",
+                                       lambda m: statuses.extend(m.status), COLLECT_RELIABLE_DIAGNOSTICS)
+        process = graph.start("camera_node", "--params-file", str(rig), "-p", "camera:=cam_a", "-p",
+                              "source:=realsense", "-p", f"cam_a.serial_number:={ABSENT}", "-p",
+                              "reconnect_period:=0.2")
+        expected = NO_DEVICE if len(rs.context().query_devices()) == 0 else f"with serial number '{ABSENT}'"
+        assert graph.spin_until(lambda: any(s.level == DiagnosticStatus.ERROR and expected in s.message
+                                            and "waiting for the camera" in s.message for s in statuses), 30), \
+            graph.log_of(process)
+        graph.spin_until(lambda: False, 1.0)
+        assert process.poll() is None, graph.log_of(process)  # still waiting, not exited
+        log = graph.log_of(process)
+        assert "camera 'cam_a': waiting for the device" in log and expected in log, log
+        assert log.count("waiting for the device") < 5  # a line every few seconds, not one per attempt

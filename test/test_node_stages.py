@@ -197,3 +197,22 @@ def test_mesh_node_refuses_a_cloud_without_normals(scene, mesh_probe):
     mesh_probe.publisher.publish(scene[3][0])  # a filtered cloud: no normals
     assert mesh_probe.graph.spin_until(lambda: "has no normal_x" in
                                        mesh_probe.graph.log_of(mesh_probe.process)[log_before:], 10)
+
+
+def test_filter_node_drops_an_oversized_cloud_before_reading_it(scene, filter_probe):
+    # issue 11: a 10-million-point cloud on fused/points made filter_node grow to 24 GB with no log line. The
+    # limit is lowered here so that an ordinary frame is the oversized one.
+    _, config, fused, *_ = scene
+    probe, points = filter_probe, int(fused[0].width) * int(fused[0].height)
+    assert set_parameter(probe.graph, "filter_node", "max_points", points - 1).successful
+    try:
+        count, log_before = len(probe.received), len(probe.graph.log_of(probe.process))
+        probe.publisher.publish(fused[0])
+        expected = f"exceeds max_points {points - 1}"
+        assert probe.graph.spin_until(lambda: expected in probe.graph.log_of(probe.process)[log_before:], 10), \
+            probe.graph.log_of(probe.process)
+        assert "dropped a message (oversized)" in probe.graph.log_of(probe.process)[log_before:]
+        assert len(probe.received) == count and probe.process.poll() is None
+    finally:
+        assert set_parameter(probe.graph, "filter_node", "max_points", 10_000_000).successful
+    test_filter_node_filters_as_the_core(scene, filter_probe)

@@ -16,8 +16,9 @@ from bag_edit import rewrite_bag
 
 from ntcr_recon.cli.reconstruct import COMBINED_FRAMES_MAX, EvenlySpread
 from ntcr_recon.core.config import load_rig_config
-from ntcr_recon.core.fusion import CameraFrame, pair_frame_stream, pair_frames
+from ntcr_recon.core.fusion import CameraFrame
 from ntcr_recon.core.input_checks import CameraInput
+from ntcr_recon.core.pairing import pair_frame_stream, pair_frames
 from ntcr_recon.io.bag import DepthFrameMatcher, iter_camera_frames, read_camera_frames
 from ntcr_recon.io.camera_sources import BagSource
 

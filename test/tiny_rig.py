@@ -181,7 +181,7 @@ def simulated_bag(tmp_path_factory, frames: int = 2, bend_deg: float = 45.0) -> 
 
 def bag_frame_pairs(bag: Path, config) -> list:
     """The bag's frame pairs as the offline command pairs them (the core's bag reader, not camera_node's)."""
-    from ntcr_recon.core.fusion import pair_frames
+    from ntcr_recon.core.pairing import pair_frames
     from ntcr_recon.io.bag import read_camera_frames
 
     return pair_frames(read_camera_frames(bag, config), int(config.fusion.slop * 1e9))

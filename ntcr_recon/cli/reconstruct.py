@@ -130,9 +130,9 @@ def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
 
     from ntcr_recon.core import figures
     from ntcr_recon.core.cloud import Cloud
-    from ntcr_recon.core.fusion import pair_frame_stream
     from ntcr_recon.core.input_checks import input_warnings
     from ntcr_recon.core.metrics import pdc
+    from ntcr_recon.core.pairing import pair_frame_stream
     from ntcr_recon.core.pipeline import ReconstructionError, Reconstructor
     from ntcr_recon.io.bag import iter_camera_frames
     from ntcr_recon.io.files import write_cloud_ply, write_mesh

@@ -29,6 +29,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-mesh", action="store_true", help="leave out mesh_node")
     parser.add_argument("--param", action="append", default=[], metavar="NODE:NAME:=VALUE",
                         help="extra parameter for one node (e.g. mesh_node:rate:=0.5); repeatable")
+    parser.add_argument("--single-process", action="store_true",
+                        help="host every node in one process on one executor (default: a process per node)")
+    parser.add_argument("--no-respawn", action="store_true",
+                        help="stop the graph when a node dies (default: start it again after a backoff)")
 
 
 def main(args: argparse.Namespace) -> int:

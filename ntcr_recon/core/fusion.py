@@ -1,17 +1,14 @@
-"""Fusion (paper Eq. 9): pair the cameras' frames by stamp, move each cloud into the base frame, concatenate.
+"""Fusion (paper Eq. 9): move each camera's cloud of a frame pair (core.pairing) into the base frame, concatenate.
 
 Public API:
     CameraFrame    one camera's frame: a depth image + intrinsics (+ colour), or points in its optical frame
     FramePair      the frames of one instant, by camera name; one camera alone is allowed
-    pair_frames(streams, slop_ns) -> list[FramePair]
-    pair_frame_stream(frames, slop_ns, silent_after_ns) -> iterator of FramePair   # frames arriving one by one
     fuse(pair, config, box=None) -> Cloud  # base frame, cropped to the configured box (or a region of
                                            # interest inside it), camera index and pixel per point
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -50,74 +47,6 @@ class CameraFrame:
 class FramePair:
     stamp_ns: int
     frames: dict[str, CameraFrame] = field(default_factory=dict)
-
-
-def pair_frames(streams: dict[str, list[CameraFrame]], slop_ns: int) -> list[FramePair]:
-    """Pair frames of several cameras whose stamps differ by at most slop_ns (approximate time).
-
-    The camera with most frames leads; each other camera contributes its nearest unused frame within the
-    slop. A frame of any camera left without partner becomes a one-camera pair, so nothing is lost when a
-    camera drops frames. Pairs come out in stamp order.
-    """
-    streams = {name: sorted(frames, key=lambda f: f.stamp_ns) for name, frames in streams.items() if frames}
-    if not streams:
-        return []
-    leader = max(streams, key=lambda name: len(streams[name]))
-    pairs = [{leader: frame} for frame in streams[leader]]
-    lead_stamps = np.array([f.stamp_ns for f in streams[leader]], dtype=np.int64)
-    unpaired: list[CameraFrame] = []
-    for name, frames in streams.items():
-        if name == leader:
-            continue
-        stamps = np.array([f.stamp_ns for f in frames], dtype=np.int64)
-        distance = np.abs(stamps[:, None] - lead_stamps[None, :])
-        taken = np.zeros(len(lead_stamps), dtype=bool)
-        used = np.zeros(len(stamps), dtype=bool)
-        # Closest matches first, so a frame never steals the partner of a better-matching one.
-        for flat in np.argsort(distance, axis=None):
-            i, j = divmod(int(flat), len(lead_stamps))
-            if distance[i, j] > slop_ns:
-                break
-            if not (taken[j] or used[i]):
-                pairs[j][name] = frames[i]
-                taken[j] = used[i] = True
-        unpaired.extend(frame for frame, was_used in zip(frames, used, strict=True) if not was_used)
-    result = [FramePair(min(f.stamp_ns for f in p.values()), p) for p in pairs]
-    result += [FramePair(f.stamp_ns, {f.camera: f}) for f in unpaired]
-    return sorted(result, key=lambda p: p.stamp_ns)
-
-
-def pair_frame_stream(frames: Iterable[CameraFrame], slop_ns: int, silent_after_ns: int) -> Iterator[FramePair]:
-    """pair_frames for frames that arrive one by one, each camera's in stamp order (a bag read front to
-    back): the same pairs, in stamp order, holding only the frames that may still find a partner.
-
-    A pair is settled once every camera still sending has sent a frame stamped more than slop_ns after all
-    of its frames (no later frame can be its partner). A camera whose newest frame is more than
-    silent_after_ns older than the newest frame of any camera is silent and not waited for, so the frames
-    held never span much more than that.
-    """
-    held: list[CameraFrame] = []
-    latest: dict[str, int] = {}
-    for frame in frames:
-        held.append(frame)
-        latest[frame.camera] = max(latest.get(frame.camera, frame.stamp_ns), frame.stamp_ns)
-        newest = max(latest.values())
-        settled_before = min(s for s in latest.values() if newest - s <= silent_after_ns) - slop_ns
-        pairs = pair_frames(_by_camera(held), slop_ns)
-        held = []
-        for pair in pairs:
-            if held or max(f.stamp_ns for f in pair.frames.values()) >= settled_before:
-                held.extend(pair.frames.values())  # not settled, or after one that is not: keeps stamp order
-            else:
-                yield pair
-    yield from pair_frames(_by_camera(held), slop_ns)
-
-
-def _by_camera(frames: list[CameraFrame]) -> dict[str, list[CameraFrame]]:
-    streams: dict[str, list[CameraFrame]] = {}
-    for frame in frames:
-        streams.setdefault(frame.camera, []).append(frame)
-    return streams
 
 
 def camera_cloud(frame: CameraFrame, config: RigConfig, box_min: np.ndarray, box_max: np.ndarray

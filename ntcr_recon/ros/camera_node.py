@@ -9,9 +9,16 @@ One instance per camera (parameter `camera`, a name of the rig's camera_names). 
             depth unit kept at the configured value (0.1 mm on a D405);
   file      a librealsense recording (`file_path`) played back through pyrealsense2.
 Every depth frame goes through the core's deprojection (`ntcr_recon.core.deproject`): with `crop_to_robot`
-only the image window that can see the robot's crop box is deprojected, as the offline pipeline does. The
+only the image window that can see the robot's crop box is deprojected, as the offline pipeline does, and only
+the points inside the box are published (what fusion keeps anyway; a fifth of the bytes on the wire). The
 cloud holds the valid points with their pixel (fields pixel_u, pixel_v: the later stages find neighbours in
 the image by it), in the camera's optical frame (the configuration's frame_id), with the frame's own stamp.
+
+A live camera that is not connected at start-up is waited for (`wait_for_device`, default true): a log line
+every few seconds and /diagnostics ERROR naming what is missing until it appears, as the source already
+reconnects after a drop; with `wait_for_device:=false` the node refuses to start instead. A frame whose
+intrinsics cannot be a camera's (non-finite or non-positive focal length, non-finite centre) is dropped with a
+message naming the value, and the node goes on. Rates, drops and timing: ros/node_stats.py.
 """
 
 from __future__ import annotations
@@ -21,13 +28,17 @@ import threading
 import time
 
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticStatus
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, PointCloud2
 
 from ntcr_recon.core.deproject import Intrinsics, crop_window, depth_to_points
+from ntcr_recon.core.filters import crop_box_mask
+from ntcr_recon.core.transforms import transform_points
 from ntcr_recon.io.camera_sources import BagSource, SourceError, SourceFrame
 from ntcr_recon.io.pointcloud import RCLPY
-from ntcr_recon.ros.messages import camera_cloud_to_msg, header, stamp_msg
+from ntcr_recon.ros.messages import camera_cloud_to_msg, checked_intrinsics, header, stamp_msg
+from ntcr_recon.ros.node_stats import NodeStats
 from ntcr_recon.ros.node_support import SENSOR_QOS, ParameterError, RigNode, describe, run_node
 
 SOURCES = ("bag", "realsense", "file")
@@ -47,13 +58,18 @@ PARAMETERS = {
                                   read_only=True)),
     "wait_for_subscriber": (True, describe("bag / file: start replaying once the cloud topic has a subscriber, so a "
                                            "graph started together loses no frame", read_only=True)),
-    "crop_to_robot": (True, describe("deproject only the pixels that can see the robot's crop box")),
+    "crop_to_robot": (True, describe("deproject only the pixels that can see the robot's crop box, and publish only "
+                                     "the points inside it")),
     "spatial_filter": (False, describe("realsense: librealsense spatial edge-preserving filter", read_only=True)),
     "temporal_filter": (False, describe("realsense: librealsense temporal filter", read_only=True)),
     "hole_filling": (False, describe("realsense: librealsense hole-filling filter", read_only=True)),
     "reconnect_period": (1.0, describe("realsense: seconds between attempts to (re)open the device",
                                        minimum=0.1, maximum=60.0, read_only=True)),
+    "wait_for_device": (True, describe("realsense: a camera not connected at start is waited for (log line and "
+                                       "diagnostics ERROR every few seconds); false: refuse to start",
+                                       read_only=True)),
 }
+WAITING_LOG_PERIOD_S = 5.0
 
 
 def camera_info_msg(frame: SourceFrame, frame_id: str) -> CameraInfo:
@@ -87,9 +103,11 @@ def recorded_cloud_msg(recorded, stamp_ns: int) -> PointCloud2:
 
 
 class CameraNode(RigNode):
-    def __init__(self) -> None:
+    def __init__(self, node_name: str = "camera_node") -> None:
         self._source = None
-        super().__init__("camera_node", PARAMETERS)
+        self._waiting_for: str | None = None  # why the live source could not be opened yet
+        super().__init__(node_name, PARAMETERS)
+        self.stats = NodeStats(self, f"ntcr_recon: camera {self.camera}", status=self._status)
         points_topic = self.rig.topics.camera_topic(self.camera, "points")
         self._cloud_publisher = self.create_publisher(PointCloud2, points_topic, SENSOR_QOS)
         self._info_publisher = self.create_publisher(
@@ -107,9 +125,15 @@ class CameraNode(RigNode):
                                  f"camera_names {list(rig.camera_names)}")
         if params["source"] not in SOURCES:
             raise ParameterError(f"parameter 'source' must be one of {SOURCES}, got '{params['source']}'")
-        if self._source is None:  # the source is opened once; its parameters are read-only
-            self._source = self._open_source(rig, params)
+        if self._source is None and self._waiting_for is None:  # opened once; its parameters are read-only
+            try:
+                self._source = self._open_source(rig, params)
+            except ParameterError as error:
+                if not (params["source"] == "realsense" and params["wait_for_device"]):
+                    raise
+                self._waiting_for = str(error)  # the producer thread keeps trying
         self.rig, self.camera, self._params = rig, params["camera"], params
+        self._box = rig.crop_box()
         self._windows: dict[Intrinsics, object] = {}
 
     def _open_source(self, rig, params: dict):
@@ -149,10 +173,39 @@ class CameraNode(RigNode):
         period = 1.0 / (self.rig.cameras[self.camera].fps * self._params["rate"]) if due is not None else 0.0
         late = due is not None and time.time() - due > 1.5 * period
         self.frames_skipped += late
+        if late:
+            self.stats.received()
+            self.stats.drops["late"] += 1  # counted, not logged: the source-finished line sums them up
         return late
+
+    def _status(self) -> tuple[bytes | None, str, dict[str, object]]:
+        if self._waiting_for is not None:
+            return DiagnosticStatus.ERROR, f"waiting for the camera: {self._waiting_for}", {}
+        return None, "", {"frames_published": self.frames_published, "frames_skipped": self.frames_skipped}
+
+    def _wait_for_device(self) -> bool:
+        """Try to open the live source every reconnect_period until it opens (True) or the node stops."""
+        last_log = -float("inf")
+        while not self._stop.is_set():
+            try:
+                self._source = self._open_source(self.rig, self._params)
+            except ParameterError as error:
+                self._waiting_for = str(error)
+                if time.monotonic() - last_log >= WAITING_LOG_PERIOD_S:
+                    self.get_logger().error(f"camera '{self.camera}': waiting for the device ({error})")
+                    last_log = time.monotonic()
+                if self._stop.wait(self._params["reconnect_period"]):
+                    return False
+                continue
+            self._waiting_for = None
+            self.get_logger().info(f"camera '{self.camera}': device found, streaming")
+            return True
+        return False
 
     def _pump(self) -> None:
         self._pace_origin = None
+        if self._source is None and not self._wait_for_device():
+            return
         if self._params["wait_for_subscriber"] and self._params["source"] != "realsense":
             self.get_logger().info(f"waiting for a subscriber on {self._cloud_publisher.topic_name}")
             while self._cloud_publisher.get_subscription_count() == 0:
@@ -170,10 +223,12 @@ class CameraNode(RigNode):
                 due = self._due(frame.stamp_ns)
                 if due is not None and due > time.time() and self._stop.wait(due - time.time()):
                     return
+                self.stats.received()
                 try:
                     self._publish(frame)
                 except ValueError as error:  # one bad frame (wrong size, bad encoding): say so, go on
-                    self.get_logger().error(f"dropped a frame at {frame.stamp_ns} ns: {error}")
+                    # the same defect in every frame is logged once per log period, not per frame
+                    self.stats.dropped(getattr(error, "reason", "invalid"), f"camera '{self.camera}' frame: {error}")
         except SourceError as error:
             self.get_logger().error(f"camera source stopped: {error}")
         except Exception as error:  # the context may be shut down under a publish at Ctrl-C
@@ -184,22 +239,34 @@ class CameraNode(RigNode):
                                f"({self.frames_skipped} skipped to keep up)")
 
     def _publish(self, frame: SourceFrame) -> None:
+        started = time.perf_counter()
         if self._clock_publisher is not None:
             self._clock_publisher.publish(Clock(clock=stamp_msg(frame.stamp_ns)))
         camera = self.rig.cameras[self.camera]
         if frame.cloud is not None:
             self._cloud_publisher.publish(recorded_cloud_msg(frame.cloud, frame.stamp_ns))
             self.frames_published += 1
+            self.stats.published(frame.stamp_ns, started)
             return
+        i = frame.intrinsics  # before any arithmetic on them (an inf focal length overflowed the crop window)
+        checked_intrinsics(i.width, i.height, i.fx, i.fy, i.cx, i.cy)
         unit = camera.depth_unit if frame.depth_unit is None else frame.depth_unit
         window = self._window(frame.intrinsics) if self._params["crop_to_robot"] else None
         if self._params["crop_to_robot"] and window is None:  # the camera cannot see the crop box at all
             xyz, rgb, pixel = np.empty((0, 3)), None, np.empty((0, 2), np.int32)
         else:
             xyz, rgb, pixel = depth_to_points(frame.depth, frame.intrinsics, unit, frame.color, window)
+            if window is not None:
+                # Only the points inside the crop box travel: fusion would drop the others, and a D405 window's
+                # full cloud (~28 000 points, 0.7 MB) overflows a shared-memory segment, so that over UDP a
+                # best-effort subscriber lost half of them on a busy machine.
+                inside = crop_box_mask(transform_points(camera.extrinsic, xyz), *self._box)
+                xyz, pixel = xyz[inside], pixel[inside]
+                rgb = None if rgb is None else rgb[inside]
         self._cloud_publisher.publish(camera_cloud_to_msg(xyz, rgb, pixel, camera.frame_id, frame.stamp_ns))
         self._info_publisher.publish(camera_info_msg(frame, camera.frame_id))
         self.frames_published += 1
+        self.stats.published(frame.stamp_ns, started)
 
     def _window(self, intrinsics: Intrinsics):
         if intrinsics not in self._windows:

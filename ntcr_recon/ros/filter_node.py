@@ -1,35 +1,48 @@
 """filter_node: `<ns>/fused/points` -> `<ns>/filtered/points`, the core's filter chain (crop box, colour
 condition, statistical outlier removal Eq. 5, moving least squares Eq. 6, voxel grid) as the rig
-configuration's `filters` section sets it. Clouds must be in the configured base frame.
+configuration's `filters` section sets it. Clouds must be in the configured base frame; a cloud of more than
+`max_points` points is dropped before it is read (logged, counted on /diagnostics).
 """
 
 from __future__ import annotations
 
 import sys
+import time
 
 from sensor_msgs.msg import PointCloud2
 
 from ntcr_recon.core.pipeline import Reconstructor
-from ntcr_recon.ros.messages import stage_cloud_from_msg, stage_cloud_to_msg
-from ntcr_recon.ros.node_support import STAGE_QOS, RigNode, guarded, run_node
+from ntcr_recon.ros.messages import DEFAULT_MAX_POINTS, check_point_count, stage_cloud_from_msg, stage_cloud_to_msg
+from ntcr_recon.ros.node_stats import NodeStats
+from ntcr_recon.ros.node_support import STAGE_QOS, RigNode, describe, guarded, run_node
 from ntcr_recon.ros.topics import stage_topic
+
+PARAMETERS = {
+    "max_points": (DEFAULT_MAX_POINTS, describe("largest cloud accepted (points); a larger one is dropped before it "
+                                                "is read", minimum=1, maximum=100_000_000, integer=True)),
+}
 
 
 class FilterNode(RigNode):
-    def __init__(self) -> None:
-        super().__init__("filter_node", {})
+    def __init__(self, node_name: str = "filter_node") -> None:
+        super().__init__(node_name, PARAMETERS)
+        self.stats = NodeStats(self, "ntcr_recon: filter")
         self._publisher = self.create_publisher(PointCloud2, stage_topic(self.rig.topics, "filtered/points"),
                                                 STAGE_QOS)
         self.create_subscription(PointCloud2, stage_topic(self.rig.topics, "fused/points"), self._on_cloud, STAGE_QOS)
         self.get_logger().info("filtering fused clouds")
 
     def configure(self, rig, params: dict) -> None:
-        self.rig, self._reconstructor = rig, Reconstructor(rig)
+        self.rig, self._reconstructor, self._params = rig, Reconstructor(rig), params
 
     @guarded
     def _on_cloud(self, msg: PointCloud2) -> None:
+        self.stats.received()
+        started = time.perf_counter()
+        check_point_count(msg, self._params["max_points"])
         cloud = self._reconstructor.filter(stage_cloud_from_msg(msg, self.rig.base_frame))
         self._publisher.publish(stage_cloud_to_msg(cloud, self.rig.base_frame))
+        self.stats.published(cloud.stamp_ns, started)
 
 
 def main(args: list[str] | None = None) -> int:

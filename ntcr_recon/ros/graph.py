@@ -6,8 +6,15 @@
 One camera_node per camera of the configuration (node name `camera_<cam>`), then fusion_node, filter_node,
 relocation_node and mesh_node; every process gets the rig configuration as its ROS parameter file. Ctrl-C
 (or SIGTERM, or `--duration`) stops them all: SIGINT to each, then a kill for any still alive after a grace
-period. If one node exits on its own (e.g. it refused a parameter), the others are stopped too and the
-command exits non-zero, naming it.
+period. A node that dies (a crash, a kill, the OOM killer) is started again after a backoff (1 s, doubling up
+to 30 s while it keeps dying within a minute), with a log line, and the rest of the graph runs on; a node that
+refuses its configuration (exit code 2) would only refuse it again, so the others are stopped and the command
+exits non-zero, naming it. `--no-respawn` stops the graph at any node's exit instead.
+
+`--single-process` hosts every node in one process on one executor (ros/single_process.py; still separate
+nodes exchanging PointCloud2 over the middleware): one Python interpreter instead of six, which a machine with
+fewer cores than nodes may prefer; one process per node (the default) lets a many-core rig run the stages in
+parallel. bench_graph.py measures both.
 """
 
 from __future__ import annotations
@@ -16,6 +23,7 @@ import argparse
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,6 +31,10 @@ from pathlib import Path
 STAGE_NODES = ("fusion_node", "filter_node", "relocation_node", "mesh_node")
 GRACE_S = 10.0
 START_DELAY_S = 3.0  # s for the node processes to start before a replay's first frame is due
+CONFIG_REFUSED = 2   # a node's exit code when it refuses its parameters: respawning would not help
+RESPAWN_DELAY_S = 1.0
+RESPAWN_MAX_DELAY_S = 30.0
+STABLE_S = 60.0      # a node that ran this long before dying starts again from the shortest delay
 
 
 @dataclass
@@ -107,39 +119,97 @@ def main(args: argparse.Namespace) -> int:
         return 2
     if args.output is not None:
         args.output.mkdir(parents=True, exist_ok=True)
-    return run_processes(commands, args.duration)
+    if args.single_process:
+        with tempfile.TemporaryDirectory(prefix="ntcr-run-") as folder:
+            host = single_process_command(commands, args.config, Path(folder) / "nodes.yaml")
+            return run_processes([host], args.duration, respawn=not args.no_respawn)
+    return run_processes(commands, args.duration, respawn=not args.no_respawn)
 
 
-def run_processes(commands: list[NodeCommand], duration: float = 0.0) -> int:
-    """Start every command, wait for Ctrl-C / SIGTERM / `duration` or a node's exit, then stop them all."""
+def single_process_command(commands: list[NodeCommand], config: Path, parameters_file: Path) -> NodeCommand:
+    """One process hosting every node of `commands`: each node's own parameters go to a parameter file section
+    under its name (a global `-p` would reach every node of the process), the rig configuration as it is."""
+    import yaml
+
+    sections = {}
+    for command in commands:
+        values = {name: yaml.safe_load(value) if isinstance(value, str) else value
+                  for name, value in command.parameters.items()}
+        sections[command.name] = {"ros__parameters": values}
+    parameters_file.write_text(yaml.safe_dump(sections))
+    specs = [f"{_executable(command)}={command.name}" for command in commands]
+    argv = [sys.executable, "-m", "ntcr_recon.ros.single_process", *specs, "--ros-args",
+            "--params-file", str(config.resolve()), "--params-file", str(parameters_file)]
+    return NodeCommand("graph", argv)
+
+
+def _executable(command: NodeCommand) -> str:
+    return command.argv[command.argv.index("-m") + 1].rsplit(".", 1)[-1]
+
+
+@dataclass
+class _Running:
+    command: NodeCommand
+    process: subprocess.Popen
+    started: float
+    deaths: int = 0               # deaths in a row, each within STABLE_S of its start
+    restart_at: float | None = None
+
+
+def run_processes(commands: list[NodeCommand], duration: float = 0.0, respawn: bool = True) -> int:
+    """Start every command, wait for Ctrl-C / SIGTERM / `duration`, respawning a node that dies (unless it
+    refused its configuration, or `respawn` is off: then the graph stops), then stop them all."""
     stop_requested = []
 
     def request_stop(signum, _frame) -> None:
         stop_requested.append(signal.Signals(signum).name)
 
     previous = {sig: signal.signal(sig, request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
-    processes: list[tuple[NodeCommand, subprocess.Popen]] = []
+    running: list[_Running] = []
     exit_code = 0
     try:
         for command in commands:
-            # Own process group: a terminal's Ctrl-C reaches this command only, which stops the nodes in order.
-            processes.append((command, subprocess.Popen(command.argv, start_new_session=True)))
+            running.append(_Running(command, _start(command), time.monotonic()))
         print(f"started {', '.join(c.name for c in commands)}; Ctrl-C stops them", file=sys.stderr)
         deadline = time.monotonic() + duration if duration > 0 else None
         while not stop_requested and (deadline is None or time.monotonic() < deadline):
-            exited = [(c, p) for c, p in processes if p.poll() is not None]
-            if exited:
-                command, process = exited[0]
-                print(f"error: {command.name} exited with code {process.returncode}; stopping the graph",
-                      file=sys.stderr)
+            if not _supervise(running, respawn):
                 exit_code = 1
                 break
             time.sleep(0.1)
     finally:
-        stop_all(processes)
+        stop_all([(r.command, r.process) for r in running])
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     return exit_code
+
+
+def _start(command: NodeCommand) -> subprocess.Popen:
+    # Own process group: a terminal's Ctrl-C reaches this command only, which stops the nodes in order.
+    return subprocess.Popen(command.argv, start_new_session=True)
+
+
+def _supervise(running: list[_Running], respawn: bool) -> bool:
+    """Respawn what died and is due; False when the graph must stop (a refused configuration, or no respawn)."""
+    now = time.monotonic()
+    for node in running:
+        if node.restart_at is not None:
+            if now >= node.restart_at:
+                node.process, node.started, node.restart_at = _start(node.command), now, None
+                print(f"{node.command.name} started again", file=sys.stderr)
+            continue
+        code = node.process.poll()
+        if code is None:
+            continue
+        if code == CONFIG_REFUSED or not respawn:
+            print(f"error: {node.command.name} exited with code {code}; stopping the graph", file=sys.stderr)
+            return False
+        node.deaths = node.deaths + 1 if now - node.started < STABLE_S else 1
+        delay = min(RESPAWN_DELAY_S * 2 ** (node.deaths - 1), RESPAWN_MAX_DELAY_S)
+        node.restart_at = now + delay
+        print(f"warning: {node.command.name} exited with code {code}; starting it again in {delay:.0f} s "
+              f"(death {node.deaths} in a row)", file=sys.stderr)
+    return True
 
 
 def stop_all(processes: list[tuple[NodeCommand, subprocess.Popen]]) -> None:

@@ -18,11 +18,14 @@ every new mesh is also written to `<output_dir>/mesh.ply`.
 from __future__ import annotations
 
 import os
+import struct
 import sys
+import time
 from pathlib import Path as PathLib
 
 import numpy as np
 from nav_msgs.msg import Path
+from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import PointCloud2
 from shape_msgs.msg import Mesh
 from visualization_msgs.msg import Marker
@@ -30,8 +33,16 @@ from visualization_msgs.msg import Marker
 from ntcr_recon.core.pipeline import Reconstructor
 from ntcr_recon.io.files import write_mesh
 from ntcr_recon.io.pointcloud import stamp_to_ns
-from ntcr_recon.ros.messages import mesh_marker, mesh_msg, relocation_from_msgs, stage_cloud_and_normals
-from ntcr_recon.ros.node_support import LATCHED_QOS, STAGE_QOS, ParameterError, RigNode, describe, guarded, run_node
+from ntcr_recon.ros.messages import (
+    DEFAULT_MAX_POINTS,
+    check_point_count,
+    mesh_marker_bytes,
+    mesh_msg_bytes,
+    relocation_from_msgs,
+    stage_cloud_and_normals,
+)
+from ntcr_recon.ros.node_stats import NodeStats
+from ntcr_recon.ros.node_support import LATCHED_QOS, STAGE_QOS, ParameterError, RigNode, describe, run_node
 from ntcr_recon.ros.topics import stage_topic
 
 CENTERLINES_KEPT = 4
@@ -40,11 +51,13 @@ PARAMETERS = {
     "rate": (1.0, describe("meshes per second (of the node's clock)", minimum=0.01, maximum=30.0)),
     "save_ply_path": ("", describe("setting it writes the newest mesh to this PLY file")),
     "output_dir": ("", describe("when set, every new mesh is also written to <output_dir>/mesh.ply")),
+    "max_points": (DEFAULT_MAX_POINTS, describe("largest cloud accepted (points); a larger one is dropped before it "
+                                                "is read", minimum=1, maximum=100_000_000, integer=True)),
 }
 
 
 class MeshNode(RigNode):
-    def __init__(self) -> None:
+    def __init__(self, node_name: str = "mesh_node") -> None:
         self._timer = None
         self._mesh = None  # (core.mesh.Mesh, stamp) of the newest mesh
         self._pending_save: Path | None = None
@@ -55,15 +68,18 @@ class MeshNode(RigNode):
         os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
         import open3d  # noqa: F401
 
-        super().__init__("mesh_node", PARAMETERS)
+        super().__init__(node_name, PARAMETERS)
+        self.stats = NodeStats(self, "ntcr_recon: mesh")
         self._newest = None  # the newest relocated cloud message not yet meshed
-        self._centerlines: dict[int, Path] = {}  # the last few centrelines by stamp
+        self._centerlines: dict[int, bytes] = {}  # the last few centrelines by stamp, serialized
         self.meshes = 0
         self._marker = self.create_publisher(Marker, stage_topic(self.rig.topics, "mesh"), LATCHED_QOS)
         self._raw = self.create_publisher(Mesh, stage_topic(self.rig.topics, "mesh/raw"), LATCHED_QOS)
+        self._newest_raw: bytes | None = None
         self.create_subscription(PointCloud2, stage_topic(self.rig.topics, "relocated/points"), self._on_cloud,
-                                 STAGE_QOS)
-        self.create_subscription(Path, stage_topic(self.rig.topics, "centerline"), self._on_centerline, STAGE_QOS)
+                                 STAGE_QOS, raw=True)
+        self.create_subscription(Path, stage_topic(self.rig.topics, "centerline"), self._on_centerline, STAGE_QOS,
+                                 raw=True)
         self.get_logger().info(f"meshing relocated clouds at {self._params['rate']} Hz")
 
     def configure(self, rig, params: dict) -> None:
@@ -85,27 +101,44 @@ class MeshNode(RigNode):
                 self.destroy_timer(self._timer)
             self._timer = self.create_timer(1.0 / params["rate"], self._tick)
 
-    @guarded
-    def _on_cloud(self, msg: PointCloud2) -> None:
-        _, normals = stage_cloud_and_normals(msg, self.rig.base_frame)  # refuse a bad cloud now, by name
-        if normals is None:
-            raise ValueError("relocated cloud has no normal_x/normal_y/normal_z fields (is it relocation_node's?)")
-        self._newest = msg
+    # Both inputs arrive at the relocation's rate (~30 Hz) but only the newest is meshed, at `rate` (~1 Hz): they
+    # are kept serialized and decoded when a tick uses them (a Path of 120 PoseStamped objects and a cloud's
+    # conversion at 30 Hz cost more than the meshing itself).
+    def _on_cloud(self, raw: bytes) -> None:
+        self.stats.received()
+        self._newest_raw = raw
 
-    @guarded
-    def _on_centerline(self, msg: Path) -> None:
-        self._centerlines[stamp_to_ns(msg.header.stamp)] = msg
+    def _on_centerline(self, raw: bytes) -> None:
+        self._centerlines[_header_stamp_ns(raw)] = raw
         for stamp in sorted(self._centerlines)[:-CENTERLINES_KEPT]:
             del self._centerlines[stamp]
 
+    def _take_newest(self) -> None:
+        """Decode and check the newest cloud (a bad one is logged by cause, counted and dropped)."""
+        raw, self._newest_raw = self._newest_raw, None
+        msg = deserialize_message(raw, PointCloud2)
+        try:
+            check_point_count(msg, self._params["max_points"])
+            _, normals = stage_cloud_and_normals(msg, self.rig.base_frame)  # refuse a bad cloud by name
+            if normals is None:
+                raise ValueError("relocated cloud has no normal_x/normal_y/normal_z fields (is it relocation_node's?)")
+        except ValueError as error:
+            self.stats.dropped(getattr(error, "reason", "invalid"), str(error))
+            return
+        self._newest = msg
+
     def _tick(self) -> None:
+        if self._newest_raw is not None:
+            self._take_newest()
         if self._newest is None:
             return
         stamp = stamp_to_ns(self._newest.header.stamp)
         centerline = self._centerlines.get(stamp)
         if centerline is None:
             return  # its centreline is on the way (published right after the cloud)
+        centerline = deserialize_message(centerline, Path)
         msg, self._newest = self._newest, None
+        started = time.perf_counter()
         try:
             relocation = relocation_from_msgs(msg, centerline, self.rig.base_frame)
             mesh = self._reconstructor.mesh(relocation)
@@ -114,9 +147,11 @@ class MeshNode(RigNode):
             return
         vertices, triangles = np.asarray(mesh.vertices, float), np.asarray(mesh.triangles, np.int64)
         self._mesh = (mesh, stamp)
-        self._marker.publish(mesh_marker(vertices, triangles, self.rig.base_frame, stamp))
-        self._raw.publish(mesh_msg(vertices, triangles))
+        # serialized from the arrays: a Point object per corner cost tens of ms a mesh
+        self._marker.publish(mesh_marker_bytes(vertices, triangles, self.rig.base_frame, stamp))
+        self._raw.publish(mesh_msg_bytes(vertices, triangles))
         self.meshes += 1
+        self.stats.published(stamp, started)
         if self._params["output_dir"]:
             self._write(PathLib(self._params["output_dir"]).expanduser() / "mesh.ply")
         self._save_pending()
@@ -135,6 +170,14 @@ class MeshNode(RigNode):
             return
         self.get_logger().info(f"wrote the mesh of {stamp} ns ({len(mesh.vertices)} vertices, "
                                f"{len(mesh.triangles)} triangles) to {path}")
+
+
+def _header_stamp_ns(raw: bytes) -> int:
+    """The header stamp of a serialized message that starts with a std_msgs/Header (after the 4-byte CDR
+    encapsulation: int32 sec, uint32 nanosec)."""
+    big_endian = raw[1] == 0  # encapsulation CDR_BE (0x0000) or CDR_LE (0x0001)
+    seconds, nanoseconds = struct.unpack_from(">iI" if big_endian else "<iI", raw, 4)
+    return seconds * 1_000_000_000 + nanoseconds
 
 
 def main(args: list[str] | None = None) -> int:

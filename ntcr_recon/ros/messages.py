@@ -32,10 +32,10 @@ from collections.abc import Sequence
 import numpy as np
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import Point, Pose, PoseStamped
+from geometry_msgs.msg import Pose, PoseStamped
 from nav_msgs.msg import Path
 from sensor_msgs.msg import PointCloud2
-from shape_msgs.msg import Mesh, MeshTriangle
+from shape_msgs.msg import Mesh
 from std_msgs.msg import ColorRGBA, Float64MultiArray, Header, MultiArrayDimension, MultiArrayLayout
 from visualization_msgs.msg import Marker, MarkerArray
 
@@ -44,9 +44,59 @@ from ntcr_recon.core.deproject import Intrinsics
 from ntcr_recon.core.fusion import CameraFrame
 from ntcr_recon.core.transforms import matrix_to_quaternion, quaternion_to_matrix
 from ntcr_recon.io.pointcloud import STAGE_FIELDS, cloud_from_msg, cloud_to_msg, read_points, stamp_to_ns
+from ntcr_recon.ros import cdr
 
 NOTCH_LAYOUT_LABEL = "index,center_s_m,width_m,bend_rad"
 _NORMAL_FIELDS = ("normal_x", "normal_y", "normal_z")
+# Largest cloud a node reads by default: two D405 depth frames at 848x480, every pixel a point.
+DEFAULT_MAX_POINTS = 2 * 848 * 480
+
+
+class RefusedInputError(ValueError):
+    """An input dropped before it is used; `reason` is the count it goes under (oversized, inconsistent, ...)."""
+
+    def __init__(self, message: str, reason: str = "invalid") -> None:
+        super().__init__(message)
+        self.reason = reason
+
+
+def check_point_count(msg: PointCloud2, max_points: int) -> None:
+    """Refuse a cloud of more than `max_points` points from its header alone, before a byte of it is read."""
+    count = int(msg.width) * int(msg.height)
+    if count > max_points:
+        raise RefusedInputError(f"cloud of {msg.width}x{msg.height} = {count} points exceeds max_points {max_points}",
+                             "oversized")
+
+
+def check_pixels(pixel: np.ndarray, width: int, height: int, what: str) -> None:
+    """Refuse pixel_u/pixel_v outside a width x height image (the grid they are laid out on is sized by them)."""
+    if not len(pixel):
+        return
+    low, high = pixel.min(axis=0), pixel.max(axis=0)
+    if low.min() < 0 or high[0] >= width or high[1] >= height:
+        raise RefusedInputError(f"pixel_u/pixel_v span [{low[0]}, {high[0]}] x [{low[1]}, {high[1]}], outside the "
+                             f"{width}x{height} image of {what}", "inconsistent")
+
+
+def checked_intrinsics(width: int, height: int, fx: float, fy: float, cx: float, cy: float) -> Intrinsics:
+    """Intrinsics, or a RefusedInputError naming the value that cannot be a camera's (a non-finite or
+    non-positive focal length, a non-finite centre, an empty or absurd image size)."""
+    values = {"fx": float(fx), "fy": float(fy), "cx": float(cx), "cy": float(cy)}
+    for name, value in values.items():
+        if not math.isfinite(value) or (name in ("fx", "fy") and value <= 0):
+            raise RefusedInputError(f"{name} is {value}: a camera's {name} must be a finite"
+                                    f"{' positive' if name in ('fx', 'fy') else ''} number", "inconsistent")
+    if not (0 < int(width) <= 100_000 and 0 < int(height) <= 100_000):
+        raise RefusedInputError(f"image size {width}x{height} is not a camera's", "inconsistent")
+    return Intrinsics(int(width), int(height), values["fx"], values["fy"], values["cx"], values["cy"])
+
+
+def intrinsics_from_camera_info(msg) -> Intrinsics:
+    """The Intrinsics of a CameraInfo (K row-major), checked as `checked_intrinsics` does."""
+    k = np.asarray(msg.k, dtype=float).reshape(-1)
+    if k.size != 9:
+        raise RefusedInputError(f"K must have 9 entries, got {k.size}", "inconsistent")
+    return checked_intrinsics(int(msg.width), int(msg.height), k[0], k[4], k[2], k[5])
 
 
 def stamp_msg(stamp_ns: int) -> Time:
@@ -234,17 +284,38 @@ def pose(position: Sequence[float], rotation: np.ndarray | None = None) -> Pose:
     return result
 
 
+def quaternions(rotations: np.ndarray) -> np.ndarray:
+    """(N, 4) unit quaternions (x, y, z, w), w >= 0, of (N, 3, 3) rotations, in one call."""
+    from scipy.spatial.transform import Rotation
+
+    q = Rotation.from_matrix(np.asarray(rotations, dtype=float).reshape(-1, 3, 3)).as_quat()
+    return np.where(q[:, 3:4] < 0, -q, q)
+
+
+def path_bytes(points: np.ndarray, rotations: np.ndarray | None, frame_id: str, stamp_ns: int) -> bytes:
+    """nav_msgs/Path through `points` (N, 3), oriented by `rotations` (N, 3, 3) when given, serialized (what a
+    publisher takes as it is: no Python object per pose)."""
+    points = np.asarray(points, dtype=float).reshape(-1, 3)
+    q = np.tile([0.0, 0.0, 0.0, 1.0], (len(points), 1)) if rotations is None else quaternions(rotations)
+    return cdr.path(points, q, frame_id, stamp_ns)
+
+
 def path_msg(points: np.ndarray, rotations: np.ndarray | None, frame_id: str, stamp_ns: int) -> Path:
     """nav_msgs/Path through `points` (N, 3), oriented by `rotations` (N, 3, 3) when given."""
-    head = header(frame_id, stamp_ns)
-    poses = [PoseStamped(header=head, pose=pose(p, None if rotations is None else rotations[i]))
-             for i, p in enumerate(np.asarray(points, dtype=float))]
-    return Path(header=head, poses=poses)
+    from rclpy.serialization import deserialize_message
+
+    return deserialize_message(path_bytes(points, rotations, frame_id, stamp_ns), Path)
 
 
 def frame_rotations(normals: np.ndarray, binormals: np.ndarray, tangents: np.ndarray) -> np.ndarray:
     """(N, 3, 3) rotations whose columns are x = normal (notch side), y = binormal, z = tangent."""
     return np.stack([normals, binormals, tangents], axis=-1)
+
+
+def centerline_path_bytes(centerline, frame_id: str, stamp_ns: int) -> bytes:
+    """A core Centerline as a serialized nav_msgs/Path (see `centerline_path_msg`), for publishing."""
+    rotations = frame_rotations(centerline.normals, centerline.binormals, centerline.tangents)
+    return path_bytes(centerline.points, rotations, frame_id, stamp_ns)
 
 
 def centerline_path_msg(centerline, frame_id: str, stamp_ns: int) -> Path:
@@ -283,9 +354,13 @@ def notch_markers(notches: Sequence[dict], positions: np.ndarray, rotations: np.
     and a text label with the width in mm; a DELETEALL first so vanished notches disappear in RViz."""
     head = header(frame_id, stamp_ns)
     markers = [Marker(header=head, ns="notches", action=Marker.DELETEALL)]
-    for notch, position, rotation in zip(notches, positions, rotations, strict=True):
+    rotations = np.asarray(rotations, dtype=float).reshape(-1, 3, 3)
+    orientations = quaternions(rotations) if len(rotations) else np.empty((0, 4))  # all notches in one call
+    for notch, position, rotation, q in zip(notches, positions, rotations, orientations, strict=True):
         disc = Marker(header=head, ns="notches", id=2 * int(notch["index"]), type=Marker.CYLINDER,
-                      action=Marker.ADD, pose=pose(position, rotation))
+                      action=Marker.ADD, pose=pose(position))
+        o = disc.pose.orientation
+        o.x, o.y, o.z, o.w = (float(v) for v in q)
         disc.scale.x = disc.scale.y = 2.2 * radius
         disc.scale.z = float(notch["width"])
         disc.color = ColorRGBA(r=1.0, g=0.5, b=0.0, a=0.6)
@@ -300,23 +375,37 @@ def notch_markers(notches: Sequence[dict], positions: np.ndarray, rotations: np.
 
 # ---- meshes ---------------------------------------------------------------------------------------------------
 
-def mesh_marker(vertices: np.ndarray, triangles: np.ndarray, frame_id: str, stamp_ns: int,
-                color: tuple[float, float, float, float] = (0.7, 0.75, 0.8, 1.0)) -> Marker:
-    """visualization_msgs/Marker TRIANGLE_LIST: three points per triangle (RViz draws them flat-shaded)."""
+def mesh_marker_bytes(vertices: np.ndarray, triangles: np.ndarray, frame_id: str, stamp_ns: int,
+                      color: tuple[float, float, float, float] = (0.7, 0.75, 0.8, 1.0)) -> bytes:
+    """visualization_msgs/Marker TRIANGLE_LIST, three points per triangle (RViz draws them flat-shaded),
+    serialized: the corners go in as one array, not one Point object each."""
     marker = Marker(header=header(frame_id, stamp_ns), ns="mesh", id=0, type=Marker.TRIANGLE_LIST,
                     action=Marker.ADD)
     marker.pose.orientation.w = 1.0
     marker.scale.x = marker.scale.y = marker.scale.z = 1.0
     marker.color = ColorRGBA(r=color[0], g=color[1], b=color[2], a=color[3])
     corners = np.asarray(vertices, dtype=float)[np.asarray(triangles, dtype=np.int64).reshape(-1)]
-    marker.points = [Point(x=x, y=y, z=z) for x, y, z in corners.tolist()]
-    return marker
+    return cdr.with_points(marker, "points", corners)
+
+
+def mesh_marker(vertices: np.ndarray, triangles: np.ndarray, frame_id: str, stamp_ns: int,
+                color: tuple[float, float, float, float] = (0.7, 0.75, 0.8, 1.0)) -> Marker:
+    """`mesh_marker_bytes` as a Marker message."""
+    from rclpy.serialization import deserialize_message
+
+    return deserialize_message(mesh_marker_bytes(vertices, triangles, frame_id, stamp_ns, color), Marker)
+
+
+def mesh_msg_bytes(vertices: np.ndarray, triangles: np.ndarray) -> bytes:
+    """shape_msgs/Mesh serialized (no header: it is in the frame of the Marker published beside it)."""
+    return cdr.mesh(vertices, triangles)
 
 
 def mesh_msg(vertices: np.ndarray, triangles: np.ndarray) -> Mesh:
     """shape_msgs/Mesh (no header: it is in the frame of the Marker published beside it, the base frame)."""
-    return Mesh(vertices=[Point(x=x, y=y, z=z) for x, y, z in np.asarray(vertices, dtype=float).tolist()],
-                triangles=[MeshTriangle(vertex_indices=tri) for tri in np.asarray(triangles, dtype=np.uint32).tolist()])
+    from rclpy.serialization import deserialize_message
+
+    return deserialize_message(mesh_msg_bytes(vertices, triangles), Mesh)
 
 
 def mesh_from_msg(msg: Mesh) -> tuple[np.ndarray, np.ndarray]:

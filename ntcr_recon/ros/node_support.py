@@ -7,14 +7,18 @@ adapter part in one place so each node file holds only what is its own.
 from __future__ import annotations
 
 import functools
+import os
+import signal
 import sys
+import threading
+import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
 import rclpy
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import (
     DurabilityPolicy,
@@ -23,6 +27,7 @@ from rclpy.qos import (
     ReliabilityPolicy,
     qos_profile_sensor_data,
 )
+from rclpy.signals import SignalHandlerOptions
 
 # Camera clouds: best effort, keep the last few (a late cloud is worth less than a fresh one).
 SENSOR_QOS = qos_profile_sensor_data
@@ -85,37 +90,98 @@ def guarded(callback: Callable) -> Callable:
 
     @functools.wraps(callback)
     def wrapper(self: Node, msg) -> None:
+        stats = getattr(self, "stats", None)  # a node with a NodeStats counts the drop and limits the log
         try:
             callback(self, msg)
         except ValueError as error:  # bad input: say what was wrong with it
-            self.get_logger().error(f"dropped a message: {error}")
+            if stats is not None:
+                stats.dropped(getattr(error, "reason", "invalid"), str(error))
+            else:
+                self.get_logger().error(f"dropped a message: {error}")
         except Exception as error:  # a bug must not take the graph down either
-            self.get_logger().error(f"dropped a message after an unexpected {type(error).__name__}: {error}")
+            text = f"unexpected {type(error).__name__}: {error}"
+            if stats is not None:
+                stats.dropped("error", text)
+            else:
+                self.get_logger().error(f"dropped a message after an {text}")
 
     return wrapper
 
 
+EXECUTOR_VARIABLE = "NTCR_EXECUTOR"  # "events" (default) or "single": which rclpy executor the nodes spin on
+SHUTDOWN_GRACE_S = 1.0  # how long an error in a take may precede the context's shutdown and still be a clean stop
+
+
+def make_executor(context=None):
+    """rclpy's EventsExecutor (rclpy >= 7.1.4): it takes each message as its event arrives instead of rebuilding
+    a wait set per callback, a fraction of the default executor's cost per message; the SingleThreadedExecutor
+    where it is missing or NTCR_EXECUTOR=single asks for it (to measure one against the other)."""
+    if os.environ.get(EXECUTOR_VARIABLE, "events") == "events":
+        try:
+            from rclpy.experimental import EventsExecutor
+        except ImportError:
+            pass
+        else:
+            return EventsExecutor(context=context)
+    return SingleThreadedExecutor(context=context)
+
+
+def spin(executor, context, stop: threading.Event | None = None) -> None:
+    """Execute callbacks until the context shuts down or `stop` is set. spin_once in a loop: rclpy 7.1.5's
+    EventsExecutor.spin() busy-loops without dispatching anything."""
+    while context.ok() and not (stop is not None and stop.is_set()):
+        executor.spin_once(timeout_sec=0.25)
+
+
+def _shutting_down(context) -> bool:
+    """True when the context is down or goes down within SHUTDOWN_GRACE_S (a Ctrl-C destroys handles under a
+    take before rclpy's signal handler has finished shutting the context down)."""
+    deadline = time.monotonic() + SHUTDOWN_GRACE_S
+    while context.ok() and time.monotonic() < deadline:
+        time.sleep(0.02)
+    return not context.ok()
+
+
 def run_node(node_factory: Callable[[], Node], args: list[str] | None = None) -> int:
     """Init rclpy, build the node, spin until Ctrl-C or shutdown, then clean up. Returns an exit code."""
-    rclpy.init(args=args)
-    node = None
+    return run_nodes([node_factory], args)
+
+
+def run_nodes(node_factories: Sequence[Callable[[], Node]], args: list[str] | None = None) -> int:
+    """`run_node` for several nodes in one process, on one executor (still separate nodes talking over topics).
+
+    Ctrl-C / SIGTERM only ask the loop to stop after the callback under way (rclpy's own handler raised
+    KeyboardInterrupt inside it, which the EventsExecutor reports as a FATAL traceback, and shut the context
+    down under a take); then the nodes are destroyed and rclpy shut down in order."""
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    context = rclpy.get_default_context()
+    stop = threading.Event()
+    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
+    nodes: list[Node] = []
     try:
-        node = node_factory()
-        rclpy.spin(node)
+        for factory in node_factories:
+            nodes.append(factory())
+        executor = make_executor(context)
+        for node in nodes:
+            executor.add_node(node)
+        spin(executor, context, stop)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except RuntimeError:
-        # A Ctrl-C shuts the context down under a callback being taken; only then is this a clean stop.
-        if rclpy.ok():
+        # e.g. "Unable to convert call argument '0' to Python object" from a take interrupted by Ctrl-C: a clean
+        # stop when the context is going down; any other RuntimeError is a bug and stays one.
+        if not _shutting_down(context):
             raise
     except (ParameterError, ParameterException) as error:  # refused at start-up: say which, exit non-zero
         print(f"error: {error}", file=sys.stderr)
         return 2
     finally:
-        if node is not None:
+        for node in nodes:
             node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
     return 0
 
 

@@ -10,12 +10,15 @@ Publishes (reliable, depth 1; all in the base frame, stamped with the input clou
                             ntcr_recon.ros.messages; readable without this package)
   `<ns>/notches/markers`    visualization_msgs/MarkerArray for RViz (a disc per notch, its width in mm)
 The relocation warm-starts from the previous frame's centreline, as the offline command does over a bag.
-A cloud the core cannot reconstruct (too few points, no tube along the base axis) is logged and skipped.
+A cloud the core cannot reconstruct (too few points, no tube along the base axis) is logged and skipped; a cloud
+of more than `max_points` points is dropped before it is read. The centreline goes out serialized from arrays
+(ros/cdr.py): a Path of PoseStamped objects built one by one cost more than the relocation itself.
 """
 
 from __future__ import annotations
 
 import sys
+import time
 from pathlib import Path as PathLib
 
 import numpy as np
@@ -27,7 +30,9 @@ from visualization_msgs.msg import MarkerArray
 
 from ntcr_recon.core.pipeline import ReconstructionError, Reconstructor
 from ntcr_recon.ros.messages import (
-    centerline_path_msg,
+    DEFAULT_MAX_POINTS,
+    centerline_path_bytes,
+    check_point_count,
     frame_rotations,
     notch_markers,
     notches_array,
@@ -35,6 +40,7 @@ from ntcr_recon.ros.messages import (
     relocation_cloud_msg,
     stage_cloud_from_msg,
 )
+from ntcr_recon.ros.node_stats import NodeStats
 from ntcr_recon.ros.node_support import STAGE_QOS, ParameterError, RigNode, describe, guarded, run_node
 from ntcr_recon.ros.topics import stage_topic
 
@@ -42,12 +48,15 @@ PARAMETERS = {
     "output_dir": ("", describe("when set, the newest relocated cloud is also written to <output_dir>/relocated.ply")),
     "warm_start": (True, describe("start each frame's centreline iteration from the previous frame's (as the "
                                   "offline command does); false: every frame from the base, independently")),
+    "max_points": (DEFAULT_MAX_POINTS, describe("largest cloud accepted (points); a larger one is dropped before it "
+                                                "is read", minimum=1, maximum=100_000_000, integer=True)),
 }
 
 
 class RelocationNode(RigNode):
-    def __init__(self) -> None:
-        super().__init__("relocation_node", PARAMETERS)
+    def __init__(self, node_name: str = "relocation_node") -> None:
+        super().__init__(node_name, PARAMETERS)
+        self.stats = NodeStats(self, "ntcr_recon: relocation")
         topic = self.rig.topics
         self._cloud = self.create_publisher(PointCloud2, stage_topic(topic, "relocated/points"), STAGE_QOS)
         self._path = self.create_publisher(Path, stage_topic(topic, "centerline"), STAGE_QOS)
@@ -64,6 +73,9 @@ class RelocationNode(RigNode):
 
     @guarded
     def _on_cloud(self, msg: PointCloud2) -> None:
+        self.stats.received()
+        started = time.perf_counter()
+        check_point_count(msg, self._params["max_points"])
         cloud = stage_cloud_from_msg(msg, self.rig.base_frame)
         try:
             relocation = self._reconstructor.relocate(cloud, warm_start=self._params["warm_start"])
@@ -71,11 +83,12 @@ class RelocationNode(RigNode):
             raise ValueError(f"cannot reconstruct the cloud of {len(cloud)} points: {error}") from error
         frame, stamp = self.rig.base_frame, cloud.stamp_ns
         centerline = relocation.centerline
-        self._cloud.publish(relocation_cloud_msg(relocation, frame))
-        path = centerline_path_msg(centerline, frame, stamp)
-        self._path.publish(path)
+        # The tip first: it is what a controller waits for; the cloud then its centreline (mesh_node pairs them).
         end = frame_rotations(centerline.normals[-1:], centerline.binormals[-1:], centerline.tangents[-1:])[0]
         self._tip.publish(pose_stamped(relocation.tip, end, frame, stamp))
+        self.stats.published(stamp, started)
+        self._cloud.publish(relocation_cloud_msg(relocation, frame))
+        self._path.publish(centerline_path_bytes(centerline, frame, stamp))
         notches = [{"index": n.index, "center_s": n.center_s, "width": n.width, "bend": n.bend}
                    for n in relocation.notches]
         self._notches.publish(notches_array(notches))

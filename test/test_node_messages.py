@@ -1,0 +1,121 @@
+"""Messages the nodes build from arrays: the serialized Path, mesh Marker and Mesh are byte for byte what rclpy
+serializes from the same message built field by field (one Python object per point, as before), and the input
+checks refuse what would otherwise allocate or fail later."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from geometry_msgs.msg import Point, PoseStamped
+from nav_msgs.msg import Path
+from rclpy.serialization import deserialize_message, serialize_message
+from sensor_msgs.msg import CameraInfo, PointCloud2
+from shape_msgs.msg import Mesh, MeshTriangle
+from std_msgs.msg import ColorRGBA
+from visualization_msgs.msg import Marker
+
+from ntcr_recon.core.transforms import matrix_to_quaternion
+from ntcr_recon.ros import messages
+
+RNG = np.random.default_rng(7)
+
+
+def random_rotations(count: int) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.random(count, random_state=3).as_matrix()
+
+
+@pytest.mark.parametrize("frame_id", ["", "b", "ntcr_base", "a_frame_of_8"])
+@pytest.mark.parametrize("count", [0, 1, 2, 7])
+def test_path_bytes_decode_as_the_pose_by_pose_path(frame_id, count):
+    points, rotations = RNG.normal(size=(count, 3)), random_rotations(max(count, 1))[:count]
+    stamp = 1_700_000_123_456_789_012
+    head = messages.header(frame_id, stamp)
+    poses = []
+    for point, rotation in zip(points, rotations, strict=True):
+        pose = PoseStamped(header=head)
+        pose.pose.position.x, pose.pose.position.y, pose.pose.position.z = (float(v) for v in point)
+        q = matrix_to_quaternion(rotation)
+        o = pose.pose.orientation
+        o.x, o.y, o.z, o.w = (float(v) for v in q)
+        poses.append(pose)
+    assert deserialize_message(messages.path_bytes(points, rotations, frame_id, stamp), Path) == \
+        Path(header=head, poses=poses)
+    decoded = messages.path_msg(points, rotations, frame_id, stamp)
+    assert decoded.header == head and len(decoded.poses) == count
+    for pose, point, rotation in zip(decoded.poses, points, rotations, strict=True):
+        assert pose.header == head
+        np.testing.assert_array_equal([pose.pose.position.x, pose.pose.position.y, pose.pose.position.z], point)
+        q = pose.pose.orientation
+        np.testing.assert_allclose([q.x, q.y, q.z, q.w], matrix_to_quaternion(rotation), atol=1e-12)
+
+
+@pytest.mark.parametrize("frame_id", ["", "ntcr_base", "abc"])
+@pytest.mark.parametrize("triangles", [0, 1, 5])
+def test_mesh_marker_and_mesh_bytes_decode_as_the_point_by_point_messages(frame_id, triangles):
+    vertices = RNG.normal(size=(triangles + 2, 3))
+    faces = np.array([[i, i + 1, i + 2] for i in range(triangles)], dtype=np.int64).reshape(-1, 3)
+    marker = Marker(header=messages.header(frame_id, 42), ns="mesh", id=0, type=Marker.TRIANGLE_LIST,
+                    action=Marker.ADD)
+    marker.pose.orientation.w = 1.0
+    marker.scale.x = marker.scale.y = marker.scale.z = 1.0
+    marker.color = ColorRGBA(r=0.7, g=0.75, b=0.8, a=1.0)
+    marker.points = [Point(x=x, y=y, z=z) for x, y, z in vertices[faces.reshape(-1)].tolist()]
+    # float32 fields (the colour) compare as they travel: both through a deserialization
+    assert deserialize_message(messages.mesh_marker_bytes(vertices, faces, frame_id, 42), Marker) == \
+        deserialize_message(serialize_message(marker), Marker)
+    mesh = Mesh(vertices=[Point(x=x, y=y, z=z) for x, y, z in vertices.tolist()],
+                triangles=[MeshTriangle(vertex_indices=t) for t in faces.astype(np.uint32).tolist()])
+    assert deserialize_message(messages.mesh_msg_bytes(vertices, faces), Mesh) == mesh
+    got_vertices, got_triangles = messages.mesh_from_msg(messages.mesh_msg(vertices, faces))
+    np.testing.assert_array_equal(got_vertices, vertices)
+    np.testing.assert_array_equal(got_triangles, faces)
+
+
+def test_an_oversized_cloud_is_refused_from_its_header():
+    msg = PointCloud2(width=10_000_000, height=1)  # no data: the header alone decides
+    with pytest.raises(messages.RefusedInputError, match="10000000 points exceeds max_points 1000") as error:
+        messages.check_point_count(msg, 1000)
+    assert error.value.reason == "oversized"
+    messages.check_point_count(PointCloud2(width=1000, height=1), 1000)
+
+
+def test_pixels_outside_the_camera_image_are_refused():
+    pixels = np.array([[0, 0], [16000, 5]], dtype=np.int32)
+    with pytest.raises(messages.RefusedInputError, match=r"outside the 848x480 image of camera cam_a") as error:
+        messages.check_pixels(pixels, 848, 480, "camera cam_a")
+    assert error.value.reason == "inconsistent"
+    with pytest.raises(messages.RefusedInputError):
+        messages.check_pixels(np.array([[-1, 3]], np.int32), 848, 480, "camera cam_a")
+    messages.check_pixels(np.array([[847, 479], [0, 0]], np.int32), 848, 480, "camera cam_a")
+
+
+@pytest.mark.parametrize("field, value, expected", [
+    ("fx", math.inf, "fx is inf"), ("cx", math.nan, "cx is nan"), ("fy", 0.0, "fy is 0.0"),
+    ("fx", -300.0, "fx is -300.0"),
+])
+def test_camera_info_with_an_impossible_value_is_refused_naming_it(field, value, expected):
+    k = {"fx": 0, "cx": 2, "fy": 4, "cy": 5}
+    info = CameraInfo(width=848, height=480)
+    values = [430.0, 0.0, 424.0, 0.0, 430.0, 240.0, 0.0, 0.0, 1.0]
+    values[k[field]] = value
+    info.k = values
+    with pytest.raises(messages.RefusedInputError, match=expected):
+        messages.intrinsics_from_camera_info(info)
+    values[k[field]] = 400.0
+    info.k = values
+    assert messages.intrinsics_from_camera_info(info).width == 848
+
+
+def test_notch_markers_are_oriented_by_the_centreline_frames():
+    rotations = random_rotations(3)
+    notches = [{"index": i, "width": 1.5e-3} for i in range(3)]
+    markers = messages.notch_markers(notches, RNG.normal(size=(3, 3)), rotations, 1.75e-3, "ntcr_base", 5).markers
+    discs = [m for m in markers if m.ns == "notches" and m.action == Marker.ADD]
+    assert len(discs) == 3
+    for disc, rotation in zip(discs, rotations, strict=True):
+        q = disc.pose.orientation
+        np.testing.assert_allclose([q.x, q.y, q.z, q.w], matrix_to_quaternion(rotation), atol=1e-12)
