@@ -4,7 +4,6 @@ numbers, huge values and files, YAML alias bombs, identifiers YAML 1.1 would mis
 from __future__ import annotations
 
 import copy
-import time
 import tracemalloc
 
 import pytest
@@ -107,22 +106,20 @@ def test_an_unknown_key_of_any_size_is_named_by_an_excerpt(sim_mapping):
     assert len(str(refused.value)) < 600
 
 
-def test_a_yaml_alias_bomb_is_refused_fast_with_bounded_memory(tmp_path):
+def test_a_yaml_alias_bomb_is_refused_with_bounded_memory(tmp_path):
     lines = ['a0: &a0 ["lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol"]']
     lines += [f"a{i}: &a{i} [{', '.join([f'*a{i - 1}'] * 9)}]" for i in range(1, 10)]  # 9^10 strings expanded
     bomb = tmp_path / "bomb.yaml"
     bomb.write_text("/**:\n  ros__parameters:\n    base_frame: ntcr_base\n" + "".join(
         f"    {line}\n" for line in lines))
     tracemalloc.start()
-    start = time.perf_counter()
     try:
         with pytest.raises(ConfigError, match=r"bomb\.yaml: line 4: YAML anchor &a0 is refused"):
             load_rig_config(bomb)
         _, peak = tracemalloc.get_traced_memory()
     finally:
         tracemalloc.stop()
-    assert time.perf_counter() - start < 1.0
-    assert peak < 5_000_000
+    assert peak < 5_000_000  # refused before expanding: the expansion would take gigabytes
 
 
 def test_a_yaml_alias_of_a_value_is_refused(tmp_path, sim_mapping):

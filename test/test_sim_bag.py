@@ -14,6 +14,7 @@ from ntcr_recon.core.config import load_rig_config
 from ntcr_recon.core.geometry import TubeGeometry
 from ntcr_recon.core.kinematics import TubeShape
 from ntcr_recon.io.pointcloud import cloud_from_msg
+from ntcr_recon.io.staging import StagingError
 from ntcr_recon.sim.bag import TOPIC_KINDS, BagContents, topic_name, write_rig_bag
 from ntcr_recon.sim.camera import D405Intrinsics
 from ntcr_recon.sim.simulate import Simulation
@@ -181,6 +182,16 @@ def test_render_command_draws_a_png(written, tmp_path):
         assert image.width > 800 and image.height > 400
         pixels = np.asarray(image.convert("RGB"))
     assert len(np.unique(pixels.reshape(-1, 3), axis=0)) > 100  # a drawing, not a blank canvas
+
+
+def test_a_bag_is_never_written_over_the_current_directory(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "keep.txt").write_text("mine")
+    with pytest.raises(StagingError, match="current or the root directory"):
+        write_rig_bag(".", BagContents("/rig", D405Intrinsics(), []), {}, overwrite=True)
+    assert [p.name for p in tmp_path.iterdir()] == ["keep.txt"]
+    assert cli.main(["simulate", ".", "--overwrite", "--frames", "1", "--no-progress"]) == 2
+    assert [p.name for p in tmp_path.iterdir()] == ["keep.txt"]
 
 
 def test_an_overwritten_bag_is_replaced_whole_or_kept(tmp_path):

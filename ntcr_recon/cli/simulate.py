@@ -70,10 +70,12 @@ def build_simulation(args: argparse.Namespace) -> Simulation:
 
 
 def main(args: argparse.Namespace) -> int:
+    from ntcr_recon.io.staging import StagingError
+
     try:
         simulation = build_simulation(args)
         path = simulation.write_bag(args.output, overwrite=args.overwrite, progress=not args.no_progress)
-    except (ValueError, ConfigError, FileExistsError) as error:
+    except (ValueError, ConfigError, FileExistsError, StagingError) as error:
         print(f"ntcr-recon simulate: {error}", file=sys.stderr)
         return 2
     near = args.camera_distance - simulation.shape.geometry.outer_radius

@@ -40,20 +40,27 @@ class StagingError(OSError):
 
 
 @contextlib.contextmanager
-def staged_directory(target: str | os.PathLike) -> Iterator[Path]:
+def staged_directory(target: str | os.PathLike, *, created_by_writer: bool = False) -> Iterator[Path]:
     """A fresh staging directory beside `target`; swapped in as `target` when the block ends normally,
-    removed when it raises (the target untouched)."""
+    removed when it raises (the target untouched).
+
+    created_by_writer: yield instead a path named like the target that does not exist yet, inside the
+    staging directory, for a writer that creates its own directory and names its files after it (rosbags).
+    """
     target = _checked_target(target)
     target.parent.mkdir(parents=True, exist_ok=True)
     remove_stale_staging(target)
     staging = Path(tempfile.mkdtemp(dir=target.parent, prefix=f".{target.name}{STAGING_INFIX}{os.getpid()}-"))
+    result = staging / target.name if created_by_writer else staging
     try:
         if target.exists() and os.stat(target).st_dev != os.stat(staging).st_dev:
             raise StagingError(f"{target} is on another file system than its parent directory "
                                "(a mount point?): give a directory inside it")
-        yield staging
-        staging.chmod(0o755)  # mkdtemp makes it private; the result is an ordinary directory
-        swap_in(staging, target)
+        yield result
+        if not result.is_dir():
+            raise StagingError(f"nothing was written for {target}")
+        result.chmod(0o755)  # mkdtemp makes it private; the result is an ordinary directory
+        swap_in(result, target)
     finally:
         shutil.rmtree(staging, ignore_errors=True)  # the new result on failure, the old one after a swap
 

@@ -17,9 +17,6 @@ Public API:
 
 from __future__ import annotations
 
-import os
-import shutil
-import tempfile
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,7 +27,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from ntcr_recon.core.deproject import Intrinsics, depth_to_points
 from ntcr_recon.io.pointcloud import ROSBAGS, cloud_to_msg
-from ntcr_recon.io.staging import STAGING_INFIX, remove_stale_staging, swap_in
+from ntcr_recon.io.staging import staged_directory
 from ntcr_recon.sim.camera import CameraPose, D405Intrinsics
 
 TOPIC_KINDS = {
@@ -119,12 +116,7 @@ def write_rig_bag(out_dir: str | Path, contents: BagContents, extra_files: dict[
     out_dir = Path(out_dir)
     if out_dir.exists() and not overwrite:
         raise FileExistsError(f"{out_dir} exists; choose another output directory or pass --overwrite")
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    remove_stale_staging(out_dir)
-    # the bag is built one level down: rosbags names the .mcap after its directory, which must be out_dir's name
-    staging = Path(tempfile.mkdtemp(dir=out_dir.parent, prefix=f".{out_dir.name}{STAGING_INFIX}{os.getpid()}-"))
-    try:
-        bag_path = staging / out_dir.name
+    with staged_directory(out_dir, created_by_writer=True) as bag_path:
         writer = Writer(bag_path, version=9, storage_plugin=StoragePlugin.MCAP)
         writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)  # zstd mcap chunks
         connections = {}
@@ -139,7 +131,4 @@ def write_rig_bag(out_dir: str | Path, contents: BagContents, extra_files: dict[
                                  TYPESTORE.serialize_cdr(message, msgtype))
         for name, text in extra_files.items():
             (bag_path / name).write_text(text)
-        swap_in(bag_path, out_dir)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
     return out_dir
