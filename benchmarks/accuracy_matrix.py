@@ -72,10 +72,12 @@ ROWS = [
     Row("notches10", ("--bend-deg", "45"), TEN),
     Row("notches20", ("--bend-deg", "60"), TWENTY),
     Row("width1.8", ("--bend-deg", "45"), WIDE),
-    Row("yaw_pitch", ("--bend-deg", "45", "--camera-yaw-deg", "1.5,-2", "--camera-pitch-deg", "-1,2")),
+    Row("yaw_pitch", ("--bend-deg", "45", "--camera-yaw-deg=1.5,-2", "--camera-pitch-deg=-1,2")),
     Row("intrinsics640", ("--bend-deg", "45", "--intrinsics", "640,480,318,318,322,241")),
     Row("noise2_window11", ("--bend-deg", "45", "--noise", "2", "--window", "11")),
     Row("side_off20", ("--bend-deg", "45"), side_error_deg=20.0),
+    Row("ideal_bend45", ("--bend-deg", "45", "--ideal")),
+    Row("ideal_straight", ("--bend-deg", "0", "--ideal")),
     Row("depth_unit_1mm", ("--bend-deg", "45", "--depth-unit", "0.001")),
 ]
 
@@ -116,8 +118,8 @@ def frame_pairs(simulation) -> list:
     streams: dict[str, list] = {}
     for frame in simulation.frames():
         streams.setdefault(frame.camera.name, []).append(
-            CameraFrame(frame.camera.name, frame.stamp_ns, depth=frame.depth, intrinsics=intrinsics,
-                        color=frame.color))
+            CameraFrame(frame.camera.name, frame.stamp_ns, depth=frame.depth_raw, intrinsics=intrinsics,
+                        color=frame.color, depth_unit=k.depth_unit))
     return pair_frames(streams, int(15e6))
 
 

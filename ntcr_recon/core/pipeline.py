@@ -125,6 +125,17 @@ class Reconstructor:
         if not exact:
             coords, frames = centerline.project_with_frames(cloud.xyz, None if coords is None else coords.s)
         footprint = cloud.pixel_footprint
+        import os
+        if cloud.camera is not None and len(cloud.camera) and os.environ.get("ALIGN", "1") == "1":
+            from ntcr_recon.core.alignment import align_to_trusted_wall
+            end = tube_end(coords, geometry.outer_radius, settings.gate, settings.cell)
+            alignment = align_to_trusted_wall(centerline, coords, frames, self._camera_origins[cloud.camera],
+                                              geometry, settings.gate, settings.cell, end,
+                                              np.radians(float(os.environ.get("ALIGN_VIEW", 45))),
+                                              float(os.environ.get("ALIGN_MARGIN", 1)))
+            self.last_alignment = alignment
+            centerline = alignment.centerline
+            coords, frames = centerline.project_with_frames(cloud.xyz, coords.s)
         rays = None
         measured = coords
         if cloud.camera is not None and len(cloud.camera):
