@@ -34,6 +34,8 @@ import scipy.linalg
 from scipy.spatial import cKDTree
 
 from ntcr_recon.core.robot import TubeGeometry
+from ntcr_recon.core.tip import tube_end
+from ntcr_recon.core.wall import surface_band
 
 
 def _cross_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -308,7 +310,7 @@ def _march(xyz: np.ndarray, geometry: TubeGeometry, settings: CenterlineSettings
     reach = 1.5 * r_o + settings.gate
     nodes = [base]
     tangent = axis
-    limit = int(np.ceil(1.5 * geometry.length / step)) + 2
+    limit = int(np.ceil((geometry.length + geometry.outer_diameter) / step)) + 2  # never past the robot
     misses = 0
     allowed_misses = max(3, int(np.ceil(geometry.proximal_length / step)) + 1)
     for _ in range(limit):
@@ -343,44 +345,9 @@ def _march(xyz: np.ndarray, geometry: TubeGeometry, settings: CenterlineSettings
     return np.array(nodes)
 
 
-def surface_band(offset: np.ndarray, gate: float) -> tuple[float, float]:
-    """Robust level and spread (3 sigma from the MAD) of the points' radial offsets from the outer wall.
-
-    Stereo depth puts the seen wall a little off r_o (flattening) and spreads it (noise); the band
-    level +- spread is where this cloud's outer-wall points lie, cut faces and flying pixels mostly outside.
-    """
-    near = offset[np.abs(offset) < gate]
-    if near.size < 8:
-        return 0.0, gate
-    level = float(np.median(near))
-    spread = 3.0 * 1.4826 * float(np.median(np.abs(near - level)))
-    return level, min(max(spread, 1e-6), gate)
-
-
-def tube_end(coords: TubeCoordinates, radius: float, gate: float, cell: float, sectors: int = 24) -> float:
-    """Arc length where the tube seen in the cloud ends (the tip), to a fraction of `cell`.
-
-    Per slab of length `cell`, the number of angular sectors about the axis holding outer-wall points; the
-    tube ends where that falls below half its typical value along the robot (linear interpolation). Flying
-    pixels trailing off a silhouette along viewing rays fill few sectors, so they do not stretch the tube.
-    """
-    offset = coords.radius - radius
-    level, spread = surface_band(offset, gate)
-    on_wall = (np.abs(offset - level) <= spread) & (coords.s >= 0)
-    if np.count_nonzero(on_wall) < 8:
-        return float(coords.s.max(initial=0.0))
-    slab = (coords.s[on_wall] / cell).astype(np.intp)
-    sector = ((coords.angle[on_wall] + np.pi) / (2 * np.pi) * sectors).astype(np.intp) % sectors
-    grid = np.zeros((slab.max() + 2, sectors), dtype=bool)
-    grid[slab, sector] = True
-    occupied = np.count_nonzero(grid, axis=1).astype(float)
-    occupied = np.convolve(occupied, np.ones(3) / 3.0, mode="same")
-    half = 0.5 * float(np.median(occupied[occupied > 0]))
-    above = np.flatnonzero(occupied >= half)
-    last = int(above[-1])
-    a, b = occupied[last] - half, occupied[last + 1] - half if last + 1 < len(occupied) else -half
-    fraction = a / (a - b) if a != b else 0.5
-    return (last + 0.5 + float(np.clip(fraction, 0.0, 1.0))) * cell
+def _observed_end(coordinates: TubeCoordinates, geometry: TubeGeometry, settings: CenterlineSettings) -> float:
+    return tube_end(coordinates, geometry.outer_radius, settings.gate, settings.cell,
+                    max_s=geometry.length + geometry.outer_diameter)
 
 
 def estimate_centerline(xyz: np.ndarray, geometry: TubeGeometry, settings: CenterlineSettings,
@@ -409,8 +376,8 @@ def estimate_centerline(xyz: np.ndarray, geometry: TubeGeometry, settings: Cente
         near_tube &= coordinates.s > -settings.gate
         if np.count_nonzero(near_tube) < 16:
             break
-        # the curve reaches as far as the tube is seen (it may grow past the previous end)
-        observed_end = tube_end(coordinates, geometry.outer_radius, settings.gate, settings.cell)
+        # the curve reaches as far as the tube is seen, never past the robot's own length (and a margin)
+        observed_end = min(_observed_end(coordinates, geometry, settings), geometry.length + geometry.outer_diameter)
         slabs = max(int(np.ceil(observed_end / step)) + 1, 2)
         # each point feeds its two neighbouring nodes with linear (hat) weights, so the fit changes
         # smoothly as points slide along s between iterations

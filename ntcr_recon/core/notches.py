@@ -54,30 +54,6 @@ def _crossing(grid: np.ndarray, density: np.ndarray, level: np.ndarray, i: int, 
     return float(grid[i] + t * (grid[j] - grid[i]))
 
 
-def silhouette_erosion(coords: TubeCoordinates, frames: tuple, camera: np.ndarray, origins: np.ndarray,
-                       radius: float, usable: np.ndarray, quantile: float = 0.98) -> float:
-    """How much of the tube's rim each camera loses at a depth edge (m), measured on its silhouettes.
-
-    A stereo matcher drops or smears the pixels next to a depth edge. The tube's true half-width across
-    each camera's view is its outer radius, and depth pixels sample the lateral coordinate uniformly, so
-    the rim lost is r_o - q-quantile(|lateral|) / q over the camera's points on plain tube (usable: not in
-    a notch, not at the ends). The median over cameras is returned; 0 when it cannot be measured.
-    """
-    position, _, normal, binormal = frames
-    estimates = []
-    for index in np.unique(camera):
-        mine = usable & (camera == index)
-        if np.count_nonzero(mine) < 50:
-            continue
-        view = origins[index] - position[mine]
-        view_x = (view * normal[mine]).sum(axis=1)
-        view_y = (view * binormal[mine]).sum(axis=1)
-        length = np.hypot(view_x, view_y)
-        lateral = (view_x * coords.y[mine] - view_y * coords.x[mine]) / np.maximum(length, 1e-12)
-        estimates.append(radius - float(np.quantile(np.abs(lateral), quantile)) / quantile)
-    return max(float(np.median(estimates)), 0.0) if estimates else 0.0
-
-
 def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: TubeGeometry, gate: float,
                    footprint: float, kernel_px: float, min_width_fraction: float, tip_s: float,
                    observed: TubeCoordinates | None = None) -> list[Notch]:

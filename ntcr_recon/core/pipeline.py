@@ -25,20 +25,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ntcr_recon.core.centerline import (
-    Centerline,
-    TubeCoordinates,
-    estimate_centerline,
-    settings_for,
-    surface_band,
-    tube_end,
-)
+from ntcr_recon.core.alignment import align_to_trusted_wall
+from ntcr_recon.core.centerline import Centerline, TubeCoordinates, estimate_centerline, settings_for
 from ntcr_recon.core.cloud import Cloud
 from ntcr_recon.core.config import RigConfig
 from ntcr_recon.core.filters import filter_cloud
 from ntcr_recon.core.fusion import FramePair, fuse
-from ntcr_recon.core.notches import Notch, detect_notches, silhouette_erosion
+from ntcr_recon.core.notches import Notch, detect_notches
+from ntcr_recon.core.quality import assess, depth_step
 from ntcr_recon.core.relocation import RelocatedPoints, along_rays, relocate_points
+from ntcr_recon.core.tip import give_back_erosion, tube_end
+from ntcr_recon.core.wall import surface_band
 
 
 class ReconstructionError(RuntimeError):
@@ -59,6 +56,9 @@ class Relocation:
     iterations: int                 # centreline iterations run
     part: np.ndarray | None = None  # (A,) robot.PART_* of the surface each relocated point lies on
     relocated_coordinates: TubeCoordinates | None = None  # tube coordinates of the relocated points
+    quality: dict = field(default_factory=dict)  # the self-check (core.quality): figures, units in the keys
+    warnings: tuple[str, ...] = ()               # what the self-check found doubtful, in plain words
+    notch_side: float | None = None              # rad, the side the notches open to, as measured
 
 
 @dataclass
@@ -80,6 +80,7 @@ class Reconstructor:
         # optical centre of each camera in the base frame, by camera index (viewing rays for relocation)
         self._camera_origins = np.array([config.cameras[name].translation for name in config.camera_names], float)
         self.timings_ms: dict[str, float] = {}
+        self._depth_steps: dict[str, float] = {}  # per camera, the depth quantisation seen in its first frame
 
     def reset(self) -> None:
         """Forget the previous centreline and region of interest (the next frame starts cold)."""
@@ -91,6 +92,7 @@ class Reconstructor:
 
     def fuse(self, pair: FramePair) -> Cloud:
         start = time.perf_counter()
+        self._note_depth_steps(pair)
         cloud = None
         if self._roi is not None:
             cloud = fuse(pair, self.config, self._roi)
@@ -101,6 +103,14 @@ class Reconstructor:
         self._timed("fuse", start)
         return cloud
 
+    def _note_depth_steps(self, pair: FramePair) -> None:
+        """The depth step each camera's data show, measured once per camera (for the self-check)."""
+        for name, frame in pair.frames.items():
+            if name in self._depth_steps or frame.depth is None or name not in self.config.cameras:
+                continue
+            unit = frame.depth_unit if frame.depth_unit is not None else self.config.cameras[name].depth_unit
+            self._depth_steps[name] = depth_step(frame.depth, unit)
+
     def filter(self, cloud: Cloud) -> Cloud:
         start = time.perf_counter()
         cloud = filter_cloud(cloud, self.config)
@@ -108,66 +118,86 @@ class Reconstructor:
         return cloud
 
     def relocate(self, cloud: Cloud, warm_start: bool = True) -> Relocation:
-        """Centreline (fixed-radius fits + smoothing, iterated), notches, then relocation onto the reference."""
+        """Reference-guided relocation (paper Sec. IV) as the list of its steps, one module each:
+
+        centreline -> alignment -> notches (and the notch side) -> tip -> relocation -> quality.
+        """
         start = time.perf_counter()
-        geometry, settings_config = self.geometry, self.config.relocation
+        geometry, options = self.geometry, self.config.relocation
         minimum = 32
         if len(cloud) < minimum:
             raise ReconstructionError(f"only {len(cloud)} points left after filtering (need {minimum}): is the "
                                       "robot in view and inside the crop box?")
-        settings = settings_for(geometry, cloud.pixel_footprint, settings_config)
+        settings = settings_for(geometry, cloud.pixel_footprint, options)
+        footprint = settings.cell
+        seen_by = cloud.camera if cloud.camera is not None and len(cloud.camera) else None
+        viewpoints = None if seen_by is None else self._camera_origins[seen_by]
+
+        # 1. centreline: fixed-radius circle fits per slab, smoothed, iterated (core.centerline)
+        centerline, iterations, coords, frames = self._centerline(cloud, settings, warm_start)
+        # 2. alignment: the reference tube shifted onto the wall points stereo measures without bias
+        alignment = None
+        if viewpoints is not None:
+            end = tube_end(coords, geometry.outer_radius, settings.gate, footprint, max_s=self._max_length)
+            alignment = align_to_trusted_wall(centerline, coords, frames, viewpoints, geometry, settings.gate,
+                                              footprint, end)
+            centerline = alignment.centerline
+            coords, frames = centerline.project_with_frames(cloud.xyz, coords.s)
+        # each point as its camera saw it: along its viewing ray onto the wall (core.relocation)
+        rays = None if viewpoints is None else along_rays(coords, frames, viewpoints, geometry.outer_radius,
+                                                          settings.gate)
+        measured = coords if rays is None else rays[0]
+        # 3. tip, coarse: where the wall stops, over the sectors the cameras can see (core.tip)
+        tip_s = tube_end(measured, geometry.outer_radius, settings.gate, footprint, max_s=self._max_length,
+                         centerline=centerline, viewpoints=self._camera_origins if seen_by is not None else None)
+        # 4. notches: the robot's comb matched to the evidence, edges refined locally (core.notches)
+        found = detect_notches(measured, centerline, geometry, settings.gate, footprint, options.notch_kernel_px,
+                               options.min_notch_width_fraction, tip_s, observed=coords)
+        notches, signals = found, {n.index: "coverage" for n in found}
+        notch_side = geometry.notch_side
+        # 5. tip, refined: the rim the stereo matcher erodes at depth edges given back
+        if seen_by is not None:
+            tip_s = give_back_erosion(tip_s, coords, frames, seen_by, self._camera_origins, geometry.outer_radius,
+                                      settings.gate, [(n.start_s, n.end_s) for n in notches], footprint)
+        notches = _calibrate_rims(notches, geometry)
+        # 6. relocation: every point within the gate onto the reference surface (core.relocation)
+        moved: RelocatedPoints = relocate_points(coords, centerline, geometry, notches, tip_s, settings.gate, rays)
+        tip = centerline.frames_at(np.array([tip_s]))[0][0]
+        relocated = cloud.subset(moved.accepted).with_points(moved.points)
+        # 7. quality: how sure this result is (core.quality)
+        offset = coords.radius - geometry.outer_radius
+        level, _ = surface_band(offset, settings.gate)
+        near_wall = np.abs(offset - level) < settings.gate
+        wall_residual = float(np.sqrt(np.mean((offset[near_wall] - level) ** 2))) if np.any(near_wall) else 0.0
+        quality, warnings = assess(
+            geometry=geometry, camera_names=self.config.camera_names, notches=notches, notch_signals=signals,
+            coords_s=measured.s, camera=seen_by, tip_s=tip_s, total_bend=float(centerline.bend_angle(0.0, tip_s)),
+            footprint=footprint, wall_residual=wall_residual, notch_side=notch_side,
+            configured_side=geometry.notch_side,
+            bias_notch_side=0.0 if alignment is None else alignment.bias_notch_side,
+            bias_binormal=0.0 if alignment is None else alignment.bias_binormal, depth_steps=dict(self._depth_steps))
+        self._prior = centerline
+        self._update_roi(relocated)
+        self._timed("relocate", start)
+        return Relocation(_cut(centerline, tip_s), tip, notches, relocated, moved.normals, moved.rejected, coords,
+                          iterations, moved.part, moved.coordinates, quality, tuple(warnings), notch_side)
+
+    @property
+    def _max_length(self) -> float:
+        """No tube is searched for past the robot's own length and a diameter."""
+        return self.geometry.length + self.geometry.outer_diameter
+
+    def _centerline(self, cloud: Cloud, settings, warm_start: bool):
         prior = self._prior if warm_start else None
-        centerline, iterations, (coords, frames, exact) = estimate_centerline(cloud.xyz, geometry, settings, prior)
+        centerline, iterations, (coords, frames, exact) = estimate_centerline(cloud.xyz, self.geometry, settings,
+                                                                              prior)
         if centerline.length < 2 * settings.bin_length:
             self._prior = None
             raise ReconstructionError("no tube found along the robot's base axis: is the robot in view and the "
                                       "base pose in the configuration right?")
         if not exact:
             coords, frames = centerline.project_with_frames(cloud.xyz, None if coords is None else coords.s)
-        footprint = cloud.pixel_footprint
-        import os
-        if cloud.camera is not None and len(cloud.camera) and os.environ.get("ALIGN", "1") == "1":
-            from ntcr_recon.core.alignment import align_to_trusted_wall
-            end = tube_end(coords, geometry.outer_radius, settings.gate, settings.cell)
-            alignment = align_to_trusted_wall(centerline, coords, frames, self._camera_origins[cloud.camera],
-                                              geometry, settings.gate, settings.cell, end,
-                                              np.radians(float(os.environ.get("ALIGN_VIEW", 45))),
-                                              float(os.environ.get("ALIGN_MARGIN", 1)))
-            self.last_alignment = alignment
-            centerline = alignment.centerline
-            coords, frames = centerline.project_with_frames(cloud.xyz, coords.s)
-        rays = None
-        measured = coords
-        if cloud.camera is not None and len(cloud.camera):
-            origins = self._camera_origins[cloud.camera]
-            rays = along_rays(coords, frames, origins, geometry.outer_radius, settings.gate)
-            measured = rays[0]
-        tip_s = tube_end(measured, geometry.outer_radius, settings.gate, settings.cell)
-        notches = detect_notches(measured, centerline, geometry, settings.gate, footprint,
-                                 settings_config.notch_kernel_px, settings_config.min_notch_width_fraction, tip_s,
-                                 observed=coords)
-        if cloud.camera is not None and len(cloud.camera):
-            # The tip's rim, an edge seen against the background, loses what the tube's silhouettes lose
-            # to the stereo matcher; measure that on plain tube and give it back.
-            plain = (coords.s > geometry.outer_diameter) & (coords.s < tip_s - geometry.outer_diameter)
-            for notch in notches:
-                plain &= (coords.s < notch.start_s - 2 * settings.cell) | (coords.s > notch.end_s + 2 * settings.cell)
-            offset = coords.radius - geometry.outer_radius
-            level, spread = surface_band(offset, settings.gate)
-            plain &= np.abs(offset - level) <= spread
-            erosion = silhouette_erosion(coords, frames, cloud.camera, self._camera_origins, geometry.outer_radius,
-                                         plain)
-            tip_s += erosion
-        notches = _calibrate_rims(notches, geometry)
-        moved: RelocatedPoints = relocate_points(coords, centerline, geometry, notches, tip_s, settings.gate,
-                                                 rays)
-        tip = centerline.frames_at(np.array([tip_s]))[0][0]
-        relocated = cloud.subset(moved.accepted).with_points(moved.points)
-        self._prior = centerline
-        self._update_roi(relocated)
-        self._timed("relocate", start)
-        return Relocation(_cut(centerline, tip_s), tip, notches, relocated, moved.normals, moved.rejected, coords,
-                          iterations, moved.part, moved.coordinates)
+        return centerline, iterations, coords, frames
 
     def _update_roi(self, relocated: Cloud) -> None:
         """Region of interest for the next frame: the robot's bounding box, grown, inside the crop box."""
