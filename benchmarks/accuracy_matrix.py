@@ -63,7 +63,10 @@ ROWS = [
     Row("side180_bend30", ("--bend-deg", "30", "--notch-side", "180")),
     Row("bend90", ("--bend-deg", "90")),
     Row("bend_largest", ("--bend-deg", "largest")),
-    Row("bend90_toward_cam_a", ("--bend-deg", "90", "--notch-side", "facing")),
+    # the tip comes 30 mm nearer cam_a: at 110 mm it stays beyond the D405's 70 mm minimum depth, at 90 mm
+    # it does not (cam_a sees nothing of the distal part there: the result must say so)
+    Row("bend90_toward_cam_a", ("--bend-deg", "90", "--notch-side", "facing", "--camera-distance", "0.110")),
+    Row("bend90_toward_cam_a_90mm", ("--bend-deg", "90", "--notch-side", "facing")),
     Row("cameras75", ("--bend-deg", "45", "--camera-distance", "0.075")),
     Row("cameras110", ("--bend-deg", "45", "--camera-distance", "0.110")),
     Row("cameras_asymmetric", ("--bend-deg", "45", "--camera-distances", "0.080,0.105")),

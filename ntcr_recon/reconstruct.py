@@ -12,6 +12,8 @@ exists, so a failure leaves DIR as it was. result.json (lengths in the unit its 
 
     {"frames", "notch_count_expected", "notches": [{"index", "center_s_mm", "width_mm", "bend_deg"}],
      "centerline_m", "tip_m", "pdc": {"raw": {"mu", "sigma", "lambda"}, "relocated": {...}},
+     "quality": {notches found / expected / by signal, length seen per camera, fit residual, notch side,
+                 centreline bias, depth step, ...}  (core.quality), "warnings": [sentence, ...],
      "ground_truth": null | {"notches_detected", "width_mae_mm", "centerline_rmse_mm", "tip_error_mm",
                              "surface_error_mm": {"raw", "relocated"}},
      "timings_ms": {stage: median ms per frame pair, or ms for the combined steps}}
@@ -53,10 +55,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     try:
-        run(args)
+        result = run(args)
     except ReconstructCommandError as failure:
         print(f"ntcr-recon reconstruct: error: {failure}", file=sys.stderr)
         return 2
+    for warning in result.get("warnings", []):
+        print(f"ntcr-recon reconstruct: warning: {warning}", file=sys.stderr)
     return 0
 
 
@@ -157,6 +161,8 @@ def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
         "tip_m": relocation.tip.tolist(),
         "pdc": {"raw": pdc(raw.xyz, voxel), "relocated": pdc(relocation.relocated.xyz, voxel)},
         "ground_truth": _ground_truth(args.bag, raw, relocation),
+        "quality": relocation.quality,      # the self-check (core.quality), from the data alone
+        "warnings": list(relocation.warnings),
     }
     steps.update()
 

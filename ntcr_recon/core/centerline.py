@@ -345,15 +345,18 @@ def _march(xyz: np.ndarray, geometry: TubeGeometry, settings: CenterlineSettings
     return np.array(nodes)
 
 
-def _observed_end(coordinates: TubeCoordinates, geometry: TubeGeometry, settings: CenterlineSettings) -> float:
+def _observed_end(coordinates: TubeCoordinates, geometry: TubeGeometry, settings: CenterlineSettings,
+                  centerline: Centerline, viewpoints: np.ndarray | None) -> float:
     return tube_end(coordinates, geometry.outer_radius, settings.gate, settings.cell,
-                    max_s=geometry.length + geometry.outer_diameter)
+                    max_s=geometry.length + geometry.outer_diameter, centerline=centerline, viewpoints=viewpoints)
 
 
 def estimate_centerline(xyz: np.ndarray, geometry: TubeGeometry, settings: CenterlineSettings,
-                        prior: Centerline | None = None) -> tuple[Centerline, int, tuple]:
+                        prior: Centerline | None = None, viewpoints: np.ndarray | None = None
+                        ) -> tuple[Centerline, int, tuple]:
     """Fit the centreline to a cloud in the base frame.
 
+    viewpoints: (C, 3) the cameras' optical centres, so the tube's end is judged by what they can see.
     Returns the centreline (base to just past the last slab with data; the pipeline cuts it at the observed
     tip), the number of iterations run, and (coordinates, frames, exact): the points' projection onto the
     returned curve when exact, else onto the curve before it (its arc lengths a guess for projecting again).
@@ -377,7 +380,7 @@ def estimate_centerline(xyz: np.ndarray, geometry: TubeGeometry, settings: Cente
         if np.count_nonzero(near_tube) < 16:
             break
         # the curve reaches as far as the tube is seen, never past the robot's own length (and a margin)
-        observed_end = min(_observed_end(coordinates, geometry, settings), geometry.length + geometry.outer_diameter)
+        observed_end = min(_observed_end(coordinates, geometry, settings, centerline, viewpoints), geometry.length + geometry.outer_diameter)
         slabs = max(int(np.ceil(observed_end / step)) + 1, 2)
         # each point feeds its two neighbouring nodes with linear (hat) weights, so the fit changes
         # smoothly as points slide along s between iterations

@@ -153,7 +153,7 @@ class Reconstructor:
         # 4. notches: the robot's comb matched to the evidence, edges refined locally (core.notches)
         found = detect_notches(measured, centerline, geometry, settings.gate, footprint, options.notch_kernel_px,
                                options.min_notch_width_fraction, tip_s, observed=coords)
-        notches, signals = found, {n.index: "coverage" for n in found}
+        notches, signals = found, {n.index: n.signal for n in found}
         notch_side = geometry.notch_side
         # 5. tip, refined: the rim the stereo matcher erodes at depth edges given back
         if seen_by is not None:
@@ -189,8 +189,9 @@ class Reconstructor:
 
     def _centerline(self, cloud: Cloud, settings, warm_start: bool):
         prior = self._prior if warm_start else None
+        viewpoints = self._camera_origins if cloud.camera is not None and len(cloud.camera) else None
         centerline, iterations, (coords, frames, exact) = estimate_centerline(cloud.xyz, self.geometry, settings,
-                                                                              prior)
+                                                                              prior, viewpoints)
         if centerline.length < 2 * settings.bin_length:
             self._prior = None
             raise ReconstructionError("no tube found along the robot's base axis: is the robot in view and the "
@@ -250,7 +251,7 @@ def _calibrate_rims(notches: list[Notch], geometry) -> list[Notch]:
         return notches
     erosion = float(np.median(spine - np.array(observed))) / 2.0
     return [Notch(n.index, n.center_s, n.start_s + erosion, n.end_s - erosion, max(n.width - 2 * erosion, 0.0),
-                  n.bend) for n in notches]
+                  n.bend, n.signal) for n in notches]
 
 
 def _cut(centerline: Centerline, tip_s: float) -> Centerline:
