@@ -68,15 +68,16 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
     """The robot's comb of notches matched to the evidence along s; each notch refined where the comb puts it.
 
     Evidence, per cell of s, within the angular window where a notch opens the outer surface:
-    - coverage: 1 - (outer-wall point density / its local plateau), 1 where a slot is seen through;
-    - depression: the share of the window's points lying inside the wall band (cut faces, floor, bore seen
-      obliquely fill a slot with foreground depth, but not at the wall's radius). The wall's level and band
+    - coverage: 1 - (outer-wall point density / its local plateau): 1 where a slot is seen through, and
+      where its floor and faces, seen obliquely, fill it with depth inside the wall's band;
+    - depression: the share of the window's points lying inside the wall band.
+    A notch reports "coverage" when its window is empty (a slot seen through), "depression" when points
+    inside the wall's radius fill it (seen obliquely). The wall's level and band
       are measured on spine points only (away from the comb's cuts), so notch interiors cannot widen them.
     The comb (count and pitch from the configuration, bent by the centreline: comb.expected_centres) is
     slid along s as one matched filter to where the evidence agrees best; each notch is then the run of
     evidence above one half around its comb position, its edges where the evidence crosses one half (for
-    coverage that is the half-plateau level: each depth pixel stands for a cell of one footprint). A notch
-    reports the signal that measured it.
+    coverage that is the half-plateau level: each depth pixel stands for a cell of one footprint).
 
     observed: the points' coordinates as measured, when `coords` are those points moved (e.g. along their
     viewing rays onto the wall): which points lie on the outer wall is judged by where they were seen, as a
@@ -111,6 +112,8 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
     plateau = percentile_filter(density, 75, size=2 * span + 1, mode="nearest")
     coverage_gap = np.clip(1.0 - density / np.maximum(plateau, 1e-12), 0.0, 1.0)
     _, deep = coverage_profile(coords.s[depressed], 0.0, tip_s, cell, kernel)
+    _, anything = coverage_profile(coords.s[in_window & (np.abs(offset) < gate + r_o - geometry.inner_radius)],
+                                   0.0, tip_s, cell, kernel)
     # share of the window's points that are depressed; where the window holds few points it says nothing
     total = deep + density
     depression = np.where(total > 0.25 * plateau, deep / np.maximum(total, 1e-12), 0.0)
@@ -132,16 +135,19 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
     for k, centre in enumerate(centres + shift):
         if centre - half_width <= 0 or centre + half_width >= tip_s:
             continue
-        # a slot seen through is measured by coverage alone (its edges are exact at half the plateau); only
-        # where coverage shows no gap does the wall's depression measure the notch
-        signal = "coverage"
+        # wall coverage measures the edges (exact at half the plateau); where it shows no gap, the share of
+        # depressed points does
         found = _run_around(grid, coverage_gap, centre, geometry.notch_pitch / 2)
         if found is None or not _plausible(found, geometry, footprint, min_width_fraction):
-            signal = "depression"
             found = _run_around(grid, depression, centre, geometry.notch_pitch / 2)
         if found is None or not _plausible(found, geometry, footprint, min_width_fraction):
             continue
         start, end = found
+        # the signal: a slot seen through leaves the window empty; one seen obliquely fills it with its
+        # floor and faces, inside the wall's radius
+        middle = (grid >= start) & (grid <= end)
+        see_through = anything[middle].mean() < 0.5 * plateau[middle].mean() if np.any(middle) else True
+        signal = "coverage" if see_through else "depression"
         gaps.append((start, end))
         signals.append(signal)
         indices.append(k)
