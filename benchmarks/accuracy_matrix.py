@@ -21,7 +21,6 @@ test/test_accuracy_matrix.py runs a few rows of this grid and asserts the floors
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import math
 import sys
 import tempfile

@@ -20,7 +20,9 @@ Public API:
     Centerline                 s (M,), points (M,3), tangents, normals (towards the notch side), binormals
     Centerline.frames_at(s)    positions and frames at arbitrary arc lengths (linear interpolation)
     Centerline.project(xyz)    -> TubeCoordinates (s, x, y along normal/binormal, radius, angle)
-    estimate_centerline(xyz, geometry, pixel_footprint, settings, prior=None) -> (Centerline, iterations)
+    Centerline.rolled(angle), TubeCoordinates.rolled(angle)   the frame turned about the tangent
+    estimate_centerline(xyz, geometry, settings, prior=None, viewpoints=None)
+        -> (Centerline, iterations, (coordinates, frames, exact))
 """
 
 from __future__ import annotations
@@ -70,6 +72,11 @@ class TubeCoordinates:
     def angle(self) -> np.ndarray:
         return np.arctan2(self.y, self.x)
 
+    def rolled(self, angle: float) -> TubeCoordinates:
+        """The same points in a frame turned by `angle` about the tangent (x towards a notch side at `angle`)."""
+        c, s = np.cos(angle), np.sin(angle)
+        return TubeCoordinates(self.s, c * self.x + s * self.y, c * self.y - s * self.x)
+
 
 @dataclass(frozen=True)
 class Centerline:
@@ -105,6 +112,12 @@ class Centerline:
         binormals /= np.linalg.norm(binormals, axis=1, keepdims=True)
         normals = np.cross(binormals, tangents)
         return cls(s, resampled, tangents, normals, binormals)
+
+    def rolled(self, angle: float) -> Centerline:
+        """The same curve with its frame turned by `angle` about the tangent (the notch side measured)."""
+        c, s = np.cos(angle), np.sin(angle)
+        normals = c * self.normals + s * self.binormals
+        return Centerline(self.s, self.points, self.tangents, normals, np.cross(self.tangents, normals))
 
     @cached_property
     def _rows(self) -> tuple[np.ndarray, np.ndarray]:
@@ -347,6 +360,7 @@ def _march(xyz: np.ndarray, geometry: TubeGeometry, settings: CenterlineSettings
 
 def _observed_end(coordinates: TubeCoordinates, geometry: TubeGeometry, settings: CenterlineSettings,
                   centerline: Centerline, viewpoints: np.ndarray | None) -> float:
+    """Where the tube seen ends, never past the robot's own length and a diameter."""
     return tube_end(coordinates, geometry.outer_radius, settings.gate, settings.cell,
                     max_s=geometry.length + geometry.outer_diameter, centerline=centerline, viewpoints=viewpoints)
 
@@ -380,7 +394,7 @@ def estimate_centerline(xyz: np.ndarray, geometry: TubeGeometry, settings: Cente
         if np.count_nonzero(near_tube) < 16:
             break
         # the curve reaches as far as the tube is seen, never past the robot's own length (and a margin)
-        observed_end = min(_observed_end(coordinates, geometry, settings, centerline, viewpoints), geometry.length + geometry.outer_diameter)
+        observed_end = _observed_end(coordinates, geometry, settings, centerline, viewpoints)
         slabs = max(int(np.ceil(observed_end / step)) + 1, 2)
         # each point feeds its two neighbouring nodes with linear (hat) weights, so the fit changes
         # smoothly as points slide along s between iterations

@@ -195,3 +195,45 @@ def _measure(gaps: list[tuple[float, float]], indices: list[int], signals: list[
         notches.append(Notch(index, float(centre), float(start), float(end), float(max(width, 0.0)), float(bend),
                              signal))
     return notches
+
+
+def measure_notch_side(observed: TubeCoordinates, notches: list[Notch], geometry: TubeGeometry, centerline: Centerline,
+                       gate: float, footprint: float, search: float = np.radians(45.0)) -> float | None:
+    """How far (rad) the notches open from the frame's x axis (the configured side), measured on the data.
+
+    Inside the found notches the outer wall is missing over |angle - side| < gap_half_angle; spines keep it
+    all round. Per sector of angle, the wall points' density inside the notches relative to that on the
+    spines (what the cameras can see cancels in the ratio) is matched to that window, slid over +-`search`.
+    None when fewer than two notches were found or too few sectors are seen.
+    """
+    if len(notches) < 2:
+        return None
+    offset = observed.radius - geometry.outer_radius
+    spine = ~inside_intervals(observed.s, cut_intervals(geometry, centerline, 2.0 * footprint))
+    level, spread = surface_band(offset, gate, spine)
+    wall = np.abs(offset - level) <= spread
+    intervals = np.array([[n.start_s + footprint, n.end_s - footprint] for n in notches])
+    intervals = intervals[intervals[:, 1] > intervals[:, 0]]
+    in_notch = wall & inside_intervals(observed.s, intervals)
+    on_spine = wall & spine & (observed.s > notches[0].start_s) & (observed.s < notches[-1].end_s)
+    sectors = 36
+    width = 2 * np.pi / sectors
+    index = ((observed.angle + np.pi) / width).astype(np.intp) % sectors
+    notch_count = np.bincount(index[in_notch], minlength=sectors).astype(float)
+    spine_count = np.bincount(index[on_spine], minlength=sectors).astype(float)
+    seen = spine_count >= max(5.0, 0.1 * spine_count.max(initial=0.0))
+    if np.count_nonzero(seen) < 6 or notch_count.sum() == 0:
+        return None
+    ratio = (notch_count / np.maximum(spine_count, 1.0)) / (notch_count[seen].sum() / spine_count[seen].sum())
+    centres = -np.pi + (np.arange(sectors) + 0.5) * width
+    best, best_score = 0.0, -np.inf
+    for side in np.arange(-search, search + 1e-9, np.radians(1.0)):
+        distance = np.abs(np.angle(np.exp(1j * (centres - side))))
+        open_window = distance < geometry.gap_half_angle
+        inside, outside = seen & open_window, seen & ~open_window
+        if not np.any(inside) or not np.any(outside):
+            continue
+        score = ratio[outside].mean() - ratio[inside].mean()
+        if score > best_score + 1e-12 or (abs(score - best_score) <= 1e-12 and abs(side) < abs(best)):
+            best, best_score = float(side), score
+    return best

@@ -31,11 +31,14 @@ from ntcr_recon.core.cloud import Cloud
 from ntcr_recon.core.config import RigConfig
 from ntcr_recon.core.filters import filter_cloud
 from ntcr_recon.core.fusion import FramePair, fuse
-from ntcr_recon.core.notches import Notch, detect_notches
+from ntcr_recon.core.notches import Notch, detect_notches, measure_notch_side
 from ntcr_recon.core.quality import assess, depth_step
 from ntcr_recon.core.relocation import RelocatedPoints, along_rays, relocate_points
 from ntcr_recon.core.tip import give_back_erosion, tube_end
 from ntcr_recon.core.wall import surface_band
+
+# A measured notch side further than this from the configured one turns the tube frame (smaller: noise).
+ROLL_TO_REFRAME = np.radians(3.0)
 
 
 class ReconstructionError(RuntimeError):
@@ -153,8 +156,24 @@ class Reconstructor:
         # 4. notches: the robot's comb matched to the evidence, edges refined locally (core.notches)
         found = detect_notches(measured, centerline, geometry, settings.gate, footprint, options.notch_kernel_px,
                                options.min_notch_width_fraction, tip_s, observed=coords)
-        notches, signals = found, {n.index: n.signal for n in found}
+        # the robot's roll in its clamp is never exact: the side the notches open to, measured; where it is
+        # off the configured one the tube frame turns to it and the notches are found again in that frame
         notch_side = geometry.notch_side
+        for _ in range(2):  # the second pass measures in the turned frame (the window fits better there)
+            roll = measure_notch_side(coords, found, geometry, centerline, settings.gate, footprint)
+            if roll is None:
+                break
+            notch_side += roll
+            if abs(roll) <= ROLL_TO_REFRAME:
+                break
+            centerline, coords = centerline.rolled(roll), coords.rolled(roll)
+            frames = (frames[0], frames[1], *_rolled_axes(frames[2], frames[3], roll))
+            if rays is not None:
+                rays = (rays[0].rolled(roll), rays[1])
+            measured = coords if rays is None else rays[0]
+            found = detect_notches(measured, centerline, geometry, settings.gate, footprint,
+                                   options.notch_kernel_px, options.min_notch_width_fraction, tip_s, observed=coords)
+        notches, signals = found, {n.index: n.signal for n in found}
         # 5. tip, refined: the rim the stereo matcher erodes at depth edges given back
         if seen_by is not None:
             tip_s = give_back_erosion(tip_s, coords, frames, seen_by, self._camera_origins, geometry.outer_radius,
@@ -252,6 +271,12 @@ def _calibrate_rims(notches: list[Notch], geometry) -> list[Notch]:
     erosion = float(np.median(spine - np.array(observed))) / 2.0
     return [Notch(n.index, n.center_s, n.start_s + erosion, n.end_s - erosion, max(n.width - 2 * erosion, 0.0),
                   n.bend, n.signal) for n in notches]
+
+
+def _rolled_axes(normal: np.ndarray, binormal: np.ndarray, angle: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per-point frame axes turned by `angle` about the tangent (as Centerline.rolled)."""
+    c, s = np.cos(angle), np.sin(angle)
+    return c * normal + s * binormal, c * binormal - s * normal
 
 
 def _cut(centerline: Centerline, tip_s: float) -> Centerline:
