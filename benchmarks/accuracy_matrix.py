@@ -100,9 +100,11 @@ def simulation_for(row: Row, seed: int, frames: int):
             extra += ["--robot", str(robot_file)]
             if "--notch-side" not in args:
                 extra += ["--notch-side", "side-on"]
-        if "largest" in args:  # the robot's largest bend: every notch just short of closing
+        if "largest" in args:
+            # the robot's largest bend: every notch just short of closing, or - for a robot that could curl
+            # past a full turn that way - 300 degrees, short of touching itself
             geometry = TubeGeometry(**row.robot) if row.robot else TubeGeometry()
-            largest = 0.97 * geometry.max_notch_bend * geometry.notch_count
+            largest = min(0.97 * geometry.max_notch_bend * geometry.notch_count, math.radians(300.0))
             args[args.index("largest")] = f"{math.degrees(largest):.2f}"
         parsed = parser.parse_args([str(Path(folder) / row.name), *args, *extra])
         simulation = simulate_cli.build_simulation(parsed)

@@ -37,8 +37,9 @@ from ntcr_recon.core.relocation import RelocatedPoints, along_rays, relocate_poi
 from ntcr_recon.core.tip import give_back_erosion, tube_end
 from ntcr_recon.core.wall import surface_band
 
-# A measured notch side further than this from the configured one turns the tube frame (smaller: noise).
-ROLL_TO_REFRAME = np.radians(3.0)
+# A measured notch side further than this from the configured one turns the tube frame (smaller: within
+# what the measurement scatters, and the open window is wide enough for it).
+ROLL_TO_REFRAME = np.radians(6.0)
 
 
 class ReconstructionError(RuntimeError):
@@ -161,20 +162,22 @@ class Reconstructor:
         notch_side = geometry.notch_side
         for _ in range(2):  # the second pass measures in the turned frame (the window fits better there)
             roll = measure_notch_side(coords, found, geometry, centerline, settings.gate, footprint)
-            if roll is None:
+            if roll is None or abs(roll) <= ROLL_TO_REFRAME:
                 break
+            turned = centerline.rolled(roll), coords.rolled(roll)
+            turned_rays = None if rays is None else (rays[0].rolled(roll), rays[1])
+            turned_measured = turned[1] if turned_rays is None else turned_rays[0]
+            again = detect_notches(turned_measured, turned[0], geometry, settings.gate, footprint,
+                                   options.notch_kernel_px, options.min_notch_width_fraction, tip_s,
+                                   observed=turned[1])
+            if len(again) < len(found):
+                break  # the turned frame explains the data worse: the measurement was not to be trusted
             notch_side += roll
-            if abs(roll) <= ROLL_TO_REFRAME:
-                break
-            centerline, coords = centerline.rolled(roll), coords.rolled(roll)
+            (centerline, coords), rays, measured, found = turned, turned_rays, turned_measured, again
             frames = (frames[0], frames[1], *_rolled_axes(frames[2], frames[3], roll))
-            if rays is not None:
-                rays = (rays[0].rolled(roll), rays[1])
-            measured = coords if rays is None else rays[0]
-            found = detect_notches(measured, centerline, geometry, settings.gate, footprint,
-                                   options.notch_kernel_px, options.min_notch_width_fraction, tip_s, observed=coords)
         notches, signals = found, {n.index: n.signal for n in found}
         # 5. tip, refined: the rim the stereo matcher erodes at depth edges given back
+        eroded_end = tip_s
         if seen_by is not None:
             tip_s = give_back_erosion(tip_s, coords, frames, seen_by, self._camera_origins, geometry.outer_radius,
                                       settings.gate, [(n.start_s, n.end_s) for n in notches], footprint)
@@ -194,7 +197,8 @@ class Reconstructor:
             footprint=footprint, wall_residual=wall_residual, notch_side=notch_side,
             configured_side=geometry.notch_side,
             bias_notch_side=0.0 if alignment is None else alignment.bias_notch_side,
-            bias_binormal=0.0 if alignment is None else alignment.bias_binormal, depth_steps=dict(self._depth_steps))
+            bias_binormal=0.0 if alignment is None else alignment.bias_binormal, depth_steps=dict(self._depth_steps),
+            tip_erosion=tip_s - eroded_end)
         self._prior = centerline
         self._update_roi(relocated)
         self._timed("relocate", start)

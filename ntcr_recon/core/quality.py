@@ -4,7 +4,8 @@
 and by which signal, the share of the robot's length each camera saw (and a distal stretch seen by one
 camera alone), the wall fit's residual, the measured notch side against the configured one, the centreline
 bias the alignment removed, the tip against the robot's known length, the pixel footprint against the
-tube, and the depth quantisation seen in the frames. Every figure is in the unit its key names; the
+tube, the depth quantisation seen in the frames, each notch's width against the width its measured bend
+implies, and how far the tip's position rests on the rim erosion given back. Every figure is in the unit its key names; the
 warnings are sentences a user can act on. relocation_node puts them on /diagnostics, the CLI prints them.
 """
 
@@ -21,6 +22,9 @@ TIP_SHORT_DIAMETERS = 0.5          # tip this many diameters short of (or past) 
 FOOTPRINT_RADIUS_FRACTION = 1 / 7  # pixel footprint above this fraction of r_o: too few pixels across
 QUANTISATION_RADIUS_FRACTION = 1 / 8   # depth step above this fraction of r_o: the tube's roundness is lost
 BIAS_WARN_FOOTPRINTS = 0.5         # centreline stereo bias above this many footprints: warn
+WIDTH_CHECK_FRACTION = 0.1         # a notch whose width is off what its bend implies by this share of h: warn
+# The project's floors (issue 9): a figure whose uncertainty exceeds its floor is worth a warning.
+TIP_FLOOR = 0.15e-3
 
 
 def camera_coverage(s: np.ndarray, camera: np.ndarray | None, camera_names: tuple[str, ...], tip_s: float,
@@ -47,7 +51,7 @@ def camera_coverage(s: np.ndarray, camera: np.ndarray | None, camera_names: tupl
 def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_signals: dict[int, str],
            coords_s: np.ndarray, camera: np.ndarray | None, tip_s: float, total_bend: float, footprint: float,
            wall_residual: float, notch_side: float, configured_side: float, bias_notch_side: float,
-           bias_binormal: float, depth_steps: dict[str, float]) -> tuple[dict, list[str]]:
+           bias_binormal: float, depth_steps: dict[str, float], tip_erosion: float = 0.0) -> tuple[dict, list[str]]:
     """The `quality` document and the warnings (see the module docstring)."""
     warnings: list[str] = []
     r_o, diameter = geometry.outer_radius, geometry.outer_diameter
@@ -59,6 +63,20 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
     if missing:
         warnings.append(f"{len(found)} of {geometry.notch_count} notches found (missing: "
                         f"{', '.join(str(i) for i in missing)}): their widths are unknown")
+    # a notch's width follows from the configured one and its measured bend (the gap on the outer wall of a
+    # notch of neutral length h bent by theta): a reading far off it is an error or a damaged robot
+    h, ybar = geometry.notch_width, geometry.neutral_axis_offset
+    off_model = {n.index: n.width - max((h - ybar * abs(n.bend or 0.0)) - abs(n.bend or 0.0) * r_o, 0.0)
+                 for n in notches}
+    doubtful = sorted(i for i, d in off_model.items() if abs(d) > WIDTH_CHECK_FRACTION * h)
+    if doubtful:
+        listed = ", ".join(f"{i} ({off_model[i] * 1e3:+.2f} mm)" for i in doubtful)
+        warnings.append(f"notch widths off what their bends imply: {listed}; check those notches")
+    # the tip's rim is a depth edge: it rests on the erosion given back, known to about that much
+    tip_uncertainty = abs(tip_erosion) + footprint / 2
+    if tip_uncertainty > TIP_FLOOR:
+        warnings.append(f"the tip rests on a stereo-eroded rim ({tip_erosion * 1e3:.2f} mm given back): "
+                        f"its position is uncertain by about {tip_uncertainty * 1e3:.2f} mm along the tube")
     cell = max(footprint, r_o / 8)
     share, alone = camera_coverage(coords_s, camera, camera_names, tip_s, cell)
     for name, length in alone.items():
@@ -99,6 +117,8 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
         "notch_side_deg": math.degrees(notch_side), "notch_side_configured_deg": math.degrees(configured_side),
         "centerline_bias_mm": {"notch_side": bias_notch_side * 1e3, "binormal": bias_binormal * 1e3},
         "tip_s_mm": tip_s * 1e3, "expected_length_mm": expected_length * 1e3,
+        "tip_uncertainty_mm": tip_uncertainty * 1e3,
+        "notch_width_vs_bend_mm": {str(i): d * 1e3 for i, d in sorted(off_model.items())},
         "pixel_footprint_mm": footprint * 1e3,
         "depth_step_mm": {k: v * 1e3 for k, v in depth_steps.items()},
     }
