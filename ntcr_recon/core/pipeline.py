@@ -34,7 +34,7 @@ from ntcr_recon.core.fusion import FramePair, fuse
 from ntcr_recon.core.notches import Notch, detect_notches, measure_notch_side
 from ntcr_recon.core.quality import assess, depth_step
 from ntcr_recon.core.relocation import RelocatedPoints, along_rays, relocate_points
-from ntcr_recon.core.tip import give_back_erosion, tube_end
+from ntcr_recon.core.tip import cap_faces_a_camera, give_back_erosion, tube_end
 from ntcr_recon.core.wall import surface_band
 
 # A measured notch side further than this from the configured one turns the tube frame (smaller: within
@@ -139,6 +139,9 @@ class Reconstructor:
 
         # 1. centreline: fixed-radius circle fits per slab, smoothed, iterated (core.centerline)
         centerline, iterations, coords, frames = self._centerline(cloud, settings, warm_start)
+        # the next frame warm-starts from the fit's own fixed point, not from the aligned curve (else each call
+        # would shift the curve once more, and results would depend on what came before)
+        fitted = centerline
         # 2. alignment: the reference tube shifted onto the wall points stereo measures without bias
         alignment = None
         if viewpoints is not None:
@@ -178,7 +181,9 @@ class Reconstructor:
         notches, signals = found, {n.index: n.signal for n in found}
         # 5. tip, refined: the rim the stereo matcher erodes at depth edges given back
         eroded_end = tip_s
-        if seen_by is not None:
+        # (where a camera looks onto the end cap, the end is a face it measures, not a rim it erodes)
+        if seen_by is not None and not cap_faces_a_camera(centerline, tip_s, self._camera_origins,
+                                                                  geometry.outer_radius, footprint):
             tip_s = give_back_erosion(tip_s, coords, frames, seen_by, self._camera_origins, geometry.outer_radius,
                                       settings.gate, [(n.start_s, n.end_s) for n in notches], footprint)
         notches = _calibrate_rims(notches, geometry)
@@ -199,7 +204,7 @@ class Reconstructor:
             bias_notch_side=0.0 if alignment is None else alignment.bias_notch_side,
             bias_binormal=0.0 if alignment is None else alignment.bias_binormal, depth_steps=dict(self._depth_steps),
             tip_erosion=tip_s - eroded_end)
-        self._prior = centerline
+        self._prior = fitted
         self._update_roi(relocated)
         self._timed("relocate", start)
         return Relocation(_cut(centerline, tip_s), tip, notches, relocated, moved.normals, moved.rejected, coords,

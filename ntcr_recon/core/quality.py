@@ -5,8 +5,9 @@ and by which signal, the share of the robot's length each camera saw (and a dist
 camera alone), the wall fit's residual, the measured notch side against the configured one, the centreline
 bias the alignment removed, the tip against the robot's known length, the pixel footprint against the
 tube, the depth quantisation seen in the frames, each notch's width against the width its measured bend
-implies, and how far the tip's position rests on the rim erosion given back. Every figure is in the unit its key names; the
-warnings are sentences a user can act on. relocation_node puts them on /diagnostics, the CLI prints them.
+implies, and how far the tip's position rests on the rim erosion given back. Every figure is in the unit
+its key names; the warnings are sentences a user can act on. relocation_node puts them on /diagnostics,
+the CLI prints them.
 """
 
 from __future__ import annotations

@@ -115,3 +115,14 @@ def give_back_erosion(tip_s: float, coords: TubeCoordinates, frames: tuple, came
     level, spread = surface_band(offset, gate, plain)
     plain &= np.abs(offset - level) <= spread
     return tip_s + silhouette_erosion(coords, frames, camera, origins, radius, plain)
+
+
+def cap_faces_a_camera(centerline: Centerline, tip_s: float, viewpoints: np.ndarray, radius: float,
+                       footprint: float) -> bool:
+    """Some camera looks onto the tip's end cap so that it spans more than 4 pixels in its image (the cap's
+    diameter foreshortened by the sine of the tangent's turn towards the camera): wider than a stereo
+    matcher's silhouette band, so the end is a face it measures, not a rim it erodes."""
+    position, tangent, _, _ = centerline.frames_at(np.array([tip_s]))
+    view = np.atleast_2d(viewpoints) - position
+    view /= np.linalg.norm(view, axis=1, keepdims=True)
+    return bool(np.any(2 * radius * (view @ tangent[0]) > 4 * footprint))
