@@ -195,3 +195,32 @@ def test_depth_step_is_read_from_the_data():
     assert depth_step(image, 1e-4) == pytest.approx(1e-4)
     assert depth_step(image * 10, 1e-4) == pytest.approx(1e-3)
     assert depth_step(np.zeros((4, 4), np.uint16), 1e-4) == 0.0
+
+
+def test_icp_recovers_a_known_motion_of_the_reference_and_relocates_onto_it():
+    from ntcr_recon.core.icp import icp, posed_reference, relocate_onto_reference
+    from ntcr_recon.core.transforms import quaternion_to_matrix
+
+    shape = TubeShape.from_bend_angle(GEOMETRY, math.radians(45))
+    s = np.linspace(0.0, shape.length, 2000)
+    points, frames = shape.centerline(s)
+    centerline = Centerline(s, points, frames[:, :, 2], frames[:, :, 0], frames[:, :, 1])
+    reference, normals, part = posed_reference(centerline, GEOMETRY, [], shape.length, 0.1e-3)
+    # the observed cloud: the true outer wall, moved by a small rigid motion and made noisy
+    sample = shape.sample_surface_parts(0.1e-3)
+    wall = sample.points[sample.part == 0][::3]
+    rotation = quaternion_to_matrix(np.array([0.0, np.sin(0.002), 0.0, np.cos(0.002)]))  # 0.23 deg about y
+    translation = np.array([0.05e-3, -0.03e-3, 0.02e-3])
+    rng = np.random.default_rng(4)
+    cloud = wall @ rotation.T + translation + rng.normal(0.0, 0.01e-3, wall.shape)
+    found_r, found_t, iterations = icp(reference, cloud, 0.8e-3, iterations=60)
+    probe = centerline.points[::200]
+    truth = probe @ rotation.T + translation
+    before = np.linalg.norm(probe - truth, axis=1).max()
+    error = np.linalg.norm(probe @ found_r.T + found_t - truth, axis=1).max()
+    print(f"\nICP: centreline {before * 1e3:.3f} mm off before, {error * 1e3:.4f} mm after {iterations} iterations")
+    # point-to-point ICP on a sampled reference slides along a tube only as far as its bend and ends hold it
+    assert error < 0.5 * before
+    moved = relocate_onto_reference(cloud, reference @ found_r.T + found_t, normals @ found_r.T, part, 0.8e-3)
+    assert moved.accepted.mean() > 0.99
+    assert np.median(moved.distance) < 0.05e-3

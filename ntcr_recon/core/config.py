@@ -125,6 +125,13 @@ class RelocationConfig:
     # Region of interest of the next frame: the robot's box grown by this fraction of its length (motion
     # allowed between frames); a frame with fewer robot points there is fused from the whole crop box.
     roi_margin_fraction: float = 0.1
+    # How observed points reach the reference surface: centerline (the tube's own coordinates, each point
+    # along its viewing ray onto the wall) or icp (the paper's Sec. IV: KD-tree + ICP of a reference - the
+    # configured robot posed by the centreline, or reference_mesh, a PLY/STL in the base frame - then each
+    # point onto its nearest reference point within the gate)
+    method: str = "centerline"
+    reference_mesh: str = ""
+    icp_iterations: int = 20
 
 
 @dataclass(frozen=True)
@@ -369,6 +376,10 @@ def _validate_stages(config: RigConfig) -> None:
         raise ConfigError(f"filters.mls_order must be 1 or 2, got {f.mls_order}")
     if f.mls_neighbors < 3 * f.mls_order + 1:
         raise ConfigError(f"filters.mls_neighbors must be >= {3 * f.mls_order + 1} for order {f.mls_order}")
+    if r.method not in ("centerline", "icp"):
+        raise ConfigError(f"relocation.method must be 'centerline' or 'icp', got {r.method!r}")
+    if r.icp_iterations < 1:
+        raise ConfigError(f"relocation.icp_iterations must be >= 1, got {r.icp_iterations}")
     if m.method not in ("tube", "poisson"):
         raise ConfigError(f"mesh.method must be 'tube' or 'poisson', got {m.method!r}")
     if not 0 <= m.density_quantile < 1:

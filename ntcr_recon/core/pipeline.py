@@ -21,7 +21,7 @@ on every side); a frame whose robot is not found whole there is fused again from
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -31,6 +31,7 @@ from ntcr_recon.core.cloud import Cloud
 from ntcr_recon.core.config import RigConfig
 from ntcr_recon.core.filters import filter_cloud
 from ntcr_recon.core.fusion import FramePair, fuse
+from ntcr_recon.core.icp import icp, mesh_reference, posed_reference, relocate_onto_reference
 from ntcr_recon.core.notches import Notch, detect_notches, measure_notch_side
 from ntcr_recon.core.quality import assess, depth_step
 from ntcr_recon.core.relocation import RelocatedPoints, along_rays, relocate_points
@@ -85,6 +86,7 @@ class Reconstructor:
         self._camera_origins = np.array([config.cameras[name].translation for name in config.camera_names], float)
         self.timings_ms: dict[str, float] = {}
         self._depth_steps: dict[str, float] = {}  # per camera, the depth quantisation seen in its first frame
+        self._mesh_reference = None  # relocation.reference_mesh, sampled once
 
     def reset(self) -> None:
         """Forget the previous centreline and region of interest (the next frame starts cold)."""
@@ -188,8 +190,11 @@ class Reconstructor:
                                       settings.gate, [(n.start_s, n.end_s) for n in notches], footprint)
         notches = _calibrate_rims(notches, geometry)
         # 6. relocation: every point within the gate onto the reference surface (core.relocation)
-        moved: RelocatedPoints = relocate_points(coords, centerline, geometry, notches, tip_s, settings.gate, rays)
         tip = centerline.frames_at(np.array([tip_s]))[0][0]
+        if options.method == "icp":  # the paper's KD-tree + ICP onto a reference (core.icp)
+            moved, tip = self._relocate_by_icp(cloud, centerline, notches, tip_s, tip, settings.gate, footprint)
+        else:
+            moved = relocate_points(coords, centerline, geometry, notches, tip_s, settings.gate, rays)
         relocated = cloud.subset(moved.accepted).with_points(moved.points)
         # 7. quality: how sure this result is (core.quality)
         offset = coords.radius - geometry.outer_radius
@@ -209,6 +214,25 @@ class Reconstructor:
         self._timed("relocate", start)
         return Relocation(_cut(centerline, tip_s), tip, notches, relocated, moved.normals, moved.rejected, coords,
                           iterations, moved.part, moved.coordinates, quality, tuple(warnings), notch_side)
+
+    def _relocate_by_icp(self, cloud: Cloud, centerline: Centerline, notches: list[Notch], tip_s: float,
+                         tip: np.ndarray, gate: float, footprint: float) -> tuple[RelocatedPoints, np.ndarray]:
+        """The reference (a user's mesh, or the configured robot posed by the centreline) aligned to the cloud by
+        ICP, every point onto its nearest reference point within the gate; the tip moved with the reference."""
+        options, spacing = self.config.relocation, footprint / 2
+        if options.reference_mesh:
+            if self._mesh_reference is None:
+                self._mesh_reference = mesh_reference(options.reference_mesh, spacing)
+            points, normals, part = self._mesh_reference
+        else:
+            points, normals, part = posed_reference(centerline, self.geometry, notches, tip_s, spacing)
+        rotation, translation, _ = icp(points, cloud.xyz, gate, options.icp_iterations)
+        moved = relocate_onto_reference(cloud.xyz, points @ rotation.T + translation, normals @ rotation.T, part,
+                                        gate)
+        # tube coordinates of the relocated points, for the tube mesher (a mesh reference of another object
+        # than a tube wants mesh.method: poisson)
+        moved = replace(moved, coordinates=centerline.project(moved.points))
+        return moved, rotation @ tip + translation
 
     @property
     def _max_length(self) -> float:
