@@ -167,12 +167,10 @@ def _run_around(grid: np.ndarray, evidence: np.ndarray, centre: float, reach: fl
     if inside.size == 0:
         return None
     seed = int(inside[np.argmin(np.abs(grid[inside] - centre))])
-    first = seed
-    while first > 0 and high[first - 1]:
-        first -= 1
-    last = seed
-    while last < len(grid) - 1 and high[last + 1]:
-        last += 1
+    low_before = np.flatnonzero(~high[:seed])
+    low_after = np.flatnonzero(~high[seed:])
+    first = int(low_before[-1]) + 1 if low_before.size else 0
+    last = seed + int(low_after[0]) - 1 if low_after.size else len(grid) - 1
     if first == 0 or last == len(grid) - 1:
         return None  # touches the base or the tip: not a notch
     half = np.full(len(grid), 0.5)
@@ -226,14 +224,16 @@ def measure_notch_side(observed: TubeCoordinates, notches: list[Notch], geometry
         return None
     ratio = (notch_count / np.maximum(spine_count, 1.0)) / (notch_count[seen].sum() / spine_count[seen].sum())
     centres = -np.pi + (np.arange(sectors) + 0.5) * width
-    best, best_score = 0.0, -np.inf
-    for side in np.arange(-search, search + 1e-9, np.radians(1.0)):
-        distance = np.abs(np.angle(np.exp(1j * (centres - side))))
-        open_window = distance < geometry.gap_half_angle
-        inside, outside = seen & open_window, seen & ~open_window
-        if not np.any(inside) or not np.any(outside):
-            continue
-        score = ratio[outside].mean() - ratio[inside].mean()
-        if score > best_score + 1e-12 or (abs(score - best_score) <= 1e-12 and abs(side) < abs(best)):
-            best, best_score = float(side), score
-    return best
+    # every candidate side at once: (candidates, sectors) open-window masks over the seen sectors
+    sides = np.arange(-search, search + 1e-9, np.radians(1.0))
+    distance = np.abs(np.angle(np.exp(1j * (centres[None, :] - sides[:, None]))))
+    inside = seen[None, :] & (distance < geometry.gap_half_angle)
+    outside = seen[None, :] & ~(distance < geometry.gap_half_angle)
+    count_in, count_out = inside.sum(axis=1), outside.sum(axis=1)
+    valid = (count_in > 0) & (count_out > 0)
+    if not np.any(valid):
+        return None
+    score = (outside @ ratio) / np.maximum(count_out, 1) - (inside @ ratio) / np.maximum(count_in, 1)
+    score = np.where(valid, score, -np.inf)
+    best = np.flatnonzero(score >= score.max() - 1e-12)
+    return float(sides[best[np.argmin(np.abs(sides[best]))]])  # ties: the smallest turn
