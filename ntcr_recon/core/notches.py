@@ -151,7 +151,7 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
         gaps.append((start, end))
         signals.append(signal)
         indices.append(k)
-    return _measure(gaps, indices, signals, centerline, geometry)
+    return _measure(gaps, indices, signals, centerline, geometry, centres + shift, tip_s)
 
 
 def _plausible(gap: tuple[float, float], geometry: TubeGeometry, footprint: float, min_width_fraction: float) -> bool:
@@ -178,20 +178,35 @@ def _run_around(grid: np.ndarray, evidence: np.ndarray, centre: float, reach: fl
 
 
 def _measure(gaps: list[tuple[float, float]], indices: list[int], signals: list[str], centerline: Centerline,
-             geometry: TubeGeometry) -> list[Notch]:
-    """Width (the outer-surface gap facing the notches) and bend of each notch found."""
+             geometry: TubeGeometry, comb: np.ndarray, tip_s: float) -> list[Notch]:
+    """Width (the outer-surface gap facing the notches) and bend of each notch found.
+
+    The bend of a notch is the turn between the two spines it joins, each spine's direction its chord (the
+    spines are straight; a chord is what the smoothed centreline holds best, also at the base and the tip,
+    where a local tangent is dragged by the smoothing's boundary). A neighbouring notch not found is taken
+    where the comb puts it.
+    """
     if not gaps:
         return []
-    r_o, pitch = geometry.outer_radius, geometry.notch_pitch
-    centres = np.array([(a + b) / 2 for a, b in gaps])
-    low = np.maximum(centres - pitch / 2, 0.0)
-    high = np.minimum(centres + pitch / 2, centerline.length)
-    bends = np.atleast_1d(centerline.bend_angle(low, np.maximum(high, low)))
+    r_o = geometry.outer_radius
+    intervals = [(c - geometry.notch_width / 2, c + geometry.notch_width / 2) for c in comb]
+    for gap, index in zip(gaps, indices, strict=True):
+        intervals[index] = gap
+    spine_starts = np.array([0.0] + [b for _, b in intervals])
+    spine_ends = np.array([a for a, _ in intervals] + [tip_s])
+    ends = np.clip(np.concatenate([spine_starts, spine_ends]), 0.0, max(tip_s, 0.0))
+    position = centerline.frames_at(ends)[0]
+    chords = position[len(spine_starts):] - position[:len(spine_starts)]
+    chords /= np.maximum(np.linalg.norm(chords, axis=1, keepdims=True), 1e-15)
     notches = []
-    for (start, end), index, signal, centre, bend in zip(gaps, indices, signals, centres, bends, strict=True):
+    for (start, end), index, signal in zip(gaps, indices, signals, strict=True):
+        before, after = chords[index], chords[index + 1]
+        normal = centerline.frames_at(np.array([(start + end) / 2]))[2][0]
+        bend = float(np.arccos(np.clip(before @ after, -1.0, 1.0)))
+        bend *= 1.0 if (after - before) @ normal >= 0 else -1.0   # positive towards the notch side
         width = (end - start) - bend * r_o  # s_n (1 - kappa r_o) with kappa s_n = theta
-        notches.append(Notch(index, float(centre), float(start), float(end), float(max(width, 0.0)), float(bend),
-                             signal))
+        notches.append(Notch(index, float((start + end) / 2), float(start), float(end), float(max(width, 0.0)),
+                             bend, signal))
     return notches
 
 
