@@ -167,7 +167,10 @@ class Reconstructor:
         notch_side = geometry.notch_side
         for _ in range(2):  # the second pass measures in the turned frame (the window fits better there)
             roll = measure_notch_side(coords, found, geometry, centerline, settings.gate, footprint)
-            if roll is None or abs(roll) <= ROLL_TO_REFRAME:
+            if roll is None:
+                break
+            if abs(roll) <= ROLL_TO_REFRAME:
+                notch_side += roll  # reported as measured; too small a turn to find the notches again for
                 break
             turned = centerline.rolled(roll), coords.rolled(roll)
             turned_rays = None if rays is None else (rays[0].rolled(roll), rays[1])
