@@ -224,3 +224,17 @@ def test_icp_recovers_a_known_motion_of_the_reference_and_relocates_onto_it():
     moved = relocate_onto_reference(cloud, reference @ found_r.T + found_t, normals @ found_r.T, part, 0.8e-3)
     assert moved.accepted.mean() > 0.99
     assert np.median(moved.distance) < 0.05e-3
+
+
+def test_alignment_leaves_a_tube_seen_from_one_side_alone():
+    """One camera sees one face: a shift towards it cannot be told from the wall's level, so nothing moves."""
+    length = 30e-3
+    geometry = TubeGeometry(notch_count=8, notch_pitch=3e-3)
+    points = wall_points(length, angles=(-math.pi, 0.0), rng=np.random.default_rng(5))  # the -y half
+    points[:, 1] -= 0.1e-3
+    centerline = straight_centerline(length)
+    coords, frames = centerline.project_with_frames(points)
+    viewpoints = np.tile([[0.0, -0.09, 0.015]], (len(points), 1))
+    result = align_to_trusted_wall(centerline, coords, frames, viewpoints, geometry, 0.8e-3, FOOTPRINT, length)
+    assert np.allclose(result.centerline.points, centerline.points, atol=1e-9)
+    assert result.bias_notch_side == 0.0 and result.bias_binormal == 0.0

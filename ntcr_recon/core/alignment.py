@@ -22,6 +22,9 @@ from ntcr_recon.core.centerline import Centerline, TubeCoordinates
 from ntcr_recon.core.comb import cut_intervals, inside_intervals
 from ntcr_recon.core.robot import TubeGeometry
 
+# Mean resultant length of a window's point directions about the axis above which it is seen from one side.
+MAX_ONE_SIDEDNESS = 0.6
+
 
 @dataclass(frozen=True)
 class Alignment:
@@ -68,7 +71,11 @@ def align_to_trusted_wall(centerline: Centerline, coords: TubeCoordinates, frame
         for j in range(i, 3):
             matrix[:, i, j] = matrix[:, j, i] = np.bincount(index, weights=terms[i] * terms[j], minlength=windows)
     counts = np.bincount(index, minlength=windows)
-    solvable = (counts >= minimum_points // 3) & (np.abs(np.linalg.det(matrix)) > 1e-9 * np.maximum(counts, 1) ** 3)
+    # a window seen from one side only cannot tell a shift towards the camera from the wall's level
+    # (the offset model is then degenerate): it needs points spread around the axis
+    resultant = np.hypot(matrix[:, 0, 2], matrix[:, 1, 2]) / np.maximum(counts, 1)
+    solvable = (counts >= minimum_points // 3) & (resultant < MAX_ONE_SIDEDNESS)
+    solvable &= np.abs(np.linalg.det(matrix)) > 1e-9 * np.maximum(counts, 1) ** 3
     shifts = np.zeros((windows, 2))
     if np.any(solvable):
         solution = np.linalg.solve(matrix[solvable] + 1e-12 * np.eye(3), rhs[solvable][..., None])[..., 0]

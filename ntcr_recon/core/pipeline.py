@@ -147,9 +147,9 @@ class Reconstructor:
         # 2. alignment: the reference tube shifted onto the wall points stereo measures without bias
         alignment = None
         if viewpoints is not None:
-            # (the fitted curve ends just past the last slab holding tube: the end is judged precisely later)
+            end = tube_end(coords, geometry.outer_radius, settings.gate, footprint, max_s=self._max_length)
             alignment = align_to_trusted_wall(centerline, coords, frames, viewpoints, geometry, settings.gate,
-                                              footprint, min(centerline.length, self._max_length))
+                                              footprint, end)
             centerline = alignment.centerline
             coords, frames = centerline.project_with_frames(cloud.xyz, coords.s)
         # each point as its camera saw it: along its viewing ray onto the wall (core.relocation)
