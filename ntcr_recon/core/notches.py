@@ -198,10 +198,10 @@ def _measure(gaps: list[tuple[float, float]], indices: list[int], signals: list[
     position = centerline.frames_at(ends)[0]
     chords = position[len(spine_starts):] - position[:len(spine_starts)]
     chords /= np.maximum(np.linalg.norm(chords, axis=1, keepdims=True), 1e-15)
+    normals = centerline.frames_at(np.array([(a + b) / 2 for a, b in gaps]))[2]
     notches = []
-    for (start, end), index, signal in zip(gaps, indices, signals, strict=True):
+    for (start, end), index, signal, normal in zip(gaps, indices, signals, normals, strict=True):
         before, after = chords[index], chords[index + 1]
-        normal = centerline.frames_at(np.array([(start + end) / 2]))[2][0]
         bend = float(np.arccos(np.clip(before @ after, -1.0, 1.0)))
         bend *= 1.0 if (after - before) @ normal >= 0 else -1.0   # positive towards the notch side
         width = (end - start) - bend * r_o  # s_n (1 - kappa r_o) with kappa s_n = theta
