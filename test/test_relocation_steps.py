@@ -238,3 +238,24 @@ def test_alignment_leaves_a_tube_seen_from_one_side_alone():
     result = align_to_trusted_wall(centerline, coords, frames, viewpoints, geometry, 0.8e-3, FOOTPRINT, length)
     assert np.allclose(result.centerline.points, centerline.points, atol=1e-9)
     assert result.bias_notch_side == 0.0 and result.bias_binormal == 0.0
+
+
+def test_end_cap_of_a_tube_pointing_at_a_camera_places_the_tip():
+    """Thin wall, a dense cap at 25 mm and a few flying pixels trailing behind it along the axis."""
+    from ntcr_recon.core.tip import cap_faces_a_camera, end_cap_plane
+
+    length = 25e-3
+    centerline = straight_centerline(length + 5e-3)
+    rng = np.random.default_rng(6)
+    wall = wall_points(length, spacing=0.4e-3)
+    radius = rng.uniform(GEOMETRY.inner_radius, R_O, 400)
+    angle = rng.uniform(-math.pi, math.pi, 400)
+    cap = np.stack([radius * np.cos(angle), radius * np.sin(angle), np.full(400, length)], axis=1)
+    trail = np.stack([np.full(12, R_O), np.zeros(12), length + rng.uniform(0.2e-3, 1.5e-3, 12)], axis=1)
+    coords = centerline.project(np.concatenate([wall, cap, trail]))
+    on_axis = np.array([[0.0, 0.0, 0.12]])
+    assert cap_faces_a_camera(centerline, length, on_axis, math.sin(math.radians(45)))
+    assert not cap_faces_a_camera(centerline, length, np.array([[0.0, -0.09, 0.02]]), math.sin(math.radians(45)))
+    plane = end_cap_plane(coords, GEOMETRY.inner_radius, R_O, length + 0.6e-3, GEOMETRY.outer_diameter, FOOTPRINT)
+    print(f"\ncap plane at {plane * 1e3:.3f} mm (true {length * 1e3:.0f})")
+    assert abs(plane - length) < FOOTPRINT / 2

@@ -35,12 +35,16 @@ from ntcr_recon.core.icp import icp, mesh_reference, posed_reference, relocate_o
 from ntcr_recon.core.notches import Notch, detect_notches, measure_notch_side
 from ntcr_recon.core.quality import assess, depth_step
 from ntcr_recon.core.relocation import RelocatedPoints, along_rays, relocate_points
-from ntcr_recon.core.tip import cap_faces_a_camera, give_back_erosion, tube_end
+from ntcr_recon.core.tip import cap_faces_a_camera, end_cap_plane, give_back_erosion, tube_end
 from ntcr_recon.core.wall import surface_band
 
 # A measured notch side further than this from the configured one turns the tube frame (smaller: within
 # what the measurement scatters, and the open window is wide enough for it).
 ROLL_TO_REFRAME = np.radians(6.0)
+
+
+# A tube whose end tangent turns at least this far towards a camera (from across its view) points at it.
+CAP_PLANE_ANGLE = np.radians(45.0)
 
 
 class ReconstructionError(RuntimeError):
@@ -186,9 +190,17 @@ class Reconstructor:
         notches, signals = found, {n.index: n.signal for n in found}
         # 5. tip, refined: the rim the stereo matcher erodes at depth edges given back
         eroded_end = tip_s
-        # (where a camera looks onto the end cap, the end is a face it measures, not a rim it erodes)
-        if seen_by is not None and not cap_faces_a_camera(centerline, tip_s, self._camera_origins,
-                                                                  geometry.outer_radius, footprint):
+        # where a camera looks onto the end cap - wider in its image than 4 pixels, more than a matcher's
+        # silhouette band - the end is that face (measured), not a rim the matcher erodes
+        cap_seen = seen_by is not None and cap_faces_a_camera(centerline, tip_s, self._camera_origins,
+                                                              min(2 * footprint / geometry.outer_radius, 1.0))
+        if cap_seen and cap_faces_a_camera(centerline, tip_s, self._camera_origins, np.sin(CAP_PLANE_ANGLE)):
+            # the tube points at a camera: its thinly seen wall cannot place the end, the cap's own points can
+            cap = end_cap_plane(measured, geometry.inner_radius, geometry.outer_radius, tip_s,
+                                geometry.outer_diameter, footprint)
+            tip_s = tip_s if cap is None else cap
+            eroded_end = tip_s
+        elif seen_by is not None and not cap_seen:
             tip_s = give_back_erosion(tip_s, coords, frames, seen_by, self._camera_origins, geometry.outer_radius,
                                       settings.gate, [(n.start_s, n.end_s) for n in notches], footprint)
         notches = _calibrate_rims(notches, geometry)

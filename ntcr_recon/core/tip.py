@@ -5,7 +5,7 @@ about the axis holding wall points. Which sectors a camera can see at all follow
 local tangent (a sector whose outward direction turns more than `grazing` from the camera is not seen),
 so occupancy is counted over the visible sectors only: a distal part pointing at one camera, which the
 other hardly sees, still counts as tube. Where no sector is visible (the tube points straight at a camera)
-any wall point counts. The search never runs past the robot's known length plus a margin.
+the wall showing in a few sectors counts. The search never runs past the robot's known length plus a margin.
 
 The end is then refined below a slab: per occupied sector near the coarse end the last wall point, the
 median of those. A stereo matcher erodes (or smears) the rim at the tip as it does the silhouettes, so the
@@ -24,6 +24,7 @@ if TYPE_CHECKING:  # centerline.py imports this module
     from ntcr_recon.core.centerline import Centerline, TubeCoordinates
 
 GRAZING = np.radians(80.0)  # a surface turned further than this from a camera gives it (almost) no depth
+MIN_SECTORS_WHEN_UNSEEN = 3  # of the ring's sectors, holding wall points where no sector faces a camera
 
 
 def visible_sectors(centerline: Centerline, s: np.ndarray, viewpoints: np.ndarray, sectors: int,
@@ -63,8 +64,11 @@ def tube_end(coords: TubeCoordinates, radius: float, gate: float, cell: float, s
         visible = visible_sectors(centerline, (np.arange(len(grid)) + 0.5) * cell, viewpoints, sectors)
         seen = np.count_nonzero(grid & visible, axis=1)
         count = np.count_nonzero(visible, axis=1)
-        # sectors visible to no camera say nothing; a slab with (almost) none visible counts any wall point
-        occupied = np.where(count >= 3, seen / np.maximum(count, 1), np.any(grid, axis=1).astype(float))
+        # sectors visible to no camera say nothing; a slab with few visible (under a quarter of the ring: the
+        # tube points at a camera) is tube where its wall shows in a few sectors at least (a stray flying
+        # pixel is not)
+        some = (np.count_nonzero(grid, axis=1) >= MIN_SECTORS_WHEN_UNSEEN).astype(float)
+        occupied = np.where(count >= sectors // 4, seen / np.maximum(count, 1), some)
     else:
         occupied = np.count_nonzero(grid, axis=1) / float(sectors)
     occupied = np.convolve(occupied, np.ones(3) / 3.0, mode="same")
@@ -117,12 +121,30 @@ def give_back_erosion(tip_s: float, coords: TubeCoordinates, frames: tuple, came
     return tip_s + silhouette_erosion(coords, frames, camera, origins, radius, plain)
 
 
-def cap_faces_a_camera(centerline: Centerline, tip_s: float, viewpoints: np.ndarray, radius: float,
-                       footprint: float) -> bool:
-    """Some camera looks onto the tip's end cap so that it spans more than 4 pixels in its image (the cap's
-    diameter foreshortened by the sine of the tangent's turn towards the camera): wider than a stereo
-    matcher's silhouette band, so the end is a face it measures, not a rim it erodes."""
+def cap_faces_a_camera(centerline: Centerline, tip_s: float, viewpoints: np.ndarray, least_sine: float) -> bool:
+    """Some camera looks onto the tip's end cap: the tangent at the tip turned towards it by at least
+    asin(least_sine) from across its view (the cap's diameter then shows foreshortened by that sine)."""
     position, tangent, _, _ = centerline.frames_at(np.array([tip_s]))
     view = np.atleast_2d(viewpoints) - position
     view /= np.linalg.norm(view, axis=1, keepdims=True)
-    return bool(np.any(2 * radius * (view @ tangent[0]) > 4 * footprint))
+    return bool(np.any(view @ tangent[0] > least_sine))
+
+
+def end_cap_plane(coords: TubeCoordinates, inner_radius: float, outer_radius: float, coarse_end: float,
+                  reach: float, cell: float) -> float | None:
+    """Arc length of the end cap where a camera looks onto it: the cap is a disc of the tube's cross-section,
+    so its points pile up at one s (a peak of the points' density along s within the annulus), while the wall
+    near a tube pointing at the camera is seen thinly and flying pixels trail behind the cap. None when no
+    such peak stands out within `reach` of the coarse end."""
+    near = (np.abs(coords.s - coarse_end) < reach) & (coords.radius > 0.5 * inner_radius)
+    near &= coords.radius < outer_radius + cell
+    if np.count_nonzero(near) < 20:
+        return None
+    s = coords.s[near]
+    edges = np.arange(coarse_end - reach, coarse_end + reach + cell, cell)
+    counts, _ = np.histogram(s, bins=edges)
+    peak = int(np.argmax(counts))
+    if counts[peak] < max(10, 4.0 * float(np.median(counts))):
+        return None
+    in_peak = (s >= edges[max(peak - 1, 0)]) & (s < edges[min(peak + 2, len(edges) - 1)])
+    return float(np.median(s[in_peak]))
