@@ -59,6 +59,12 @@ def main(args: argparse.Namespace) -> int:
     except ReconstructCommandError as failure:
         print(f"ntcr-recon reconstruct: error: {failure}", file=sys.stderr)
         return 2
+    quality = result.get("quality") or {}
+    if quality:
+        print(f"ntcr-recon reconstruct: {quality['notches_found']} of {quality['notches_expected']} notches "
+              f"(by signal: {quality['notches_by_signal']}), notch side {quality['notch_side_deg']:.1f} deg "
+              f"(configured {quality['notch_side_configured_deg']:.1f}), centreline bias towards the notch side "
+              f"{quality['centerline_bias_mm']['notch_side']:+.3f} mm (removed)", file=sys.stderr)
     for warning in result.get("warnings", []):
         print(f"ntcr-recon reconstruct: warning: {warning}", file=sys.stderr)
     return 0
