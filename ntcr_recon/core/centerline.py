@@ -20,7 +20,9 @@ Public API:
     Centerline                 s (M,), points (M,3), tangents, normals (towards the notch side), binormals
     Centerline.frames_at(s)    positions and frames at arbitrary arc lengths (linear interpolation)
     Centerline.project(xyz)    -> TubeCoordinates (s, x, y along normal/binormal, radius, angle)
-    estimate_centerline(xyz, geometry, pixel_footprint, settings, prior=None) -> (Centerline, iterations)
+    Centerline.rolled(angle), TubeCoordinates.rolled(angle)   the frame turned about the tangent
+    estimate_centerline(xyz, geometry, settings, prior=None, viewpoints=None)
+        -> (Centerline, iterations, (coordinates, frames, exact))
 """
 
 from __future__ import annotations
@@ -34,6 +36,8 @@ import scipy.linalg
 from scipy.spatial import cKDTree
 
 from ntcr_recon.core.geometry import TubeGeometry
+from ntcr_recon.core.tip import tube_end
+from ntcr_recon.core.wall import surface_band
 
 
 def _cross_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -67,6 +71,11 @@ class TubeCoordinates:
     @cached_property
     def angle(self) -> np.ndarray:
         return np.arctan2(self.y, self.x)
+
+    def rolled(self, angle: float) -> TubeCoordinates:
+        """The same points in a frame turned by `angle` about the tangent (x towards a notch side at `angle`)."""
+        c, s = np.cos(angle), np.sin(angle)
+        return TubeCoordinates(self.s, c * self.x + s * self.y, c * self.y - s * self.x)
 
 
 @dataclass(frozen=True)
@@ -103,6 +112,12 @@ class Centerline:
         binormals /= np.linalg.norm(binormals, axis=1, keepdims=True)
         normals = np.cross(binormals, tangents)
         return cls(s, resampled, tangents, normals, binormals)
+
+    def rolled(self, angle: float) -> Centerline:
+        """The same curve with its frame turned by `angle` about the tangent (the notch side measured)."""
+        c, s = np.cos(angle), np.sin(angle)
+        normals = c * self.normals + s * self.binormals
+        return Centerline(self.s, self.points, self.tangents, normals, np.cross(self.tangents, normals))
 
     @cached_property
     def _rows(self) -> tuple[np.ndarray, np.ndarray]:
@@ -308,7 +323,7 @@ def _march(xyz: np.ndarray, geometry: TubeGeometry, settings: CenterlineSettings
     reach = 1.5 * r_o + settings.gate
     nodes = [base]
     tangent = axis
-    limit = int(np.ceil(1.5 * geometry.length / step)) + 2
+    limit = int(np.ceil((geometry.length + geometry.outer_diameter) / step)) + 2  # never past the robot
     misses = 0
     allowed_misses = max(3, int(np.ceil(geometry.proximal_length / step)) + 1)
     for _ in range(limit):
@@ -343,50 +358,19 @@ def _march(xyz: np.ndarray, geometry: TubeGeometry, settings: CenterlineSettings
     return np.array(nodes)
 
 
-def surface_band(offset: np.ndarray, gate: float) -> tuple[float, float]:
-    """Robust level and spread (3 sigma from the MAD) of the points' radial offsets from the outer wall.
-
-    Stereo depth puts the seen wall a little off r_o (flattening) and spreads it (noise); the band
-    level +- spread is where this cloud's outer-wall points lie, cut faces and flying pixels mostly outside.
-    """
-    near = offset[np.abs(offset) < gate]
-    if near.size < 8:
-        return 0.0, gate
-    level = float(np.median(near))
-    spread = 3.0 * 1.4826 * float(np.median(np.abs(near - level)))
-    return level, min(max(spread, 1e-6), gate)
-
-
-def tube_end(coords: TubeCoordinates, radius: float, gate: float, cell: float, sectors: int = 24) -> float:
-    """Arc length where the tube seen in the cloud ends (the tip), to a fraction of `cell`.
-
-    Per slab of length `cell`, the number of angular sectors about the axis holding outer-wall points; the
-    tube ends where that falls below half its typical value along the robot (linear interpolation). Flying
-    pixels trailing off a silhouette along viewing rays fill few sectors, so they do not stretch the tube.
-    """
-    offset = coords.radius - radius
-    level, spread = surface_band(offset, gate)
-    on_wall = (np.abs(offset - level) <= spread) & (coords.s >= 0)
-    if np.count_nonzero(on_wall) < 8:
-        return float(coords.s.max(initial=0.0))
-    slab = (coords.s[on_wall] / cell).astype(np.intp)
-    sector = ((coords.angle[on_wall] + np.pi) / (2 * np.pi) * sectors).astype(np.intp) % sectors
-    grid = np.zeros((slab.max() + 2, sectors), dtype=bool)
-    grid[slab, sector] = True
-    occupied = np.count_nonzero(grid, axis=1).astype(float)
-    occupied = np.convolve(occupied, np.ones(3) / 3.0, mode="same")
-    half = 0.5 * float(np.median(occupied[occupied > 0]))
-    above = np.flatnonzero(occupied >= half)
-    last = int(above[-1])
-    a, b = occupied[last] - half, occupied[last + 1] - half if last + 1 < len(occupied) else -half
-    fraction = a / (a - b) if a != b else 0.5
-    return (last + 0.5 + float(np.clip(fraction, 0.0, 1.0))) * cell
+def _observed_end(coordinates: TubeCoordinates, geometry: TubeGeometry, settings: CenterlineSettings,
+                  centerline: Centerline, viewpoints: np.ndarray | None) -> float:
+    """Where the tube seen ends, never past the robot's own length and a diameter."""
+    return tube_end(coordinates, geometry.outer_radius, settings.gate, settings.cell,
+                    max_s=geometry.length + geometry.outer_diameter, centerline=centerline, viewpoints=viewpoints)
 
 
 def estimate_centerline(xyz: np.ndarray, geometry: TubeGeometry, settings: CenterlineSettings,
-                        prior: Centerline | None = None) -> tuple[Centerline, int, tuple]:
+                        prior: Centerline | None = None, viewpoints: np.ndarray | None = None
+                        ) -> tuple[Centerline, int, tuple]:
     """Fit the centreline to a cloud in the base frame.
 
+    viewpoints: (C, 3) the cameras' optical centres, so the tube's end is judged by what they can see.
     Returns the centreline (base to just past the last slab with data; the pipeline cuts it at the observed
     tip), the number of iterations run, and (coordinates, frames, exact): the points' projection onto the
     returned curve when exact, else onto the curve before it (its arc lengths a guess for projecting again).
@@ -409,8 +393,8 @@ def estimate_centerline(xyz: np.ndarray, geometry: TubeGeometry, settings: Cente
         near_tube &= coordinates.s > -settings.gate
         if np.count_nonzero(near_tube) < 16:
             break
-        # the curve reaches as far as the tube is seen (it may grow past the previous end)
-        observed_end = tube_end(coordinates, geometry.outer_radius, settings.gate, settings.cell)
+        # the curve reaches as far as the tube is seen, never past the robot's own length (and a margin)
+        observed_end = _observed_end(coordinates, geometry, settings, centerline, viewpoints)
         slabs = max(int(np.ceil(observed_end / step)) + 1, 2)
         # each point feeds its two neighbouring nodes with linear (hat) weights, so the fit changes
         # smoothly as points slide along s between iterations

@@ -149,9 +149,12 @@ class RelocationConfig:
     gate = gate_radius_fraction r_o + gate_pixels footprints: a point this close to the reference surface is
     relocated onto it, a farther one rejected."""
 
-    method: str = setting("centerline", "how the reference is aligned to the cloud", choices=("centerline", "icp"))
-    reference_mesh: str = setting("", "mesh file of the robot to align ('' = the reference built from the robot "
-                                  "geometry)", max_length=4096)
+    method: str = setting("centerline", "how observed points reach the reference surface: centerline (the "
+                          "tube's own coordinates, each point along its viewing ray onto the wall) or icp (the "
+                          "paper's KD-tree + ICP of a reference, then each point onto its nearest reference point)",
+                          choices=("centerline", "icp"))
+    reference_mesh: str = setting("", "method icp: a PLY/STL of the robot in the base frame ('' = the configured "
+                                  "robot posed by the estimated centreline)", max_length=4096)
     gate_radius_fraction: float = setting(0.35, "gate, in outer radii", minimum=0.0, maximum=10.0,
                                           exclusive_minimum=True)
     gate_pixels: float = setting(2.0, "gate, in pixel footprints (added)", unit="px", minimum=0.0, maximum=100.0)
@@ -169,6 +172,8 @@ class RelocationConfig:
     roi_margin_fraction: float = setting(0.1, "next frame: deproject only around the robot's last box grown by "
                                          "this fraction of its length (the whole crop box when the robot is not "
                                          "found there)", minimum=0.0, maximum=10.0, exclusive_minimum=True)
+    icp_iterations: int = setting(20, "method icp: ICP iterations at most (the paper's Eq. 10-11)", minimum=1,
+                                  maximum=1000)
 
 
 @dataclass(frozen=True)

@@ -5,14 +5,18 @@ notch is the interval [s_start, s_end] of its cut at every angle where the cut o
 (|angle| < gap_half_angle): its faces are the normal planes of the centreline at its ends. The coverage
 profile along s of the outer-surface points in that angular window, smoothed by a kernel of about half a
 pixel footprint, falls to half its local plateau exactly at an edge (each depth pixel stands for a cell of
-one footprint), which gives the edges to a fraction of a pixel.
+one footprint), which gives the edges to a fraction of a pixel. A notch seen obliquely is no see-through
+slot (its floor and faces fill it with foreground depth), but those points lie inside the wall's radius:
+the depression of the wall is the second signal. The robot's known comb, matched to both, says where each
+notch is (see detect_notches).
 
-Width as in contracts.md: the gap on the outer surface line facing the notches, s_n (1 - kappa r_o)
+Width (the documented definition): the gap on the outer surface line facing the notches, s_n (1 - kappa r_o)
 = s_n - theta r_o, with theta the bend of the centreline across the notch.
 
 Public API:
-    coverage_edges(s, lo, hi, kernel) -> (profile grid, density)
-    detect_notches(coords, centerline, geometry, gate, footprint, settings) -> list[Notch]
+    coverage_profile(s, lo, hi, cell, kernel) -> (profile grid, density)
+    detect_notches(coords, centerline, geometry, gate, footprint, kernel_px, min_width_fraction, tip_s,
+                   observed=None) -> list[Notch]
 """
 
 from __future__ import annotations
@@ -23,7 +27,9 @@ import numpy as np
 from scipy.ndimage import gaussian_filter1d, percentile_filter
 
 from ntcr_recon.core.centerline import Centerline, TubeCoordinates
+from ntcr_recon.core.comb import cut_intervals, expected_centres, inside_intervals
 from ntcr_recon.core.geometry import TubeGeometry
+from ntcr_recon.core.wall import robust_spread, surface_band
 
 
 @dataclass(frozen=True)
@@ -34,6 +40,8 @@ class Notch:
     end_s: float
     width: float          # m, outer-surface gap facing the notches
     bend: float | None    # rad, the centreline's turn across the notch
+    signal: str = "coverage"  # what measured it: "coverage" (a slot seen through) or "depression" (seen
+                              # obliquely: its floor and faces inside the wall's radius)
 
 
 def coverage_profile(s: np.ndarray, lo: float, hi: float, cell: float, kernel: float
@@ -54,34 +62,22 @@ def _crossing(grid: np.ndarray, density: np.ndarray, level: np.ndarray, i: int, 
     return float(grid[i] + t * (grid[j] - grid[i]))
 
 
-def silhouette_erosion(coords: TubeCoordinates, frames: tuple, camera: np.ndarray, origins: np.ndarray,
-                       radius: float, usable: np.ndarray, quantile: float = 0.98) -> float:
-    """How much of the tube's rim each camera loses at a depth edge (m), measured on its silhouettes.
-
-    A stereo matcher drops or smears the pixels next to a depth edge. The tube's true half-width across
-    each camera's view is its outer radius, and depth pixels sample the lateral coordinate uniformly, so
-    the rim lost is r_o - q-quantile(|lateral|) / q over the camera's points on plain tube (usable: not in
-    a notch, not at the ends). The median over cameras is returned; 0 when it cannot be measured.
-    """
-    position, _, normal, binormal = frames
-    estimates = []
-    for index in np.unique(camera):
-        mine = usable & (camera == index)
-        if np.count_nonzero(mine) < 50:
-            continue
-        view = origins[index] - position[mine]
-        view_x = (view * normal[mine]).sum(axis=1)
-        view_y = (view * binormal[mine]).sum(axis=1)
-        length = np.hypot(view_x, view_y)
-        lateral = (view_x * coords.y[mine] - view_y * coords.x[mine]) / np.maximum(length, 1e-12)
-        estimates.append(radius - float(np.quantile(np.abs(lateral), quantile)) / quantile)
-    return max(float(np.median(estimates)), 0.0) if estimates else 0.0
-
-
 def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: TubeGeometry, gate: float,
                    footprint: float, kernel_px: float, min_width_fraction: float, tip_s: float,
                    observed: TubeCoordinates | None = None) -> list[Notch]:
-    """Gaps in outer-surface coverage within the open angular window, matched to the robot's notches.
+    """The robot's comb of notches matched to the evidence along s; each notch refined where the comb puts it.
+
+    Evidence, per cell of s, within the angular window where a notch opens the outer surface:
+    - coverage: 1 - (outer-wall point density / its local plateau): 1 where a slot is seen through, and
+      where its floor and faces, seen obliquely, fill it with depth inside the wall's band;
+    - depression: the share of the window's points lying inside the wall band.
+    A notch reports "coverage" when its window is empty (a slot seen through), "depression" when points
+    inside the wall's radius fill it (seen obliquely). The wall's level and band
+      are measured on spine points only (away from the comb's cuts), so notch interiors cannot widen them.
+    The comb (count and pitch from the configuration, bent by the centreline: comb.expected_centres) is
+    slid along s as one matched filter to where the evidence agrees best; each notch is then the run of
+    evidence above one half around its comb position, its edges where the evidence crosses one half (for
+    coverage that is the half-plateau level: each depth pixel stands for a cell of one footprint).
 
     observed: the points' coordinates as measured, when `coords` are those points moved (e.g. along their
     viewing rays onto the wall): which points lie on the outer wall is judged by where they were seen, as a
@@ -92,73 +88,168 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
     # the window where a notch removes the outer surface, less the angular uncertainty of a point
     margin = np.arcsin(min(1.0, 2.0 * footprint / r_o))
     window = geometry.gap_half_angle - margin
-    # Only points on the outer wall count: the spines' cut faces, seen through an obliquely viewed notch,
-    # lie exactly at its edges but inside the wall and would pile up there. The band is the outer wall's
-    # own measured spread (robust) about its measured level (stereo flattening), within the gate.
-    offset = (coords if observed is None else observed).radius - r_o
-    near = offset[np.abs(offset) < gate]
-    if near.size < 10:
+    seen = coords if observed is None else observed
+    offset = seen.radius - r_o
+    centres = expected_centres(geometry, centerline)
+    spine = ~inside_intervals(seen.s, cut_intervals(geometry, centerline, 2.0 * footprint))
+    near = np.abs(offset) < gate
+    if np.count_nonzero(near) < 10:
         return []
-    offset = offset - (float(np.median(near)) if observed is not None else 0.0)
-    band = min(gate, max(3.0 * 1.4826 * float(np.median(np.abs(offset[np.abs(offset) < gate]))), footprint / 2))
-    on_outer = (np.abs(offset) < band) & (np.abs(coords.angle) < window)
-    on_outer &= (coords.s > 0) & (coords.s < tip_s)
-    s = coords.s[on_outer]
-    if len(s) < 10:
+    level, _ = surface_band(offset, gate, spine)
+    # the band of the wall: its own spread on spines (robust), at least half a footprint, within the gate
+    spine_near = near & spine if np.count_nonzero(near & spine) >= 10 else near
+    band = min(gate, max(3.0 * robust_spread(offset[spine_near], level), footprint / 2))
+    in_window = (np.abs(coords.angle) < window) & (coords.s > 0) & (coords.s < tip_s)
+    on_outer = in_window & (np.abs(offset - level) < band)
+    depressed = in_window & (offset < level - band) & (offset > level - gate - (r_o - geometry.inner_radius))
+    if np.count_nonzero(on_outer) < 10:
         return []
     cell = footprint / 8.0
-    grid, density = coverage_profile(s, 0.0, tip_s, cell, kernel_px * footprint)
+    kernel = kernel_px * footprint
+    grid, density = coverage_profile(coords.s[on_outer], 0.0, tip_s, cell, kernel)
     # local plateau: the upper quartile over one notch pitch (a gap fills at most half of it)
     span = max(int(round(geometry.notch_pitch / cell)), 3)
     plateau = percentile_filter(density, 75, size=2 * span + 1, mode="nearest")
-    level = 0.5 * plateau
-    low = density < level
-    # runs of low coverage
-    change = np.diff(np.concatenate([[0], low.astype(np.int8), [0]]))
-    starts, ends = np.flatnonzero(change == 1), np.flatnonzero(change == -1) - 1
-    gaps = []
-    for first, last in zip(starts, ends, strict=True):
-        if first == 0 or last == len(grid) - 1:
-            continue  # touches the base or the tip: not a notch
-        start = _crossing(grid, density, level, first - 1, first)
-        end = _crossing(grid, density, level, last, last + 1)
-        if end - start < min_width_fraction * geometry.notch_width:
+    coverage_gap = np.clip(1.0 - density / np.maximum(plateau, 1e-12), 0.0, 1.0)
+    _, deep = coverage_profile(coords.s[depressed], 0.0, tip_s, cell, kernel)
+    _, anything = coverage_profile(coords.s[in_window & (np.abs(offset) < gate + r_o - geometry.inner_radius)],
+                                   0.0, tip_s, cell, kernel)
+    # share of the window's points that are depressed; where the window holds few points it says nothing
+    total = deep + density
+    depression = np.where(total > 0.25 * plateau, deep / np.maximum(total, 1e-12), 0.0)
+    evidence = np.maximum(coverage_gap, depression)
+    # the comb as one matched filter: shift along s (within half a pitch) maximising the evidence under it
+    half_width = geometry.notch_width / 2.0
+    shifts = np.arange(-geometry.notch_pitch / 2, geometry.notch_pitch / 2 + cell, cell)
+    cumulative = np.concatenate([[0.0], np.cumsum(evidence)])
+
+    def mean_over(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        i = np.clip(((lo - grid[0]) / cell).astype(np.intp), 0, len(grid))
+        j = np.clip(((hi - grid[0]) / cell).astype(np.intp), 0, len(grid))
+        return np.where(j > i, (cumulative[j] - cumulative[i]) / np.maximum(j - i, 1), 0.0)
+
+    placed = centres[None, :] + shifts[:, None]
+    score = mean_over(placed - half_width, placed + half_width).sum(axis=1)
+    shift = float(shifts[int(np.argmax(score))])
+    gaps, signals, indices = [], [], []
+    for k, centre in enumerate(centres + shift):
+        if centre - half_width <= 0 or centre + half_width >= tip_s:
             continue
-        if end - start > 2.0 * geometry.notch_width + 2 * footprint:
-            continue  # a hole in the data wider than any notch
+        # wall coverage measures the edges (exact at half the plateau); where it shows no gap, the share of
+        # depressed points does
+        found = _run_around(grid, coverage_gap, centre, geometry.notch_pitch / 2)
+        if found is None or not _plausible(found, geometry, footprint, min_width_fraction):
+            found = _run_around(grid, depression, centre, geometry.notch_pitch / 2)
+        if found is None or not _plausible(found, geometry, footprint, min_width_fraction):
+            continue
+        start, end = found
+        # the signal: a slot seen through leaves the window empty; one seen obliquely fills it with its
+        # floor and faces, inside the wall's radius
+        middle = (grid >= start) & (grid <= end)
+        see_through = anything[middle].mean() < 0.5 * plateau[middle].mean() if np.any(middle) else True
+        signal = "coverage" if see_through else "depression"
         gaps.append((start, end))
-    return _assign(gaps, centerline, geometry)
+        signals.append(signal)
+        indices.append(k)
+    return _measure(gaps, indices, signals, centerline, geometry, centres + shift, tip_s)
 
 
-def _assign(gaps: list[tuple[float, float]], centerline: Centerline, geometry: TubeGeometry) -> list[Notch]:
-    """Index the gaps by the robot's notch order and measure width and bend."""
+def _plausible(gap: tuple[float, float], geometry: TubeGeometry, footprint: float, min_width_fraction: float) -> bool:
+    """Not narrower than the configured fraction of a notch, not wider than a notch could look."""
+    width = gap[1] - gap[0]
+    return min_width_fraction * geometry.notch_width <= width <= 2.0 * geometry.notch_width + 2 * footprint
+
+
+def _run_around(grid: np.ndarray, evidence: np.ndarray, centre: float, reach: float) -> tuple[float, float] | None:
+    """The run of evidence >= 1/2 nearest `centre` (within `reach`), its ends at the half crossings."""
+    high = evidence >= 0.5
+    inside = np.flatnonzero((grid >= centre - reach) & (grid <= centre + reach) & high)
+    if inside.size == 0:
+        return None
+    seed = int(inside[np.argmin(np.abs(grid[inside] - centre))])
+    low_before = np.flatnonzero(~high[:seed])
+    low_after = np.flatnonzero(~high[seed:])
+    first = int(low_before[-1]) + 1 if low_before.size else 0
+    last = seed + int(low_after[0]) - 1 if low_after.size else len(grid) - 1
+    if first == 0 or last == len(grid) - 1:
+        return None  # touches the base or the tip: not a notch
+    half = np.full(len(grid), 0.5)
+    return _crossing(grid, evidence, half, first - 1, first), _crossing(grid, evidence, half, last, last + 1)
+
+
+def _measure(gaps: list[tuple[float, float]], indices: list[int], signals: list[str], centerline: Centerline,
+             geometry: TubeGeometry, comb: np.ndarray, tip_s: float) -> list[Notch]:
+    """Width (the outer-surface gap facing the notches) and bend of each notch found.
+
+    The bend of a notch is the turn between the two spines it joins, each spine's direction its chord (the
+    spines are straight; a chord is what the smoothed centreline holds best, also at the base and the tip,
+    where a local tangent is dragged by the smoothing's boundary). A neighbouring notch not found is taken
+    where the comb puts it.
+    """
     if not gaps:
         return []
-    r_o, pitch = geometry.outer_radius, geometry.notch_pitch
-    centres = np.array([(a + b) / 2 for a, b in gaps])
-    # Expected deformed centres: bending shortens the centreline by ybar * theta per notch; the bend up to
-    # each point comes from the estimated centreline.
-    undeformed = geometry.notch_centers_s
-    turned = np.abs(np.atleast_1d(centerline.bend_angle(0.0, np.minimum(undeformed, centerline.length))))
-    expected = undeformed - geometry.neutral_axis_offset * turned
-    index = np.argmin(np.abs(centres[:, None] - expected[None, :]), axis=1)
-    order = np.argsort(centres)
-    chosen, used = [], set()
-    for g in order:  # a handful of gaps: the first (nearest the base) claims an expected notch
-        i = int(index[g])
-        if i not in used and abs(centres[g] - expected[i]) <= pitch / 2:
-            used.add(i)
-            chosen.append(g)
-    if not chosen:
-        return []
-    chosen = np.array(chosen)
-    low = np.maximum(centres[chosen] - pitch / 2, 0.0)
-    high = np.minimum(centres[chosen] + pitch / 2, centerline.length)
-    bends = np.atleast_1d(centerline.bend_angle(low, np.maximum(high, low)))
+    r_o = geometry.outer_radius
+    intervals = [(c - geometry.notch_width / 2, c + geometry.notch_width / 2) for c in comb]
+    for gap, index in zip(gaps, indices, strict=True):
+        intervals[index] = gap
+    spine_starts = np.array([0.0] + [b for _, b in intervals])
+    spine_ends = np.array([a for a, _ in intervals] + [tip_s])
+    ends = np.clip(np.concatenate([spine_starts, spine_ends]), 0.0, max(tip_s, 0.0))
+    position = centerline.frames_at(ends)[0]
+    chords = position[len(spine_starts):] - position[:len(spine_starts)]
+    chords /= np.maximum(np.linalg.norm(chords, axis=1, keepdims=True), 1e-15)
+    normals = centerline.frames_at(np.array([(a + b) / 2 for a, b in gaps]))[2]
     notches = []
-    for g, bend in zip(chosen, bends, strict=True):
-        start, end = gaps[g]
+    for (start, end), index, signal, normal in zip(gaps, indices, signals, normals, strict=True):
+        before, after = chords[index], chords[index + 1]
+        bend = float(np.arccos(np.clip(before @ after, -1.0, 1.0)))
+        bend *= 1.0 if (after - before) @ normal >= 0 else -1.0   # positive towards the notch side
         width = (end - start) - bend * r_o  # s_n (1 - kappa r_o) with kappa s_n = theta
-        notches.append(Notch(int(index[g]), float(centres[g]), float(start), float(end), float(max(width, 0.0)),
-                             float(bend)))
+        notches.append(Notch(index, float((start + end) / 2), float(start), float(end), float(max(width, 0.0)),
+                             bend, signal))
     return notches
+
+
+def measure_notch_side(observed: TubeCoordinates, notches: list[Notch], geometry: TubeGeometry, centerline: Centerline,
+                       gate: float, footprint: float, search: float = np.radians(45.0)) -> float | None:
+    """How far (rad) the notches open from the frame's x axis (the configured side), measured on the data.
+
+    Inside the found notches the outer wall is missing over |angle - side| < gap_half_angle; spines keep it
+    all round. Per sector of angle, the wall points' density inside the notches relative to that on the
+    spines (what the cameras can see cancels in the ratio) is matched to that window, slid over +-`search`.
+    None when fewer than two notches were found or less than two thirds of the ring is seen.
+    """
+    if len(notches) < 2:
+        return None
+    offset = observed.radius - geometry.outer_radius
+    spine = ~inside_intervals(observed.s, cut_intervals(geometry, centerline, 2.0 * footprint))
+    level, spread = surface_band(offset, gate, spine)
+    wall = np.abs(offset - level) <= spread
+    intervals = np.array([[n.start_s + footprint, n.end_s - footprint] for n in notches])
+    intervals = intervals[intervals[:, 1] > intervals[:, 0]]
+    in_notch = wall & inside_intervals(observed.s, intervals)
+    on_spine = wall & spine & (observed.s > notches[0].start_s) & (observed.s < notches[-1].end_s)
+    sectors = 36
+    width = 2 * np.pi / sectors
+    index = ((observed.angle + np.pi) / width).astype(np.intp) % sectors
+    notch_count = np.bincount(index[in_notch], minlength=sectors).astype(float)
+    spine_count = np.bincount(index[on_spine], minlength=sectors).astype(float)
+    seen = spine_count >= max(5.0, 0.1 * spine_count.max(initial=0.0))
+    # the open window is wide: with much of the ring unseen (one camera alone) its position is not fixed
+    if np.count_nonzero(seen) < (2 * sectors) // 3 or notch_count.sum() == 0:
+        return None
+    ratio = (notch_count / np.maximum(spine_count, 1.0)) / (notch_count[seen].sum() / spine_count[seen].sum())
+    centres = -np.pi + (np.arange(sectors) + 0.5) * width
+    # every candidate side at once: (candidates, sectors) open-window masks over the seen sectors
+    sides = np.arange(-search, search + 1e-9, np.radians(1.0))
+    distance = np.abs(np.angle(np.exp(1j * (centres[None, :] - sides[:, None]))))
+    inside = seen[None, :] & (distance < geometry.gap_half_angle)
+    outside = seen[None, :] & ~(distance < geometry.gap_half_angle)
+    count_in, count_out = inside.sum(axis=1), outside.sum(axis=1)
+    valid = (count_in > 0) & (count_out > 0)
+    if not np.any(valid):
+        return None
+    score = (outside @ ratio) / np.maximum(count_out, 1) - (inside @ ratio) / np.maximum(count_in, 1)
+    score = np.where(valid, score, -np.inf)
+    best = np.flatnonzero(score >= score.max() - 1e-12)
+    return float(sides[best[np.argmin(np.abs(sides[best]))]])  # ties: the smallest turn

@@ -21,24 +21,30 @@ on every side); a frame whose robot is not found whole there is fused again from
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ntcr_recon.core.centerline import (
-    Centerline,
-    TubeCoordinates,
-    estimate_centerline,
-    settings_for,
-    surface_band,
-    tube_end,
-)
+from ntcr_recon.core.alignment import align_to_trusted_wall
+from ntcr_recon.core.centerline import Centerline, TubeCoordinates, estimate_centerline, settings_for
 from ntcr_recon.core.cloud import Cloud
 from ntcr_recon.core.config import RigConfig
 from ntcr_recon.core.filters import filter_cloud
 from ntcr_recon.core.fusion import FramePair, fuse
-from ntcr_recon.core.notches import Notch, detect_notches, silhouette_erosion
+from ntcr_recon.core.icp import icp, mesh_reference, posed_reference, relocate_onto_reference
+from ntcr_recon.core.notches import Notch, detect_notches, measure_notch_side
+from ntcr_recon.core.quality import assess, depth_step
 from ntcr_recon.core.relocation import RelocatedPoints, along_rays, relocate_points
+from ntcr_recon.core.tip import cap_faces_a_camera, end_cap_plane, give_back_erosion, tube_end
+from ntcr_recon.core.wall import surface_band
+
+# A measured notch side further than this from the configured one turns the tube frame (smaller: within
+# what the measurement scatters, and the open window is wide enough for it).
+ROLL_TO_REFRAME = np.radians(6.0)
+
+
+# A tube whose end tangent turns at least this far towards a camera (from across its view) points at it.
+CAP_PLANE_ANGLE = np.radians(45.0)
 
 
 class ReconstructionError(RuntimeError):
@@ -57,8 +63,11 @@ class Relocation:
     rejected: int                   # points outside the gate
     coordinates: TubeCoordinates    # tube coordinates of the input points (before relocation)
     iterations: int                 # centreline iterations run
-    part: np.ndarray | None = None  # (A,) robot.PART_* of the surface each relocated point lies on
+    part: np.ndarray | None = None  # (A,) robot_surface.PART_* of the surface each relocated point lies on
     relocated_coordinates: TubeCoordinates | None = None  # tube coordinates of the relocated points
+    quality: dict = field(default_factory=dict)  # the self-check (core.quality): figures, units in the keys
+    warnings: tuple[str, ...] = ()               # what the self-check found doubtful, in plain words
+    notch_side: float | None = None              # rad, the side the notches open to, as measured
 
 
 @dataclass
@@ -80,6 +89,8 @@ class Reconstructor:
         # optical centre of each camera in the base frame, by camera index (viewing rays for relocation)
         self._camera_origins = np.array([config.cameras[name].translation for name in config.camera_names], float)
         self.timings_ms: dict[str, float] = {}
+        self._depth_steps: dict[str, float] = {}  # per camera, the depth quantisation seen in its first frame
+        self._mesh_reference = None  # relocation.reference_mesh, sampled once
 
     def reset(self) -> None:
         """Forget the previous centreline and region of interest (the next frame starts cold)."""
@@ -91,6 +102,7 @@ class Reconstructor:
 
     def fuse(self, pair: FramePair) -> Cloud:
         start = time.perf_counter()
+        self._note_depth_steps(pair)
         cloud = None
         if self._roi is not None:
             cloud = fuse(pair, self.config, self._roi)
@@ -101,6 +113,14 @@ class Reconstructor:
         self._timed("fuse", start)
         return cloud
 
+    def _note_depth_steps(self, pair: FramePair) -> None:
+        """The depth step each camera's data show, measured once per camera (for the self-check)."""
+        for name, frame in pair.frames.items():
+            if name in self._depth_steps or frame.depth is None or name not in self.config.cameras:
+                continue
+            unit = frame.depth_unit if frame.depth_unit is not None else self.config.cameras[name].depth_unit
+            self._depth_steps[name] = depth_step(frame.depth, unit)
+
     def filter(self, cloud: Cloud) -> Cloud:
         start = time.perf_counter()
         cloud = filter_cloud(cloud, self.config)
@@ -108,55 +128,144 @@ class Reconstructor:
         return cloud
 
     def relocate(self, cloud: Cloud, warm_start: bool = True) -> Relocation:
-        """Centreline (fixed-radius fits + smoothing, iterated), notches, then relocation onto the reference."""
+        """Reference-guided relocation (paper Sec. IV) as the list of its steps, one module each:
+
+        centreline -> alignment -> notches (and the notch side) -> tip -> relocation -> quality.
+        """
         start = time.perf_counter()
-        geometry, settings_config = self.geometry, self.config.relocation
+        geometry, options = self.geometry, self.config.relocation
         minimum = 32
         if len(cloud) < minimum:
             raise ReconstructionError(f"only {len(cloud)} points left after filtering (need {minimum}): is the "
                                       "robot in view and inside the crop box?")
-        settings = settings_for(geometry, cloud.pixel_footprint, settings_config)
+        settings = settings_for(geometry, cloud.pixel_footprint, options)
+        footprint = settings.cell
+        seen_by = cloud.camera if cloud.camera is not None and len(cloud.camera) else None
+        viewpoints = None if seen_by is None else self._camera_origins[seen_by]
+
+        # 1. centreline: fixed-radius circle fits per slab, smoothed, iterated (core.centerline)
+        centerline, iterations, coords, frames = self._centerline(cloud, settings, warm_start)
+        # the next frame warm-starts from the fit's own fixed point, not from the aligned curve (else each call
+        # would shift the curve once more, and results would depend on what came before)
+        fitted = centerline
+        # 2. alignment: the reference tube shifted onto the wall points stereo measures without bias
+        alignment = None
+        if viewpoints is not None:
+            end = tube_end(coords, geometry.outer_radius, settings.gate, footprint, max_s=self._max_length)
+            alignment = align_to_trusted_wall(centerline, coords, frames, viewpoints, geometry, settings.gate,
+                                              footprint, end)
+            centerline = alignment.centerline
+            coords, frames = centerline.project_with_frames(cloud.xyz, coords.s)
+        # each point as its camera saw it: along its viewing ray onto the wall (core.relocation)
+        rays = None if viewpoints is None else along_rays(coords, frames, viewpoints, geometry.outer_radius,
+                                                          settings.gate)
+        measured = coords if rays is None else rays[0]
+        # 3. tip, coarse: where the wall stops, over the sectors the cameras can see (core.tip)
+        tip_s = tube_end(measured, geometry.outer_radius, settings.gate, footprint, max_s=self._max_length,
+                         centerline=centerline, viewpoints=self._camera_origins if seen_by is not None else None)
+        # 4. notches: the robot's comb matched to the evidence, edges refined locally (core.notches)
+        found = detect_notches(measured, centerline, geometry, settings.gate, footprint, options.notch_kernel_px,
+                               options.min_notch_width_fraction, tip_s, observed=coords)
+        # the robot's roll in its clamp is never exact: the side the notches open to, measured; where it is
+        # off the configured one the tube frame turns to it and the notches are found again in that frame
+        notch_side = geometry.notch_side
+        for _ in range(2):  # the second pass measures in the turned frame (the window fits better there)
+            roll = measure_notch_side(coords, found, geometry, centerline, settings.gate, footprint)
+            if roll is None:
+                break
+            if abs(roll) <= ROLL_TO_REFRAME:
+                notch_side += roll  # reported as measured; too small a turn to find the notches again for
+                break
+            turned = centerline.rolled(roll), coords.rolled(roll)
+            turned_rays = None if rays is None else (rays[0].rolled(roll), rays[1])
+            turned_measured = turned[1] if turned_rays is None else turned_rays[0]
+            again = detect_notches(turned_measured, turned[0], geometry, settings.gate, footprint,
+                                   options.notch_kernel_px, options.min_notch_width_fraction, tip_s,
+                                   observed=turned[1])
+            if len(again) < len(found):
+                break  # the turned frame explains the data worse: the measurement was not to be trusted
+            notch_side += roll
+            (centerline, coords), rays, measured, found = turned, turned_rays, turned_measured, again
+            frames = (frames[0], frames[1], *_rolled_axes(frames[2], frames[3], roll))
+        notches, signals = found, {n.index: n.signal for n in found}
+        # 5. tip, refined: the rim the stereo matcher erodes at depth edges given back
+        eroded_end = tip_s
+        # where a camera looks onto the end cap - wider in its image than 4 pixels, more than a matcher's
+        # silhouette band - the end is that face (measured), not a rim the matcher erodes
+        cap_seen = seen_by is not None and cap_faces_a_camera(centerline, tip_s, self._camera_origins,
+                                                              min(2 * footprint / geometry.outer_radius, 1.0))
+        if cap_seen and cap_faces_a_camera(centerline, tip_s, self._camera_origins, np.sin(CAP_PLANE_ANGLE)):
+            # the tube points at a camera: its thinly seen wall cannot place the end, the cap's own points can
+            cap = end_cap_plane(measured, geometry.inner_radius, geometry.outer_radius, tip_s,
+                                geometry.outer_diameter, footprint)
+            tip_s = tip_s if cap is None else cap
+            eroded_end = tip_s
+        elif seen_by is not None and not cap_seen:
+            tip_s = give_back_erosion(tip_s, coords, frames, seen_by, self._camera_origins, geometry.outer_radius,
+                                      settings.gate, [(n.start_s, n.end_s) for n in notches], footprint)
+        notches = _calibrate_rims(notches, geometry)
+        # 6. relocation: every point within the gate onto the reference surface (core.relocation)
+        tip = centerline.frames_at(np.array([tip_s]))[0][0]
+        if options.method == "icp":  # the paper's KD-tree + ICP onto a reference (core.icp)
+            moved, tip = self._relocate_by_icp(cloud, centerline, notches, tip_s, tip, settings.gate, footprint)
+        else:
+            moved = relocate_points(coords, centerline, geometry, notches, tip_s, settings.gate, rays)
+        relocated = cloud.subset(moved.accepted).with_points(moved.points)
+        # 7. quality: how sure this result is (core.quality)
+        offset = coords.radius - geometry.outer_radius
+        level, _ = surface_band(offset, settings.gate)
+        near_wall = np.abs(offset - level) < settings.gate
+        wall_residual = float(np.sqrt(np.mean((offset[near_wall] - level) ** 2))) if np.any(near_wall) else 0.0
+        quality, warnings = assess(
+            geometry=geometry, camera_names=self.config.camera_names, notches=notches, notch_signals=signals,
+            coords_s=measured.s, camera=seen_by, tip_s=tip_s, total_bend=float(centerline.bend_angle(0.0, tip_s)),
+            footprint=footprint, wall_residual=wall_residual, notch_side=notch_side,
+            configured_side=geometry.notch_side,
+            bias_notch_side=0.0 if alignment is None else alignment.bias_notch_side,
+            bias_binormal=0.0 if alignment is None else alignment.bias_binormal, depth_steps=dict(self._depth_steps),
+            tip_erosion=tip_s - eroded_end)
+        self._prior = fitted
+        self._update_roi(relocated)
+        self._timed("relocate", start)
+        return Relocation(_cut(centerline, tip_s), tip, notches, relocated, moved.normals, moved.rejected, coords,
+                          iterations, moved.part, moved.coordinates, quality, tuple(warnings), notch_side)
+
+    def _relocate_by_icp(self, cloud: Cloud, centerline: Centerline, notches: list[Notch], tip_s: float,
+                         tip: np.ndarray, gate: float, footprint: float) -> tuple[RelocatedPoints, np.ndarray]:
+        """The reference (a user's mesh, or the configured robot posed by the centreline) aligned to the cloud by
+        ICP, every point onto its nearest reference point within the gate; the tip moved with the reference."""
+        options, spacing = self.config.relocation, footprint / 2
+        if options.reference_mesh:
+            if self._mesh_reference is None:
+                self._mesh_reference = mesh_reference(options.reference_mesh, spacing)
+            points, normals, part = self._mesh_reference
+        else:
+            points, normals, part = posed_reference(centerline, self.geometry, notches, tip_s, spacing)
+        rotation, translation, _ = icp(points, cloud.xyz, gate, options.icp_iterations)
+        moved = relocate_onto_reference(cloud.xyz, points @ rotation.T + translation, normals @ rotation.T, part,
+                                        gate)
+        # tube coordinates of the relocated points, for the tube mesher (a mesh reference of another object
+        # than a tube wants mesh.method: poisson)
+        moved = replace(moved, coordinates=centerline.project(moved.points))
+        return moved, rotation @ tip + translation
+
+    @property
+    def _max_length(self) -> float:
+        """No tube is searched for past the robot's own length and a diameter."""
+        return self.geometry.length + self.geometry.outer_diameter
+
+    def _centerline(self, cloud: Cloud, settings, warm_start: bool):
         prior = self._prior if warm_start else None
-        centerline, iterations, (coords, frames, exact) = estimate_centerline(cloud.xyz, geometry, settings, prior)
+        viewpoints = self._camera_origins if cloud.camera is not None and len(cloud.camera) else None
+        centerline, iterations, (coords, frames, exact) = estimate_centerline(cloud.xyz, self.geometry, settings,
+                                                                              prior, viewpoints)
         if centerline.length < 2 * settings.bin_length:
             self._prior = None
             raise ReconstructionError("no tube found along the robot's base axis: is the robot in view and the "
                                       "base pose in the configuration right?")
         if not exact:
             coords, frames = centerline.project_with_frames(cloud.xyz, None if coords is None else coords.s)
-        footprint = cloud.pixel_footprint
-        rays = None
-        measured = coords
-        if cloud.camera is not None and len(cloud.camera):
-            origins = self._camera_origins[cloud.camera]
-            rays = along_rays(coords, frames, origins, geometry.outer_radius, settings.gate)
-            measured = rays[0]
-        tip_s = tube_end(measured, geometry.outer_radius, settings.gate, settings.cell)
-        notches = detect_notches(measured, centerline, geometry, settings.gate, footprint,
-                                 settings_config.notch_kernel_px, settings_config.min_notch_width_fraction, tip_s,
-                                 observed=coords)
-        if cloud.camera is not None and len(cloud.camera):
-            # The tip's rim, an edge seen against the background, loses what the tube's silhouettes lose
-            # to the stereo matcher; measure that on plain tube and give it back.
-            plain = (coords.s > geometry.outer_diameter) & (coords.s < tip_s - geometry.outer_diameter)
-            for notch in notches:
-                plain &= (coords.s < notch.start_s - 2 * settings.cell) | (coords.s > notch.end_s + 2 * settings.cell)
-            offset = coords.radius - geometry.outer_radius
-            level, spread = surface_band(offset, settings.gate)
-            plain &= np.abs(offset - level) <= spread
-            erosion = silhouette_erosion(coords, frames, cloud.camera, self._camera_origins, geometry.outer_radius,
-                                         plain)
-            tip_s += erosion
-        notches = _calibrate_rims(notches, geometry)
-        moved: RelocatedPoints = relocate_points(coords, centerline, geometry, notches, tip_s, settings.gate,
-                                                 rays)
-        tip = centerline.frames_at(np.array([tip_s]))[0][0]
-        relocated = cloud.subset(moved.accepted).with_points(moved.points)
-        self._prior = centerline
-        self._update_roi(relocated)
-        self._timed("relocate", start)
-        return Relocation(_cut(centerline, tip_s), tip, notches, relocated, moved.normals, moved.rejected, coords,
-                          iterations, moved.part, moved.coordinates)
+        return centerline, iterations, coords, frames
 
     def _update_roi(self, relocated: Cloud) -> None:
         """Region of interest for the next frame: the robot's bounding box, grown, inside the crop box."""
@@ -209,7 +318,13 @@ def _calibrate_rims(notches: list[Notch], geometry) -> list[Notch]:
         return notches
     erosion = float(np.median(spine - np.array(observed))) / 2.0
     return [Notch(n.index, n.center_s, n.start_s + erosion, n.end_s - erosion, max(n.width - 2 * erosion, 0.0),
-                  n.bend) for n in notches]
+                  n.bend, n.signal) for n in notches]
+
+
+def _rolled_axes(normal: np.ndarray, binormal: np.ndarray, angle: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per-point frame axes turned by `angle` about the tangent (as Centerline.rolled)."""
+    c, s = np.cos(angle), np.sin(angle)
+    return c * normal + s * binormal, c * binormal - s * normal
 
 
 def _cut(centerline: Centerline, tip_s: float) -> Centerline:

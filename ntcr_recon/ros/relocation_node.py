@@ -9,6 +9,8 @@ Publishes (reliable, depth 1; all in the base frame, stamped with the input clou
   `<ns>/notches`            std_msgs/Float64MultiArray, rows [index, center_s_m, width_m, bend_rad] (layout in
                             ntcr_recon.ros.messages; readable without this package)
   `<ns>/notches/markers`    visualization_msgs/MarkerArray for RViz (a disc per notch, its width in mm)
+  `/diagnostics`            diagnostic_msgs/DiagnosticArray: the result's self-check (core.quality), WARN with
+                            its warnings, OK without
 The relocation warm-starts from the previous frame's centreline, as the offline command does over a bag.
 A cloud the core cannot reconstruct (too few points, no tube along the base axis) is logged and skipped; a cloud
 of more than `max_points` points is dropped before it is read. The centreline goes out serialized from arrays
@@ -22,6 +24,7 @@ import time
 from pathlib import Path as PathLib
 
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from sensor_msgs.msg import PointCloud2
@@ -63,6 +66,7 @@ class RelocationNode(RigNode):
         self._tip = self.create_publisher(PoseStamped, stage_topic(topic, "tip"), STAGE_QOS)
         self._notches = self.create_publisher(Float64MultiArray, stage_topic(topic, "notches"), STAGE_QOS)
         self._markers = self.create_publisher(MarkerArray, stage_topic(topic, "notches/markers"), STAGE_QOS)
+        self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_subscription(PointCloud2, stage_topic(topic, "filtered/points"), self._on_cloud, STAGE_QOS)
         self.get_logger().info("relocating filtered clouds onto the reference robot")
 
@@ -96,8 +100,18 @@ class RelocationNode(RigNode):
         position, tangent, normal, binormal = centerline.frames_at(centres)
         self._markers.publish(notch_markers(notches, position, frame_rotations(normal, binormal, tangent),
                                             self.rig.robot.outer_radius, frame, stamp))
+        self._publish_quality(relocation, msg.header)
         if self._params["output_dir"]:
             self._write(PathLib(self._params["output_dir"]).expanduser() / "relocated.ply", relocation)
+
+    def _publish_quality(self, relocation, header) -> None:
+        """The core's self-check, copied onto /diagnostics."""
+        warnings = list(relocation.warnings)
+        status = DiagnosticStatus(level=DiagnosticStatus.WARN if warnings else DiagnosticStatus.OK,
+                                  name=f"{self.get_name()}: reconstruction quality", hardware_id="ntcr",
+                                  message="; ".join(warnings) if warnings else "ok")
+        status.values = [KeyValue(key=str(key), value=str(value)) for key, value in relocation.quality.items()]
+        self._diagnostics.publish(DiagnosticArray(header=header, status=[status]))
 
     def _write(self, path: PathLib, relocation) -> None:
         from ntcr_recon.io.files import write_cloud_ply

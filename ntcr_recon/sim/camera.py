@@ -72,25 +72,43 @@ class CameraPose:
         return np.asarray(points_cam) @ self.rotation.T + self.translation
 
 
-def facing_pair(distance: float, target=(0.010, 0.0, 0.022), names=("cam_a", "cam_b")) -> list[CameraPose]:
+def facing_pair(distance: float, target=(0.010, 0.0, 0.022), names=("cam_a", "cam_b"),
+                distances: tuple[float, float] | None = None, yaw_deg: tuple[float, float] = (0.0, 0.0),
+                pitch_deg: tuple[float, float] = (0.0, 0.0)) -> list[CameraPose]:
     """Two cameras facing each other across the robot along the base frame's y axis.
 
     Each optical axis passes through `target` (base frame) and the camera sits `distance` from it:
     the first camera on the -y side looking along +y, the second on the +y side looking along -y. Both are
     rolled so that the image's long side (848 px) runs along the robot's axis (base +z, base at the
     left of the image), so a robot bending towards +x (the default notch side) is seen side-on.
+
+    A real rig is never that exact: `distances` (one per camera) overrides `distance`, and each camera can be
+    turned about its own optical centre by `yaw_deg` (about its image's down axis) and `pitch_deg` (about its
+    image's right axis), so its axis misses the target. The poses returned are the true ones (what a
+    calibration measures).
     """
-    if not distance > 0:
-        raise ValueError(f"camera distance must be > 0 m, got {distance}")
+    distances = (distance, distance) if distances is None else tuple(distances)
+    if not all(d > 0 for d in distances):
+        raise ValueError(f"camera distance must be > 0 m, got {distances}")
     target = np.asarray(target, dtype=float)
     ex, ey, ez = np.eye(3)
     poses = []
-    for name, forward in zip(names, (ey, -ey), strict=True):
+    for name, forward, d, yaw, pitch in zip(names, (ey, -ey), distances, yaw_deg, pitch_deg, strict=True):
         right = ez
         down = np.cross(forward, right)  # right x down = forward: a right-handed optical frame
         rotation = np.column_stack([right, down, forward])
-        poses.append(CameraPose(name, rotation, target - distance * forward))
+        rotation = rotation @ _axis_rotation(1, np.radians(yaw)) @ _axis_rotation(0, np.radians(pitch))
+        poses.append(CameraPose(name, rotation, target - d * forward))
     return poses
+
+
+def _axis_rotation(axis: int, angle: float) -> np.ndarray:
+    """Rotation by `angle` about the camera's own x (0), y (1) or z (2) axis."""
+    c, s = np.cos(angle), np.sin(angle)
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    rotation = np.eye(3)
+    rotation[i, i], rotation[i, j], rotation[j, i], rotation[j, j] = c, -s, s, c
+    return rotation
 
 
 def deproject(depth_m: np.ndarray, intrinsics: D405Intrinsics) -> tuple[np.ndarray, np.ndarray]:

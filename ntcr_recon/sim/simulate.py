@@ -64,6 +64,9 @@ class Simulation:
     with_points: bool = False
     intrinsics: D405Intrinsics = field(default_factory=D405Intrinsics)
     props: RigProps = field(default_factory=RigProps)
+    camera_distances: tuple[float, float] | None = None  # per camera, overrides camera_distance (asymmetric rig)
+    camera_yaw_deg: tuple[float, float] = (0.0, 0.0)     # per camera, turned about its image's down axis
+    camera_pitch_deg: tuple[float, float] = (0.0, 0.0)   # per camera, turned about its image's right axis
 
     def __post_init__(self) -> None:
         if self.frame_count < 1:
@@ -73,7 +76,9 @@ class Simulation:
         if self.color_noise < 0:
             raise ValueError(f"colour noise must be >= 0, got {self.color_noise}")
         self.emulation.validate()
-        self.cameras: list[CameraPose] = facing_pair(self.camera_distance, names=self.camera_names)
+        self.cameras: list[CameraPose] = facing_pair(self.camera_distance, names=self.camera_names,
+                                                     distances=self.camera_distances, yaw_deg=self.camera_yaw_deg,
+                                                     pitch_deg=self.camera_pitch_deg)
         self.scene = Scene(self.shape, self.cameras, self.intrinsics, self.props)
 
     @cached_property
@@ -118,7 +123,10 @@ class Simulation:
         extra = {"emulation": {**self.emulation.to_dict(), "color_noise": self.color_noise,
                                "baseline": self.intrinsics.baseline, "min_depth": self.intrinsics.min_depth,
                                "max_depth": self.intrinsics.max_depth},
-                 "camera_distance_m": self.camera_distance, "frames": self.frame_count,
+                 "camera_distance_m": self.camera_distance,
+                 "camera_distances_m": list(self.camera_distances or (self.camera_distance,) * 2),
+                 "camera_yaw_deg": list(self.camera_yaw_deg), "camera_pitch_deg": list(self.camera_pitch_deg),
+                 "frames": self.frame_count,
                  "namespace": self.namespace}
         return truth_document(self.shape, self.cameras, self.intrinsics, self.scene_name, self.seed,
                               self.base_frame, extra)

@@ -1,0 +1,99 @@
+"""Alignment: the reference tube moved onto the wall points that stereo depth measures without bias.
+
+The centreline fit uses every wall point, and some of them are biased in a way that does not cancel
+around the tube: pixels within a couple of pixels of a depth edge (the tube's silhouettes, and every edge a
+notch makes) are dropped or mixed with what lies behind, and there are more such edges on the notch side,
+so the fitted axis drifts towards the notches (0.05-0.2 mm on a bent robot, more with a larger pixel
+footprint). Points that face their camera (view angle below `max_view_angle`) on spines away from the cuts
+(the expected notches grown by a margin of pixels) carry no such bias. Along the robot, in windows of a
+notch pitch, the shift of the reference tube (of the known radius, at the wall's measured level) that
+best fits those points is solved by least squares (the offset model c_x cos(phi) + c_y sin(phi) + level);
+the shifts, smoothed along s, move the centreline. The mean shift towards the notch side is the
+centreline's bias the fit had, reported by the result.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ntcr_recon.core.centerline import Centerline, TubeCoordinates
+from ntcr_recon.core.comb import cut_intervals, inside_intervals
+from ntcr_recon.core.geometry import TubeGeometry
+
+# Mean resultant length of a window's point directions about the axis above which it is seen from one side.
+MAX_ONE_SIDEDNESS = 0.6
+
+
+@dataclass(frozen=True)
+class Alignment:
+    centerline: Centerline
+    bias_notch_side: float   # m, mean shift removed, towards the notch side (+) (the fit's bias)
+    bias_binormal: float     # m, the same across the bending plane
+    residual: float          # m, RMS radial residual of the trusted points after the alignment
+    trusted: int             # points the alignment rests on
+
+
+def facing_cosine(coords: TubeCoordinates, frames: tuple, viewpoints: np.ndarray) -> np.ndarray:
+    """Cosine of the angle between each point's outward direction about the axis and its camera's direction."""
+    position, _, normal, binormal = frames
+    view = viewpoints - position
+    vx = np.einsum("ij,ij->i", view, normal)
+    vy = np.einsum("ij,ij->i", view, binormal)
+    return (coords.x * vx + coords.y * vy) / np.maximum(coords.radius * np.sqrt(vx * vx + vy * vy), 1e-15)
+
+
+def align_to_trusted_wall(centerline: Centerline, coords: TubeCoordinates, frames: tuple, viewpoints: np.ndarray,
+                          geometry: TubeGeometry, gate: float, footprint: float, end_s: float,
+                          max_view_angle: float = np.radians(45.0), cut_margin_px: float = 1.0,
+                          minimum_points: int = 30) -> Alignment:
+    """Shift the centreline onto the trusted wall points (see the module docstring); end_s: the tube's end."""
+    r_o = geometry.outer_radius
+    offset = coords.radius - r_o
+    trusted = (np.abs(offset) < gate) & (coords.s > 0) & (coords.s < end_s)
+    trusted &= facing_cosine(coords, frames, viewpoints) > np.cos(max_view_angle)
+    trusted &= ~inside_intervals(coords.s, cut_intervals(geometry, centerline, cut_margin_px * footprint))
+    count = int(np.count_nonzero(trusted))
+    if count < minimum_points:
+        return Alignment(centerline, 0.0, 0.0, float("nan"), count)
+    s, angle, residual = coords.s[trusted], coords.angle[trusted], offset[trusted]
+    cos_a, sin_a = np.cos(angle), np.sin(angle)
+    window = geometry.notch_pitch
+    windows = max(int(np.ceil(end_s / window)), 1)
+    index = np.minimum((s / window).astype(np.intp), windows - 1)
+    # per window the normal equations of offset = cx cos + cy sin + level (3x3, summed by bincount)
+    terms = (cos_a, sin_a, np.ones_like(s))
+    matrix = np.zeros((windows, 3, 3))
+    rhs = np.zeros((windows, 3))
+    for i in range(3):
+        rhs[:, i] = np.bincount(index, weights=terms[i] * residual, minlength=windows)
+        for j in range(i, 3):
+            matrix[:, i, j] = matrix[:, j, i] = np.bincount(index, weights=terms[i] * terms[j], minlength=windows)
+    counts = np.bincount(index, minlength=windows)
+    # a window seen from one side only cannot tell a shift towards the camera from the wall's level
+    # (the offset model is then degenerate): it needs points spread around the axis
+    resultant = np.hypot(matrix[:, 0, 2], matrix[:, 1, 2]) / np.maximum(counts, 1)
+    solvable = (counts >= minimum_points // 3) & (resultant < MAX_ONE_SIDEDNESS)
+    solvable &= np.abs(np.linalg.det(matrix)) > 1e-9 * np.maximum(counts, 1) ** 3
+    shifts = np.zeros((windows, 2))
+    if np.any(solvable):
+        solution = np.linalg.solve(matrix[solvable] + 1e-12 * np.eye(3), rhs[solvable][..., None])[..., 0]
+        shifts[solvable] = solution[:, :2]
+    if not np.any(solvable):
+        return Alignment(centerline, 0.0, 0.0, float("nan"), count)
+    centres = (np.arange(windows) + 0.5) * window
+    # windows without enough trusted points take their neighbours' shift; the base stays clamped
+    known_s = np.concatenate([[0.0], centres[solvable]])
+    node_shift = np.stack([np.interp(centerline.s, known_s, np.concatenate([[0.0], shifts[solvable, k]]))
+                           for k in range(2)], axis=1)
+    moved = centerline.points + node_shift[:, :1] * centerline.normals + node_shift[:, 1:] * centerline.binormals
+    binormal_hint = centerline.binormals[0]
+    step = float(centerline.s[1] - centerline.s[0]) if len(centerline.s) > 1 else window
+    aligned = Centerline.from_points(moved, binormal_hint, step)
+    weights = counts[solvable].astype(float)
+    bias = np.average(shifts[solvable], axis=0, weights=weights)
+    fitted = shifts[index, 0] * cos_a + shifts[index, 1] * sin_a
+    level = np.median(residual - fitted)
+    rms = float(np.sqrt(np.mean((residual - fitted - level) ** 2)))
+    return Alignment(aligned, float(bias[0]), float(bias[1]), rms, count)

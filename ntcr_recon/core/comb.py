@@ -1,0 +1,36 @@
+"""The robot's known comb of notches laid along an estimated centreline: where each notch should be.
+
+The configuration gives the notch count, pitch and width in the undeformed robot; bending shortens the
+tube's centreline by ybar * theta per notch (the neutral axis keeps its length, the centreline lies ybar
+nearer the notches), so the k-th notch centre sits at its undeformed arc length less ybar times the
+centreline's turn up to it. The turn comes from the estimated centreline, so the comb bends with it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ntcr_recon.core.geometry import TubeGeometry
+
+
+def expected_centres(geometry: TubeGeometry, centerline) -> np.ndarray:
+    """(K,) centreline arc length of each notch centre, the comb bent by the centreline's turn."""
+    undeformed = geometry.notch_centers_s
+    turned = np.abs(np.atleast_1d(centerline.bend_angle(0.0, np.minimum(undeformed, centerline.length))))
+    return undeformed - geometry.neutral_axis_offset * turned
+
+
+def cut_intervals(geometry: TubeGeometry, centerline, margin: float) -> np.ndarray:
+    """(K, 2) [start, end] of each expected notch grown by `margin` on both sides (the undeformed width,
+    the widest a notch gets)."""
+    centres = expected_centres(geometry, centerline)
+    half = geometry.notch_width / 2.0 + margin
+    return np.stack([centres - half, centres + half], axis=1)
+
+
+def inside_intervals(s: np.ndarray, intervals: np.ndarray) -> np.ndarray:
+    """(N,) bool: s lies in one of the sorted, disjoint (K, 2) intervals."""
+    if len(intervals) == 0:
+        return np.zeros(len(s), dtype=bool)
+    k = np.clip(np.searchsorted(intervals[:, 0], s, side="right") - 1, 0, len(intervals) - 1)
+    return (s >= intervals[k, 0]) & (s <= intervals[k, 1])

@@ -1,0 +1,140 @@
+"""Self-check of a reconstruction: how sure the result is, as plain numbers and plain-language warnings.
+
+`assess` looks only at the data and the configuration (never at ground truth): notches found of expected
+and by which signal, the share of the robot's length each camera saw (and a distal stretch seen by one
+camera alone), the wall fit's residual, the measured notch side against the configured one, the centreline
+bias the alignment removed, the tip against the robot's known length, the pixel footprint against the
+tube, the depth quantisation seen in the frames, each notch's width against the width its measured bend
+implies, and how far the tip's position rests on the rim erosion given back. Every figure is in the unit
+its key names; the warnings are sentences a user can act on. relocation_node puts them on /diagnostics,
+the CLI prints them.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+# Thresholds, relative to the robot and the camera so that no robot is special.
+ONE_CAMERA_RUN_DIAMETERS = 1.0     # a distal stretch longer than this many diameters seen by one camera: warn
+SIDE_OFF_DEG = 10.0                # measured notch side this far from the configured one: warn
+TIP_SHORT_DIAMETERS = 0.5          # tip this many diameters short of (or past) the robot's length: warn
+FOOTPRINT_RADIUS_FRACTION = 1 / 7  # pixel footprint above this fraction of r_o: too few pixels across
+QUANTISATION_RADIUS_FRACTION = 1 / 8   # depth step above this fraction of r_o: the tube's roundness is lost
+BIAS_WARN_FOOTPRINTS = 0.5         # centreline stereo bias above this many footprints: warn
+WIDTH_CHECK_FRACTION = 0.1         # a notch whose width is off what its bend implies by this share of h: warn
+# The project's floors (issue 9): a figure whose uncertainty exceeds its floor is worth a warning.
+TIP_FLOOR = 0.15e-3
+
+
+def camera_coverage(s: np.ndarray, camera: np.ndarray | None, camera_names: tuple[str, ...], tip_s: float,
+                    cell: float) -> tuple[dict[str, float], dict[str, float]]:
+    """Per camera the share of [0, tip] (in cells) holding its wall points, and the length (m) of the distal
+    stretch that camera alone saw (0 when the other cameras see the tip too)."""
+    cells = max(int(np.ceil(tip_s / cell)), 1)
+    seen = np.zeros((len(camera_names), cells), dtype=bool)
+    inside = (s >= 0) & (s < tip_s)
+    if camera is None:
+        return {}, {}
+    index = np.minimum((s[inside] / cell).astype(np.intp), cells - 1)
+    seen[camera[inside].astype(np.intp), index] = True
+    share = {name: float(seen[i].mean()) for i, name in enumerate(camera_names)}
+    alone = {}
+    for i, name in enumerate(camera_names):
+        others = np.delete(seen, i, axis=0).any(axis=0)
+        last_other = int(np.flatnonzero(others)[-1]) + 1 if np.any(others) else 0
+        mine_beyond = seen[i, last_other:]
+        alone[name] = float(np.count_nonzero(mine_beyond) * cell) if np.any(mine_beyond) else 0.0
+    return share, alone
+
+
+def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_signals: dict[int, str],
+           coords_s: np.ndarray, camera: np.ndarray | None, tip_s: float, total_bend: float, footprint: float,
+           wall_residual: float, notch_side: float, configured_side: float, bias_notch_side: float,
+           bias_binormal: float, depth_steps: dict[str, float], tip_erosion: float = 0.0) -> tuple[dict, list[str]]:
+    """The `quality` document and the warnings (see the module docstring)."""
+    warnings: list[str] = []
+    r_o, diameter = geometry.outer_radius, geometry.outer_diameter
+    found = sorted(n.index for n in notches)
+    missing = sorted(set(range(geometry.notch_count)) - set(found))
+    by_signal: dict[str, int] = {}
+    for signal in notch_signals.values():
+        by_signal[signal] = by_signal.get(signal, 0) + 1
+    if missing:
+        warnings.append(f"{len(found)} of {geometry.notch_count} notches found (missing: "
+                        f"{', '.join(str(i) for i in missing)}): their widths are unknown")
+    # a notch's width follows from the configured one and its measured bend (the gap on the outer wall of a
+    # notch of neutral length h bent by theta): a reading far off it is an error or a damaged robot
+    h, ybar = geometry.notch_width, geometry.neutral_axis_offset
+    off_model = {n.index: n.width - max((h - ybar * abs(n.bend or 0.0)) - abs(n.bend or 0.0) * r_o, 0.0)
+                 for n in notches}
+    doubtful = sorted(i for i, d in off_model.items() if abs(d) > WIDTH_CHECK_FRACTION * h)
+    if doubtful:
+        listed = ", ".join(f"{i} ({off_model[i] * 1e3:+.2f} mm)" for i in doubtful)
+        warnings.append(f"notch widths off what their bends imply: {listed}; check those notches")
+    # the tip's rim is a depth edge: it rests on the erosion given back, known to about that much
+    tip_uncertainty = abs(tip_erosion) + footprint / 2
+    if tip_uncertainty > TIP_FLOOR:
+        warnings.append(f"the tip rests on a stereo-eroded rim ({tip_erosion * 1e3:.2f} mm given back): "
+                        f"its position is uncertain by about {tip_uncertainty * 1e3:.2f} mm along the tube")
+    cell = max(footprint, r_o / 8)
+    share, alone = camera_coverage(coords_s, camera, camera_names, tip_s, cell)
+    for name, length in alone.items():
+        if length > ONE_CAMERA_RUN_DIAMETERS * diameter:
+            warnings.append(f"the distal {length * 1e3:.0f} mm is seen by {name} alone: the tube's far side "
+                            "there is inferred, not measured")
+    for name, fraction in share.items():
+        if fraction < 0.5:
+            warnings.append(f"{name} saw only {fraction:.0%} of the robot's length")
+    # bending shortens the centreline by ybar * theta: what the tip should read with the measured bend
+    expected_length = geometry.length - geometry.neutral_axis_offset * abs(total_bend)
+    short = expected_length - tip_s
+    if abs(short) > TIP_SHORT_DIAMETERS * diameter:
+        where = "short of" if short > 0 else "past"
+        warnings.append(f"the tube ends {abs(short) * 1e3:.1f} mm {where} the robot's length "
+                        f"({expected_length * 1e3:.1f} mm at this bend): the tip is uncertain")
+    side_off = math.degrees(math.remainder(notch_side - configured_side, 2 * math.pi))
+    if abs(side_off) > SIDE_OFF_DEG:
+        warnings.append(f"the notches open {side_off:+.0f} deg from the configured robot.notch_side: the robot "
+                        "is rolled in its clamp (measured side used)")
+    if footprint > FOOTPRINT_RADIUS_FRACTION * r_o:
+        warnings.append(f"a depth pixel covers {footprint * 1e3:.2f} mm, the tube is only "
+                        f"{diameter / footprint:.0f} px across: expect errors above 0.1 mm (move the cameras "
+                        "closer)")
+    for name, step in depth_steps.items():
+        if step > QUANTISATION_RADIUS_FRACTION * r_o:
+            warnings.append(f"depth of {name} is quantised in {step * 1e3:.2g} mm steps: a {diameter * 1e3:.1f} mm "
+                            "tube loses most of its depth profile (realsense-ros records 1 mm units; use 0.1 mm)")
+    if abs(bias_notch_side) > BIAS_WARN_FOOTPRINTS * footprint:
+        warnings.append(f"stereo edges pulled the centreline {bias_notch_side * 1e3:+.2f} mm towards the notch "
+                        "side (corrected); residual bias may remain")
+    quality = {
+        "notches_found": len(found), "notches_expected": geometry.notch_count, "notches_missing": missing,
+        "notches_by_signal": by_signal,
+        "notch_signal": {str(i): notch_signals[i] for i in sorted(notch_signals)},
+        "length_seen_share": share, "distal_one_camera_mm": {k: v * 1e3 for k, v in alone.items()},
+        "fit_residual_mm": wall_residual * 1e3,
+        "notch_side_deg": math.degrees(notch_side), "notch_side_configured_deg": math.degrees(configured_side),
+        "centerline_bias_mm": {"notch_side": bias_notch_side * 1e3, "binormal": bias_binormal * 1e3},
+        "tip_s_mm": tip_s * 1e3, "expected_length_mm": expected_length * 1e3,
+        "tip_uncertainty_mm": tip_uncertainty * 1e3,
+        "notch_width_vs_bend_mm": {str(i): d * 1e3 for i, d in sorted(off_model.items())},
+        "pixel_footprint_mm": footprint * 1e3,
+        "depth_step_mm": {k: v * 1e3 for k, v in depth_steps.items()},
+    }
+    return quality, warnings
+
+
+def depth_step(depth: np.ndarray, unit: float, samples: int = 4096) -> float:
+    """The smallest depth step (m) in a depth image: its quantisation, seen in the data."""
+    values = np.asarray(depth).ravel()
+    values = values[values > 0]
+    if values.size < 2:
+        return 0.0
+    if values.size > samples:
+        values = values[:: values.size // samples]
+    distinct = np.unique(values)
+    if distinct.size < 2:
+        return 0.0
+    return float(np.min(np.diff(distinct.astype(np.float64)))) * unit

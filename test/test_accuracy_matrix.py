@@ -1,0 +1,30 @@
+"""Issue 9's floors on a few rows of the accuracy matrix (benchmarks/accuracy_matrix.py: the whole grid is a
+benchmark, too long for CI). Rendered by the simulator as `ntcr-recon simulate` renders them, 2 frames each."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+import accuracy_matrix  # noqa: E402
+
+ROWS = {row.name: row for row in accuracy_matrix.ROWS}
+
+
+@pytest.mark.parametrize("name", ["side45_bend30", "cameras75"])
+def test_rows_meet_the_floors(name):
+    figures = accuracy_matrix.run_row(ROWS[name], frames=2)
+    print("\n" + accuracy_matrix.HEADER + "\n" + accuracy_matrix.format_row(figures))
+    assert figures["floors_apply"]
+    assert figures["misses"] == []
+
+
+def test_a_row_that_misses_says_so():
+    """1 mm depth steps (realsense-ros recordings) cost accuracy: the result must warn about them."""
+    figures = accuracy_matrix.run_row(ROWS["depth_unit_1mm"], frames=2)
+    print("\n" + accuracy_matrix.format_row(figures) + "\n" + "\n".join(figures["warnings"]))
+    assert figures["misses"], "this row was expected to miss a floor; if it no longer does, pick another"
+    assert any("quantised in 1 mm steps" in warning for warning in figures["warnings"])

@@ -1,0 +1,262 @@
+"""Each step of the relocation (paper Sec. IV) on known inputs: a straight tube, one notch, a known arc, a tube
+pointing at a camera. Points are drawn analytically on the true surface (no renderer), so every figure is
+known exactly; each number asserted is printed."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from ntcr_recon.core.alignment import align_to_trusted_wall
+from ntcr_recon.core.centerline import Centerline, estimate_centerline, settings_for
+from ntcr_recon.core.comb import cut_intervals, expected_centres, inside_intervals
+from ntcr_recon.core.config import RelocationConfig
+from ntcr_recon.core.geometry import TubeGeometry
+from ntcr_recon.core.kinematics import TubeShape
+from ntcr_recon.core.notches import detect_notches
+from ntcr_recon.core.quality import assess, camera_coverage, depth_step
+from ntcr_recon.core.tip import tube_end, visible_sectors
+
+GEOMETRY = TubeGeometry()   # 3.5 mm, 16 notches, straight along base +z, notches towards +x
+FOOTPRINT = 0.2e-3          # a D405 pixel at 90 mm
+R_O = GEOMETRY.outer_radius
+
+
+def straight_centerline(length: float) -> Centerline:
+    s = np.linspace(0.0, length, int(length / 0.1e-3) + 1)
+    points = np.stack([np.zeros_like(s), np.zeros_like(s), s], axis=1)
+    return Centerline.from_points(points, np.array([0.0, 1.0, 0.0]), 0.1e-3)
+
+
+def wall_points(length: float, spacing: float = FOOTPRINT, angles=(-math.pi, math.pi), radius: float = R_O,
+                start: float = 0.0, rng=None) -> np.ndarray:
+    """Points on a straight cylinder about base z, angle measured from +x (the notch side)."""
+    s = np.arange(start, length, spacing)
+    phi = np.arange(angles[0], angles[1], spacing / radius)
+    ss, pp = (a.ravel() for a in np.meshgrid(s, phi, indexing="ij"))
+    points = np.stack([radius * np.cos(pp), radius * np.sin(pp), ss], axis=1)
+    if rng is not None:
+        points += rng.normal(0.0, 0.01e-3, points.shape)
+    return points
+
+
+def test_comb_lies_on_the_configured_notches_of_a_straight_tube_and_shortens_with_bend():
+    straight = straight_centerline(GEOMETRY.length)
+    assert np.allclose(expected_centres(GEOMETRY, straight), GEOMETRY.notch_centers_s)
+    shape = TubeShape.from_bend_angle(GEOMETRY, math.radians(60))
+    s = np.linspace(0.0, shape.length, 2000)
+    points, frames = shape.centerline(s)
+    bent = Centerline(s, points, frames[:, :, 2], frames[:, :, 0], frames[:, :, 1])
+    truth = np.array([n["center_s"] for n in shape.notch_table()])
+    error = np.abs(expected_centres(GEOMETRY, bent) - truth).max()
+    print(f"\ncomb on a 60 deg arc: worst notch centre {error * 1e3:.3f} mm off")
+    assert error < 0.05e-3
+    intervals = cut_intervals(GEOMETRY, straight, 0.1e-3)
+    centre = GEOMETRY.notch_centers_s[3]
+    inside = inside_intervals(np.array([centre, centre + GEOMETRY.notch_width / 2 + 0.05e-3,
+                                        centre + GEOMETRY.notch_pitch / 2]), intervals)
+    assert inside.tolist() == [True, True, False]
+
+
+def test_tip_of_a_straight_tube_is_its_end_and_never_past_the_robot():
+    length = 30e-3
+    centerline = straight_centerline(length + 5e-3)
+    coords = centerline.project(wall_points(length, rng=np.random.default_rng(1)))
+    end = tube_end(coords, R_O, 0.8e-3, FOOTPRINT)
+    print(f"\nstraight tube end {end * 1e3:.3f} mm (true {length * 1e3:.1f})")
+    assert abs(end - length) < FOOTPRINT
+    # a backdrop-like blob of wall-radius points beyond the robot's length is not searched
+    far = centerline.project(wall_points(length + 4e-3, start=length + 1e-3))
+    both = type(coords)(np.concatenate([coords.s, far.s]), np.concatenate([coords.x, far.x]),
+                        np.concatenate([coords.y, far.y]))
+    assert tube_end(both, R_O, 0.8e-3, FOOTPRINT, max_s=length + 0.5e-3) <= length + 0.5e-3
+
+
+def test_tip_of_a_tube_seen_from_one_side_only_counts_what_the_camera_can_see():
+    """The distal part pointing away from one camera: only the other sees it, one half of the ring."""
+    length, seen_alone_from = 30e-3, 20e-3
+    centerline = straight_centerline(length + 5e-3)
+    both_sides = wall_points(seen_alone_from)
+    one_side = wall_points(length, angles=(-math.pi, 0.0), start=seen_alone_from)  # the -y half
+    coords = centerline.project(np.concatenate([both_sides, one_side]))
+    cameras = np.array([[0.0, -0.09, 0.02], [0.0, 0.09, 0.02]])
+    blind = tube_end(coords, R_O, 0.8e-3, FOOTPRINT)
+    # cam_b (at +y) is switched off past 20 mm: it is not among the viewpoints judging the end
+    aware = tube_end(coords, R_O, 0.8e-3, FOOTPRINT, centerline=centerline, viewpoints=cameras[:1])
+    print(f"\none side seen past 20 mm: end {blind * 1e3:.2f} mm counting every sector, "
+          f"{aware * 1e3:.2f} mm counting the visible ones (true {length * 1e3:.0f})")
+    assert abs(aware - length) < FOOTPRINT
+    sectors = visible_sectors(centerline, np.array([10e-3]), cameras[:1], 24)[0]
+    assert 8 <= np.count_nonzero(sectors) <= 12  # about half the ring faces one camera
+
+
+def test_tip_of_a_tube_pointing_at_a_camera_uses_any_wall_point():
+    """No sector faces a camera on the tube's axis: every wall point counts, the end is still found."""
+    length = 25e-3
+    centerline = straight_centerline(length + 5e-3)
+    coords = centerline.project(wall_points(length, angles=(-0.5, 0.5)))  # a sliver of the wall only
+    on_axis = np.array([[0.0, 0.0, 0.12]])
+    assert not visible_sectors(centerline, np.array([20e-3]), on_axis, 24).any()
+    end = tube_end(coords, R_O, 0.8e-3, FOOTPRINT, centerline=centerline, viewpoints=on_axis)
+    print(f"\ntube pointing at the camera: end {end * 1e3:.2f} mm (true {length * 1e3:.0f})")
+    assert abs(end - length) < 2 * FOOTPRINT
+
+
+def _tube_with_one_notch(depressed: bool):
+    """A straight robot's outer wall with notch 5 open: a see-through slot, or (depressed) its window filled
+    by points at the notch floor's depth, as an obliquely seen notch is."""
+    geometry = TubeGeometry(notch_count=16)
+    start = geometry.notch_centers_s[5] - geometry.notch_width / 2
+    end = start + geometry.notch_width
+    points = wall_points(geometry.length, spacing=FOOTPRINT / 2)
+    phi = np.arctan2(points[:, 1], points[:, 0])
+    open_window = (points[:, 2] > start) & (points[:, 2] < end) & (np.abs(phi) < geometry.gap_half_angle)
+    if depressed:
+        points[open_window, :2] *= (geometry.outer_radius - 0.4e-3) / geometry.outer_radius
+    else:
+        points = points[~open_window]
+    centerline = straight_centerline(geometry.length + 2e-3)
+    return geometry, centerline, centerline.project(points), start, end
+
+
+@pytest.mark.parametrize("depressed", [False, True], ids=["seen_through", "seen_obliquely"])
+def test_one_notch_is_found_where_the_comb_puts_it_by_the_signal_that_shows_it(depressed):
+    geometry, centerline, coords, start, end = _tube_with_one_notch(depressed)
+    notches = detect_notches(coords, centerline, geometry, 0.8e-3, FOOTPRINT, 0.5, 0.25, geometry.length - 0.1e-3)
+    print(f"\n{'depressed' if depressed else 'open'} notch: found {[(n.index, n.signal) for n in notches]}, "
+          f"edges {[(round(n.start_s * 1e3, 3), round(n.end_s * 1e3, 3)) for n in notches]} "
+          f"(true {start * 1e3:.3f}..{end * 1e3:.3f} mm)")
+    assert [n.index for n in notches] == [5]
+    assert notches[0].signal == ("depression" if depressed else "coverage")
+    assert abs(notches[0].start_s - start) < FOOTPRINT / 2
+    assert abs(notches[0].end_s - end) < FOOTPRINT / 2
+    assert abs(notches[0].width - geometry.notch_width) < FOOTPRINT
+
+
+def test_centreline_of_a_known_arc():
+    shape = TubeShape.from_bend_angle(GEOMETRY, math.radians(60))
+    sample = shape.sample_surface_parts(0.1e-3)
+    outer = sample.part == 0
+    settings = settings_for(GEOMETRY, FOOTPRINT, RelocationConfig())
+    centerline, iterations, _ = estimate_centerline(sample.points[outer], GEOMETRY, settings)
+    s = np.linspace(0.0, shape.length, 4000)
+    truth, _ = shape.centerline(s)
+    from ntcr_recon.core.metrics import centerline_rmse
+
+    rmse = centerline_rmse(centerline.points, truth)
+    print(f"\n60 deg arc from its exact outer wall: centreline RMSE {rmse * 1e3:.4f} mm in {iterations} iterations")
+    assert rmse < 0.02e-3
+    assert centerline.length < GEOMETRY.length + GEOMETRY.outer_diameter + settings.bin_length
+
+
+def test_alignment_moves_the_reference_onto_the_facing_wall_and_reports_the_shift():
+    """A straight tube whose true axis lies 0.1 mm towards the notch side of the given centreline."""
+    length, shift = 30e-3, 0.1e-3
+    geometry = TubeGeometry(notch_count=8, notch_pitch=3e-3)
+    points = wall_points(length, rng=np.random.default_rng(2))
+    points[:, 0] += shift
+    centerline = straight_centerline(length)
+    coords, frames = centerline.project_with_frames(points)
+    viewpoints = np.where(points[:, 1:2] < 0, [[0.0, -0.09, 0.015]], [[0.0, 0.09, 0.015]])
+    result = align_to_trusted_wall(centerline, coords, frames, viewpoints, geometry, 0.8e-3, FOOTPRINT, length)
+    moved = result.centerline.points[(result.centerline.s > 5e-3) & (result.centerline.s < 25e-3)]
+    print(f"\nalignment: bias {result.bias_notch_side * 1e3:.3f} mm measured (true {shift * 1e3:.1f}), "
+          f"axis now at x = {moved[:, 0].mean() * 1e3:.3f} mm, residual {result.residual * 1e3:.3f} mm")
+    assert abs(result.bias_notch_side - shift) < 0.01e-3
+    assert np.abs(moved[:, 0] - shift).max() < 0.02e-3
+    assert abs(result.bias_binormal) < 0.01e-3
+
+
+def test_quality_says_what_is_doubtful():
+    notches = []
+    s = np.linspace(0.0, 50e-3, 5000)
+    camera = np.where(s < 40e-3, np.arange(len(s)) % 2, 1).astype(np.int8)  # cam_b alone past 40 mm
+    share, alone = camera_coverage(s, camera, ("cam_a", "cam_b"), 50e-3, 0.25e-3)
+    assert alone["cam_b"] == pytest.approx(10e-3, abs=0.5e-3) and alone["cam_a"] == 0.0
+    assert share["cam_a"] == pytest.approx(0.8, abs=0.02)
+    quality, warnings = assess(
+        geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=notches, notch_signals={}, coords_s=s,
+        camera=camera, tip_s=50e-3, total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.05e-3,
+        notch_side=math.radians(20), configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0,
+        depth_steps={"cam_a": 1e-3, "cam_b": 1e-4})
+    print("\n" + "\n".join(warnings))
+    text = " ".join(warnings)
+    assert "0 of 16 notches found" in text
+    assert "the distal 10 mm is seen by cam_b alone" in text
+    assert "short of the robot's length" in text
+    assert "+20 deg from the configured robot.notch_side" in text
+    assert "depth of cam_a is quantised in 1 mm steps" in text and "cam_b is quantised" not in text
+    assert quality["notches_found"] == 0 and quality["notch_side_deg"] == pytest.approx(20.0)
+
+
+def test_depth_step_is_read_from_the_data():
+    image = (np.arange(480 * 848).reshape(480, 848) % 700 + 800).astype(np.uint16)
+    assert depth_step(image, 1e-4) == pytest.approx(1e-4)
+    assert depth_step(image * 10, 1e-4) == pytest.approx(1e-3)
+    assert depth_step(np.zeros((4, 4), np.uint16), 1e-4) == 0.0
+
+
+def test_icp_recovers_a_known_motion_of_the_reference_and_relocates_onto_it():
+    from ntcr_recon.core.icp import icp, posed_reference, relocate_onto_reference
+    from ntcr_recon.core.transforms import quaternion_to_matrix
+
+    shape = TubeShape.from_bend_angle(GEOMETRY, math.radians(45))
+    s = np.linspace(0.0, shape.length, 2000)
+    points, frames = shape.centerline(s)
+    centerline = Centerline(s, points, frames[:, :, 2], frames[:, :, 0], frames[:, :, 1])
+    reference, normals, part = posed_reference(centerline, GEOMETRY, [], shape.length, 0.1e-3)
+    # the observed cloud: the true outer wall, moved by a small rigid motion and made noisy
+    sample = shape.sample_surface_parts(0.1e-3)
+    wall = sample.points[sample.part == 0][::3]
+    rotation = quaternion_to_matrix(np.array([0.0, np.sin(0.002), 0.0, np.cos(0.002)]))  # 0.23 deg about y
+    translation = np.array([0.05e-3, -0.03e-3, 0.02e-3])
+    rng = np.random.default_rng(4)
+    cloud = wall @ rotation.T + translation + rng.normal(0.0, 0.01e-3, wall.shape)
+    found_r, found_t, iterations = icp(reference, cloud, 0.8e-3, iterations=60)
+    probe = centerline.points[::200]
+    truth = probe @ rotation.T + translation
+    before = np.linalg.norm(probe - truth, axis=1).max()
+    error = np.linalg.norm(probe @ found_r.T + found_t - truth, axis=1).max()
+    print(f"\nICP: centreline {before * 1e3:.3f} mm off before, {error * 1e3:.4f} mm after {iterations} iterations")
+    # point-to-point ICP on a sampled reference slides along a tube only as far as its bend and ends hold it
+    assert error < 0.5 * before
+    moved = relocate_onto_reference(cloud, reference @ found_r.T + found_t, normals @ found_r.T, part, 0.8e-3)
+    assert moved.accepted.mean() > 0.99
+    assert np.median(moved.distance) < 0.05e-3
+
+
+def test_alignment_leaves_a_tube_seen_from_one_side_alone():
+    """One camera sees one face: a shift towards it cannot be told from the wall's level, so nothing moves."""
+    length = 30e-3
+    geometry = TubeGeometry(notch_count=8, notch_pitch=3e-3)
+    points = wall_points(length, angles=(-math.pi, 0.0), rng=np.random.default_rng(5))  # the -y half
+    points[:, 1] -= 0.1e-3
+    centerline = straight_centerline(length)
+    coords, frames = centerline.project_with_frames(points)
+    viewpoints = np.tile([[0.0, -0.09, 0.015]], (len(points), 1))
+    result = align_to_trusted_wall(centerline, coords, frames, viewpoints, geometry, 0.8e-3, FOOTPRINT, length)
+    assert np.allclose(result.centerline.points, centerline.points, atol=1e-9)
+    assert result.bias_notch_side == 0.0 and result.bias_binormal == 0.0
+
+
+def test_end_cap_of_a_tube_pointing_at_a_camera_places_the_tip():
+    """Thin wall, a dense cap at 25 mm and a few flying pixels trailing behind it along the axis."""
+    from ntcr_recon.core.tip import cap_faces_a_camera, end_cap_plane
+
+    length = 25e-3
+    centerline = straight_centerline(length + 5e-3)
+    rng = np.random.default_rng(6)
+    wall = wall_points(length, spacing=0.4e-3)
+    radius = rng.uniform(GEOMETRY.inner_radius, R_O, 400)
+    angle = rng.uniform(-math.pi, math.pi, 400)
+    cap = np.stack([radius * np.cos(angle), radius * np.sin(angle), np.full(400, length)], axis=1)
+    trail = np.stack([np.full(12, R_O), np.zeros(12), length + rng.uniform(0.2e-3, 1.5e-3, 12)], axis=1)
+    coords = centerline.project(np.concatenate([wall, cap, trail]))
+    on_axis = np.array([[0.0, 0.0, 0.12]])
+    assert cap_faces_a_camera(centerline, length, on_axis, math.sin(math.radians(45)))
+    assert not cap_faces_a_camera(centerline, length, np.array([[0.0, -0.09, 0.02]]), math.sin(math.radians(45)))
+    plane = end_cap_plane(coords, GEOMETRY.inner_radius, R_O, length + 0.6e-3, GEOMETRY.outer_diameter, FOOTPRINT)
+    print(f"\ncap plane at {plane * 1e3:.3f} mm (true {length * 1e3:.0f})")
+    assert abs(plane - length) < FOOTPRINT / 2
