@@ -15,14 +15,6 @@ The estimate alternates, until the centreline moves less than a tolerance:
 
 A cold start marches from the base along the base axis, fitting one slab at a time; a warm start (the
 previous frame's centreline, a still or slowly moving robot) needs one or two iterations.
-
-Public API:
-    Centerline                 s (M,), points (M,3), tangents, normals (towards the notch side), binormals
-    Centerline.frames_at(s)    positions and frames at arbitrary arc lengths (linear interpolation)
-    Centerline.project(xyz)    -> TubeCoordinates (s, x, y along normal/binormal, radius, angle)
-    Centerline.rolled(angle), TubeCoordinates.rolled(angle)   the frame turned about the tangent
-    estimate_centerline(xyz, geometry, settings, prior=None, viewpoints=None)
-        -> (Centerline, iterations, (coordinates, frames, exact))
 """
 
 from __future__ import annotations
@@ -211,7 +203,7 @@ class CenterlineSettings:
 def settings_for(geometry: TubeGeometry, pixel_footprint: float, relocation) -> CenterlineSettings:
     """Slab length, smoothing, gate and tolerance from the robot's radius and the pixel footprint."""
     r_o = geometry.outer_radius
-    footprint = pixel_footprint if pixel_footprint > 0 else r_o / 8.0
+    footprint = geometry.pixel_footprint_or_default(pixel_footprint)
     return CenterlineSettings(
         bin_length=max(relocation.bin_radius_fraction * r_o, 2.0 * footprint),
         smoothing_length=relocation.smoothing_radius_fraction * r_o,

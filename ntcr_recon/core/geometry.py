@@ -152,6 +152,11 @@ class TubeGeometry:
         """theta_max = h / (r_o + ybar): the bend at which a notch's faces meet on the outer surface."""
         return self.notch_width / (self.outer_radius + self.neutral_axis_offset)
 
+    def pixel_footprint_or_default(self, footprint: float) -> float:
+        """A measured pixel footprint (m), or r_o / 8 where none is known (a cloud without camera intrinsics):
+        about what a D405 at 90 mm gives a 3.5 mm tube, and what the stages' lengths are scaled by."""
+        return footprint if footprint > 0 else self.outer_radius / 8.0
+
     @property
     def gap_half_angle(self) -> float:
         """Half the angle about the axis over which a notch is open on the outer surface: acos(-d / r_o)."""

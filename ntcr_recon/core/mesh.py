@@ -68,7 +68,7 @@ def tube_mesh(relocation, geometry, closing_cells: int = 1) -> Mesh:
     outer = relocation.part == PART_OUTER_WALL
     s, angle = coords.s[outer], np.arctan2(coords.y[outer], coords.x[outer])
     r_o = geometry.outer_radius
-    footprint = relocation.relocated.pixel_footprint or r_o / 8.0
+    footprint = geometry.pixel_footprint_or_default(relocation.relocated.pixel_footprint)
     length = relocation.centerline.length
     rows = max(int(np.ceil(length / (2.0 * footprint))), 2)
     columns = max(int(np.ceil(2.0 * np.pi * r_o / (2.0 * footprint))), 8)

@@ -12,11 +12,6 @@ notch is (see detect_notches).
 
 Width (the documented definition): the gap on the outer surface line facing the notches, s_n (1 - kappa r_o)
 = s_n - theta r_o, with theta the bend of the centreline across the notch.
-
-Public API:
-    coverage_profile(s, lo, hi, cell, kernel) -> (profile grid, density)
-    detect_notches(coords, centerline, geometry, gate, footprint, kernel_px, min_width_fraction, tip_s,
-                   observed=None) -> list[Notch]
 """
 
 from __future__ import annotations
@@ -84,7 +79,7 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
     cut face seen through a notch would otherwise be moved onto the wall inside the notch and fill it.
     """
     r_o = geometry.outer_radius
-    footprint = footprint if footprint > 0 else r_o / 8.0
+    footprint = geometry.pixel_footprint_or_default(footprint)
     # the window where a notch removes the outer surface, less the angular uncertainty of a point
     margin = np.arcsin(min(1.0, 2.0 * footprint / r_o))
     window = geometry.gap_half_angle - margin

@@ -7,8 +7,9 @@ Each stage is callable on its own, so each ROS node wraps one:
 
     cloud = reconstructor.fuse(frame_pair)              # Cloud in the base frame (Eq. 9)
     cloud = reconstructor.filter(cloud)                 # crop, colour, SOR, MLS, voxel (Sec. II-B)
-    relocation = reconstructor.relocate(cloud)          # centreline, notches, relocated cloud (Sec. IV)
-    mesh = reconstructor.mesh(relocation)               # Poisson mesh (Eq. 7-8), core.mesh.Mesh
+    relocation = reconstructor.relocate(cloud)          # centreline, notches, tip, relocated cloud (Sec. IV)
+    mesh = reconstructor.mesh(relocation)               # the configured mesher: tube (default) or Poisson
+                                                        # (Eq. 7-8), a core.mesh.Mesh
 
 `relocate` warm-starts from the previous call's centreline (a still or slowly moving robot converges in
 one or two iterations) and `fuse` then deprojects only the pixels that can see a region of interest around
