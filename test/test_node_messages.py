@@ -95,7 +95,8 @@ def test_pixels_outside_the_camera_image_are_refused():
 
 @pytest.mark.parametrize("field, value, expected", [
     ("fx", math.inf, "fx is inf"), ("cx", math.nan, "cx is nan"), ("fy", 0.0, "fy is 0.0"),
-    ("fx", -300.0, "fx is -300.0"),
+    ("fx", -300.0, "fx is -300.0"), ("fy", 1e12, "fy is 1000000000000.0"), ("cx", 1e9, "cx is 1000000000.0"),
+    ("cy", -5000.0, "cy is -5000.0"),
 ])
 def test_camera_info_with_an_impossible_value_is_refused_naming_it(field, value, expected):
     k = {"fx": 0, "cx": 2, "fy": 4, "cy": 5}
@@ -119,3 +120,45 @@ def test_notch_markers_are_oriented_by_the_centreline_frames():
     for disc, rotation in zip(discs, rotations, strict=True):
         q = disc.pose.orientation
         np.testing.assert_allclose([q.x, q.y, q.z, q.w], matrix_to_quaternion(rotation), atol=1e-12)
+
+
+def stage_cloud(pixels, camera, footprint=1e-4) -> PointCloud2:
+    """A stage cloud of len(pixels) points in ntcr_base with the given pixels, camera index and footprint."""
+    from ntcr_recon.core.cloud import Cloud
+
+    pixels = np.asarray(pixels, dtype=np.int32)
+    cloud = Cloud(RNG.normal(size=(len(pixels), 3)) * 1e-3, None, np.full(len(pixels), camera, np.int8), 5,
+                  footprint, pixels)
+    return messages.stage_cloud_to_msg(cloud, "ntcr_base")
+
+
+@pytest.fixture(scope="module")
+def rig():
+    import tiny_rig
+
+    from ntcr_recon.core.config import rig_config_from_mapping
+
+    return rig_config_from_mapping(tiny_rig.rig_parameters())
+
+
+def test_a_stage_cloud_with_pixels_or_a_camera_the_rig_cannot_have_is_refused(rig):
+    # review: a 2-point cloud spanning 16000 px made the filters allocate a 2 GB pixel grid
+    width, height = rig.cameras[rig.camera_names[0]].width, rig.cameras[rig.camera_names[0]].height
+    with pytest.raises(messages.RefusedInputError, match="outside the") as error:
+        messages.stage_cloud_from_msg(stage_cloud([[0, 0], [16000, 16000]], 0), "ntcr_base", rig)
+    assert error.value.reason == "inconsistent"
+    with pytest.raises(messages.RefusedInputError, match="camera index 2 but the rig has 2 cameras"):
+        messages.stage_cloud_from_msg(stage_cloud([[0, 0], [1, 1]], len(rig.camera_names)), "ntcr_base", rig)
+    cloud = messages.stage_cloud_from_msg(stage_cloud([[0, 0], [width - 1, height - 1]], 1), "ntcr_base", rig)
+    assert cloud.pixel.max() == width - 1 and list(cloud.camera) == [1, 1]
+
+
+@pytest.mark.parametrize("footprint", [1e-12, math.inf, 0.5, -1e-4])
+def test_a_stage_cloud_with_an_impossible_pixel_footprint_is_refused(footprint):
+    # review: a footprint of 1e-12 m made the notch search cut the tube in 4e11 cells
+    with pytest.raises(messages.RefusedInputError, match="pixel_footprint") as error:
+        messages.stage_cloud_from_msg(stage_cloud([[0, 0], [1, 1]], 0, footprint), "ntcr_base")
+    assert error.value.reason == "inconsistent"
+    for usable in (0.0, 1e-4):  # 0: unknown
+        assert messages.stage_cloud_from_msg(stage_cloud([[0, 0], [1, 1]], 0, usable), "ntcr_base").pixel_footprint \
+            == pytest.approx(usable)

@@ -40,7 +40,7 @@ class FilterNode(RigNode):
         self.stats.received()
         started = time.perf_counter()
         check_point_count(msg, self._params["max_points"])
-        cloud = self._reconstructor.filter(stage_cloud_from_msg(msg, self.rig.base_frame))
+        cloud = self._reconstructor.filter(stage_cloud_from_msg(msg, self.rig.base_frame, self.rig))
         self._publisher.publish(stage_cloud_to_msg(cloud, self.rig.base_frame))
         self.stats.published(cloud.stamp_ns, started)
 

@@ -119,7 +119,7 @@ class MeshNode(RigNode):
         msg = deserialize_message(raw, PointCloud2)
         try:
             check_point_count(msg, self._params["max_points"])
-            _, normals = stage_cloud_and_normals(msg, self.rig.base_frame)  # refuse a bad cloud by name
+            _, normals = stage_cloud_and_normals(msg, self.rig.base_frame, self.rig)  # refuse a bad cloud by name
             if normals is None:
                 raise ValueError("relocated cloud has no normal_x/normal_y/normal_z fields (is it relocation_node's?)")
         except ValueError as error:
@@ -140,7 +140,7 @@ class MeshNode(RigNode):
         msg, self._newest = self._newest, None
         started = time.perf_counter()
         try:
-            relocation = relocation_from_msgs(msg, centerline, self.rig.base_frame)
+            relocation = relocation_from_msgs(msg, centerline, self.rig.base_frame, self.rig)
             mesh = self._reconstructor.mesh(relocation)
         except (ValueError, RuntimeError) as error:
             self.get_logger().error(f"no mesh from the relocated cloud at {stamp} ns: {error}")

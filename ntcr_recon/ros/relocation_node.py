@@ -76,7 +76,7 @@ class RelocationNode(RigNode):
         self.stats.received()
         started = time.perf_counter()
         check_point_count(msg, self._params["max_points"])
-        cloud = stage_cloud_from_msg(msg, self.rig.base_frame)
+        cloud = stage_cloud_from_msg(msg, self.rig.base_frame, self.rig)
         try:
             relocation = self._reconstructor.relocate(cloud, warm_start=self._params["warm_start"])
         except ReconstructionError as error:
