@@ -126,11 +126,17 @@ def make_executor(context=None):
     return SingleThreadedExecutor(context=context)
 
 
-def spin(executor, context, stop: threading.Event | None = None) -> None:
-    """Execute callbacks until the context shuts down or `stop` is set. spin_once in a loop: rclpy 7.1.5's
-    EventsExecutor.spin() busy-loops without dispatching anything."""
-    while context.ok() and not (stop is not None and stop.is_set()):
+def spin(executor, context, stop: threading.Event | None = None, failed: Callable[[], bool] | None = None) -> None:
+    """Execute callbacks until the context shuts down, `stop` is set or `failed()` holds. spin_once in a loop:
+    rclpy 7.1.5's EventsExecutor.spin() busy-loops without dispatching anything."""
+    while context.ok() and not (stop is not None and stop.is_set()) and not (failed is not None and failed()):
         executor.spin_once(timeout_sec=0.25)
+
+
+def failures(nodes: Sequence[Node]) -> list[str]:
+    """What ended the nodes that cannot go on (a node sets `failure`, e.g. camera_node when its producer thread
+    died): the process then exits non-zero, so that the runner / launch respawns it."""
+    return [f"{node.get_name()}: {node.failure}" for node in nodes if getattr(node, "failure", None)]
 
 
 def _shutting_down(context) -> bool:
@@ -158,13 +164,17 @@ def run_nodes(node_factories: Sequence[Callable[[], Node]], args: list[str] | No
     stop = threading.Event()
     previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
     nodes: list[Node] = []
+    exit_code = 0
     try:
         for factory in node_factories:
             nodes.append(factory())
         executor = make_executor(context)
         for node in nodes:
             executor.add_node(node)
-        spin(executor, context, stop)
+        spin(executor, context, stop, lambda: bool(failures(nodes)))
+        for failure in failures(nodes):
+            print(f"error: {failure}", file=sys.stderr)
+            exit_code = 1
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except RuntimeError:
@@ -182,7 +192,7 @@ def run_nodes(node_factories: Sequence[Callable[[], Node]], args: list[str] | No
             rclpy.shutdown()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
-    return 0
+    return exit_code
 
 
 # ---- rig-configured nodes -------------------------------------------------------------------------------------
