@@ -86,13 +86,13 @@ def validate_on_change(node: Node, names: Sequence[str], apply: Callable[[dict[s
 
 
 def guarded(callback: Callable) -> Callable:
-    """Wrap a subscription callback so bad input is logged and the node goes on with the next message."""
+    """Wrap a subscription (or timer) callback so bad input is logged and the node goes on with the next one."""
 
     @functools.wraps(callback)
-    def wrapper(self: Node, msg) -> None:
+    def wrapper(self: Node, *args) -> None:
         stats = getattr(self, "stats", None)  # a node with a NodeStats counts the drop and limits the log
         try:
-            callback(self, msg)
+            callback(self, *args)
         except ValueError as error:  # bad input: say what was wrong with it
             if stats is not None:
                 stats.dropped(getattr(error, "reason", "invalid"), str(error))
