@@ -179,8 +179,9 @@ def run_nodes(node_factories: Sequence[Callable[[], Node]], args: list[str] | No
         pass
     except RuntimeError:
         # e.g. "Unable to convert call argument '0' to Python object" from a take interrupted by Ctrl-C: a clean
-        # stop when the context is going down; any other RuntimeError is a bug and stays one.
-        if not _shutting_down(context):
+        # stop when a stop was asked for (our SIGINT / SIGTERM handler: with SignalHandlerOptions.NO the context
+        # is not shut down by a Ctrl-C) or the context is going down; any other RuntimeError is a bug and stays one.
+        if not (stop.is_set() or _shutting_down(context)):
             raise
     except (ParameterError, ParameterException) as error:  # refused at start-up: say which, exit non-zero
         print(f"error: {error}", file=sys.stderr)
