@@ -138,6 +138,37 @@ def test_run_respawns_a_node_that_dies_and_the_graph_goes_on(tmp_path):
     assert code == 0, text
 
 
+def test_nodes_end_when_run_is_killed(tmp_path):
+    # review: the nodes run in their own sessions; a SIGKILLed `ntcr-recon run` left them orphaned, running
+    from ros_graph import RosGraph
+
+    log_path = tmp_path / "run.log"
+    with RosGraph() as ros, log_path.open("w") as log:
+        run = subprocess.Popen([str(RUN), "run", "--config", "bags/bend45/rig.yaml", "--bag", "bags/bend45",
+                                "--loop", "--no-mesh", "--duration", "120"], cwd=REPO, env=ros.env, stdout=log,
+                               stderr=subprocess.STDOUT)
+        try:
+            assert ros.spin_until(lambda: len(node_names(run.pid)) == 5, 60), log_path.read_text()
+            children = list(node_names(run.pid))
+        finally:
+            run.kill()
+            run.wait(timeout=30)
+        try:
+            assert ros.spin_until(lambda: not any(Path(f"/proc/{pid}").exists() and not _zombie(pid)
+                                                  for pid in children), 30), log_path.read_text()
+        finally:
+            for pid in children:  # never leave them behind, even when the test fails
+                if Path(f"/proc/{pid}").exists():
+                    os.kill(pid, signal.SIGKILL)
+
+
+def _zombie(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z"
+    except (OSError, IndexError):
+        return True
+
+
 def node_names(run_pid: int) -> dict[int, str]:
     """pid -> node name of the children of `ntcr-recon run`."""
     pids = [int(p) for p in subprocess.run(["pgrep", "-P", str(run_pid)], capture_output=True,

@@ -185,8 +185,31 @@ def run_processes(commands: list[NodeCommand], duration: float = 0.0, respawn: b
 
 
 def _start(command: NodeCommand) -> subprocess.Popen:
-    # Own process group: a terminal's Ctrl-C reaches this command only, which stops the nodes in order.
-    return subprocess.Popen(command.argv, start_new_session=True)
+    # Own process group: a terminal's Ctrl-C reaches this command only, which stops the nodes in order. Out of
+    # our group, a node would outlive a SIGKILLed runner: the kernel sends it SIGTERM then (Linux).
+    return subprocess.Popen(command.argv, start_new_session=True, preexec_fn=_terminate_with_parent())
+
+
+PR_SET_PDEATHSIG = 1  # linux/prctl.h
+
+
+def _terminate_with_parent():
+    """A preexec_fn asking the kernel to SIGTERM the child when this process dies, however it dies (Linux
+    prctl PR_SET_PDEATHSIG); None elsewhere, where the child is left as before."""
+    if not sys.platform.startswith("linux"):
+        return None
+    import ctypes
+    import os
+
+    libc = ctypes.CDLL(None, use_errno=True)
+    parent = os.getpid()
+
+    def preexec() -> None:
+        libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
+        if os.getppid() != parent:  # the runner died before the prctl: nobody would send the signal
+            os._exit(1)
+
+    return preexec
 
 
 def _supervise(running: list[_Running], respawn: bool) -> bool:
