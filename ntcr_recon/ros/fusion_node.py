@@ -12,7 +12,9 @@ returns (OK).
 Every input is bounded before anything is allocated for it: a cloud of more than `max_points` points, or
 whose pixel_u/pixel_v lie outside the camera's image (camera_info, else the configured width/height), and a
 camera_info with a non-finite or non-positive focal length, centre or size are dropped with a log line naming
-what was wrong, and counted (`/diagnostics`: dropped.<reason>).
+what was wrong, and counted (`/diagnostics`: dropped.<reason>). An empty cloud is a camera that saw nothing in
+its crop box (camera_node publishes only the points inside it): a frame of that camera with no points, paired
+as any other; a pair in which no camera saw anything is not published (counted: dropped.empty).
 """
 
 from __future__ import annotations
@@ -126,6 +128,9 @@ class FusionNode(RigNode):
         frames = {name: camera_frame(name, release.stamp_ns, xyz, rgb, pixel, width, self._intrinsics.get(name))
                   for name, (xyz, rgb, pixel, width) in release.items.items()}
         cloud = fuse(FramePair(release.stamp_ns, frames), self.rig)
+        if not len(cloud):  # no camera saw anything in the crop box: nothing for the stages (counted, not logged)
+            self.stats.drops["empty"] += 1
+            return
         self._publisher.publish(stage_cloud_to_msg(cloud, self.rig.base_frame))
         self.stats.published(release.stamp_ns, started)
 

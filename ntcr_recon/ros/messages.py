@@ -191,10 +191,12 @@ def camera_cloud_from_msg(msg: PointCloud2, expected_frame: str
     """A camera cloud, compact: (points, colours, pixels (N, 2) or None, organised width).
 
     An organised cloud comes back whole (NaN = no return) with its width; an unorganised one as its finite
-    points with their `pixel_u`/`pixel_v` when it carries them (width 0). `camera_frame` makes the core's
-    CameraFrame of it; kept apart so that a frame waiting for its partner costs its points, not a grid.
+    points with their `pixel_u`/`pixel_v` when it carries them (width 0). An empty cloud is a camera that saw
+    nothing in its crop box (camera_node publishes only the points inside it): a frame with no points, not an
+    error. `camera_frame` makes the core's CameraFrame of it; kept apart so that a frame waiting for its
+    partner costs its points, not a grid.
     """
-    xyz, rgb = input_cloud(msg, expected_frame, keep_nan=True)
+    xyz, rgb = input_cloud(msg, expected_frame, keep_nan=True, allow_empty=True)
     if msg.height > 1:
         return xyz, rgb, None, int(msg.width)
     pixels = read_points(msg, ("pixel_u", "pixel_v"))
@@ -213,6 +215,8 @@ def camera_frame(camera: str, stamp_ns: int, xyz: np.ndarray, rgb: np.ndarray | 
     """The core's CameraFrame of a camera cloud (`camera_cloud_from_msg`): points with pixels are laid out
     row-major on the grid of the pixels they span (NaN where none), which the core reads as an organised
     cloud; others go as they are."""
+    if pixel is not None and not len(xyz):  # an empty grid: the fused cloud keeps the other camera's pixels
+        return CameraFrame(camera, stamp_ns, points=xyz, rgb=rgb, organised_width=1, intrinsics=intrinsics)
     if pixel is None or not len(xyz):
         return CameraFrame(camera, stamp_ns, points=xyz, rgb=rgb, organised_width=organised_width,
                            intrinsics=intrinsics)
@@ -228,14 +232,16 @@ def camera_frame(camera: str, stamp_ns: int, xyz: np.ndarray, rgb: np.ndarray | 
     return CameraFrame(camera, stamp_ns, points=grid, rgb=colors, organised_width=width, intrinsics=intrinsics)
 
 
-def input_cloud(msg: PointCloud2, expected_frame: str, keep_nan: bool = False
+def input_cloud(msg: PointCloud2, expected_frame: str, keep_nan: bool = False, allow_empty: bool = False
                 ) -> tuple[np.ndarray, np.ndarray | None]:
     """The points (and colours) of an input cloud, NaN points dropped unless `keep_nan` (an organised cloud
     keeps its grid); ValueError naming the defect for a cloud in another frame than the configuration's, with
-    broken layout, or without a single finite point."""
+    broken layout, or without a single finite point (a cloud of 0 points passes with `allow_empty`)."""
     require_frame(msg, expected_frame)
     xyz, rgb = cloud_from_msg(msg, drop_nan=False)  # validates the layout and names what is wrong
     if not len(xyz):
+        if allow_empty:
+            return xyz, rgb
         raise ValueError("empty cloud (0 points)")
     finite = np.isfinite(xyz).all(axis=1)
     if not finite.any():
