@@ -209,3 +209,32 @@ def test_a_producer_thread_that_dies_ends_the_process_non_zero(tmp_path):
         log = graph.log_of(process)
         assert process.returncode == 1, log
         assert "camera source failed: RuntimeError: a bug in the producer" in log, log
+
+
+def test_destroy_node_closes_a_device_the_producer_opened_while_the_node_stopped(monkeypatch):
+    # review: destroy_node closed the source before joining the producer thread, so a device opened in between
+    # (a camera waited for that appears just then) was never closed
+    import threading
+
+    from rclpy.node import Node
+
+    from ntcr_recon.ros import camera_node
+
+    class Device:
+        closed = False
+
+        def close(self) -> None:
+            self.closed = True
+
+    monkeypatch.setattr(Node, "destroy_node", lambda self: None)  # no rclpy node behind this one
+    node = camera_node.CameraNode.__new__(camera_node.CameraNode)
+    node._stop, node._source, device = threading.Event(), None, Device()
+
+    def producer() -> None:  # _wait_for_device, the device found as the stop comes
+        node._stop.wait()
+        node._source = device
+
+    node._thread = threading.Thread(target=producer)
+    node._thread.start()
+    node.destroy_node()
+    assert device.closed

@@ -289,11 +289,18 @@ class CameraNode(RigNode):
 
     def destroy_node(self) -> None:
         self._stop.set()
-        if self._source is not None and hasattr(self._source, "close"):
-            self._source.close()
+        source = self._source
+        _close(source)  # wakes a producer blocked in the source (a frame wait, a reconnect delay)
         if getattr(self, "_thread", None) is not None:
             self._thread.join(timeout=5)
+        if self._source is not source:  # a device the producer opened meanwhile (waiting for it) is closed too
+            _close(self._source)
         super().destroy_node()
+
+
+def _close(source) -> None:
+    if source is not None and hasattr(source, "close"):
+        source.close()
 
 
 def main(args: list[str] | None = None) -> int:
