@@ -87,6 +87,8 @@ def test_run_starts_one_camera_node_per_camera_and_every_stage(tmp_path):
     (["--config", "config/sim_rig.yaml", "--bag", "/nonexistent/bag"], "bag /nonexistent/bag does not exist"),
     (["--config", "config/sim_rig.yaml", "--file", "cam_z=/x.bag"], "CAM one of ['cam_a', 'cam_b']"),
     (["--config", "config/sim_rig.yaml", "--param", "nope_node:rate:=1"], "unknown node(s) ['nope_node']"),
+    # review: a bad --output was a traceback (README.md is a file, not a folder)
+    (["--config", "config/sim_rig.yaml", "--output", "README.md/out"], "--output README.md/out: Not a directory"),
 ])
 def test_run_refuses_bad_arguments_by_name(argv, message):
     result = subprocess.run([str(RUN), "run", *argv], capture_output=True, text=True, cwd=REPO, timeout=60)

@@ -118,7 +118,11 @@ def main(args: argparse.Namespace) -> int:
         print(f"error: {error}", file=sys.stderr)
         return 2
     if args.output is not None:
-        args.output.mkdir(parents=True, exist_ok=True)
+        try:
+            args.output.mkdir(parents=True, exist_ok=True)
+        except OSError as error:  # an --output that cannot be a folder (a file on the way, no permission)
+            print(f"error: --output {args.output}: {error.strerror or error}", file=sys.stderr)
+            return 2
     if args.single_process:
         with tempfile.TemporaryDirectory(prefix="ntcr-run-") as folder:
             host = single_process_command(commands, args.config, Path(folder) / "nodes.yaml")
