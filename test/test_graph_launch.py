@@ -322,3 +322,33 @@ def test_run_single_process_hosts_every_node_in_one_process(tmp_path):
     assert code == 0, log_path.read_text()
     assert "Traceback" not in log_path.read_text()
 
+
+
+@pytest.mark.parametrize("value", ["1_000", "1:30", "~", "1e3", "yes", "[1.0, 2.5]"])
+def test_single_process_types_a_param_as_a_process_per_node_does(tmp_path, value):
+    # review: --single-process re-parsed --param values with PyYAML (YAML 1.1: '1_000' 1000, '1:30' 90, '~' null)
+    # while a process per node hands them to rcl's `-p`; both now go through rcl's parser
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.node import Node
+
+    def parsed(ros_args: list[str]):
+        context = Context()
+        rclpy.init(context=context, args=["node", "--ros-args", *ros_args])
+        try:
+            node = Node("mesh_node", context=context, automatically_declare_parameters_from_overrides=True)
+            result = node.get_parameter("rate").value
+            node.destroy_node()
+            return result
+        finally:
+            rclpy.shutdown(context=context)
+
+    args = parse(["--config", "config/sim_rig.yaml", "--bag", "bags/bend45", "--param", f"mesh_node:rate:={value}"])
+    commands = graph.node_commands(args, ["cam_a", "cam_b"])
+    per_process = next(c for c in commands if c.name == "mesh_node").argv
+    host = graph.single_process_command(commands, Path("config/sim_rig.yaml"), tmp_path / "nodes.yaml")
+    node_file = host.argv[host.argv.index("--params-file", host.argv.index("--params-file") + 1) + 1]
+    expected = parsed(["-p", f"rate:={value}"])
+    assert f"-p rate:={value}" in " ".join(per_process)
+    got = parsed(["--params-file", node_file])
+    assert got == expected and type(got) is type(expected)

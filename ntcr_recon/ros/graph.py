@@ -95,10 +95,12 @@ def _extra_parameters(items: list[str]) -> dict[str, dict[str, str]]:
     return extra
 
 
-def _argv(executable: str, node_name: str, config: Path, parameters: dict[str, object]) -> list[str]:
-    def ros_value(value: object) -> str:
-        return str(value).lower() if isinstance(value, bool) else str(value)
+def ros_value(value: object) -> str:
+    """A parameter value as rcl reads it from `-p name:=VALUE` (or a parameter file's plain scalar)."""
+    return str(value).lower() if isinstance(value, bool) else str(value)
 
+
+def _argv(executable: str, node_name: str, config: Path, parameters: dict[str, object]) -> list[str]:
     argv = [sys.executable, "-m", f"ntcr_recon.ros.{executable}", "--ros-args", "-r", f"__node:={node_name}",
             "--params-file", str(config.resolve())]
     for name, value in parameters.items():
@@ -132,15 +134,19 @@ def main(args: argparse.Namespace) -> int:
 
 def single_process_command(commands: list[NodeCommand], config: Path, parameters_file: Path) -> NodeCommand:
     """One process hosting every node of `commands`: each node's own parameters go to a parameter file section
-    under its name (a global `-p` would reach every node of the process), the rig configuration as it is."""
-    import yaml
+    under its name (a global `-p` would reach every node of the process), the rig configuration as it is.
 
-    sections = {}
-    for command in commands:
-        values = {name: yaml.safe_load(value) if isinstance(value, str) else value
-                  for name, value in command.parameters.items()}
-        sections[command.name] = {"ros__parameters": values}
-    parameters_file.write_text(yaml.safe_dump(sections))
+    Each value is written as the plain scalar `-p name:=VALUE` would give rcl, so that rcl's parser types it in
+    both modes alike (PyYAML's YAML 1.1 rules differ from rcl's: `1e3` is a string to PyYAML, 1000.0 to rcl)."""
+    lines = []
+    for command in (c for c in commands if c.parameters):  # rcl refuses an empty ros__parameters
+        lines += [f"{command.name}:", "  ros__parameters:"]
+        for name, value in command.parameters.items():
+            text = ros_value(value)
+            if "\n" in text or "\r" in text:
+                raise ValueError(f"parameter {command.name}:{name}: a value must be one line, got {text!r}")
+            lines.append(f"    {name}: {text}")
+    parameters_file.write_text("\n".join(lines) + "\n")
     specs = [f"{_executable(command)}={command.name}" for command in commands]
     argv = [sys.executable, "-m", "ntcr_recon.ros.single_process", *specs, "--ros-args",
             "--params-file", str(config.resolve()), "--params-file", str(parameters_file)]
