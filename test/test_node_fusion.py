@@ -155,6 +155,12 @@ def test_one_camera_stopped_mid_stream_then_back(fusion):
     assert "camera 'cam_b' is back" in graph.log_of(fusion.process)
 
 
+def test_diagnostics_period_is_read_only(fusion):
+    # review: a change was accepted but never applied (the timer is made once)
+    refused = set_parameter(fusion.graph, "fusion_node", "diagnostics_period", 5.0)
+    assert not refused.successful and "read-only" in refused.reason.lower(), refused.reason
+
+
 def test_a_bad_rig_parameter_change_is_refused_by_its_key_and_fusion_goes_on(fusion):
     # Runs after the stop-and-return test, whose stamps were later: the jump back restarts the pairing.
     refused = set_parameter(fusion.graph, "fusion_node", "fusion.slop", -0.01)

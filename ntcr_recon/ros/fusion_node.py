@@ -49,7 +49,8 @@ PARAMETERS = {
     "publish_unpaired": (False, describe("publish a frame whose partner was lost (the other camera is alive but "
                                          "its frame never came) alone, as the offline command fuses it; false: "
                                          "drop it and count it")),
-    "diagnostics_period": (1.0, describe("seconds between /diagnostics messages", minimum=0.05, maximum=60.0)),
+    "diagnostics_period": (1.0, describe("seconds between /diagnostics messages (read at start)", minimum=0.05,
+                                         maximum=60.0, read_only=True)),
     "max_points": (DEFAULT_MAX_POINTS, describe("largest camera cloud accepted (points); a larger one is dropped "
                                                 "before it is read", minimum=1, maximum=100_000_000, integer=True)),
 }

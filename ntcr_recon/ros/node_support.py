@@ -225,6 +225,10 @@ def rig_parameter_descriptor(key) -> ParameterDescriptor:
     return descriptor
 
 
+# Rig keys a running node cannot apply (its topics are made once): refused on change, as read-only.
+READ_ONLY_RIG_PREFIXES = ("topics.",)
+
+
 class RigNode(Node):
     """A node configured by the rig configuration (attribute `rig`, a RigConfig) plus its own parameters.
 
@@ -237,8 +241,10 @@ class RigNode(Node):
         from ntcr_recon.core.config import rig_parameter_keys
 
         super().__init__(node_name)
+        # read-only, as the topics: the subscriptions and publishers are made once, from the start values
         self.declare_parameter("camera_names", ["cam_a", "cam_b"], ParameterDescriptor(
-            description="rig configuration: names of the cameras, each with its own section", dynamic_typing=True))
+            description="rig configuration: names of the cameras, each with its own section", dynamic_typing=True,
+            read_only=True))
         camera_names = self.get_parameter("camera_names").value
         if not isinstance(camera_names, list | tuple) or not all(isinstance(n, str) and n for n in camera_names):
             raise ParameterError(f"parameter 'camera_names' must be a list of camera names, got {camera_names!r}")
@@ -258,7 +264,9 @@ class RigNode(Node):
         names = self._rig_names + self._own_names
         self._configure_from({name: self.get_parameter(name).value for name in names})
         for name, key in rig_keys.items():
-            self.set_descriptor(name, rig_parameter_descriptor(key))
+            descriptor = rig_parameter_descriptor(key)
+            descriptor.read_only = name.startswith(READ_ONLY_RIG_PREFIXES)
+            self.set_descriptor(name, descriptor)
         validate_on_change(self, names, self._configure_from)
 
     def set_parameters_atomically(self, parameter_list):
