@@ -162,3 +162,14 @@ def test_a_stage_cloud_with_an_impossible_pixel_footprint_is_refused(footprint):
     for usable in (0.0, 1e-4):  # 0: unknown
         assert messages.stage_cloud_from_msg(stage_cloud([[0, 0], [1, 1]], 0, usable), "ntcr_base").pixel_footprint \
             == pytest.approx(usable)
+
+
+def test_fusion_buffers_what_the_rig_needs_by_default(rig):
+    # review: the default queue of 10 frames was less than a 0.5 s camera timeout at 30 Hz (15 frames)
+    from dataclasses import replace
+
+    from ntcr_recon.ros.fusion_node import PARAMETERS, rig_queue_size
+
+    assert PARAMETERS["queue_size"][0] == 0  # 0: from the rig
+    slow = replace(rig, fusion=replace(rig.fusion, camera_timeout=0.5, slop=0.01))
+    assert rig_queue_size(slow) == math.ceil(0.51 * 30) + 2 == 18

@@ -19,6 +19,7 @@ as any other; a pair in which no camera saw anything is not published (counted: 
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 
@@ -44,8 +45,9 @@ from ntcr_recon.ros.node_support import SENSOR_QOS, STAGE_QOS, RigNode, describe
 from ntcr_recon.ros.topics import stage_topic
 
 PARAMETERS = {
-    "queue_size": (10, describe("frames buffered per camera while waiting for a partner", minimum=1, maximum=300,
-                                integer=True)),
+    "queue_size": (0, describe("frames buffered per camera while waiting for a partner; 0: what the rig needs, "
+                               "ceil((fusion.camera_timeout + fusion.slop) * fps) + 2", minimum=0, maximum=300,
+                               integer=True)),
     "publish_unpaired": (False, describe("publish a frame whose partner was lost (the other camera is alive but "
                                          "its frame never came) alone, as the offline command fuses it; false: "
                                          "drop it and count it")),
@@ -55,6 +57,14 @@ PARAMETERS = {
                                                 "before it is read", minimum=1, maximum=100_000_000, integer=True)),
 }
 DIAGNOSTIC_NAME = "ntcr_recon: fusion"
+
+
+def rig_queue_size(rig) -> int:
+    """Frames per camera a pairer must hold: all a camera sends while the other may still be heard from (the
+    camera timeout plus the slop, at the fastest camera's rate), and two to spare. A fixed 10 was less than a
+    0.5 s timeout at 30 Hz (15): frames were superseded before their partner was given up on."""
+    fps = max(rig.cameras[name].fps for name in rig.camera_names)
+    return min(math.ceil((rig.fusion.camera_timeout + rig.fusion.slop) * fps) + 2, 300)
 
 
 class FusionNode(RigNode):
@@ -80,14 +90,15 @@ class FusionNode(RigNode):
     def configure(self, rig, params: dict) -> None:
         self.rig, self._params = rig, params
         slop_ns, timeout_ns = int(rig.fusion.slop * 1e9), int(rig.fusion.camera_timeout * 1e9)
+        queue_size = int(params["queue_size"]) or rig_queue_size(rig)
         pairer = self._pairer
         if pairer is None or pairer.cameras != tuple(rig.camera_names):
-            self._pairer = FramePairer(rig.camera_names, slop_ns, timeout_ns, int(params["queue_size"]),
+            self._pairer = FramePairer(rig.camera_names, slop_ns, timeout_ns, queue_size,
                                        bool(params["publish_unpaired"]))
         else:  # keep what is buffered and counted
             pairer.slop_ns, pairer.timeout_ns = slop_ns, timeout_ns
             pairer.publish_unpaired = bool(params["publish_unpaired"])
-            pairer.resize(int(params["queue_size"]))
+            pairer.resize(queue_size)
 
     @guarded
     def _on_info(self, item) -> None:
