@@ -173,3 +173,12 @@ def test_fusion_buffers_what_the_rig_needs_by_default(rig):
     assert PARAMETERS["queue_size"][0] == 0  # 0: from the rig
     slow = replace(rig, fusion=replace(rig.fusion, camera_timeout=0.5, slop=0.01))
     assert rig_queue_size(slow) == math.ceil(0.51 * 30) + 2 == 18
+
+
+def test_every_node_reading_clouds_declares_the_same_max_points():
+    # review: the max_points parameter was declared four times (four texts)
+    from ntcr_recon.ros import filter_node, fusion_node, mesh_node, relocation_node
+    from ntcr_recon.ros.node_support import max_points_parameter
+
+    declared = [module.PARAMETERS["max_points"] for module in (fusion_node, filter_node, relocation_node, mesh_node)]
+    assert all(parameter == max_points_parameter() for parameter in declared)

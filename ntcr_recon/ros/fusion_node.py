@@ -31,7 +31,6 @@ from ntcr_recon.core.fusion import FramePair, fuse
 from ntcr_recon.core.pairing import FramePairer, Release
 from ntcr_recon.io.pointcloud import stamp_to_ns
 from ntcr_recon.ros.messages import (
-    DEFAULT_MAX_POINTS,
     RefusedInputError,
     camera_cloud_from_msg,
     camera_frame,
@@ -41,7 +40,15 @@ from ntcr_recon.ros.messages import (
     stage_cloud_to_msg,
 )
 from ntcr_recon.ros.node_stats import NodeStats
-from ntcr_recon.ros.node_support import SENSOR_QOS, STAGE_QOS, RigNode, describe, guarded, run_node
+from ntcr_recon.ros.node_support import (
+    SENSOR_QOS,
+    STAGE_QOS,
+    RigNode,
+    describe,
+    guarded,
+    max_points_parameter,
+    run_node,
+)
 from ntcr_recon.ros.topics import stage_topic
 
 PARAMETERS = {
@@ -53,8 +60,7 @@ PARAMETERS = {
                                          "drop it and count it")),
     "diagnostics_period": (1.0, describe("seconds between /diagnostics messages (read at start)", minimum=0.05,
                                          maximum=60.0, read_only=True)),
-    "max_points": (DEFAULT_MAX_POINTS, describe("largest camera cloud accepted (points); a larger one is dropped "
-                                                "before it is read", minimum=1, maximum=100_000_000, integer=True)),
+    "max_points": max_points_parameter(),
 }
 DIAGNOSTIC_NAME = "ntcr_recon: fusion"
 

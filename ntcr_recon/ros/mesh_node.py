@@ -34,7 +34,6 @@ from ntcr_recon.core.pipeline import Reconstructor
 from ntcr_recon.io.files import write_mesh
 from ntcr_recon.io.pointcloud import stamp_to_ns
 from ntcr_recon.ros.messages import (
-    DEFAULT_MAX_POINTS,
     check_point_count,
     mesh_marker_bytes,
     mesh_msg_bytes,
@@ -42,7 +41,16 @@ from ntcr_recon.ros.messages import (
     stage_cloud_and_normals,
 )
 from ntcr_recon.ros.node_stats import NodeStats
-from ntcr_recon.ros.node_support import LATCHED_QOS, STAGE_QOS, ParameterError, RigNode, describe, guarded, run_node
+from ntcr_recon.ros.node_support import (
+    LATCHED_QOS,
+    STAGE_QOS,
+    ParameterError,
+    RigNode,
+    describe,
+    guarded,
+    max_points_parameter,
+    run_node,
+)
 from ntcr_recon.ros.topics import stage_topic
 
 CENTERLINES_KEPT = 4
@@ -51,8 +59,7 @@ PARAMETERS = {
     "rate": (1.0, describe("meshes per second (of the node's clock)", minimum=0.01, maximum=30.0)),
     "save_ply_path": ("", describe("setting it writes the newest mesh to this PLY file")),
     "output_dir": ("", describe("when set, every new mesh is also written to <output_dir>/mesh.ply")),
-    "max_points": (DEFAULT_MAX_POINTS, describe("largest cloud accepted (points); a larger one is dropped before it "
-                                                "is read", minimum=1, maximum=100_000_000, integer=True)),
+    "max_points": max_points_parameter(),
 }
 
 

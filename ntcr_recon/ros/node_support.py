@@ -56,6 +56,14 @@ def describe(description: str, *, minimum: float | None = None, maximum: float |
     return descriptor
 
 
+def max_points_parameter() -> tuple[int, ParameterDescriptor]:
+    """The `max_points` parameter every node reading clouds declares (default and descriptor in one place)."""
+    from ntcr_recon.ros.messages import DEFAULT_MAX_POINTS
+
+    return DEFAULT_MAX_POINTS, describe("largest cloud accepted (points); a larger one is dropped before it is read",
+                                        minimum=1, maximum=100_000_000, integer=True)
+
+
 def finite_vector(name: str, value: Sequence[float], length: int) -> list[float]:
     """`value` as a list of `length` finite floats, or a ParameterError naming `name`."""
     values = list(value) if value is not None else []
