@@ -279,11 +279,12 @@ def test_replay_launch_gives_the_cameras_one_start_time_as_run_does(monkeypatch)
     # issue 11: without one start_time the cameras replayed out of step.
     import time
 
+    before = time.time()  # the start time is START_DELAY_S after the launch, not after this assertion
     nodes = launched_nodes(REPO / "launch" / "replay.launch.py", monkeypatch, bag=str(REPO / "bags" / "bend45"),
                            loop="true")
     cameras = [dict(n.kwargs["parameters"][1]) for n in nodes if n.kwargs["executable"] == "camera_node"]
     assert len(cameras) == 2 and all(n.kwargs["respawn"] is True for n in nodes)
-    assert cameras[0]["start_time"] == cameras[1]["start_time"] > time.time()
+    assert cameras[0]["start_time"] == cameras[1]["start_time"] >= before + graph.START_DELAY_S - 0.001
     assert all(c["loop"] is True and c["source"] == "bag" for c in cameras)
     assert [c["publish_clock"] for c in cameras] == [True, False]
 
