@@ -1,6 +1,7 @@
-"""Messages the nodes build from arrays: the serialized Path, mesh Marker and Mesh are byte for byte what rclpy
-serializes from the same message built field by field (one Python object per point, as before), and the input
-checks refuse what would otherwise allocate or fail later."""
+"""Messages the nodes build from arrays: the serialized Path, mesh Marker and Mesh decode to the message rclpy
+serializes from the same message built field by field (one Python object per point, as before; compared decoded,
+not byte for byte: rclpy leaves alignment padding bytes unset), and the input checks refuse what would otherwise
+allocate or fail later."""
 
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker
 
 from ntcr_recon.core.transforms import matrix_to_quaternion
-from ntcr_recon.ros import messages
+from ntcr_recon.ros import cdr, messages
 
 RNG = np.random.default_rng(7)
 
@@ -73,6 +74,19 @@ def test_mesh_marker_and_mesh_bytes_decode_as_the_point_by_point_messages(frame_
     got_vertices, got_triangles = messages.mesh_from_msg(messages.mesh_msg(vertices, faces))
     np.testing.assert_array_equal(got_vertices, vertices)
     np.testing.assert_array_equal(got_triangles, faces)
+
+
+@pytest.mark.parametrize("triangles", [1, 2, 3])
+def test_points_spliced_after_a_count_that_needs_padding_decode_as_rclpy_writes_them(triangles):
+    # The vertices' count of a Mesh with an odd number of triangles ends on an 8-byte boundary minus 4: the
+    # points then follow 4 bytes of padding (cdr._points_count_offset's second case, which no Marker reaches).
+    faces = [MeshTriangle(vertex_indices=[0, 1, 2]) for _ in range(triangles)]
+    vertices = RNG.normal(size=(5, 3))
+    built = Mesh(triangles=faces, vertices=[Point(x=x, y=y, z=z) for x, y, z in vertices.tolist()])
+    spliced = cdr.with_points(Mesh(triangles=faces), "vertices", vertices)
+    reference = serialize_message(built)
+    assert len(spliced) == len(reference)
+    assert deserialize_message(spliced, Mesh) == built
 
 
 def test_an_oversized_cloud_is_refused_from_its_header():
