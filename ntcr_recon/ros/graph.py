@@ -1,4 +1,4 @@
-"""`ntcr-recon run`: start the whole graph without `ros2 launch`, every node in its own process.
+"""`ntcr-recon run`: start the whole graph without `ros2 launch`, a process per node (or one, `--single-process`).
 
     ntcr-recon run --config config/sim_rig.yaml --bag bags/bend45 [--rate 1] [--loop] [--use-sim-time]
     ntcr-recon run --config my_rig.yaml                      # live D405s (camera_node's realsense source)
