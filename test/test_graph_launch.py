@@ -181,7 +181,9 @@ def node_names(run_pid: int) -> dict[int, str]:
             argv = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
         except OSError:
             continue
-        names[pid] = next(a.decode().split(":=")[1] for a in argv if a.startswith(b"__node:="))
+        name = next((a.decode().split(":=")[1] for a in argv if a.startswith(b"__node:=")), None)
+        if name is not None:  # None: forked, not yet exec'd (still the runner's command line)
+            names[pid] = name
     return names
 
 
