@@ -18,6 +18,7 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 
 from launch import LaunchDescription
+from ntcr_recon.ros.graph import START_DELAY_S
 
 
 def _rig_launch():
@@ -31,7 +32,6 @@ def _rig_launch():
 
 rig_launch = _rig_launch()
 common_arguments, graph_nodes = rig_launch.common_arguments, rig_launch.graph_nodes
-START_DELAY_S = 3.0  # s for the node processes to start before the first frame is due (as ntcr-recon run)
 
 
 def bag_source(context, index: int) -> dict:

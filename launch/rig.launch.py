@@ -5,22 +5,25 @@ ros2 launch ntcr_recon rig.launch.py config:=/path/to/my_rig.yaml [rviz:=true] [
 The rig configuration (a ROS 2 parameter file, see config/rig_template.yaml) names the cameras (their serial
 numbers, stream profiles and extrinsics), the robot and the stages' settings; every node reads it. A node that
 dies is started again after `respawn_delay` seconds (as `ntcr-recon run` does), and a camera that is not
-plugged in is waited for by its camera_node (a log line every few seconds, /diagnostics ERROR).
+plugged in is waited for by its camera_node (a log line every few seconds, /diagnostics ERROR). A node that
+refuses its configuration (exit code 2) would refuse it at every respawn: the launch is shut down instead, as
+`ntcr-recon run` stops the graph. The stage nodes and the respawn delay are `ntcr-recon run`'s
+(ntcr_recon.ros.graph).
 """
 
 import os
 
 import yaml
 from ament_index_python.packages import get_package_share_directory
-from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.actions import DeclareLaunchArgument, EmitEvent, OpaqueFunction, RegisterEventHandler
 from launch.conditions import IfCondition
+from launch.event_handlers import OnProcessExit
+from launch.events import Shutdown
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 from launch import LaunchDescription
-
-STAGE_NODES = ("fusion_node", "filter_node", "relocation_node", "mesh_node")
-RESPAWN_DELAY_S = 2.0  # a node that dies (a crash, the OOM killer) is started again after this
+from ntcr_recon.ros.graph import CONFIG_REFUSED, RESPAWN_DELAY_S, STAGE_NODES
 
 
 def camera_names(config_path: str) -> list[str]:
@@ -52,9 +55,18 @@ def live_cameras(context, index: int) -> dict:
     return {"source": "realsense"}
 
 
+def shutdown_on_refused_configuration(event, context) -> list:
+    """OnProcessExit: a node that refused its configuration (exit code CONFIG_REFUSED) would refuse it again at
+    every respawn, forever; shut the launch down instead, naming it. Any other exit: respawn does its work."""
+    if event.returncode != CONFIG_REFUSED:
+        return []
+    return [EmitEvent(event=Shutdown(reason=f"{event.name} refused its configuration (exit code {CONFIG_REFUSED})"))]
+
+
 def common_arguments(default_config: str) -> list:
     share = get_package_share_directory("ntcr_recon")
     return [
+        RegisterEventHandler(OnProcessExit(on_exit=shutdown_on_refused_configuration)),
         DeclareLaunchArgument("config", default_value=default_config, description="rig configuration (YAML)"),
         DeclareLaunchArgument("mesh_rate", default_value="1.0", description="meshes per second"),
         DeclareLaunchArgument("rviz", default_value="false", description="start RViz2 with config/ntcr.rviz"),

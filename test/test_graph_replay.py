@@ -128,7 +128,8 @@ def test_relocated_clouds_and_notches_match_the_core(reference, replay):
         cloud, normals = stage_cloud_and_normals(cloud_msg, config.base_frame)
         cameras = tuple(int(c) for c in np.unique(cloud.camera))
         expected = by_offset[(stamp_to_ns(cloud_msg.header.stamp) - first) % loop_span, cameras]
-        # Same core, same frames; the only difference is float32 on the wire between the stages (DESIGN.md).
+        # Same core, same frames; the only difference is float32 on the wire between the stages (the stage
+        # clouds' fields are float32, ntcr_recon/ros/messages.py).
         assert abs(len(cloud) - len(expected.relocated)) <= 0.005 * len(expected.relocated)
         distance = cKDTree(expected.relocated.xyz).query(cloud.xyz)[0]
         print(f"relocated {len(cloud)} points (core {len(expected.relocated)}), distance to the core's: median "

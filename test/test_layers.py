@@ -1,8 +1,10 @@
-"""The layer rule: the core library and the ROS-free I/O load neither ntcr_recon.ros nor any ROS package."""
+"""The layer rule: the core library and the ROS-free I/O load neither ntcr_recon.ros nor any ROS package (any
+message package, rcl*, rosidl*, rmw*: a family, not a fixed list)."""
 
 from __future__ import annotations
 
 import pkgutil
+import re
 import subprocess
 import sys
 
@@ -10,7 +12,20 @@ import ntcr_recon.core
 import ntcr_recon.io
 import ntcr_recon.sim
 
-ROS_MODULES = ("ntcr_recon.ros", "rclpy", "rosidl_runtime_py", "sensor_msgs", "std_msgs", "builtin_interfaces")
+# Any message package (*_msgs, *_interfaces), rcl* (rclpy, rcl_interfaces), rosidl*, rmw*, and the adapters.
+ROS_PATTERN = r"^(ntcr_recon\.ros($|\.)|\w+_msgs($|\.)|\w+_interfaces($|\.)|rcl|rosidl|rmw)"
+
+
+def is_ros_module(name: str) -> bool:
+    return re.match(ROS_PATTERN, name) is not None
+
+
+def test_the_ros_module_rule_flags_every_ros_family():
+    assert all(is_ros_module(name) for name in ("rclpy", "rclpy.node", "rcl_interfaces.msg", "rosidl_parser",
+                                                "rmw_fastrtps_cpp", "geometry_msgs.msg", "nav_msgs",
+                                                "builtin_interfaces", "ntcr_recon.ros", "ntcr_recon.ros.cdr"))
+    assert not any(is_ros_module(name) for name in ("numpy", "rosbags", "rosbags.typesys", "ntcr_recon.rosette",
+                                                    "ntcr_recon.core", "scipy"))
 
 
 def _modules(package) -> list[str]:
@@ -20,9 +35,8 @@ def _modules(package) -> list[str]:
 def test_core_io_and_sim_import_no_ros_module():
     modules = _modules(ntcr_recon.core) + _modules(ntcr_recon.io) + _modules(ntcr_recon.sim)
     assert "ntcr_recon.core.pipeline" in modules and "ntcr_recon.io.pointcloud" in modules
-    probe = (f"import importlib, sys\nfor name in {modules!r}:\n    importlib.import_module(name)\n"
-             f"loaded = sorted(m for m in sys.modules if m.split('.')[0] in {ROS_MODULES!r} "
-             f"or m.startswith('ntcr_recon.ros'))\nprint(','.join(loaded))")
+    probe = (f"import importlib, re, sys\nfor name in {modules!r}:\n    importlib.import_module(name)\n"
+             f"loaded = sorted(m for m in sys.modules if re.match({ROS_PATTERN!r}, m))\nprint(','.join(loaded))")
     result = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip() == "", f"ROS modules loaded by the core/io/sim: {result.stdout.strip()}"

@@ -1,6 +1,7 @@
-"""Messages the nodes build from arrays: the serialized Path, mesh Marker and Mesh are byte for byte what rclpy
-serializes from the same message built field by field (one Python object per point, as before), and the input
-checks refuse what would otherwise allocate or fail later."""
+"""Messages the nodes build from arrays: the serialized Path, mesh Marker and Mesh decode to the message rclpy
+serializes from the same message built field by field (one Python object per point, as before; compared decoded,
+not byte for byte: rclpy leaves alignment padding bytes unset), and the input checks refuse what would otherwise
+allocate or fail later."""
 
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker
 
 from ntcr_recon.core.transforms import matrix_to_quaternion
-from ntcr_recon.ros import messages
+from ntcr_recon.ros import cdr, messages
 
 RNG = np.random.default_rng(7)
 
@@ -75,6 +76,19 @@ def test_mesh_marker_and_mesh_bytes_decode_as_the_point_by_point_messages(frame_
     np.testing.assert_array_equal(got_triangles, faces)
 
 
+@pytest.mark.parametrize("triangles", [1, 2, 3])
+def test_points_spliced_after_a_count_that_needs_padding_decode_as_rclpy_writes_them(triangles):
+    # The vertices' count of a Mesh with an odd number of triangles ends on an 8-byte boundary minus 4: the
+    # points then follow 4 bytes of padding (cdr._points_count_offset's second case, which no Marker reaches).
+    faces = [MeshTriangle(vertex_indices=[0, 1, 2]) for _ in range(triangles)]
+    vertices = RNG.normal(size=(5, 3))
+    built = Mesh(triangles=faces, vertices=[Point(x=x, y=y, z=z) for x, y, z in vertices.tolist()])
+    spliced = cdr.with_points(Mesh(triangles=faces), "vertices", vertices)
+    reference = serialize_message(built)
+    assert len(spliced) == len(reference)
+    assert deserialize_message(spliced, Mesh) == built
+
+
 def test_an_oversized_cloud_is_refused_from_its_header():
     msg = PointCloud2(width=10_000_000, height=1)  # no data: the header alone decides
     with pytest.raises(messages.RefusedInputError, match="10000000 points exceeds max_points 1000") as error:
@@ -95,7 +109,8 @@ def test_pixels_outside_the_camera_image_are_refused():
 
 @pytest.mark.parametrize("field, value, expected", [
     ("fx", math.inf, "fx is inf"), ("cx", math.nan, "cx is nan"), ("fy", 0.0, "fy is 0.0"),
-    ("fx", -300.0, "fx is -300.0"),
+    ("fx", -300.0, "fx is -300.0"), ("fy", 1e12, "fy is 1000000000000.0"), ("cx", 1e9, "cx is 1000000000.0"),
+    ("cy", -5000.0, "cy is -5000.0"),
 ])
 def test_camera_info_with_an_impossible_value_is_refused_naming_it(field, value, expected):
     k = {"fx": 0, "cx": 2, "fy": 4, "cy": 5}
@@ -119,3 +134,65 @@ def test_notch_markers_are_oriented_by_the_centreline_frames():
     for disc, rotation in zip(discs, rotations, strict=True):
         q = disc.pose.orientation
         np.testing.assert_allclose([q.x, q.y, q.z, q.w], matrix_to_quaternion(rotation), atol=1e-12)
+
+
+def stage_cloud(pixels, camera, footprint=1e-4) -> PointCloud2:
+    """A stage cloud of len(pixels) points in ntcr_base with the given pixels, camera index and footprint."""
+    from ntcr_recon.core.cloud import Cloud
+
+    pixels = np.asarray(pixels, dtype=np.int32)
+    cloud = Cloud(RNG.normal(size=(len(pixels), 3)) * 1e-3, None, np.full(len(pixels), camera, np.int8), 5,
+                  footprint, pixels)
+    return messages.stage_cloud_to_msg(cloud, "ntcr_base")
+
+
+@pytest.fixture(scope="module")
+def rig():
+    import tiny_rig
+
+    from ntcr_recon.core.config import rig_config_from_mapping
+
+    return rig_config_from_mapping(tiny_rig.rig_parameters())
+
+
+def test_a_stage_cloud_with_pixels_or_a_camera_the_rig_cannot_have_is_refused(rig):
+    # review: a 2-point cloud spanning 16000 px made the filters allocate a 2 GB pixel grid
+    width, height = rig.cameras[rig.camera_names[0]].width, rig.cameras[rig.camera_names[0]].height
+    with pytest.raises(messages.RefusedInputError, match="outside the") as error:
+        messages.stage_cloud_from_msg(stage_cloud([[0, 0], [16000, 16000]], 0), "ntcr_base", rig)
+    assert error.value.reason == "inconsistent"
+    with pytest.raises(messages.RefusedInputError, match="camera index 2 but the rig has 2 cameras"):
+        messages.stage_cloud_from_msg(stage_cloud([[0, 0], [1, 1]], len(rig.camera_names)), "ntcr_base", rig)
+    cloud = messages.stage_cloud_from_msg(stage_cloud([[0, 0], [width - 1, height - 1]], 1), "ntcr_base", rig)
+    assert cloud.pixel.max() == width - 1 and list(cloud.camera) == [1, 1]
+
+
+@pytest.mark.parametrize("footprint", [1e-12, math.inf, 0.5, -1e-4])
+def test_a_stage_cloud_with_an_impossible_pixel_footprint_is_refused(footprint):
+    # review: a footprint of 1e-12 m made the notch search cut the tube in 4e11 cells
+    with pytest.raises(messages.RefusedInputError, match="pixel_footprint") as error:
+        messages.stage_cloud_from_msg(stage_cloud([[0, 0], [1, 1]], 0, footprint), "ntcr_base")
+    assert error.value.reason == "inconsistent"
+    for usable in (0.0, 1e-4):  # 0: unknown
+        assert messages.stage_cloud_from_msg(stage_cloud([[0, 0], [1, 1]], 0, usable), "ntcr_base").pixel_footprint \
+            == pytest.approx(usable)
+
+
+def test_fusion_buffers_what_the_rig_needs_by_default(rig):
+    # review: the default queue of 10 frames was less than a 0.5 s camera timeout at 30 Hz (15 frames)
+    from dataclasses import replace
+
+    from ntcr_recon.ros.fusion_node import PARAMETERS, rig_queue_size
+
+    assert PARAMETERS["queue_size"][0] == 0  # 0: from the rig
+    slow = replace(rig, fusion=replace(rig.fusion, camera_timeout=0.5, slop=0.01))
+    assert rig_queue_size(slow) == math.ceil(0.51 * 30) + 2 == 18
+
+
+def test_every_node_reading_clouds_declares_the_same_max_points():
+    # review: the max_points parameter was declared four times (four texts)
+    from ntcr_recon.ros import filter_node, fusion_node, mesh_node, relocation_node
+    from ntcr_recon.ros.node_support import max_points_parameter
+
+    declared = [module.PARAMETERS["max_points"] for module in (fusion_node, filter_node, relocation_node, mesh_node)]
+    assert all(parameter == max_points_parameter() for parameter in declared)

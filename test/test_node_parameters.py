@@ -68,3 +68,15 @@ def test_a_start_value_outside_the_schema_range_is_refused_naming_the_key(tmp_pa
                              "-p", "robot.notch_count:=1000"], capture_output=True, text=True, timeout=60)
     assert result.returncode == 2
     assert "robot.notch_count must lie in [1, 500], got 1000" in result.stderr, result.stderr
+
+
+@pytest.mark.parametrize("name, value", [("camera_names", ["cam_a"]), ("topics.points", "other/points"),
+                                         ("topics.namespace", "elsewhere")])
+def test_parameters_a_running_node_cannot_apply_are_read_only(relocation, name, value):
+    # review: camera_names and topics were accepted at run time though the subscriptions are made once
+    refused = set_parameter(relocation, "relocation_node", name, value)
+    assert not refused.successful and "read-only" in refused.reason.lower(), refused.reason
+    response = call(relocation, DescribeParameters, "/relocation_node/describe_parameters",
+                    DescribeParameters.Request(names=[name]))
+    assert response.descriptors[0].read_only
+    assert relocation.process.poll() is None

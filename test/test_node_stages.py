@@ -216,3 +216,39 @@ def test_filter_node_drops_an_oversized_cloud_before_reading_it(scene, filter_pr
     finally:
         assert set_parameter(probe.graph, "filter_node", "max_points", 10_000_000).successful
     test_filter_node_filters_as_the_core(scene, filter_probe)
+
+
+@pytest.mark.parametrize("topic, raw, expected", [
+    ("centerline", b"\x00\x01\x00\x00\x01", "too short for a header stamp"),
+    ("relocated/points", b"\x00\x01\x00\x00" + b"\xff" * 64, "relocated cloud cannot be decoded"),
+])
+def test_mesh_node_drops_undecodable_messages_and_goes_on(scene, mesh_probe, topic, raw, expected):
+    # review: a struct.error from a short centreline and a deserialization error in the timer escaped the spin
+    # and ended the node
+    probe = mesh_probe
+    log_before = len(probe.graph.log_of(probe.process))
+    publisher = probe.publisher if topic == "relocated/points" else probe.centerline
+    publisher.publish(raw)  # bytes go out as they are: a serialized message no rclpy object could make
+    assert probe.graph.spin_until(lambda: expected in probe.graph.log_of(probe.process)[log_before:], 10), \
+        probe.graph.log_of(probe.process)
+    assert "dropped a message" in probe.graph.log_of(probe.process)[log_before:]
+    assert probe.process.poll() is None
+    assert send_relocation(probe, scene[-1][1]) is not None
+
+
+def test_filter_node_refuses_a_cloud_whose_pixels_no_camera_of_the_rig_has(scene, filter_probe):
+    # review: a 2-point cloud spanning 16000 px made the filters' pixel grid 2 GB; the pixels are now bounded by
+    # the rig's largest camera image, the camera indices by its camera count
+    _, config, fused, *_ = scene
+    probe = filter_probe
+    from dataclasses import replace
+
+    cloud = stage_cloud_from_msg(fused[0], config.base_frame).subset(np.arange(2))
+    cloud = replace(cloud, pixel=np.array([[0, 0], [16000, 16000]], dtype=np.int32))
+    count, log_before = len(probe.received), len(probe.graph.log_of(probe.process))
+    probe.publisher.publish(stage_cloud_to_msg(cloud, config.base_frame))
+    expected = "dropped a message (inconsistent): pixel_u/pixel_v span"
+    assert probe.graph.spin_until(lambda: expected in probe.graph.log_of(probe.process)[log_before:], 10), \
+        probe.graph.log_of(probe.process)
+    assert len(probe.received) == count and probe.process.poll() is None
+    test_filter_node_filters_as_the_core(scene, filter_probe)

@@ -74,6 +74,18 @@ def test_package_xml_names_every_dependency():
     assert required <= depends, required - depends
 
 
+def test_package_xml_names_every_ros_package_the_code_imports():
+    # review: camera_node imports rosgraph_msgs (Clock), which package.xml did not name
+    import re
+
+    manifest = ET.parse(REPO / "package.xml").getroot()
+    depends = {element.text for element in manifest if element.tag in ("exec_depend", "depend")}
+    pattern = re.compile(r"^\s*(?:from|import)\s+(rclpy|\w+_msgs|\w+_interfaces)\b", re.MULTILINE)
+    imported = {name for path in (REPO / "ntcr_recon").rglob("*.py") for name in pattern.findall(path.read_text())}
+    assert {"rclpy", "sensor_msgs", "rosgraph_msgs"} <= imported
+    assert imported <= depends, imported - depends
+
+
 def test_cli_lists_its_subcommands():
     result = subprocess.run([str(Path(sys.executable).parent / "ntcr-recon"), "--help"],
                             capture_output=True, text=True, timeout=60)

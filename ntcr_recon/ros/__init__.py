@@ -1,1 +1,1 @@
-"""ROS adapters: message conversion, the nodes and the replay."""
+"""ROS adapters: message conversion, the nodes, and the graph runner of `ntcr-recon run` (graph.py)."""

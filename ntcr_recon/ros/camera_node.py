@@ -18,7 +18,9 @@ A live camera that is not connected at start-up is waited for (`wait_for_device`
 every few seconds and /diagnostics ERROR naming what is missing until it appears, as the source already
 reconnects after a drop; with `wait_for_device:=false` the node refuses to start instead. A frame whose
 intrinsics cannot be a camera's (non-finite or non-positive focal length, non-finite centre) is dropped with a
-message naming the value, and the node goes on. Rates, drops and timing: ros/node_stats.py.
+message naming the value, and the node goes on; a producer thread that dies of anything else (or a live source
+that stops for good) ends the process with exit code 1, so that `ntcr-recon run` or launch respawns it. Rates,
+drops and timing: ros/node_stats.py.
 """
 
 from __future__ import annotations
@@ -114,6 +116,7 @@ class CameraNode(RigNode):
             CameraInfo, self.rig.topics.camera_topic(self.camera, "depth_info"), SENSOR_QOS)
         self._clock_publisher = self.create_publisher(Clock, "/clock", 10) if self._params["publish_clock"] else None
         self._stop = threading.Event()
+        self.failure: str | None = None  # set when the producer thread died: run_nodes then exits non-zero
         self.frames_published = self.frames_skipped = 0
         self._thread = threading.Thread(target=self._pump, name="camera_source", daemon=True)
         self._thread.start()
@@ -226,14 +229,23 @@ class CameraNode(RigNode):
                 self.stats.received()
                 try:
                     self._publish(frame)
-                except ValueError as error:  # one bad frame (wrong size, bad encoding): say so, go on
-                    # the same defect in every frame is logged once per log period, not per frame
-                    self.stats.dropped(getattr(error, "reason", "invalid"), f"camera '{self.camera}' frame: {error}")
+                except (ValueError, ArithmeticError) as error:  # one bad frame (wrong size, bad encoding,
+                    # intrinsics that overflow the crop window): say so, go on; the same defect in every frame is
+                    # logged once per log period, not per frame
+                    if isinstance(error, ValueError):  # its message names the defect
+                        reason, text = getattr(error, "reason", "invalid"), str(error)
+                    else:
+                        reason, text = "arithmetic", f"{type(error).__name__}: {error}"
+                    self.stats.dropped(reason, f"camera '{self.camera}' frame: {text}")
         except SourceError as error:
             self.get_logger().error(f"camera source stopped: {error}")
+            if self._params["source"] == "realsense":  # a live camera gone for good: let the runner respawn us
+                self.failure = f"camera source stopped: {error}"
         except Exception as error:  # the context may be shut down under a publish at Ctrl-C
             if not self._stop.is_set() and self.context.ok():
                 self.get_logger().error(f"camera source failed: {type(error).__name__}: {error}")
+                # without its producer the node would live on publishing nothing: end the process (non-zero)
+                self.failure = f"camera source failed: {type(error).__name__}: {error}"
             return
         self.get_logger().info(f"source finished after {self.frames_published} frames "
                                f"({self.frames_skipped} skipped to keep up)")
@@ -277,11 +289,18 @@ class CameraNode(RigNode):
 
     def destroy_node(self) -> None:
         self._stop.set()
-        if self._source is not None and hasattr(self._source, "close"):
-            self._source.close()
+        source = self._source
+        _close(source)  # wakes a producer blocked in the source (a frame wait, a reconnect delay)
         if getattr(self, "_thread", None) is not None:
             self._thread.join(timeout=5)
+        if self._source is not source:  # a device the producer opened meanwhile (waiting for it) is closed too
+            _close(self._source)
         super().destroy_node()
+
+
+def _close(source) -> None:
+    if source is not None and hasattr(source, "close"):
+        source.close()
 
 
 def main(args: list[str] | None = None) -> int:

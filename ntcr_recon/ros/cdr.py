@@ -13,7 +13,6 @@ elements; a string a uint32 length (with the terminating NUL) and its bytes.
 
 from __future__ import annotations
 
-import functools
 import struct
 
 import numpy as np
@@ -32,10 +31,11 @@ def _align(offset: int, size: int) -> int:
 _PROBE = (1.2345678901234567e-300, -9.87654321e-299, 3.14159e-301)  # a point no message holds by chance
 
 
-@functools.lru_cache(maxsize=64)
 def _points_count_offset(one_point_bytes: bytes) -> int:
-    """Where the count of a sequence<Point> holding only `_PROBE` lies in a serialized message (rclpy leaves
-    padding bytes unset, so serializations are compared by content, not byte for byte)."""
+    """Where the count of a sequence<Point> holding only `_PROBE` lies in a serialized message: right before
+    the element, or 4 bytes of padding before it when the count ends off an 8-byte boundary (rclpy leaves
+    padding bytes unset, so serializations are compared by content, not byte for byte). Not cached: the bytes
+    hold the header stamp, a key that would never repeat."""
     element = one_point_bytes.index(struct.pack("<3d", *_PROBE))
     no_padding = element - 4
     if struct.unpack_from("<I", one_point_bytes, no_padding)[0] == 1 and (no_padding - ENCAPSULATION) % 8 == 4:

@@ -12,14 +12,13 @@ import time
 from sensor_msgs.msg import PointCloud2
 
 from ntcr_recon.core.pipeline import Reconstructor
-from ntcr_recon.ros.messages import DEFAULT_MAX_POINTS, check_point_count, stage_cloud_from_msg, stage_cloud_to_msg
+from ntcr_recon.ros.messages import check_point_count, stage_cloud_from_msg, stage_cloud_to_msg
 from ntcr_recon.ros.node_stats import NodeStats
-from ntcr_recon.ros.node_support import STAGE_QOS, RigNode, describe, guarded, run_node
+from ntcr_recon.ros.node_support import STAGE_QOS, RigNode, guarded, max_points_parameter, run_node
 from ntcr_recon.ros.topics import stage_topic
 
 PARAMETERS = {
-    "max_points": (DEFAULT_MAX_POINTS, describe("largest cloud accepted (points); a larger one is dropped before it "
-                                                "is read", minimum=1, maximum=100_000_000, integer=True)),
+    "max_points": max_points_parameter(),
 }
 
 
@@ -40,7 +39,7 @@ class FilterNode(RigNode):
         self.stats.received()
         started = time.perf_counter()
         check_point_count(msg, self._params["max_points"])
-        cloud = self._reconstructor.filter(stage_cloud_from_msg(msg, self.rig.base_frame))
+        cloud = self._reconstructor.filter(stage_cloud_from_msg(msg, self.rig.base_frame, self.rig))
         self._publisher.publish(stage_cloud_to_msg(cloud, self.rig.base_frame))
         self.stats.published(cloud.stamp_ns, started)
 

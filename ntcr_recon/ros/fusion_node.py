@@ -12,11 +12,14 @@ returns (OK).
 Every input is bounded before anything is allocated for it: a cloud of more than `max_points` points, or
 whose pixel_u/pixel_v lie outside the camera's image (camera_info, else the configured width/height), and a
 camera_info with a non-finite or non-positive focal length, centre or size are dropped with a log line naming
-what was wrong, and counted (`/diagnostics`: dropped.<reason>).
+what was wrong, and counted (`/diagnostics`: dropped.<reason>). An empty cloud is a camera that saw nothing in
+its crop box (camera_node publishes only the points inside it): a frame of that camera with no points, paired
+as any other; a pair in which no camera saw anything is not published (counted: dropped.empty).
 """
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 
@@ -28,7 +31,6 @@ from ntcr_recon.core.fusion import FramePair, fuse
 from ntcr_recon.core.pairing import FramePairer, Release
 from ntcr_recon.io.pointcloud import stamp_to_ns
 from ntcr_recon.ros.messages import (
-    DEFAULT_MAX_POINTS,
     RefusedInputError,
     camera_cloud_from_msg,
     camera_frame,
@@ -38,20 +40,37 @@ from ntcr_recon.ros.messages import (
     stage_cloud_to_msg,
 )
 from ntcr_recon.ros.node_stats import NodeStats
-from ntcr_recon.ros.node_support import SENSOR_QOS, STAGE_QOS, RigNode, describe, guarded, run_node
+from ntcr_recon.ros.node_support import (
+    SENSOR_QOS,
+    STAGE_QOS,
+    RigNode,
+    describe,
+    guarded,
+    max_points_parameter,
+    run_node,
+)
 from ntcr_recon.ros.topics import stage_topic
 
 PARAMETERS = {
-    "queue_size": (10, describe("frames buffered per camera while waiting for a partner", minimum=1, maximum=300,
-                                integer=True)),
+    "queue_size": (0, describe("frames buffered per camera while waiting for a partner; 0: what the rig needs, "
+                               "ceil((fusion.camera_timeout + fusion.slop) * fps) + 2", minimum=0, maximum=300,
+                               integer=True)),
     "publish_unpaired": (False, describe("publish a frame whose partner was lost (the other camera is alive but "
                                          "its frame never came) alone, as the offline command fuses it; false: "
                                          "drop it and count it")),
-    "diagnostics_period": (1.0, describe("seconds between /diagnostics messages", minimum=0.05, maximum=60.0)),
-    "max_points": (DEFAULT_MAX_POINTS, describe("largest camera cloud accepted (points); a larger one is dropped "
-                                                "before it is read", minimum=1, maximum=100_000_000, integer=True)),
+    "diagnostics_period": (1.0, describe("seconds between /diagnostics messages (read at start)", minimum=0.05,
+                                         maximum=60.0, read_only=True)),
+    "max_points": max_points_parameter(),
 }
 DIAGNOSTIC_NAME = "ntcr_recon: fusion"
+
+
+def rig_queue_size(rig) -> int:
+    """Frames per camera a pairer must hold: all a camera sends while the other may still be heard from (the
+    camera timeout plus the slop, at the fastest camera's rate), and two to spare. A fixed 10 was less than a
+    0.5 s timeout at 30 Hz (15): frames were superseded before their partner was given up on."""
+    fps = max(rig.cameras[name].fps for name in rig.camera_names)
+    return min(math.ceil((rig.fusion.camera_timeout + rig.fusion.slop) * fps) + 2, 300)
 
 
 class FusionNode(RigNode):
@@ -77,14 +96,15 @@ class FusionNode(RigNode):
     def configure(self, rig, params: dict) -> None:
         self.rig, self._params = rig, params
         slop_ns, timeout_ns = int(rig.fusion.slop * 1e9), int(rig.fusion.camera_timeout * 1e9)
+        queue_size = int(params["queue_size"]) or rig_queue_size(rig)
         pairer = self._pairer
         if pairer is None or pairer.cameras != tuple(rig.camera_names):
-            self._pairer = FramePairer(rig.camera_names, slop_ns, timeout_ns, int(params["queue_size"]),
+            self._pairer = FramePairer(rig.camera_names, slop_ns, timeout_ns, queue_size,
                                        bool(params["publish_unpaired"]))
         else:  # keep what is buffered and counted
             pairer.slop_ns, pairer.timeout_ns = slop_ns, timeout_ns
             pairer.publish_unpaired = bool(params["publish_unpaired"])
-            pairer.resize(int(params["queue_size"]))
+            pairer.resize(queue_size)
 
     @guarded
     def _on_info(self, item) -> None:
@@ -126,6 +146,9 @@ class FusionNode(RigNode):
         frames = {name: camera_frame(name, release.stamp_ns, xyz, rgb, pixel, width, self._intrinsics.get(name))
                   for name, (xyz, rgb, pixel, width) in release.items.items()}
         cloud = fuse(FramePair(release.stamp_ns, frames), self.rig)
+        if not len(cloud):  # no camera saw anything in the crop box: nothing for the stages (counted, not logged)
+            self.stats.drops["empty"] += 1
+            return
         self._publisher.publish(stage_cloud_to_msg(cloud, self.rig.base_frame))
         self.stats.published(release.stamp_ns, started)
 

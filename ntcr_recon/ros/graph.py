@@ -1,4 +1,4 @@
-"""`ntcr-recon run`: start the whole graph without `ros2 launch`, every node in its own process.
+"""`ntcr-recon run`: start the whole graph without `ros2 launch`, a process per node (or one, `--single-process`).
 
     ntcr-recon run --config config/sim_rig.yaml --bag bags/bend45 [--rate 1] [--loop] [--use-sim-time]
     ntcr-recon run --config my_rig.yaml                      # live D405s (camera_node's realsense source)
@@ -95,10 +95,12 @@ def _extra_parameters(items: list[str]) -> dict[str, dict[str, str]]:
     return extra
 
 
-def _argv(executable: str, node_name: str, config: Path, parameters: dict[str, object]) -> list[str]:
-    def ros_value(value: object) -> str:
-        return str(value).lower() if isinstance(value, bool) else str(value)
+def ros_value(value: object) -> str:
+    """A parameter value as rcl reads it from `-p name:=VALUE` (or a parameter file's plain scalar)."""
+    return str(value).lower() if isinstance(value, bool) else str(value)
 
+
+def _argv(executable: str, node_name: str, config: Path, parameters: dict[str, object]) -> list[str]:
     argv = [sys.executable, "-m", f"ntcr_recon.ros.{executable}", "--ros-args", "-r", f"__node:={node_name}",
             "--params-file", str(config.resolve())]
     for name, value in parameters.items():
@@ -118,7 +120,11 @@ def main(args: argparse.Namespace) -> int:
         print(f"error: {error}", file=sys.stderr)
         return 2
     if args.output is not None:
-        args.output.mkdir(parents=True, exist_ok=True)
+        try:
+            args.output.mkdir(parents=True, exist_ok=True)
+        except OSError as error:  # an --output that cannot be a folder (a file on the way, no permission)
+            print(f"error: --output {args.output}: {error.strerror or error}", file=sys.stderr)
+            return 2
     if args.single_process:
         with tempfile.TemporaryDirectory(prefix="ntcr-run-") as folder:
             host = single_process_command(commands, args.config, Path(folder) / "nodes.yaml")
@@ -128,15 +134,19 @@ def main(args: argparse.Namespace) -> int:
 
 def single_process_command(commands: list[NodeCommand], config: Path, parameters_file: Path) -> NodeCommand:
     """One process hosting every node of `commands`: each node's own parameters go to a parameter file section
-    under its name (a global `-p` would reach every node of the process), the rig configuration as it is."""
-    import yaml
+    under its name (a global `-p` would reach every node of the process), the rig configuration as it is.
 
-    sections = {}
-    for command in commands:
-        values = {name: yaml.safe_load(value) if isinstance(value, str) else value
-                  for name, value in command.parameters.items()}
-        sections[command.name] = {"ros__parameters": values}
-    parameters_file.write_text(yaml.safe_dump(sections))
+    Each value is written as the plain scalar `-p name:=VALUE` would give rcl, so that rcl's parser types it in
+    both modes alike (PyYAML's YAML 1.1 rules differ from rcl's: `1e3` is a string to PyYAML, 1000.0 to rcl)."""
+    lines = []
+    for command in (c for c in commands if c.parameters):  # rcl refuses an empty ros__parameters
+        lines += [f"{command.name}:", "  ros__parameters:"]
+        for name, value in command.parameters.items():
+            text = ros_value(value)
+            if "\n" in text or "\r" in text:
+                raise ValueError(f"parameter {command.name}:{name}: a value must be one line, got {text!r}")
+            lines.append(f"    {name}: {text}")
+    parameters_file.write_text("\n".join(lines) + "\n")
     specs = [f"{_executable(command)}={command.name}" for command in commands]
     argv = [sys.executable, "-m", "ntcr_recon.ros.single_process", *specs, "--ros-args",
             "--params-file", str(config.resolve()), "--params-file", str(parameters_file)]
@@ -185,8 +195,31 @@ def run_processes(commands: list[NodeCommand], duration: float = 0.0, respawn: b
 
 
 def _start(command: NodeCommand) -> subprocess.Popen:
-    # Own process group: a terminal's Ctrl-C reaches this command only, which stops the nodes in order.
-    return subprocess.Popen(command.argv, start_new_session=True)
+    # Own process group: a terminal's Ctrl-C reaches this command only, which stops the nodes in order. Out of
+    # our group, a node would outlive a SIGKILLed runner: the kernel sends it SIGTERM then (Linux).
+    return subprocess.Popen(command.argv, start_new_session=True, preexec_fn=_terminate_with_parent())
+
+
+PR_SET_PDEATHSIG = 1  # linux/prctl.h
+
+
+def _terminate_with_parent():
+    """A preexec_fn asking the kernel to SIGTERM the child when this process dies, however it dies (Linux
+    prctl PR_SET_PDEATHSIG); None elsewhere, where the child is left as before."""
+    if not sys.platform.startswith("linux"):
+        return None
+    import ctypes
+    import os
+
+    libc = ctypes.CDLL(None, use_errno=True)
+    parent = os.getpid()
+
+    def preexec() -> None:
+        libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
+        if os.getppid() != parent:  # the runner died before the prctl: nobody would send the signal
+            os._exit(1)
+
+    return preexec
 
 
 def _supervise(running: list[_Running], respawn: bool) -> bool:

@@ -34,7 +34,6 @@ from ntcr_recon.core.pipeline import Reconstructor
 from ntcr_recon.io.files import write_mesh
 from ntcr_recon.io.pointcloud import stamp_to_ns
 from ntcr_recon.ros.messages import (
-    DEFAULT_MAX_POINTS,
     check_point_count,
     mesh_marker_bytes,
     mesh_msg_bytes,
@@ -42,7 +41,16 @@ from ntcr_recon.ros.messages import (
     stage_cloud_and_normals,
 )
 from ntcr_recon.ros.node_stats import NodeStats
-from ntcr_recon.ros.node_support import LATCHED_QOS, STAGE_QOS, ParameterError, RigNode, describe, run_node
+from ntcr_recon.ros.node_support import (
+    LATCHED_QOS,
+    STAGE_QOS,
+    ParameterError,
+    RigNode,
+    describe,
+    guarded,
+    max_points_parameter,
+    run_node,
+)
 from ntcr_recon.ros.topics import stage_topic
 
 CENTERLINES_KEPT = 4
@@ -51,8 +59,7 @@ PARAMETERS = {
     "rate": (1.0, describe("meshes per second (of the node's clock)", minimum=0.01, maximum=30.0)),
     "save_ply_path": ("", describe("setting it writes the newest mesh to this PLY file")),
     "output_dir": ("", describe("when set, every new mesh is also written to <output_dir>/mesh.ply")),
-    "max_points": (DEFAULT_MAX_POINTS, describe("largest cloud accepted (points); a larger one is dropped before it "
-                                                "is read", minimum=1, maximum=100_000_000, integer=True)),
+    "max_points": max_points_parameter(),
 }
 
 
@@ -104,10 +111,12 @@ class MeshNode(RigNode):
     # Both inputs arrive at the relocation's rate (~30 Hz) but only the newest is meshed, at `rate` (~1 Hz): they
     # are kept serialized and decoded when a tick uses them (a Path of 120 PoseStamped objects and a cloud's
     # conversion at 30 Hz cost more than the meshing itself).
+    @guarded
     def _on_cloud(self, raw: bytes) -> None:
         self.stats.received()
         self._newest_raw = raw
 
+    @guarded
     def _on_centerline(self, raw: bytes) -> None:
         self._centerlines[_header_stamp_ns(raw)] = raw
         for stamp in sorted(self._centerlines)[:-CENTERLINES_KEPT]:
@@ -116,10 +125,10 @@ class MeshNode(RigNode):
     def _take_newest(self) -> None:
         """Decode and check the newest cloud (a bad one is logged by cause, counted and dropped)."""
         raw, self._newest_raw = self._newest_raw, None
-        msg = deserialize_message(raw, PointCloud2)
         try:
+            msg = _deserialize(raw, PointCloud2, "relocated cloud")
             check_point_count(msg, self._params["max_points"])
-            _, normals = stage_cloud_and_normals(msg, self.rig.base_frame)  # refuse a bad cloud by name
+            _, normals = stage_cloud_and_normals(msg, self.rig.base_frame, self.rig)  # refuse a bad cloud by name
             if normals is None:
                 raise ValueError("relocated cloud has no normal_x/normal_y/normal_z fields (is it relocation_node's?)")
         except ValueError as error:
@@ -127,6 +136,7 @@ class MeshNode(RigNode):
             return
         self._newest = msg
 
+    @guarded  # a defect met while meshing is dropped and counted: the timer must not take the node down
     def _tick(self) -> None:
         if self._newest_raw is not None:
             self._take_newest()
@@ -136,14 +146,14 @@ class MeshNode(RigNode):
         centerline = self._centerlines.get(stamp)
         if centerline is None:
             return  # its centreline is on the way (published right after the cloud)
-        centerline = deserialize_message(centerline, Path)
-        msg, self._newest = self._newest, None
+        msg, self._newest = self._newest, None  # consumed first: a bad pair is not retried every tick
+        centerline = _deserialize(centerline, Path, "centreline")
         started = time.perf_counter()
         try:
-            relocation = relocation_from_msgs(msg, centerline, self.rig.base_frame)
+            relocation = relocation_from_msgs(msg, centerline, self.rig.base_frame, self.rig)
             mesh = self._reconstructor.mesh(relocation)
         except (ValueError, RuntimeError) as error:
-            self.get_logger().error(f"no mesh from the relocated cloud at {stamp} ns: {error}")
+            self.stats.dropped("no_mesh", f"no mesh from the relocated cloud at {stamp} ns: {error}")
             return
         vertices, triangles = np.asarray(mesh.vertices, float), np.asarray(mesh.triangles, np.int64)
         self._mesh = (mesh, stamp)
@@ -175,9 +185,19 @@ class MeshNode(RigNode):
 def _header_stamp_ns(raw: bytes) -> int:
     """The header stamp of a serialized message that starts with a std_msgs/Header (after the 4-byte CDR
     encapsulation: int32 sec, uint32 nanosec)."""
+    if len(raw) < 12:
+        raise ValueError(f"message of {len(raw)} bytes is too short for a header stamp")
     big_endian = raw[1] == 0  # encapsulation CDR_BE (0x0000) or CDR_LE (0x0001)
     seconds, nanoseconds = struct.unpack_from(">iI" if big_endian else "<iI", raw, 4)
     return seconds * 1_000_000_000 + nanoseconds
+
+
+def _deserialize(raw: bytes, kind, what: str):
+    """A serialized message decoded, or a ValueError naming it (rclpy raises its own errors for broken bytes)."""
+    try:
+        return deserialize_message(raw, kind)
+    except Exception as error:
+        raise ValueError(f"{what} cannot be decoded: {type(error).__name__}: {error}") from error
 
 
 def main(args: list[str] | None = None) -> int:

@@ -78,16 +78,31 @@ def check_pixels(pixel: np.ndarray, width: int, height: int, what: str) -> None:
                              f"{width}x{height} image of {what}", "inconsistent")
 
 
+# Bounds of a camera's intrinsics: beyond them the crop window's arithmetic overflows or spans absurd sizes.
+MAX_FOCAL_PX = 1e5
+CENTRE_MARGIN_IMAGES = 2  # how many image sizes the principal point may lie outside the image
+
+
 def checked_intrinsics(width: int, height: int, fx: float, fy: float, cx: float, cy: float) -> Intrinsics:
-    """Intrinsics, or a RefusedInputError naming the value that cannot be a camera's (a non-finite or
-    non-positive focal length, a non-finite centre, an empty or absurd image size)."""
+    """Intrinsics, or a RefusedInputError naming the value that cannot be a camera's (a non-finite, non-positive
+    or above MAX_FOCAL_PX focal length, a centre not finite or more than CENTRE_MARGIN_IMAGES image sizes off
+    the image, an empty or absurd image size)."""
+    if not (0 < int(width) <= 100_000 and 0 < int(height) <= 100_000):
+        raise RefusedInputError(f"image size {width}x{height} is not a camera's", "inconsistent")
     values = {"fx": float(fx), "fy": float(fy), "cx": float(cx), "cy": float(cy)}
     for name, value in values.items():
         if not math.isfinite(value) or (name in ("fx", "fy") and value <= 0):
             raise RefusedInputError(f"{name} is {value}: a camera's {name} must be a finite"
                                     f"{' positive' if name in ('fx', 'fy') else ''} number", "inconsistent")
-    if not (0 < int(width) <= 100_000 and 0 < int(height) <= 100_000):
-        raise RefusedInputError(f"image size {width}x{height} is not a camera's", "inconsistent")
+    for name in ("fx", "fy"):
+        if values[name] > MAX_FOCAL_PX:
+            raise RefusedInputError(f"{name} is {values[name]}: a camera's focal length is at most {MAX_FOCAL_PX:g} px",
+                                    "inconsistent")
+    for name, size in (("cx", int(width)), ("cy", int(height))):
+        low, high = -CENTRE_MARGIN_IMAGES * size, (CENTRE_MARGIN_IMAGES + 1) * size
+        if not low <= values[name] <= high:
+            raise RefusedInputError(f"{name} is {values[name]}: a camera's principal point lies within "
+                                    f"[{low}, {high}] px for an image of {width}x{height}", "inconsistent")
     return Intrinsics(int(width), int(height), values["fx"], values["fy"], values["cx"], values["cy"])
 
 
@@ -136,7 +151,7 @@ def relocation_cloud_msg(relocation, frame_id: str) -> PointCloud2:
     return stage_cloud_to_msg(relocation.relocated, frame_id, relocation.normals, extra)
 
 
-def relocation_from_msgs(cloud_msg: PointCloud2, path: Path, expected_frame: str):
+def relocation_from_msgs(cloud_msg: PointCloud2, path: Path, expected_frame: str, rig=None):
     """A core Relocation rebuilt from relocation_node's cloud (`relocation_cloud_msg`) and centreline Path of
     the same stamp: what the core's mesher reads (centreline, relocated cloud, normals, parts, tube
     coordinates). Notches and rejected counts are not carried (0 / empty)."""
@@ -144,7 +159,7 @@ def relocation_from_msgs(cloud_msg: PointCloud2, path: Path, expected_frame: str
     from ntcr_recon.core.pipeline import Relocation
 
     require_frame(path, expected_frame)
-    cloud, columns = _stage_cloud(cloud_msg, expected_frame)
+    cloud, columns = _stage_cloud(cloud_msg, expected_frame, rig)
     normals = _normals(columns)
     if normals is None:
         raise ValueError("relocated cloud has no normal_x/normal_y/normal_z fields (is it relocation_node's?)")
@@ -176,10 +191,12 @@ def camera_cloud_from_msg(msg: PointCloud2, expected_frame: str
     """A camera cloud, compact: (points, colours, pixels (N, 2) or None, organised width).
 
     An organised cloud comes back whole (NaN = no return) with its width; an unorganised one as its finite
-    points with their `pixel_u`/`pixel_v` when it carries them (width 0). `camera_frame` makes the core's
-    CameraFrame of it; kept apart so that a frame waiting for its partner costs its points, not a grid.
+    points with their `pixel_u`/`pixel_v` when it carries them (width 0). An empty cloud is a camera that saw
+    nothing in its crop box (camera_node publishes only the points inside it): a frame with no points, not an
+    error. `camera_frame` makes the core's CameraFrame of it; kept apart so that a frame waiting for its
+    partner costs its points, not a grid.
     """
-    xyz, rgb = input_cloud(msg, expected_frame, keep_nan=True)
+    xyz, rgb = input_cloud(msg, expected_frame, keep_nan=True, allow_empty=True)
     if msg.height > 1:
         return xyz, rgb, None, int(msg.width)
     pixels = read_points(msg, ("pixel_u", "pixel_v"))
@@ -198,6 +215,8 @@ def camera_frame(camera: str, stamp_ns: int, xyz: np.ndarray, rgb: np.ndarray | 
     """The core's CameraFrame of a camera cloud (`camera_cloud_from_msg`): points with pixels are laid out
     row-major on the grid of the pixels they span (NaN where none), which the core reads as an organised
     cloud; others go as they are."""
+    if pixel is not None and not len(xyz):  # an empty grid: the fused cloud keeps the other camera's pixels
+        return CameraFrame(camera, stamp_ns, points=xyz, rgb=rgb, organised_width=1, intrinsics=intrinsics)
     if pixel is None or not len(xyz):
         return CameraFrame(camera, stamp_ns, points=xyz, rgb=rgb, organised_width=organised_width,
                            intrinsics=intrinsics)
@@ -213,14 +232,16 @@ def camera_frame(camera: str, stamp_ns: int, xyz: np.ndarray, rgb: np.ndarray | 
     return CameraFrame(camera, stamp_ns, points=grid, rgb=colors, organised_width=width, intrinsics=intrinsics)
 
 
-def input_cloud(msg: PointCloud2, expected_frame: str, keep_nan: bool = False
+def input_cloud(msg: PointCloud2, expected_frame: str, keep_nan: bool = False, allow_empty: bool = False
                 ) -> tuple[np.ndarray, np.ndarray | None]:
     """The points (and colours) of an input cloud, NaN points dropped unless `keep_nan` (an organised cloud
     keeps its grid); ValueError naming the defect for a cloud in another frame than the configuration's, with
-    broken layout, or without a single finite point."""
+    broken layout, or without a single finite point (a cloud of 0 points passes with `allow_empty`)."""
     require_frame(msg, expected_frame)
     xyz, rgb = cloud_from_msg(msg, drop_nan=False)  # validates the layout and names what is wrong
     if not len(xyz):
+        if allow_empty:
+            return xyz, rgb
         raise ValueError("empty cloud (0 points)")
     finite = np.isfinite(xyz).all(axis=1)
     if not finite.any():
@@ -230,20 +251,26 @@ def input_cloud(msg: PointCloud2, expected_frame: str, keep_nan: bool = False
     return xyz[finite], None if rgb is None else rgb[finite]
 
 
-def stage_cloud_from_msg(msg: PointCloud2, expected_frame: str) -> Cloud:
+def stage_cloud_from_msg(msg: PointCloud2, expected_frame: str, rig=None) -> Cloud:
     """A stage cloud back as a Cloud (checked as `input_cloud` does; NaN points dropped). Any PointCloud2 with
-    x, y, z is accepted: a cloud without the extra fields gets no camera / pixels and footprint 0."""
-    return _stage_cloud(msg, expected_frame)[0]
+    x, y, z is accepted: a cloud without the extra fields gets no camera / pixels and footprint 0. A node
+    passes its `rig` (RigConfig) so that camera indices and pixels are bounded by it (`_stage_cloud`)."""
+    return _stage_cloud(msg, expected_frame, rig)[0]
 
 
-def stage_cloud_and_normals(msg: PointCloud2, expected_frame: str) -> tuple[Cloud, np.ndarray | None]:
+def stage_cloud_and_normals(msg: PointCloud2, expected_frame: str, rig=None) -> tuple[Cloud, np.ndarray | None]:
     """`stage_cloud_from_msg` plus the (N, 3) normals when the cloud carries normal_x/y/z, else None."""
-    cloud, columns = _stage_cloud(msg, expected_frame)
+    cloud, columns = _stage_cloud(msg, expected_frame, rig)
     return cloud, _normals(columns)
 
 
-def _stage_cloud(msg: PointCloud2, expected_frame: str) -> tuple[Cloud, dict[str, np.ndarray]]:
-    """A stage cloud's finite points as a Cloud, and the stage fields it carries (finite points only)."""
+def _stage_cloud(msg: PointCloud2, expected_frame: str, rig=None) -> tuple[Cloud, dict[str, np.ndarray]]:
+    """A stage cloud's finite points as a Cloud, and the stage fields it carries (finite points only).
+
+    The fields are bounded before they size anything (the filters lay pixels out on a grid per camera, the
+    notches cut the tube in cells of a footprint / 8): a `pixel_footprint` outside FOOTPRINT_RANGE_M (0 =
+    unknown), and with `rig`, a `camera` index past its camera_names or pixels outside its largest camera
+    image, are refused (RefusedInputError, "inconsistent")."""
     xyz, rgb = input_cloud(msg, expected_frame, keep_nan=True)
     points = read_points(msg, STAGE_FIELDS)
     finite = np.isfinite(xyz).all(axis=1)
@@ -252,12 +279,37 @@ def _stage_cloud(msg: PointCloud2, expected_frame: str) -> tuple[Cloud, dict[str
     columns = {name: points[name].astype(np.float32) for name in points.dtype.names}
     camera = columns.get("camera")
     camera = camera.astype(np.int8) if camera is not None and np.all(camera >= 0) else None
-    footprints = columns.get("pixel_footprint")
-    footprint = float(np.nanmax(footprints)) if footprints is not None and np.isfinite(footprints).any() else 0.0
+    footprint = _footprint(columns.get("pixel_footprint"))
     pixel = None
     if "pixel_u" in columns and "pixel_v" in columns:
-        pixel = np.stack([columns["pixel_u"], columns["pixel_v"]], axis=1).astype(np.int32)
+        pixel = np.stack([columns["pixel_u"], columns["pixel_v"]], axis=1)
+        if not np.isfinite(pixel).all():
+            raise RefusedInputError("pixel_u/pixel_v are not all finite", "inconsistent")
+        if rig is not None:
+            width = max(rig.cameras[name].width for name in rig.camera_names)
+            height = max(rig.cameras[name].height for name in rig.camera_names)
+            check_pixels(pixel, width, height, "the rig's largest camera")
+        pixel = pixel.astype(np.int32)
+    if rig is not None and camera is not None and len(camera) and int(columns["camera"].max()) >= len(rig.camera_names):
+        raise RefusedInputError(f"camera index {int(columns['camera'].max())} but the rig has "
+                                f"{len(rig.camera_names)} cameras", "inconsistent")
     return Cloud(xyz, rgb, camera, stamp_to_ns(msg.header.stamp), footprint, pixel), columns
+
+
+# What one depth pixel can cover on the robot (metres): a D405 pixel at 7 cm is ~0.1 mm.
+FOOTPRINT_RANGE_M = (1e-6, 1e-3)
+
+
+def _footprint(footprints: np.ndarray | None) -> float:
+    """The cloud's pixel footprint (0 = unknown), refused outside FOOTPRINT_RANGE_M."""
+    if footprints is None or not len(footprints) or np.isnan(footprints).all():
+        return 0.0
+    footprint = float(np.nanmax(footprints))
+    low, high = FOOTPRINT_RANGE_M
+    if footprint != 0.0 and not low <= footprint <= high:
+        raise RefusedInputError(f"pixel_footprint {footprint} m is outside [{low}, {high}] m (0 = unknown)",
+                                "inconsistent")
+    return footprint
 
 
 def _normals(columns: dict[str, np.ndarray]) -> np.ndarray | None:

@@ -3,9 +3,10 @@ latency, on `/diagnostics` (every `diagnostics_period` s) and in a log line (eve
 
 A node calls `received()` for every input message, `published(stamp_ns, started)` after publishing the result
 of the input stamped `stamp_ns` (`started`: `time.perf_counter()` when its work began), and `dropped(reason,
-detail)` for an input it refuses (the first drop of each kind of detail is logged, repeats within a log period
-only counted, so a stream of bad messages cannot flood the log). Both timers run on the steady clock: a replay
-that pauses its /clock does not silence the report.
+detail)` for an input it refuses (the first drop of each kind, its reason and detail with the numbers taken out,
+is logged; further ones within a log period are only counted and their number told with the next line, so a
+stream of bad messages cannot flood the log). Both timers run on the steady clock: a replay that pauses its
+/clock does not silence the report.
 
 Latency is the node's clock minus the stamp of the input when the result is published: the age of the data,
 meaningful when the stamps and the node's clock agree (a live rig, or `use_sim_time` on a replay); stamps far
@@ -15,6 +16,7 @@ from the clock (a bag replayed without sim time) give `n/a`.
 from __future__ import annotations
 
 import contextlib
+import re
 import time
 from collections import Counter, deque
 from collections.abc import Callable
@@ -28,6 +30,7 @@ from ntcr_recon.ros.messages import diagnostics
 
 WINDOW = 300           # processing times / latencies kept for the percentiles
 PLAUSIBLE_AGE_S = 10.0  # a latency beyond this means the stamps are on another clock than the node's
+_NUMBER = re.compile(r"[-+]?\d[\d.eE+-]*")  # what differs between two drops of the same kind (sizes, stamps)
 
 # (level, message, extra key -> value) a node adds to its report; level None: OK unless frames were dropped
 StatusSource = Callable[[], tuple[bytes | None, str, dict[str, object]]]
@@ -41,8 +44,8 @@ class NodeStats:
         self.drops: Counter[str] = Counter()
         self._processing: deque[float] = deque(maxlen=WINDOW)
         self._latency: deque[float] = deque(maxlen=WINDOW)
-        self._logged_details: dict[str, float] = {}  # drop detail -> steady time it was last logged
-        self._suppressed: Counter[str] = Counter()
+        self._logged_kinds: dict[tuple[str, str], float] = {}  # drop kind -> steady time one was last logged
+        self._suppressed: Counter[tuple[str, str]] = Counter()
         self._log_period = log_period
         now = time.monotonic()
         self._since_log = (now, 0, 0, 0)          # (time, inputs, outputs, drops) at the last log line
@@ -64,19 +67,23 @@ class NodeStats:
             self._latency.append(age * 1e-9)
 
     def dropped(self, reason: str, detail: str | None = None) -> None:
-        """Count a dropped frame under `reason`; log `detail` (default: the reason) unless the same text was
-        logged less than a log period ago."""
+        """Count a dropped frame under `reason`; log `detail` (default: the reason) unless a drop of the same
+        kind was logged less than a log period ago. The kind is the reason and the detail with its numbers taken
+        out: the texts carry numbers that change every frame (sizes, stamps, spans), so keyed by the exact text
+        a stream of bad frames logged each one, while two different defects are still both told."""
         self.drops[reason] += 1
         text = detail or reason
+        kind = (reason, _NUMBER.sub("#", text))
         now = time.monotonic()
-        if now - self._logged_details.get(text, -float("inf")) < self._log_period:
-            self._suppressed[text] += 1
+        if now - self._logged_kinds.get(kind, -float("inf")) < self._log_period:
+            self._suppressed[kind] += 1
             return
-        repeats = self._suppressed.pop(text, 0)
-        self._logged_details[text] = now
-        if len(self._logged_details) > 100:  # bounded: forget the oldest texts
-            for old in sorted(self._logged_details, key=self._logged_details.get)[:50]:
-                del self._logged_details[old]
+        repeats = self._suppressed.pop(kind, 0)
+        self._logged_kinds[kind] = now
+        if len(self._logged_kinds) > 100:  # bounded: forget the kinds logged longest ago
+            for old in sorted(self._logged_kinds, key=self._logged_kinds.get)[:50]:
+                del self._logged_kinds[old]
+                self._suppressed.pop(old, None)
         more = f" ({repeats} more like it since)" if repeats else ""
         self._node.get_logger().error(f"dropped a message ({reason}): {text}{more}")
 

@@ -56,6 +56,14 @@ def describe(description: str, *, minimum: float | None = None, maximum: float |
     return descriptor
 
 
+def max_points_parameter() -> tuple[int, ParameterDescriptor]:
+    """The `max_points` parameter every node reading clouds declares (default and descriptor in one place)."""
+    from ntcr_recon.ros.messages import DEFAULT_MAX_POINTS
+
+    return DEFAULT_MAX_POINTS, describe("largest cloud accepted (points); a larger one is dropped before it is read",
+                                        minimum=1, maximum=100_000_000, integer=True)
+
+
 def finite_vector(name: str, value: Sequence[float], length: int) -> list[float]:
     """`value` as a list of `length` finite floats, or a ParameterError naming `name`."""
     values = list(value) if value is not None else []
@@ -86,13 +94,13 @@ def validate_on_change(node: Node, names: Sequence[str], apply: Callable[[dict[s
 
 
 def guarded(callback: Callable) -> Callable:
-    """Wrap a subscription callback so bad input is logged and the node goes on with the next message."""
+    """Wrap a subscription (or timer) callback so bad input is logged and the node goes on with the next one."""
 
     @functools.wraps(callback)
-    def wrapper(self: Node, msg) -> None:
+    def wrapper(self: Node, *args) -> None:
         stats = getattr(self, "stats", None)  # a node with a NodeStats counts the drop and limits the log
         try:
-            callback(self, msg)
+            callback(self, *args)
         except ValueError as error:  # bad input: say what was wrong with it
             if stats is not None:
                 stats.dropped(getattr(error, "reason", "invalid"), str(error))
@@ -126,11 +134,17 @@ def make_executor(context=None):
     return SingleThreadedExecutor(context=context)
 
 
-def spin(executor, context, stop: threading.Event | None = None) -> None:
-    """Execute callbacks until the context shuts down or `stop` is set. spin_once in a loop: rclpy 7.1.5's
-    EventsExecutor.spin() busy-loops without dispatching anything."""
-    while context.ok() and not (stop is not None and stop.is_set()):
+def spin(executor, context, stop: threading.Event | None = None, failed: Callable[[], bool] | None = None) -> None:
+    """Execute callbacks until the context shuts down, `stop` is set or `failed()` holds. spin_once in a loop:
+    rclpy 7.1.5's EventsExecutor.spin() busy-loops without dispatching anything."""
+    while context.ok() and not (stop is not None and stop.is_set()) and not (failed is not None and failed()):
         executor.spin_once(timeout_sec=0.25)
+
+
+def failures(nodes: Sequence[Node]) -> list[str]:
+    """What ended the nodes that cannot go on (a node sets `failure`, e.g. camera_node when its producer thread
+    died): the process then exits non-zero, so that the runner / launch respawns it."""
+    return [f"{node.get_name()}: {node.failure}" for node in nodes if getattr(node, "failure", None)]
 
 
 def _shutting_down(context) -> bool:
@@ -158,19 +172,24 @@ def run_nodes(node_factories: Sequence[Callable[[], Node]], args: list[str] | No
     stop = threading.Event()
     previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
     nodes: list[Node] = []
+    exit_code = 0
     try:
         for factory in node_factories:
             nodes.append(factory())
         executor = make_executor(context)
         for node in nodes:
             executor.add_node(node)
-        spin(executor, context, stop)
+        spin(executor, context, stop, lambda: bool(failures(nodes)))
+        for failure in failures(nodes):
+            print(f"error: {failure}", file=sys.stderr)
+            exit_code = 1
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except RuntimeError:
         # e.g. "Unable to convert call argument '0' to Python object" from a take interrupted by Ctrl-C: a clean
-        # stop when the context is going down; any other RuntimeError is a bug and stays one.
-        if not _shutting_down(context):
+        # stop when a stop was asked for (our SIGINT / SIGTERM handler: with SignalHandlerOptions.NO the context
+        # is not shut down by a Ctrl-C) or the context is going down; any other RuntimeError is a bug and stays one.
+        if not (stop.is_set() or _shutting_down(context)):
             raise
     except (ParameterError, ParameterException) as error:  # refused at start-up: say which, exit non-zero
         print(f"error: {error}", file=sys.stderr)
@@ -182,7 +201,7 @@ def run_nodes(node_factories: Sequence[Callable[[], Node]], args: list[str] | No
             rclpy.shutdown()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
-    return 0
+    return exit_code
 
 
 # ---- rig-configured nodes -------------------------------------------------------------------------------------
@@ -214,6 +233,10 @@ def rig_parameter_descriptor(key) -> ParameterDescriptor:
     return descriptor
 
 
+# Rig keys a running node cannot apply (its topics are made once): refused on change, as read-only.
+READ_ONLY_RIG_PREFIXES = ("topics.",)
+
+
 class RigNode(Node):
     """A node configured by the rig configuration (attribute `rig`, a RigConfig) plus its own parameters.
 
@@ -226,8 +249,10 @@ class RigNode(Node):
         from ntcr_recon.core.config import rig_parameter_keys
 
         super().__init__(node_name)
+        # read-only, as the topics: the subscriptions and publishers are made once, from the start values
         self.declare_parameter("camera_names", ["cam_a", "cam_b"], ParameterDescriptor(
-            description="rig configuration: names of the cameras, each with its own section", dynamic_typing=True))
+            description="rig configuration: names of the cameras, each with its own section", dynamic_typing=True,
+            read_only=True))
         camera_names = self.get_parameter("camera_names").value
         if not isinstance(camera_names, list | tuple) or not all(isinstance(n, str) and n for n in camera_names):
             raise ParameterError(f"parameter 'camera_names' must be a list of camera names, got {camera_names!r}")
@@ -247,7 +272,9 @@ class RigNode(Node):
         names = self._rig_names + self._own_names
         self._configure_from({name: self.get_parameter(name).value for name in names})
         for name, key in rig_keys.items():
-            self.set_descriptor(name, rig_parameter_descriptor(key))
+            descriptor = rig_parameter_descriptor(key)
+            descriptor.read_only = name.startswith(READ_ONLY_RIG_PREFIXES)
+            self.set_descriptor(name, descriptor)
         validate_on_change(self, names, self._configure_from)
 
     def set_parameters_atomically(self, parameter_list):

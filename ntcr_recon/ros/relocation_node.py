@@ -33,7 +33,6 @@ from visualization_msgs.msg import MarkerArray
 
 from ntcr_recon.core.pipeline import ReconstructionError, Reconstructor
 from ntcr_recon.ros.messages import (
-    DEFAULT_MAX_POINTS,
     centerline_path_bytes,
     check_point_count,
     frame_rotations,
@@ -44,15 +43,22 @@ from ntcr_recon.ros.messages import (
     stage_cloud_from_msg,
 )
 from ntcr_recon.ros.node_stats import NodeStats
-from ntcr_recon.ros.node_support import STAGE_QOS, ParameterError, RigNode, describe, guarded, run_node
+from ntcr_recon.ros.node_support import (
+    STAGE_QOS,
+    ParameterError,
+    RigNode,
+    describe,
+    guarded,
+    max_points_parameter,
+    run_node,
+)
 from ntcr_recon.ros.topics import stage_topic
 
 PARAMETERS = {
     "output_dir": ("", describe("when set, the newest relocated cloud is also written to <output_dir>/relocated.ply")),
     "warm_start": (True, describe("start each frame's centreline iteration from the previous frame's (as the "
                                   "offline command does); false: every frame from the base, independently")),
-    "max_points": (DEFAULT_MAX_POINTS, describe("largest cloud accepted (points); a larger one is dropped before it "
-                                                "is read", minimum=1, maximum=100_000_000, integer=True)),
+    "max_points": max_points_parameter(),
 }
 
 
@@ -80,7 +86,7 @@ class RelocationNode(RigNode):
         self.stats.received()
         started = time.perf_counter()
         check_point_count(msg, self._params["max_points"])
-        cloud = stage_cloud_from_msg(msg, self.rig.base_frame)
+        cloud = stage_cloud_from_msg(msg, self.rig.base_frame, self.rig)
         try:
             relocation = self._reconstructor.relocate(cloud, warm_start=self._params["warm_start"])
         except ReconstructionError as error:
