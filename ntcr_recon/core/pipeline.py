@@ -53,8 +53,9 @@ class ReconstructionError(RuntimeError):
 
 
 @dataclass(frozen=True)
-class Relocation:
-    """What the relocation stage makes of one cloud."""
+class RelocationResult:
+    """What the relocation stage (paper Sec. IV, `Reconstructor.relocate`) makes of one cloud: centreline, tip,
+    notches, and the points moved onto the reference surface (each point's move: `core.relocation`)."""
 
     centerline: Centerline          # base to the observed tip
     tip: np.ndarray                 # (3,) tip position, base frame
@@ -75,7 +76,7 @@ class Relocation:
 class FrameResult:
     fused: Cloud
     filtered: Cloud
-    relocation: Relocation
+    relocation: RelocationResult
     mesh: object | None = None
     timings_ms: dict[str, float] = field(default_factory=dict)
 
@@ -128,7 +129,7 @@ class Reconstructor:
         self._timed("filter", start)
         return cloud
 
-    def relocate(self, cloud: Cloud, warm_start: bool = True) -> Relocation:
+    def relocate(self, cloud: Cloud, warm_start: bool = True) -> RelocationResult:
         """Reference-guided relocation (paper Sec. IV) as the list of its steps, one module each:
 
         centreline -> alignment -> notches (and the notch side) -> tip -> relocation -> quality.
@@ -228,7 +229,7 @@ class Reconstructor:
         self._prior = fitted
         self._update_roi(relocated)
         self._timed("relocate", start)
-        return Relocation(_cut(centerline, tip_s), tip, notches, relocated, moved.normals, moved.rejected, coords,
+        return RelocationResult(_cut(centerline, tip_s), tip, notches, relocated, moved.normals, moved.rejected, coords,
                           iterations, moved.part, moved.coordinates, quality, tuple(warnings), notch_side)
 
     def _relocate_by_icp(self, cloud: Cloud, centerline: Centerline, notches: list[Notch], tip_s: float,
@@ -280,7 +281,7 @@ class Reconstructor:
         self._roi = (low, high)
         self._roi_count = len(relocated)
 
-    def mesh(self, relocation: Relocation):
+    def mesh(self, relocation: RelocationResult):
         """The configured mesher: `tube` (the relocated outer wall meshed on the tube's own grid) or
         `poisson` (open3d's screened Poisson, the paper's Eq. 7-8)."""
         from ntcr_recon.core.mesh import poisson_mesh, tube_mesh  # open3d is imported only by who meshes

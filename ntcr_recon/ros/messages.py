@@ -140,8 +140,9 @@ def stage_cloud_to_msg(cloud: Cloud, frame_id: str, normals: np.ndarray | None =
 
 
 def relocation_cloud_msg(relocation, frame_id: str) -> PointCloud2:
-    """The relocated cloud of a core Relocation with its normals, the surface `part` of each point and its
-    tube coordinates `tube_s`, `tube_x`, `tube_y` (what the mesh stage needs besides the centreline)."""
+    """The relocated cloud of a core.pipeline.RelocationResult with its normals, the surface `part` of each
+    point and its tube coordinates `tube_s`, `tube_x`, `tube_y` (what the mesh stage needs besides the
+    centreline)."""
     extra = {}
     if relocation.part is not None:
         extra["part"] = relocation.part
@@ -152,11 +153,11 @@ def relocation_cloud_msg(relocation, frame_id: str) -> PointCloud2:
 
 
 def relocation_from_msgs(cloud_msg: PointCloud2, path: Path, expected_frame: str, rig=None):
-    """A core Relocation rebuilt from relocation_node's cloud (`relocation_cloud_msg`) and centreline Path of
+    """A core RelocationResult rebuilt from relocation_node's cloud (`relocation_cloud_msg`) and centreline Path of
     the same stamp: what the core's mesher reads (centreline, relocated cloud, normals, parts, tube
     coordinates). Notches and rejected counts are not carried (0 / empty)."""
     from ntcr_recon.core.centerline import Centerline, TubeCoordinates
-    from ntcr_recon.core.pipeline import Relocation
+    from ntcr_recon.core.pipeline import RelocationResult
 
     require_frame(path, expected_frame)
     cloud, columns = _stage_cloud(cloud_msg, expected_frame, rig)
@@ -175,7 +176,7 @@ def relocation_from_msgs(cloud_msg: PointCloud2, path: Path, expected_frame: str
     rotations = np.stack([quaternion_to_matrix(q) for q in quaternions])
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
     centerline = Centerline(s, points, rotations[:, :, 2], rotations[:, :, 0], rotations[:, :, 1])
-    return Relocation(centerline, points[-1], [], cloud, normals, 0, coordinates, 0, part, coordinates)
+    return RelocationResult(centerline, points[-1], [], cloud, normals, 0, coordinates, 0, part, coordinates)
 
 
 def camera_cloud_to_msg(xyz: np.ndarray, rgb: np.ndarray | None, pixel: np.ndarray, frame_id: str,
