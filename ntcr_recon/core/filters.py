@@ -188,27 +188,28 @@ def mls_smooth(xyz: np.ndarray, k: int, order: int = 2, radius: float = 0.0,
     # neighbour-major (k, N) layout: every per-neighbour quantity is a contiguous row, sums over neighbours
     # are row additions
     index, distances = neighbour_index.T, neighbour_distances.T
-    present = (index >= 0) & np.isfinite(distances)
     origin = xyz.mean(axis=0)
     # float32 in metres about the centroid: sub-micrometre resolution, half the memory traffic
     local = np.ascontiguousarray((xyz - origin).T, dtype=np.float32)      # (3, N)
-    known = np.where(present, distances, 0.0).astype(np.float32)
-    scale = np.maximum(known.max(axis=0), np.float32(1e-12))
-    weights = np.where(present, np.exp(-np.square(known / scale)), np.float32(0.0))
+    # a dropped neighbour's distance is NaN: fmax skips it in the scale and turns its weight into 0
+    known = np.where((index >= 0) & np.isfinite(distances), distances, np.nan).astype(np.float32)
+    scale = np.maximum(np.fmax.reduce(known, axis=0), np.float32(1e-12))
+    weights = np.fmax(np.exp(-np.square(known / scale)), np.float32(0.0))
     if radius > 0:
         weights[known > radius] = 0.0
-    enough = np.count_nonzero(weights > 0, axis=0) >= minimum
-    neighbourhood = local[:, np.where(present, index, 0)]                   # (3, k, N)
+    enough = np.count_nonzero(weights, axis=0) >= minimum
+    # neighbours relative to the point (a dropped one's index -1 picks the last point, at weight 0): the
+    # covariance is translation invariant, and the quadric's basis is centred at the point
+    relative = local[:, index]                                             # (3, k, N)
+    relative -= local[:, None, :]
     weight_sum = np.maximum(weights.sum(axis=0), np.float32(1e-30))
-    centroid = (neighbourhood * weights).sum(axis=1) / weight_sum          # (3, N)
-    offsets = neighbourhood - centroid[:, None, :]
-    weighted = offsets * weights
-    entries = [(weighted[i] * offsets[j]).sum(axis=0).astype(np.float64) for i, j in
-               ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))]
-    normal = _smallest_eigenvectors_of(*entries).T.astype(np.float32)      # (3, N)
+    weighted = relative * weights
+    mean = weighted.sum(axis=1) / weight_sum                               # (3, N) centroid - point
+    entries = [(weighted[i] * relative[j]).sum(axis=0) / weight_sum - mean[i] * mean[j]
+               for i, j in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))]
+    normal = _smallest_eigenvectors_of(*(e.astype(np.float64) for e in entries)).T.astype(np.float32)  # (3, N)
     if order == 1:
-        own_height = ((local - centroid) * normal).sum(axis=0)
-        smoothed = local - own_height * normal
+        smoothed = local + (mean * normal).sum(axis=0) * normal             # onto the plane through the centroid
     else:
         # any orthonormal tangent pair: the quadric's basis spans the same space under rotation about the
         # normal, and under translation, so the basis is centred at the point itself: its height is then c0
@@ -219,11 +220,9 @@ def mls_smooth(xyz: np.ndarray, k: int, order: int = 2, radius: float = 0.0,
                            np.where(use_x, -normal[1], normal[0])])
         axis_a /= np.sqrt((axis_a * axis_a).sum(axis=0))
         axis_b = np.cross(normal, axis_a, axis=0)
-        relative = neighbourhood - local[:, None, :]                         # (3, k, N)
         inverse_scale = 1.0 / scale
-        a = (relative * (axis_a * inverse_scale)[:, None, :]).sum(axis=0)
-        b = (relative * (axis_b * inverse_scale)[:, None, :]).sum(axis=0)
-        h = (relative * normal[:, None, :]).sum(axis=0)
+        frame = np.stack([axis_a * inverse_scale, axis_b * inverse_scale, normal])  # (3 a/b/h, 3 xyz, N)
+        a, b, h = np.einsum("edn,dkn->ekn", frame, relative)               # one pass, no (3, k, N) temporaries
         smoothed = local + _quadric_height(a, b, h, weights) * normal
     return np.where(enough, smoothed, local).T.astype(np.float64) + origin
 
@@ -242,7 +241,7 @@ def voxel_downsample(cloud: Cloud, size: float) -> Cloud:
 
 
 def _window_candidates(cloud: Cloud, half: int) -> np.ndarray:
-    """(N, (2 half + 1)^2) int32 indices of the points in each point's pixel window (same camera), N (one past
+    """(N, (2 half + 1)^2) indices of the points in each point's pixel window (same camera), N (one past
     the last point) where none; column (2 half + 1)^2 // 2 is the point itself. Needs cloud.pixel and
     cloud.camera."""
     count = len(cloud)
@@ -250,8 +249,9 @@ def _window_candidates(cloud: Cloud, half: int) -> np.ndarray:
     v = cloud.pixel[:, 1]
     u0, v0 = int(u.min()) - half, int(v.min()) - half
     width, height = int(u.max()) - u0 + half + 1, int(v.max()) - v0 + half + 1
-    grid = np.full((int(cloud.camera.max()) + 1, height, width), count, dtype=np.int32)
-    grid[cloud.camera, v - v0, u - u0] = np.arange(count, dtype=np.int32)
+    # intp: numpy converts any other index type at every gather
+    grid = np.full((int(cloud.camera.max()) + 1, height, width), count, dtype=np.intp)
+    grid[cloud.camera, v - v0, u - u0] = np.arange(count)
     # a strided view of every window: one gather of (side, side) blocks, no (N, W) index arithmetic
     side = 2 * half + 1
     windows = sliding_window_view(grid, (side, side), axis=(1, 2))
@@ -291,7 +291,7 @@ def nearest_neighbours(cloud: Cloud, k: int) -> tuple[np.ndarray, np.ndarray]:
         keys |= candidates
         nearest = np.partition(keys, take - 1, axis=1)[:, :take]
         squared = (nearest >> 32).astype(np.int32).view(np.float32)
-        candidates = (nearest & 0xFFFFFFFF).astype(np.int32)
+        candidates = nearest & 0xFFFFFFFF
     distances = np.sqrt(squared, dtype=np.float64)
     candidates[candidates == count] = -1
     return distances, candidates
