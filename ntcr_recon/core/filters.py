@@ -114,31 +114,23 @@ def _quadric_height(a: np.ndarray, b: np.ndarray, h: np.ndarray, weights: np.nda
     a, b, h, weights: (k, N). The 6x6 normal matrix is assembled from the 15 weighted moments sum w a^i b^j
     (i + j <= 4) and solved by a Cholesky factorisation vectorised over the N systems (a loop over rows).
     """
-    # every weighted product in one buffer summed in one pass (many live temporaries cost more than the
-    # arithmetic); row of w a^i b^j in the moments, then the six w h a^i b^j of the right-hand side
-    rows = {(0, 0): 0}
-    for degree in range(1, 5):
-        for i in range(degree, -1, -1):
-            rows[(i, degree - i)] = len(rows)
-    products = np.empty((len(rows) + len(_QUADRIC_EXPONENTS),) + a.shape, dtype=np.float32)
-    products[0] = weights
-    for (i, j), row in list(rows.items())[1:]:
-        if i:
-            np.multiply(products[rows[(i - 1, j)]], a, out=products[row])
-        else:
-            np.multiply(products[rows[(0, j - 1)]], b, out=products[row])
-    # w h a^i b^j, each from the one of lower degree
-    rhs_rows = {(0, 0): len(rows)}
-    np.multiply(weights, h, out=products[len(rows)])
-    for n, (i, j) in enumerate(((1, 0), (0, 1), (2, 0), (1, 1), (0, 2)), start=len(rows) + 1):
-        if i:
-            np.multiply(products[rhs_rows[(i - 1, j)]], a, out=products[n])
-        else:
-            np.multiply(products[rhs_rows[(0, j - 1)]], b, out=products[n])
-        rhs_rows[(i, j)] = n
-    sums = products.sum(axis=1)
-    moments = {key: sums[row] for key, row in rows.items()}
-    rhs = [sums[rhs_rows[e]] for e in _QUADRIC_EXPONENTS]
+    # sum over the neighbours of w a^i times b^j as one einsum each: a product and its sum in one pass, no
+    # (moments, k, N) buffer written and read back (half the time)
+    weighted_a = [weights]                                                 # w a^i, i = 0..4
+    for _ in range(4):
+        weighted_a.append(weighted_a[-1] * a)
+    powers_b = [None, b]                                                   # b^j, j = 1..4
+    for _ in range(3):
+        powers_b.append(powers_b[-1] * b)
+
+    def weighted_sum(weighted: np.ndarray, j: int) -> np.ndarray:
+        return weighted.sum(axis=0) if j == 0 else np.einsum("kn,kn->n", weighted, powers_b[j])
+
+    moments = {(i, j): weighted_sum(weighted_a[i], j) for i in range(5) for j in range(5 - i)}
+    weighted_h = [weights * h]                                             # w h a^i, i = 0..1
+    weighted_h.append(weighted_h[0] * a)
+    rhs = [np.einsum("kn,kn->n", weighted_h[1], a) if i == 2 else weighted_sum(weighted_h[i], j)
+           for i, j in _QUADRIC_EXPONENTS]
     regularisation = np.float32(1e-6)
     tiny = np.float32(1e-30)
     lower: list[list[np.ndarray]] = []
