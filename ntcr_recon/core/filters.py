@@ -178,8 +178,8 @@ def mls_smooth(xyz: np.ndarray, k: int, order: int = 2, radius: float = 0.0,
     if neighbour_index is None:
         neighbour_distances, neighbour_index = cKDTree(xyz).query(xyz, k=k, workers=-1)
     # neighbour-major (k, N) layout: every per-neighbour quantity is a contiguous row, sums over neighbours
-    # are row additions
-    index, distances = neighbour_index.T, neighbour_distances.T
+    # are row additions (copies: numpy's results keep the memory order of a transposed view, strided)
+    index, distances = np.ascontiguousarray(neighbour_index.T), np.ascontiguousarray(neighbour_distances.T)
     origin = xyz.mean(axis=0)
     # float32 in metres about the centroid: sub-micrometre resolution, half the memory traffic
     local = np.ascontiguousarray((xyz - origin).T, dtype=np.float32)      # (3, N)
