@@ -192,7 +192,7 @@ def mls_smooth(xyz: np.ndarray, k: int, order: int = 2, radius: float = 0.0,
     enough = np.count_nonzero(weights, axis=0) >= minimum
     # neighbours relative to the point (a dropped one's index -1 picks the last point, at weight 0): the
     # covariance is translation invariant, and the quadric's basis is centred at the point
-    relative = local[:, index]                                             # (3, k, N)
+    relative = np.take(local, index, axis=1)                               # (3, k, N); take: 3x faster than []
     relative -= local[:, None, :]
     weight_sum = np.maximum(weights.sum(axis=0), np.float32(1e-30))
     weighted = relative * weights
@@ -213,8 +213,15 @@ def mls_smooth(xyz: np.ndarray, k: int, order: int = 2, radius: float = 0.0,
         axis_a /= np.sqrt((axis_a * axis_a).sum(axis=0))
         axis_b = np.cross(normal, axis_a, axis=0)
         inverse_scale = 1.0 / scale
-        frame = np.stack([axis_a * inverse_scale, axis_b * inverse_scale, normal])  # (3 a/b/h, 3 xyz, N)
-        a, b, h = np.einsum("edn,dkn->ekn", frame, relative)               # one pass, no (3, k, N) temporaries
+        # each coordinate row by row, in place: no (3, k, N) temporaries (einsum was slower still)
+        in_frame, term = np.empty_like(relative), np.empty_like(relative[0])
+        for coordinate, axis in zip(in_frame, (axis_a * inverse_scale, axis_b * inverse_scale, normal),
+                                    strict=True):
+            np.multiply(relative[0], axis[0], out=coordinate)
+            for d in (1, 2):
+                np.multiply(relative[d], axis[d], out=term)
+                coordinate += term
+        a, b, h = in_frame
         smoothed = local + _quadric_height(a, b, h, weights) * normal
     return np.where(enough, smoothed, local).T.astype(np.float64) + origin
 
@@ -270,7 +277,7 @@ def nearest_neighbours(cloud: Cloud, k: int) -> tuple[np.ndarray, np.ndarray]:
     coordinates[:, count] = np.inf
     squared = np.zeros(candidates.shape, dtype=np.float32)
     for coordinate in coordinates:
-        difference = coordinate[candidates]
+        difference = np.take(coordinate, candidates)                      # take: faster than []
         difference -= coordinate[:count, None]
         difference *= difference
         squared += difference
