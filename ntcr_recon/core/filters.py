@@ -94,14 +94,17 @@ def _smallest_eigenvectors_of(xx, xy, xz, yy, yz, zz) -> np.ndarray:
         np.stack([my * mz - yz * yz, yz * xz - xy * mz, xy * yz - my * xz]),
     ])                                                                         # (3 crosses, 3, N)
     squared = np.einsum("cdn,cdn->cn", crosses, crosses)
-    best = np.argmax(squared, axis=0)
-    columns = np.arange(len(xx))
-    vector = crosses[best, :, columns]                                         # (N, 3)
-    length = np.sqrt(squared[best, columns])
+    # the longest cross by two selections (an argmax over the short axis and a fancy gather cost twice as
+    # much); ties go to the first, as with argmax
+    first = squared[0] >= squared[1]
+    longer = np.where(first, squared[0], squared[1])
+    third = squared[2] > longer
+    vector = np.where(third, crosses[2], np.where(first, crosses[0], crosses[1]))   # (3, N)
+    length = np.sqrt(np.where(third, squared[2], longer))
     degenerate = length < 1e-300
-    vector[degenerate] = (0.0, 0.0, 1.0)
+    vector[:, degenerate] = ((0.0,), (0.0,), (1.0,))
     length[degenerate] = 1.0
-    return vector / length[:, None]
+    return (vector / length).T
 
 
 _QUADRIC_EXPONENTS = ((2, 0), (1, 1), (0, 2), (1, 0), (0, 1), (0, 0))   # the constant last: c0 is then
