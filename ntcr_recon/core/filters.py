@@ -56,7 +56,7 @@ def statistical_outlier_mask(xyz: np.ndarray, k: int, alpha: float,
     # out too, so a point at a hole or a thin part of the image is judged by the neighbours it has
     near = distances[:, : k + 1]
     present = np.isfinite(near)
-    count = present.sum(axis=1) - 1
+    count = np.count_nonzero(present, axis=1) - 1                        # (a boolean sum converts to int first)
     mean_distance = np.where(present, near, 0.0).sum(axis=1) / np.maximum(count, 1)
     mean_distance[count < 3] = np.inf                                     # (almost) alone: an outlier
     finite = np.isfinite(mean_distance)
