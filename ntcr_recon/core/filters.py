@@ -193,15 +193,17 @@ def mls_smooth(xyz: np.ndarray, k: int, order: int = 2, radius: float = 0.0,
     # float32 in metres about the centroid: sub-micrometre resolution, half the memory traffic
     local = np.ascontiguousarray((xyz - origin).T, dtype=np.float32)      # (3, N)
     # a dropped neighbour's distance is NaN: fmax skips it in the scale and turns its weight into 0
-    known = np.where((index >= 0) & np.isfinite(distances), distances, np.nan).astype(np.float32)
+    present = (index >= 0) & np.isfinite(distances)
+    known = np.where(present, distances, np.nan).astype(np.float32)
     scale = np.maximum(np.fmax.reduce(known, axis=0), np.float32(1e-12))
     weights = np.fmax(np.exp(-np.square(known / scale)), np.float32(0.0))
     if radius > 0:
         weights[known > radius] = 0.0
     enough = np.count_nonzero(weights, axis=0) >= minimum
-    # neighbours relative to the point (a dropped one's index -1 picks the last point, at weight 0): the
-    # covariance is translation invariant, and the quadric's basis is centred at the point
-    relative = np.take(local, index, axis=1)                               # (3, k, N); take: 3x faster than []
+    # neighbours relative to the point: the covariance is translation invariant, and the quadric's basis is
+    # centred at the point. A dropped neighbour stands at the point itself (0): a far one's powers in the
+    # quadric's sums would overflow. np.take: 3x faster than indexing with an array
+    relative = np.take(local, np.where(present, index, np.arange(count)), axis=1)   # (3, k, N)
     relative -= local[:, None, :]
     weight_sum = np.maximum(weights.sum(axis=0), np.float32(1e-30))
     weighted = relative * weights
