@@ -18,6 +18,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 from scipy.spatial import cKDTree
 
 from ntcr_recon.core.cloud import Cloud, unpack_rgb
@@ -25,7 +26,13 @@ from ntcr_recon.core.cloud import Cloud, unpack_rgb
 
 def crop_box_mask(xyz: np.ndarray, box_min, box_max) -> np.ndarray:
     """Points inside the axis-aligned box [box_min, box_max] (inclusive)."""
-    return np.all((xyz >= np.asarray(box_min)) & (xyz <= np.asarray(box_max)), axis=1)
+    # a column at a time: np.all over an axis of length 3 costs five times more
+    inside = np.ones(len(xyz), dtype=bool)
+    for coordinate, low, high in zip(np.asarray(xyz).T, np.asarray(box_min, dtype=float),
+                                     np.asarray(box_max, dtype=float), strict=True):
+        inside &= coordinate >= low
+        inside &= coordinate <= high
+    return inside
 
 
 def color_mask(rgb: np.ndarray, color_min, color_max) -> np.ndarray:
@@ -49,7 +56,7 @@ def statistical_outlier_mask(xyz: np.ndarray, k: int, alpha: float,
     # out too, so a point at a hole or a thin part of the image is judged by the neighbours it has
     near = distances[:, : k + 1]
     present = np.isfinite(near)
-    count = present.sum(axis=1) - 1
+    count = np.count_nonzero(present, axis=1) - 1                        # (a boolean sum converts to int first)
     mean_distance = np.where(present, near, 0.0).sum(axis=1) / np.maximum(count, 1)
     mean_distance[count < 3] = np.inf                                     # (almost) alone: an outlier
     finite = np.isfinite(mean_distance)
@@ -93,14 +100,17 @@ def _smallest_eigenvectors_of(xx, xy, xz, yy, yz, zz) -> np.ndarray:
         np.stack([my * mz - yz * yz, yz * xz - xy * mz, xy * yz - my * xz]),
     ])                                                                         # (3 crosses, 3, N)
     squared = np.einsum("cdn,cdn->cn", crosses, crosses)
-    best = np.argmax(squared, axis=0)
-    columns = np.arange(len(xx))
-    vector = crosses[best, :, columns]                                         # (N, 3)
-    length = np.sqrt(squared[best, columns])
+    # the longest cross by two selections (an argmax over the short axis and a fancy gather cost twice as
+    # much); ties go to the first, as with argmax
+    first = squared[0] >= squared[1]
+    longer = np.where(first, squared[0], squared[1])
+    third = squared[2] > longer
+    vector = np.where(third, crosses[2], np.where(first, crosses[0], crosses[1]))   # (3, N)
+    length = np.sqrt(np.where(third, squared[2], longer))
     degenerate = length < 1e-300
-    vector[degenerate] = (0.0, 0.0, 1.0)
+    vector[:, degenerate] = ((0.0,), (0.0,), (1.0,))
     length[degenerate] = 1.0
-    return vector / length[:, None]
+    return (vector / length).T
 
 
 _QUADRIC_EXPONENTS = ((2, 0), (1, 1), (0, 2), (1, 0), (0, 1), (0, 0))   # the constant last: c0 is then
@@ -113,31 +123,23 @@ def _quadric_height(a: np.ndarray, b: np.ndarray, h: np.ndarray, weights: np.nda
     a, b, h, weights: (k, N). The 6x6 normal matrix is assembled from the 15 weighted moments sum w a^i b^j
     (i + j <= 4) and solved by a Cholesky factorisation vectorised over the N systems (a loop over rows).
     """
-    # every weighted product in one buffer summed in one pass (many live temporaries cost more than the
-    # arithmetic); row of w a^i b^j in the moments, then the six w h a^i b^j of the right-hand side
-    rows = {(0, 0): 0}
-    for degree in range(1, 5):
-        for i in range(degree, -1, -1):
-            rows[(i, degree - i)] = len(rows)
-    products = np.empty((len(rows) + len(_QUADRIC_EXPONENTS),) + a.shape, dtype=np.float32)
-    products[0] = weights
-    for (i, j), row in list(rows.items())[1:]:
-        if i:
-            np.multiply(products[rows[(i - 1, j)]], a, out=products[row])
-        else:
-            np.multiply(products[rows[(0, j - 1)]], b, out=products[row])
-    # w h a^i b^j, each from the one of lower degree
-    rhs_rows = {(0, 0): len(rows)}
-    np.multiply(weights, h, out=products[len(rows)])
-    for n, (i, j) in enumerate(((1, 0), (0, 1), (2, 0), (1, 1), (0, 2)), start=len(rows) + 1):
-        if i:
-            np.multiply(products[rhs_rows[(i - 1, j)]], a, out=products[n])
-        else:
-            np.multiply(products[rhs_rows[(0, j - 1)]], b, out=products[n])
-        rhs_rows[(i, j)] = n
-    sums = products.sum(axis=1)
-    moments = {key: sums[row] for key, row in rows.items()}
-    rhs = [sums[rhs_rows[e]] for e in _QUADRIC_EXPONENTS]
+    # sum over the neighbours of w a^i times b^j as one einsum each: a product and its sum in one pass, no
+    # (moments, k, N) buffer written and read back (half the time)
+    weighted_a = [weights]                                                 # w a^i, i = 0..4
+    for _ in range(4):
+        weighted_a.append(weighted_a[-1] * a)
+    powers_b = [None, b]                                                   # b^j, j = 1..4
+    for _ in range(3):
+        powers_b.append(powers_b[-1] * b)
+
+    def weighted_sum(weighted: np.ndarray, j: int) -> np.ndarray:
+        return weighted.sum(axis=0) if j == 0 else np.einsum("kn,kn->n", weighted, powers_b[j])
+
+    moments = {(i, j): weighted_sum(weighted_a[i], j) for i in range(5) for j in range(5 - i)}
+    weighted_h = [weights * h]                                             # w h a^i, i = 0..1
+    weighted_h.append(weighted_h[0] * a)
+    rhs = [np.einsum("kn,kn->n", weighted_h[1], a) if i == 2 else weighted_sum(weighted_h[i], j)
+           for i, j in _QUADRIC_EXPONENTS]
     regularisation = np.float32(1e-6)
     tiny = np.float32(1e-30)
     lower: list[list[np.ndarray]] = []
@@ -185,29 +187,32 @@ def mls_smooth(xyz: np.ndarray, k: int, order: int = 2, radius: float = 0.0,
     if neighbour_index is None:
         neighbour_distances, neighbour_index = cKDTree(xyz).query(xyz, k=k, workers=-1)
     # neighbour-major (k, N) layout: every per-neighbour quantity is a contiguous row, sums over neighbours
-    # are row additions
-    index, distances = neighbour_index.T, neighbour_distances.T
-    present = (index >= 0) & np.isfinite(distances)
+    # are row additions (copies: numpy's results keep the memory order of a transposed view, strided)
+    index, distances = np.ascontiguousarray(neighbour_index.T), np.ascontiguousarray(neighbour_distances.T)
     origin = xyz.mean(axis=0)
     # float32 in metres about the centroid: sub-micrometre resolution, half the memory traffic
     local = np.ascontiguousarray((xyz - origin).T, dtype=np.float32)      # (3, N)
-    known = np.where(present, distances, 0.0).astype(np.float32)
-    scale = np.maximum(known.max(axis=0), np.float32(1e-12))
-    weights = np.where(present, np.exp(-np.square(known / scale)), np.float32(0.0))
+    # a dropped neighbour's distance is NaN: fmax skips it in the scale and turns its weight into 0
+    present = (index >= 0) & np.isfinite(distances)
+    known = np.where(present, distances, np.nan).astype(np.float32)
+    scale = np.maximum(np.fmax.reduce(known, axis=0), np.float32(1e-12))
+    weights = np.fmax(np.exp(-np.square(known / scale)), np.float32(0.0))
     if radius > 0:
         weights[known > radius] = 0.0
-    enough = np.count_nonzero(weights > 0, axis=0) >= minimum
-    neighbourhood = local[:, np.where(present, index, 0)]                   # (3, k, N)
+    enough = np.count_nonzero(weights, axis=0) >= minimum
+    # neighbours relative to the point: the covariance is translation invariant, and the quadric's basis is
+    # centred at the point. A dropped neighbour stands at the point itself (0): a far one's powers in the
+    # quadric's sums would overflow. np.take: 3x faster than indexing with an array
+    relative = np.take(local, np.where(present, index, np.arange(count)), axis=1)   # (3, k, N)
+    relative -= local[:, None, :]
     weight_sum = np.maximum(weights.sum(axis=0), np.float32(1e-30))
-    centroid = (neighbourhood * weights).sum(axis=1) / weight_sum          # (3, N)
-    offsets = neighbourhood - centroid[:, None, :]
-    weighted = offsets * weights
-    entries = [(weighted[i] * offsets[j]).sum(axis=0).astype(np.float64) for i, j in
-               ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))]
-    normal = _smallest_eigenvectors_of(*entries).T.astype(np.float32)      # (3, N)
+    weighted = relative * weights
+    mean = weighted.sum(axis=1) / weight_sum                               # (3, N) centroid - point
+    entries = [(weighted[i] * relative[j]).sum(axis=0) / weight_sum - mean[i] * mean[j]
+               for i, j in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))]
+    normal = _smallest_eigenvectors_of(*(e.astype(np.float64) for e in entries)).T.astype(np.float32)  # (3, N)
     if order == 1:
-        own_height = ((local - centroid) * normal).sum(axis=0)
-        smoothed = local - own_height * normal
+        smoothed = local + (mean * normal).sum(axis=0) * normal             # onto the plane through the centroid
     else:
         # any orthonormal tangent pair: the quadric's basis spans the same space under rotation about the
         # normal, and under translation, so the basis is centred at the point itself: its height is then c0
@@ -218,11 +223,16 @@ def mls_smooth(xyz: np.ndarray, k: int, order: int = 2, radius: float = 0.0,
                            np.where(use_x, -normal[1], normal[0])])
         axis_a /= np.sqrt((axis_a * axis_a).sum(axis=0))
         axis_b = np.cross(normal, axis_a, axis=0)
-        relative = neighbourhood - local[:, None, :]                         # (3, k, N)
         inverse_scale = 1.0 / scale
-        a = (relative * (axis_a * inverse_scale)[:, None, :]).sum(axis=0)
-        b = (relative * (axis_b * inverse_scale)[:, None, :]).sum(axis=0)
-        h = (relative * normal[:, None, :]).sum(axis=0)
+        # each coordinate row by row, in place: no (3, k, N) temporaries (einsum was slower still)
+        in_frame, term = np.empty_like(relative), np.empty_like(relative[0])
+        for coordinate, axis in zip(in_frame, (axis_a * inverse_scale, axis_b * inverse_scale, normal),
+                                    strict=True):
+            np.multiply(relative[0], axis[0], out=coordinate)
+            for d in (1, 2):
+                np.multiply(relative[d], axis[d], out=term)
+                coordinate += term
+        a, b, h = in_frame
         smoothed = local + _quadric_height(a, b, h, weights) * normal
     return np.where(enough, smoothed, local).T.astype(np.float64) + origin
 
@@ -241,19 +251,21 @@ def voxel_downsample(cloud: Cloud, size: float) -> Cloud:
 
 
 def _window_candidates(cloud: Cloud, half: int) -> np.ndarray:
-    """(N, (2 half + 1)^2) indices of the points in each point's pixel window (same camera), -1 where none;
-    column (2 half + 1)^2 // 2 is the point itself. Needs cloud.pixel and cloud.camera."""
-    du, dv = np.meshgrid(np.arange(-half, half + 1), np.arange(-half, half + 1))
-    du, dv = du.ravel(), dv.ravel()
-    u = cloud.pixel[:, 0].astype(np.int64)
-    v = cloud.pixel[:, 1].astype(np.int64)
-    u0, v0 = u.min() - half, v.min() - half
-    width, height = int(u.max() - u0 + half + 1), int(v.max() - v0 + half + 1)
-    cameras = int(cloud.camera.max()) + 1
-    lookup = np.full(cameras * height * width, -1, dtype=np.int64)
-    key = (cloud.camera.astype(np.int64) * height + (v - v0)) * width + (u - u0)
-    lookup[key] = np.arange(len(cloud))
-    return lookup[key[:, None] + dv[None, :] * width + du[None, :]]
+    """(N, (2 half + 1)^2) indices of the points in each point's pixel window (same camera), N (one past
+    the last point) where none; column (2 half + 1)^2 // 2 is the point itself. Needs cloud.pixel and
+    cloud.camera."""
+    count = len(cloud)
+    u = cloud.pixel[:, 0]
+    v = cloud.pixel[:, 1]
+    u0, v0 = int(u.min()) - half, int(v.min()) - half
+    width, height = int(u.max()) - u0 + half + 1, int(v.max()) - v0 + half + 1
+    # intp: numpy converts any other index type at every gather
+    grid = np.full((int(cloud.camera.max()) + 1, height, width), count, dtype=np.intp)
+    grid[cloud.camera, v - v0, u - u0] = np.arange(count)
+    # a strided view of every window: one gather of (side, side) blocks, no (N, W) index arithmetic
+    side = 2 * half + 1
+    windows = sliding_window_view(grid, (side, side), axis=(1, 2))
+    return windows[cloud.camera, v - v0 - half, u - u0 - half].reshape(count, side * side)
 
 
 def nearest_neighbours(cloud: Cloud, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -269,24 +281,29 @@ def nearest_neighbours(cloud: Cloud, k: int) -> tuple[np.ndarray, np.ndarray]:
         return distances.reshape(count, -1), index.reshape(count, -1)
     half = max(int(np.ceil((np.sqrt(k + 1.0) - 1.0) / 2.0)), 1)   # the smallest window with k neighbours
     candidates = _window_candidates(cloud, half)
-    xyz = cloud.xyz.astype(np.float32)
-    safe = np.maximum(candidates, 0)
-    # one coordinate at a time: gathers of (N, W) scalars, no (N, W, 3) temporaries
+    # coordinates as contiguous float32 rows with an infinite point at index N: a missing neighbour is then
+    # infinitely far without a mask
+    coordinates = np.empty((3, count + 1), dtype=np.float32)
+    coordinates[:, :count] = cloud.xyz.T
+    coordinates[:, count] = np.inf
     squared = np.zeros(candidates.shape, dtype=np.float32)
-    for axis in range(3):
-        coordinate = xyz[:, axis]
-        difference = coordinate[safe] - coordinate[:, None]
-        squared += difference * difference
-    squared[candidates < 0] = np.inf
-    window = squared.shape[1]
-    take = min(k, window)
-    if take < window:
-        nearest = np.argpartition(squared, take - 1, axis=1)[:, :take]
-        nearest += np.arange(count)[:, None] * window               # flat positions: np.take is the fast gather
-        squared = np.take(squared, nearest)
-        candidates = np.take(candidates, nearest)
-    distances = np.sqrt(squared).astype(np.float64)
-    candidates[~np.isfinite(distances)] = -1
+    for coordinate in coordinates:
+        difference = np.take(coordinate, candidates)                      # take: faster than []
+        difference -= coordinate[:count, None]
+        difference *= difference
+        squared += difference
+    take = min(k, squared.shape[1])
+    if take < squared.shape[1]:
+        # the k smallest by one partition of int64 keys (the float32's bits, which order non-negative floats,
+        # above the index): half the cost of argpartition and two gathers; ties go to the lower index
+        keys = squared.view(np.int32).astype(np.int64)
+        keys <<= 32
+        keys |= candidates
+        nearest = np.partition(keys, take - 1, axis=1)[:, :take]
+        squared = (nearest >> 32).astype(np.int32).view(np.float32)
+        candidates = nearest & 0xFFFFFFFF
+    distances = np.sqrt(squared, dtype=np.float64)
+    candidates[candidates == count] = -1
     return distances, candidates
 
 
