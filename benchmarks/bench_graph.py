@@ -63,7 +63,7 @@ OUTPUT_TOPICS = (
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--bag", type=Path, default=REPO / "bags" / "bend45")
-    parser.add_argument("--rate", type=float, default=1.0, help="replay speed (1 = the recorded 30 Hz)")
+    parser.add_argument("--rate", type=float, default=1.0, help="replay speed (1 = as recorded)")
     parser.add_argument("--duration", type=float, default=None, help="measured seconds (default 40; --soak 600)")
     parser.add_argument("--warm-up", type=float, default=8.0, help="seconds after the first tip before measuring")
     parser.add_argument("--run-arg", action="append", default=[], help="extra argument for `ntcr-recon run`")
@@ -219,9 +219,13 @@ def report(args, client: Client, start: float, end: float, processes, cpu_start,
     seconds = end - start
     in_window = {topic: [(t, s) for t, s in items if start <= t < end] for topic, items in client.received.items()}
     from ntcr_recon.core.config import load_rig_config
+    from ntcr_recon.io.camera_sources import BagSource
 
-    period_ns = 1e9 / load_rig_config(args.bag / "rig.yaml").cameras["cam_a"].fps  # the recorded frame period
-    recorded_pairs = seconds * args.rate * 1e9 / period_ns  # frames the bag has in the window, per camera
+    # The frames the bag has in the window, per camera: looped as camera_node loops it (each pass shifted by
+    # the bag's duration plus one frame period), not the camera's nominal fps.
+    config = load_rig_config(args.bag / "rig.yaml")
+    source = BagSource(args.bag, config.camera_names[0], config.topics, loop=True)
+    recorded_pairs = seconds * args.rate * 1e9 * source.frame_count / source.loop_shift_ns
     # When the camera clouds of a stamp reached the client: the later camera completes the pair.
     camera_time: dict[int, float] = {}
     for topic in CAMERA_TOPICS:
@@ -233,7 +237,8 @@ def report(args, client: Client, start: float, end: float, processes, cpu_start,
             first_time[topic].setdefault(s, t)
 
     print(f"\n{seconds:.1f} s measured after {args.warm_up:.0f} s warm-up; bag {args.bag.name} at rate {args.rate:g} "
-          f"({1e9 / period_ns * args.rate:.1f} Hz); load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores")
+          f"({recorded_pairs / seconds:.1f} frame pairs a second, looped); load average "
+          f"{os.getloadavg()[0]:.2f} on {os.cpu_count()} cores")
     print(f"{'topic':28s} {'Hz':>6s} {'pairs':>6s}   {'camera->topic ms p50    p95    max':>34s}   "
           f"{'stage ms p50    p95    max':>26s}")
     rows = [(topic, "camera") for topic in CAMERA_TOPICS] + [(t, prev) for t, _, _, prev in OUTPUT_TOPICS]

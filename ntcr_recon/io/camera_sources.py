@@ -84,6 +84,11 @@ class BagSource:
         self._frame_count = counts[self.topics[self.mode]]
 
     @property
+    def frame_count(self) -> int:
+        """The camera's frames in one pass of the bag."""
+        return self._frame_count
+
+    @property
     def loop_shift_ns(self) -> int:
         """How much later each loop's stamps are: the bag's duration plus its mean frame period, the same for
         every camera of the bag, so cameras replayed by separate nodes stay paired loop after loop."""
