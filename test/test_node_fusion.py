@@ -16,7 +16,7 @@ from ntcr_recon.core.config import load_rig_config
 from ntcr_recon.core.deproject import depth_to_points
 from ntcr_recon.core.fusion import CameraFrame, FramePair, fuse
 from ntcr_recon.io.pointcloud import cloud_to_msg, stamp_to_ns
-from ntcr_recon.ros.messages import camera_cloud_to_msg, header, stage_cloud_from_msg
+from ntcr_recon.ros.messages import RCLPY, camera_cloud_to_msg, header, stage_cloud_from_msg
 from ntcr_recon.ros.node_support import SENSOR_QOS
 
 PERIOD = 33_333_333
@@ -29,7 +29,7 @@ def camera_points(camera: str, index: int):
 
 def camera_msg(camera: str, stamp_ns: int, index: int = 0):
     xyz, rgb = camera_points(camera, index)
-    return cloud_to_msg(xyz, rgb, frame_id=f"{camera}_optical_frame", stamp_ns=stamp_ns)
+    return cloud_to_msg(xyz, rgb, msgtypes=RCLPY, frame_id=f"{camera}_optical_frame", stamp_ns=stamp_ns)
 
 
 @pytest.fixture(scope="module")
@@ -199,7 +199,7 @@ def test_an_oversized_camera_cloud_is_dropped_before_it_is_read_and_counted(fusi
     xyz, rgb = camera_points("cam_a", 0)
     assert set_parameter(fusion.graph, "fusion_node", "max_points", len(xyz) - 1).successful
     try:
-        msg = cloud_to_msg(xyz, rgb, frame_id="cam_a_optical_frame", stamp_ns=3_000 * PERIOD)
+        msg = cloud_to_msg(xyz, rgb, msgtypes=RCLPY, frame_id="cam_a_optical_frame", stamp_ns=3_000 * PERIOD)
         assert_dropped_and_counted(fusion, msg, fusion.publisher,
                                    f"cloud of {len(xyz)}x1 = {len(xyz)} points exceeds max_points {len(xyz) - 1}",
                                    "oversized")
@@ -212,7 +212,7 @@ def test_an_oversized_camera_cloud_is_dropped_before_it_is_read_and_counted(fusi
 def test_pixels_outside_the_camera_image_are_dropped_before_a_grid_is_allocated(fusion, span):
     # Two points whose pixels span `span` columns: laid out as they came, span^2 cells (GBs) would be allocated.
     xyz = np.array([[0.0, 0.0, 0.09], [1e-4, 0.0, 0.09]])
-    msg = cloud_to_msg(xyz, frame_id="cam_a_optical_frame", stamp_ns=3_100 * PERIOD,
+    msg = cloud_to_msg(xyz, msgtypes=RCLPY, frame_id="cam_a_optical_frame", stamp_ns=3_100 * PERIOD,
                        columns={"pixel_u": np.array([0, span], np.float32),
                                 "pixel_v": np.array([0, span], np.float32)})
     width, height = tiny_rig.INTRINSICS.width, tiny_rig.INTRINSICS.height

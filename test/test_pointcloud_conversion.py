@@ -11,13 +11,13 @@ from sensor_msgs.msg import PointCloud2, PointField
 
 from ntcr_recon.core.cloud import pack_rgb, unpack_rgb
 from ntcr_recon.io.pointcloud import (
-    RCLPY,
     ROSBAGS,
     CloudFormatError,
     cloud_from_msg,
     cloud_to_msg,
     stamp_to_ns,
 )
+from ntcr_recon.ros.messages import RCLPY
 
 STAMP_NS = 1_700_000_123_456_789_012
 
@@ -59,7 +59,7 @@ def test_round_trip_is_bit_identical(cloud, msgtypes):
 
 def test_round_trip_through_cdr(cloud):
     xyz, rgb = cloud
-    msg = cloud_to_msg(xyz, rgb, frame_id="ntcr_base", stamp_ns=STAMP_NS)
+    msg = cloud_to_msg(xyz, rgb, msgtypes=RCLPY, frame_id="ntcr_base", stamp_ns=STAMP_NS)
     decoded = deserialize_message(serialize_message(msg), PointCloud2)
     xyz_back, rgb_back = cloud_from_msg(decoded)
     assert_bit_identical(xyz_back, xyz)
@@ -93,7 +93,7 @@ def test_round_trip_through_mcap_bag(cloud, tmp_path):
 def test_organised_cloud_keeps_row_major_order_and_nan_drop():
     grid = np.arange(4 * 5 * 3, dtype=np.float32).reshape(4, 5, 3)
     grid[1, 2] = np.nan
-    msg = cloud_to_msg(grid, frame_id="cam", stamp_ns=0)
+    msg = cloud_to_msg(grid, msgtypes=RCLPY, frame_id="cam", stamp_ns=0)
     assert (msg.height, msg.width, msg.is_dense) == (4, 5, False)
     xyz, rgb = cloud_from_msg(msg)
     assert rgb is None
@@ -135,21 +135,21 @@ def test_foreign_layout_padding_and_endianness(cloud, big_endian):
 
 
 def test_too_short_data_is_refused(cloud):
-    msg = cloud_to_msg(*cloud, frame_id="cam", stamp_ns=0)
+    msg = cloud_to_msg(*cloud, msgtypes=RCLPY, frame_id="cam", stamp_ns=0)
     msg.data = bytes(msg.data)[:-1]
     with pytest.raises(CloudFormatError, match="width\\*height\\*point_step"):
         cloud_from_msg(msg)
 
 
 def test_missing_xyz_field_is_refused(cloud):
-    msg = cloud_to_msg(*cloud, frame_id="cam", stamp_ns=0)
+    msg = cloud_to_msg(*cloud, msgtypes=RCLPY, frame_id="cam", stamp_ns=0)
     msg.fields = [f for f in msg.fields if f.name != "y"]
     with pytest.raises(CloudFormatError, match="no field y"):
         cloud_from_msg(msg)
 
 
 def test_field_overrunning_point_is_refused(cloud):
-    msg = cloud_to_msg(*cloud, frame_id="cam", stamp_ns=0)
+    msg = cloud_to_msg(*cloud, msgtypes=RCLPY, frame_id="cam", stamp_ns=0)
     msg.point_step = 12  # rgb at offset 12 no longer fits
     msg.row_step = 12 * msg.width
     with pytest.raises(CloudFormatError, match="overruns point_step"):
@@ -157,6 +157,6 @@ def test_field_overrunning_point_is_refused(cloud):
 
 
 def test_empty_cloud_round_trips():
-    msg = cloud_to_msg(np.zeros((0, 3), np.float32), frame_id="cam", stamp_ns=5)
+    msg = cloud_to_msg(np.zeros((0, 3), np.float32), msgtypes=RCLPY, frame_id="cam", stamp_ns=5)
     xyz, rgb = cloud_from_msg(msg)
     assert xyz.shape == (0, 3) and rgb is None

@@ -12,6 +12,7 @@ from sensor_msgs.msg import PointCloud2
 
 from ntcr_recon.core.cloud import pack_rgb
 from ntcr_recon.io.pointcloud import cloud_from_msg, cloud_to_msg, stamp_to_ns
+from ntcr_recon.ros.messages import RCLPY
 from ntcr_recon.ros.node_support import SENSOR_QOS, STAGE_QOS
 
 TRANSLATION = [0.01, -0.02, 0.09]
@@ -46,7 +47,7 @@ def good_cloud(stamp_ns: int):
     rng = np.random.default_rng(stamp_ns)
     xyz = rng.uniform(-0.05, 0.05, size=(200, 3)).astype(np.float32)
     rgb = pack_rgb(rng.integers(0, 256, size=(200, 3), dtype=np.uint8))
-    return xyz, rgb, cloud_to_msg(xyz, rgb, frame_id="cam_a_optical_frame", stamp_ns=stamp_ns)
+    return xyz, rgb, cloud_to_msg(xyz, rgb, msgtypes=RCLPY, frame_id="cam_a_optical_frame", stamp_ns=stamp_ns)
 
 
 def test_cloud_is_transformed_into_the_target_frame(graph):
@@ -72,7 +73,7 @@ def test_malformed_cloud_is_logged_and_the_node_goes_on(graph, defect):
     elif defect == "wrong_frame":
         bad.header.frame_id = "cam_b_optical_frame"
     elif defect == "nan_only":
-        bad = cloud_to_msg(np.full_like(xyz, np.nan), frame_id="cam_a_optical_frame", stamp_ns=2_000)
+        bad = cloud_to_msg(np.full_like(xyz, np.nan), msgtypes=RCLPY, frame_id="cam_a_optical_frame", stamp_ns=2_000)
     count = len(graph.received)
     for _ in range(3):
         graph.publisher.publish(bad)

@@ -17,6 +17,7 @@ from rosbags.typesys import Stores, get_typestore
 from ntcr_recon.core.deproject import Intrinsics
 from ntcr_recon.core.transforms import rigid_transform
 from ntcr_recon.io.pointcloud import ROSBAGS, cloud_to_msg
+from ntcr_recon.ros.messages import RCLPY
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 T = TYPESTORE.types
@@ -143,15 +144,15 @@ MALFORMED = ("short_data", "no_z_field", "nan_only", "empty", "wrong_frame")
 def malformed_cloud(defect: str, frame_id: str, stamp_ns: int):
     """A PointCloud2 with one defect; `frame_id` is the frame the node expects (wrong_frame uses another)."""
     xyz = np.random.default_rng(0).uniform(-1e-3, 1e-3, size=(50, 3))
-    msg = cloud_to_msg(xyz, frame_id=frame_id, stamp_ns=stamp_ns)
+    msg = cloud_to_msg(xyz, msgtypes=RCLPY, frame_id=frame_id, stamp_ns=stamp_ns)
     if defect == "short_data":
         msg.data = bytes(msg.data)[:100]
     elif defect == "no_z_field":
         msg.fields = [f for f in msg.fields if f.name != "z"]
     elif defect == "nan_only":
-        msg = cloud_to_msg(np.full_like(xyz, np.nan), frame_id=frame_id, stamp_ns=stamp_ns)
+        msg = cloud_to_msg(np.full_like(xyz, np.nan), msgtypes=RCLPY, frame_id=frame_id, stamp_ns=stamp_ns)
     elif defect == "empty":
-        msg = cloud_to_msg(np.empty((0, 3)), frame_id=frame_id, stamp_ns=stamp_ns)
+        msg = cloud_to_msg(np.empty((0, 3)), msgtypes=RCLPY, frame_id=frame_id, stamp_ns=stamp_ns)
     elif defect == "wrong_frame":
         msg.header.frame_id = "some_other_frame"
     return msg

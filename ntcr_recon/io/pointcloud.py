@@ -5,8 +5,8 @@ views the bytes in place; reading (`read_points`, `cloud_from_msg`) and writing 
 `cloud_to_msg`) both go through it, for any fields. No Python loop runs over points.
 
 Both kinds of message carry the same field names, so reading is duck-typed. Writing needs the message
-classes, given as a `MessageTypes` namespace: `RCLPY` (imported only when first used, so this module works
-on a machine with no ROS) or `ROSBAGS`.
+classes, given as a `MessageTypes` namespace: `ROSBAGS` here, or `ntcr_recon.ros.messages.RCLPY` for rclpy
+messages (kept in the ROS layer, so this module imports no ROS package).
 
 The layout written is the one RViz2, PCL and sensor_msgs_py read: x, y, z float32, then `rgb` float32 whose
 bits are 0x00RRGGBB, then any of the `STAGE_FIELDS` the pipeline's stages add. Reading accepts any field
@@ -51,21 +51,6 @@ class MessageTypes:
     wrap_data: Callable[[np.ndarray], Any]  # uint8 array -> what the message's `data` field takes
 
 
-class _RclpyTypes:
-    """Resolves the rclpy message classes on first use, so importing this module needs no ROS."""
-
-    @functools.cached_property
-    def _types(self) -> MessageTypes:
-        from builtin_interfaces.msg import Time
-        from sensor_msgs.msg import PointCloud2, PointField
-        from std_msgs.msg import Header
-
-        return MessageTypes(PointCloud2, PointField, Header, Time, lambda data: data.tobytes())
-
-    def __getattr__(self, name):
-        return getattr(self._types, name)
-
-
 class _RosbagsTypes:
     @functools.cached_property
     def _types(self) -> MessageTypes:
@@ -84,7 +69,6 @@ class _RosbagsTypes:
         return getattr(self._types, name)
 
 
-RCLPY = _RclpyTypes()
 ROSBAGS = _RosbagsTypes()
 
 
@@ -171,7 +155,7 @@ def cloud_from_msg(msg, drop_nan: bool = False) -> tuple[np.ndarray, np.ndarray 
     return xyz, rgb
 
 
-def create_cloud(points: np.ndarray, *, frame_id: str, stamp_ns: int, msgtypes: MessageTypes = RCLPY,
+def create_cloud(points: np.ndarray, *, frame_id: str, stamp_ns: int, msgtypes: MessageTypes,
                  height: int = 1, is_dense: bool | None = None):
     """A PointCloud2 whose fields are those of the structured array `points` (little-endian scalars; N =
     height * width, row-major). The data is built in one piece from the array's bytes."""
@@ -198,7 +182,7 @@ def create_cloud(points: np.ndarray, *, frame_id: str, stamp_ns: int, msgtypes: 
 
 
 def cloud_to_msg(xyz: np.ndarray, rgb: np.ndarray | None = None, *, frame_id: str, stamp_ns: int,
-                 msgtypes: MessageTypes = RCLPY, columns: Mapping[str, np.ndarray | float] | None = None):
+                 msgtypes: MessageTypes, columns: Mapping[str, np.ndarray | float] | None = None):
     """A PointCloud2 of x, y, z float32 (+ packed `rgb` float32, + `columns`, named from `STAGE_FIELDS`) in
     the flavour of `msgtypes`.
 

@@ -38,8 +38,7 @@ from ntcr_recon.core.deproject import Intrinsics, crop_window, depth_to_points
 from ntcr_recon.core.filters import crop_box_mask
 from ntcr_recon.core.transforms import transform_points
 from ntcr_recon.io.camera_sources import BagSource, SourceError, SourceFrame
-from ntcr_recon.io.pointcloud import RCLPY
-from ntcr_recon.ros.messages import camera_cloud_to_msg, checked_intrinsics, header, stamp_msg
+from ntcr_recon.ros.messages import RCLPY, camera_cloud_to_msg, checked_intrinsics, header, stamp_msg
 from ntcr_recon.ros.node_stats import NodeStats
 from ntcr_recon.ros.node_support import SENSOR_QOS, ParameterError, RigNode, describe, run_node
 

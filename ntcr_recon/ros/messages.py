@@ -34,7 +34,7 @@ from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Pose, PoseStamped
 from nav_msgs.msg import Path
-from sensor_msgs.msg import PointCloud2
+from sensor_msgs.msg import PointCloud2, PointField
 from shape_msgs.msg import Mesh
 from std_msgs.msg import ColorRGBA, Float64MultiArray, Header, MultiArrayDimension, MultiArrayLayout
 from visualization_msgs.msg import Marker, MarkerArray
@@ -43,9 +43,18 @@ from ntcr_recon.core.cloud import Cloud
 from ntcr_recon.core.deproject import Intrinsics
 from ntcr_recon.core.fusion import CameraFrame
 from ntcr_recon.core.transforms import matrix_to_quaternion, quaternion_to_matrix
-from ntcr_recon.io.pointcloud import STAGE_FIELDS, cloud_from_msg, cloud_to_msg, read_points, stamp_to_ns
+from ntcr_recon.io.pointcloud import (
+    STAGE_FIELDS,
+    MessageTypes,
+    cloud_from_msg,
+    cloud_to_msg,
+    read_points,
+    stamp_to_ns,
+)
 from ntcr_recon.ros import cdr
 
+# the rclpy flavour of PointCloud2 writing (io.pointcloud.cloud_to_msg / create_cloud)
+RCLPY = MessageTypes(PointCloud2, PointField, Header, Time, lambda data: data.tobytes())
 NOTCH_LAYOUT_LABEL = "index,center_s_m,width_m,bend_rad"
 _NORMAL_FIELDS = ("normal_x", "normal_y", "normal_z")
 # Largest cloud a node reads by default: two D405 depth frames at 848x480, every pixel a point.
@@ -136,7 +145,8 @@ def stage_cloud_to_msg(cloud: Cloud, frame_id: str, normals: np.ndarray | None =
         columns.update(zip(_NORMAL_FIELDS, np.asarray(normals).T, strict=True))
     columns.update(extra or {})
     rgb = cloud.rgb if cloud.rgb is not None else np.zeros(len(cloud), np.uint32)
-    return cloud_to_msg(cloud.xyz, rgb, frame_id=frame_id, stamp_ns=cloud.stamp_ns, columns=columns)
+    return cloud_to_msg(cloud.xyz, rgb, frame_id=frame_id, stamp_ns=cloud.stamp_ns, msgtypes=RCLPY,
+                        columns=columns)
 
 
 def relocation_cloud_msg(relocation, frame_id: str) -> PointCloud2:
@@ -183,7 +193,7 @@ def camera_cloud_to_msg(xyz: np.ndarray, rgb: np.ndarray | None, pixel: np.ndarr
                         stamp_ns: int) -> PointCloud2:
     """A camera's deprojected points (optical frame) with their pixel (u, v) as `pixel_u`, `pixel_v`."""
     rgb = rgb if rgb is not None else np.zeros(len(xyz), np.uint32)
-    return cloud_to_msg(xyz, rgb, frame_id=frame_id, stamp_ns=stamp_ns,
+    return cloud_to_msg(xyz, rgb, frame_id=frame_id, stamp_ns=stamp_ns, msgtypes=RCLPY,
                         columns={"pixel_u": pixel[:, 0], "pixel_v": pixel[:, 1]})
 
 
