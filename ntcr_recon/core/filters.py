@@ -176,28 +176,43 @@ def _quadric_height(a, b, h, weights, normal_matrix, rhs):
 
 
 @jit
-def _gather_neighbourhood(xyz, point, index, distances, radius, relative, weights):
-    """Eq. 6's neighbourhood of one point: each neighbour's offset from the point (into `relative` (k, 3)) and
-    weight w = exp(-d^2 / s^2), s the farthest neighbour's distance (into `weights` (k,)). A missing neighbour
-    (index < 0, infinite distance, or beyond radius > 0) stands at the point itself with weight 0.
-    Returns s and the count of weighted neighbours."""
-    scale = 1e-12
-    for n in range(len(index)):
-        if index[n] >= 0 and distances[n] < np.inf:
-            scale = max(scale, distances[n])
+def _weight_exponents(index, distances, radius):
+    """Eq. 6's weights w = exp(-d^2 / s^2) before the exponential, per neighbour (index, distances (N, k)):
+    -d^2 / s^2, s the point's farthest neighbour, or -inf (w = 0) for a missing neighbour (index < 0,
+    infinite distance, or beyond radius > 0). Returns them and s per point. (The exponential is numpy's: its
+    SIMD version is five times faster than a compiled scalar call.)"""
+    count, k = index.shape
+    exponents = np.empty((count, k))
+    scale = np.empty(count)
+    for point in range(count):
+        farthest = 1e-12
+        for n in range(k):
+            if index[point, n] >= 0 and distances[point, n] < np.inf:
+                farthest = max(farthest, distances[point, n])
+        for n in range(k):
+            distance = distances[point, n]
+            present = index[point, n] >= 0 and distance < np.inf and not (radius > 0 and distance > radius)
+            exponents[point, n] = -(distance / farthest) ** 2 if present else -np.inf
+        scale[point] = farthest
+    return exponents, scale
+
+
+@jit
+def _neighbour_offsets(xyz, point, index, weights, relative):
+    """Each neighbour's offset from the point (into `relative` (k, 3)); a neighbour of weight 0 stands at the
+    point itself. Returns the count of weighted neighbours."""
     weighted = 0
     x, y, z = xyz[point, 0], xyz[point, 1], xyz[point, 2]
     for n in range(len(index)):
-        neighbour, distance = index[n], distances[n]
-        if neighbour < 0 or not distance < np.inf or (radius > 0 and distance > radius):
-            weights[n] = relative[n, 0] = relative[n, 1] = relative[n, 2] = 0.0
-            continue
-        weights[n] = np.exp(-(distance / scale) ** 2)
-        relative[n, 0] = xyz[neighbour, 0] - x
-        relative[n, 1] = xyz[neighbour, 1] - y
-        relative[n, 2] = xyz[neighbour, 2] - z
-        weighted += 1
-    return scale, weighted
+        if weights[n] > 0.0:
+            neighbour = index[n]
+            relative[n, 0] = xyz[neighbour, 0] - x
+            relative[n, 1] = xyz[neighbour, 1] - y
+            relative[n, 2] = xyz[neighbour, 2] - z
+            weighted += 1
+        else:
+            relative[n, 0] = relative[n, 1] = relative[n, 2] = 0.0
+    return weighted
 
 
 @jit
@@ -244,28 +259,26 @@ def _tangent_coordinates(relative, normal, scale, a, b, h):
 
 
 @jit
-def _moving_least_squares(xyz, index, distances, order, radius, minimum):
+def _moving_least_squares(xyz, index, weights, scale, order, minimum):
     """Eq. 6 for every point: moved along its local normal onto the weighted least-squares plane through its
     neighbours' centroid (order 1) or onto their quadric h(a, b) at its own (a, b) = (0, 0), i.e. by c0
-    (order 2); left where it is with fewer than `minimum` weighted neighbours. index, distances: (N, k) rows
-    of neighbours."""
+    (order 2); left where it is with fewer than `minimum` weighted neighbours. index, weights: (N, k) rows of
+    neighbours and their Eq. 6 weights; scale (N,): the unit of the quadric's tangent coordinates."""
     count, k = index.shape
     smoothed = xyz.copy()
-    relative, weights = np.empty((k, 3)), np.empty(k)
+    relative = np.empty((k, 3))
     a, b, h = np.empty(k), np.empty(k), np.empty(k)
     mean = np.empty(3)
     normal_matrix, rhs = np.empty((6, 6)), np.empty(6)
     for point in range(count):
-        scale, weighted = _gather_neighbourhood(xyz, point, index[point], distances[point], radius, relative,
-                                                weights)
-        if weighted < minimum:
+        if _neighbour_offsets(xyz, point, index[point], weights[point], relative) < minimum:
             continue
-        normal = _weighted_normal(relative, weights, mean)
+        normal = _weighted_normal(relative, weights[point], mean)
         if order == 1:
             height = mean[0] * normal[0] + mean[1] * normal[1] + mean[2] * normal[2]
         else:
-            _tangent_coordinates(relative, normal, scale, a, b, h)
-            height = _quadric_height(a, b, h, weights, normal_matrix, rhs)
+            _tangent_coordinates(relative, normal, scale[point], a, b, h)
+            height = _quadric_height(a, b, h, weights[point], normal_matrix, rhs)
         for d in range(3):
             smoothed[point, d] += height * normal[d]
     return smoothed
@@ -290,10 +303,12 @@ def mls_smooth(xyz: np.ndarray, k: int, order: int = 2, radius: float = 0.0,
         return xyz.copy()
     if neighbour_index is None:
         neighbour_distances, neighbour_index = cKDTree(xyz).query(xyz, k=min(k, count), workers=-1)
-    return _moving_least_squares(np.ascontiguousarray(xyz, dtype=np.float64),
-                                 np.ascontiguousarray(neighbour_index, dtype=np.int64),
-                                 np.ascontiguousarray(neighbour_distances, dtype=np.float64),
-                                 order, float(radius), minimum)
+    index = np.ascontiguousarray(neighbour_index, dtype=np.int64)
+    exponents, scale = _weight_exponents(index, np.ascontiguousarray(neighbour_distances, dtype=np.float64),
+                                         float(radius))
+    weights = np.exp(exponents, out=exponents)
+    return _moving_least_squares(np.ascontiguousarray(xyz, dtype=np.float64), index, weights, scale, order,
+                                 minimum)
 
 
 def voxel_downsample(cloud: Cloud, size: float) -> Cloud:
@@ -326,7 +341,8 @@ def _image_window_neighbours(xyz, camera, pixel, k, half):
     nearest = np.full((count, k), np.inf)
     index = np.full((count, k), -1, dtype=np.int64)
     # a window's candidates as keys (the float32 distance's bits, which order non-negative floats, above the
-    # index): distinct, so a candidate's rank is the count of smaller keys; a branch-free count beats sorting
+    # index): distinct, so a candidate's rank is the count of smaller keys; this branch-free count takes half
+    # the time of an insertion sort
     distances = np.empty((2 * half + 1) ** 2, dtype=np.float32)
     keys = np.empty((2 * half + 1) ** 2, dtype=np.int64)
     distance_bits = distances.view(np.int32)
@@ -389,7 +405,9 @@ def filter_cloud(cloud: Cloud, config) -> Cloud:
     """The configured filter chain: crop box, colour condition, SOR (Eq. 5), MLS (Eq. 6), voxel grid."""
     f = config.filters
     box_min, box_max = config.crop_box()
-    cloud = cloud.subset(crop_box_mask(cloud.xyz, box_min, box_max))
+    inside = crop_box_mask(cloud.xyz, box_min, box_max)
+    if not inside.all():           # (fusion crops to the same box: usually nothing to drop, nothing to copy)
+        cloud = cloud.subset(inside)
     if f.color_filter and cloud.rgb is not None:
         cloud = cloud.subset(color_mask(cloud.rgb, f.color_min, f.color_max))
     # one k-NN query serves both SOR and MLS; MLS then ignores the neighbours SOR dropped
