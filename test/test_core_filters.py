@@ -8,7 +8,7 @@ import pytest
 from synthetic_views import INTRINSICS, make_config
 
 from ntcr_recon.core.cloud import Cloud, pack_rgb
-from ntcr_recon.core.deproject import Intrinsics, crop_window, depth_to_points
+from ntcr_recon.core.deproject import Intrinsics, PixelWindow, crop_window, depth_to_points
 from ntcr_recon.core.filters import (
     _image_window_neighbours,
     _mean_neighbour_distances,
@@ -43,6 +43,24 @@ def test_depth_to_points_inverts_the_pinhole_projection():
     metres = np.where(depth > 0, depth * 1e-4, np.nan).astype(np.float32)   # 32FC1 with NaN holes
     xyz32, _, _ = depth_to_points(metres, intrinsics, 1.0)
     assert np.allclose(xyz32, xyz, atol=1e-7)
+
+
+def test_depth_to_points_keeps_the_window_and_its_depth_range_only():
+    intrinsics = Intrinsics(8, 6, 10.0, 12.0, 3.5, 2.5)
+    depth = np.arange(48, dtype=np.uint16).reshape(6, 8) * 10 + 400     # 40.0 mm .. 87.0 mm at 0.1 mm
+    window = PixelWindow(u0=2, u1=6, v0=1, v1=4, z_min=0.0525, z_max=0.0665)
+    xyz, _, pixel = depth_to_points(depth, intrinsics, 1e-4, window=window)
+    raw = depth[pixel[:, 1], pixel[:, 0]]
+    assert np.all((pixel[:, 0] >= 2) & (pixel[:, 0] < 6) & (pixel[:, 1] >= 1) & (pixel[:, 1] < 4))
+    assert np.all((raw * 1e-4 >= 0.0525) & (raw * 1e-4 <= 0.0665))
+    inside = depth[1:4, 2:6] * 1e-4
+    assert len(xyz) == np.count_nonzero((inside >= 0.0525) & (inside <= 0.0665)) == 6
+    np.testing.assert_array_equal(xyz[:, 2], raw * 1e-4)
+    # row by row, as the image is stored
+    assert np.all(np.diff(pixel[:, 1] * 8 + pixel[:, 0]) > 0)
+    # big-endian depth (a flagged sensor_msgs/Image) reads the same
+    swapped, _, _ = depth_to_points(depth.astype(">u2"), intrinsics, 1e-4, window=window)
+    np.testing.assert_array_equal(swapped, xyz)
 
 
 def test_crop_window_holds_every_pixel_that_sees_the_box():
