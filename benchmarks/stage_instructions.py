@@ -9,7 +9,9 @@ a loaded machine does not disturb as it does wall-clock times.
     done
 
 A stage's instructions per frame pair: (its largest "Collected" - none's) / the pairs printed. Both runs do
-one warm-up call of each stage, so imports and first-call caches cancel.
+one warm-up call of each stage, so imports and first-call caches cancel. The compiled kernels (core.compiled)
+are cached per CPU, and valgrind's simulated CPU is not the host's: the first run under valgrind compiles them
+(seconds of instructions in that run only), so run the loop once before counting.
 """
 
 from __future__ import annotations

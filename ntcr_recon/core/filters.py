@@ -1,6 +1,7 @@
 """Filters (paper Sec. II-B), each optional and configured in the `filters` section.
 
-Public API (all vectorised; masks are boolean arrays over the points):
+Public API (masks are boolean arrays over the points; the per-point loops, the image-window k-NN, SOR's mean
+distances and MLS's local fits, are compiled kernels, core.compiled):
     crop_box_mask(xyz, box_min, box_max)             spatial condition
     color_mask(rgb, color_min, color_max)            colour condition on packed 0x00RRGGBB
     statistical_outlier_mask(xyz, k, alpha)          Eq. 5: mean k-NN distance <= mu + alpha sigma
@@ -11,6 +12,7 @@ Public API (all vectorised; masks are boolean arrays over the points):
                                                      (a pixel window per camera) when the cloud has pixel
                                                      coordinates, else by a KD-tree
     filter_cloud(cloud, config) -> Cloud             the configured chain, in the paper's order
+    smallest_eigenvector(xx, xy, xz, yy, yz, zz)     least eigenvector of a symmetric 3x3 matrix (a kernel)
 """
 
 from __future__ import annotations
@@ -180,7 +182,7 @@ def _weight_exponents(index, distances, radius):
     """Eq. 6's weights w = exp(-d^2 / s^2) before the exponential, per neighbour (index, distances (N, k)):
     -d^2 / s^2, s the point's farthest neighbour, or -inf (w = 0) for a missing neighbour (index < 0,
     infinite distance, or beyond radius > 0). Returns them and s per point. (The exponential is numpy's: its
-    SIMD version is five times faster than a compiled scalar call.)"""
+    SIMD version is several times faster than a compiled scalar call.)"""
     count, k = index.shape
     exponents = np.empty((count, k))
     scale = np.empty(count)
