@@ -236,10 +236,11 @@ def _weighted_normal(relative, weights, mean):
         syy += wy * y
         syz += wy * z
         szz += wz * z
-    mx, my, mz = sx / sw, sy / sw, sz / sw
+    inverse = 1.0 / sw               # one division, not nine
+    mx, my, mz = sx * inverse, sy * inverse, sz * inverse
     mean[0], mean[1], mean[2] = mx, my, mz
-    return smallest_eigenvector(sxx / sw - mx * mx, sxy / sw - mx * my, sxz / sw - mx * mz, syy / sw - my * my,
-                                syz / sw - my * mz, szz / sw - mz * mz)
+    return smallest_eigenvector(sxx * inverse - mx * mx, sxy * inverse - mx * my, sxz * inverse - mx * mz,
+                                syy * inverse - my * my, syz * inverse - my * mz, szz * inverse - mz * mz)
 
 
 @jit
@@ -253,10 +254,14 @@ def _tangent_coordinates(relative, normal, scale, a, b, h):
     axis_a = (tangent[0] / length, tangent[1] / length, tangent[2] / length)
     axis_b = (normal[1] * axis_a[2] - normal[2] * axis_a[1], normal[2] * axis_a[0] - normal[0] * axis_a[2],
               normal[0] * axis_a[1] - normal[1] * axis_a[0])
+    # the axes in units of the scale: two divisions per neighbour saved
+    inverse = 1.0 / scale
+    ax, ay, az = axis_a[0] * inverse, axis_a[1] * inverse, axis_a[2] * inverse
+    bx, by, bz = axis_b[0] * inverse, axis_b[1] * inverse, axis_b[2] * inverse
     for n in range(len(relative)):
         x, y, z = relative[n, 0], relative[n, 1], relative[n, 2]
-        a[n] = (x * axis_a[0] + y * axis_a[1] + z * axis_a[2]) / scale
-        b[n] = (x * axis_b[0] + y * axis_b[1] + z * axis_b[2]) / scale
+        a[n] = x * ax + y * ay + z * az
+        b[n] = x * bx + y * by + z * bz
         h[n] = x * normal[0] + y * normal[1] + z * normal[2]
 
 
