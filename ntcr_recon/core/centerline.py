@@ -27,14 +27,10 @@ import numpy as np
 import scipy.linalg
 from scipy.spatial import cKDTree
 
+from ntcr_recon.core.compiled import jit
 from ntcr_recon.core.geometry import TubeGeometry
 from ntcr_recon.core.tip import tube_end
 from ntcr_recon.core.wall import surface_band
-
-
-def _cross_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Cross products of (3, N) arrays of column vectors, row by row (np.cross costs more for them)."""
-    return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
 def resample_polyline(points: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
@@ -44,6 +40,66 @@ def resample_polyline(points: np.ndarray, step: float) -> tuple[np.ndarray, np.n
     arc = np.concatenate([[0.0], np.cumsum(chord)])
     s = np.linspace(0.0, arc[-1], max(int(np.ceil(arc[-1] / step)), 1) + 1)
     return s, np.stack([np.interp(s, arc, points[:, d]) for d in range(3)], axis=1)
+
+
+@jit
+def _frames_kernel(samples, spacing, length, s, frames):
+    """Frames of a centreline at arc lengths s into frames (4, N, 3): position, tangent, normal, binormal.
+
+    samples (M, 9): point, tangent and normal at s = 0, spacing, ..., length. Each is interpolated linearly
+    between the two samples around s; the tangent normalised, the normal made perpendicular to it and
+    normalised, binormal = tangent x normal; beyond the ends the position goes on along the end tangent.
+    """
+    last = samples.shape[0] - 2
+    for i in range(s.shape[0]):
+        clipped = min(max(s[i], 0.0), length)
+        position_in_steps = clipped / spacing
+        index = max(min(int(position_in_steps), last), 0)
+        fraction = position_in_steps - index
+        for d in range(3):
+            for row in range(3):  # point, tangent, normal
+                low = samples[index, 3 * row + d]
+                frames[row, i, d] = low + (samples[index + 1, 3 * row + d] - low) * fraction
+        t0, t1, t2 = frames[1, i, 0], frames[1, i, 1], frames[1, i, 2]
+        norm = np.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+        t0, t1, t2 = t0 / norm, t1 / norm, t2 / norm
+        beyond = s[i] - clipped
+        n0, n1, n2 = frames[2, i, 0], frames[2, i, 1], frames[2, i, 2]
+        along = n0 * t0 + n1 * t1 + n2 * t2
+        n0, n1, n2 = n0 - along * t0, n1 - along * t1, n2 - along * t2
+        norm = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+        n0, n1, n2 = n0 / norm, n1 / norm, n2 / norm
+        frames[0, i, 0] += beyond * t0
+        frames[0, i, 1] += beyond * t1
+        frames[0, i, 2] += beyond * t2
+        frames[1, i, 0], frames[1, i, 1], frames[1, i, 2] = t0, t1, t2
+        frames[2, i, 0], frames[2, i, 1], frames[2, i, 2] = n0, n1, n2
+        frames[3, i, 0] = t1 * n2 - t2 * n1
+        frames[3, i, 1] = t2 * n0 - t0 * n2
+        frames[3, i, 2] = t0 * n1 - t1 * n0
+
+
+@jit
+def _project_kernel(samples, spacing, length, xyz, s, frames):
+    """Tube coordinates (s, x, y) of points xyz lying near arc lengths s of a centreline (samples as
+    _frames_kernel's): the point's offset from the centreline at s, its part along the tangent added to s,
+    the rest resolved on normal (x) and binormal (y). frames (4, N, 3) receives the frames at s, the position
+    moved along the tangent by that part."""
+    _frames_kernel(samples, spacing, length, s, frames)
+    count = s.shape[0]
+    new_s, x, y = np.empty(count), np.empty(count), np.empty(count)
+    for i in range(count):
+        t0, t1, t2 = frames[1, i, 0], frames[1, i, 1], frames[1, i, 2]
+        o0, o1, o2 = xyz[i, 0] - frames[0, i, 0], xyz[i, 1] - frames[0, i, 1], xyz[i, 2] - frames[0, i, 2]
+        correction = o0 * t0 + o1 * t1 + o2 * t2
+        o0, o1, o2 = o0 - correction * t0, o1 - correction * t1, o2 - correction * t2
+        new_s[i] = s[i] + correction
+        x[i] = o0 * frames[2, i, 0] + o1 * frames[2, i, 1] + o2 * frames[2, i, 2]
+        y[i] = o0 * frames[3, i, 0] + o1 * frames[3, i, 1] + o2 * frames[3, i, 2]
+        frames[0, i, 0] += correction * t0
+        frames[0, i, 1] += correction * t1
+        frames[0, i, 2] += correction * t2
+    return new_s, x, y
 
 
 @dataclass(frozen=True)
@@ -80,6 +136,10 @@ class Centerline:
     normals: np.ndarray     # unit, towards the notch side
     binormals: np.ndarray   # tangent x normal
 
+    def __post_init__(self):
+        if len(self.s) < 2:
+            raise ValueError(f"a centreline needs at least 2 samples, got {len(self.s)}")
+
     @property
     def length(self) -> float:
         return float(self.s[-1])
@@ -112,36 +172,16 @@ class Centerline:
         return Centerline(self.s, self.points, self.tangents, normals, np.cross(self.tangents, normals))
 
     @cached_property
-    def _rows(self) -> tuple[np.ndarray, np.ndarray]:
-        """(9, M) points, tangents and normals as rows, and (9, M - 1) their steps to the next sample: one
-        gather of each interpolates all three, and per-point arithmetic runs along contiguous rows (numpy is
-        slow on (N, 3) arrays, whose inner loops are three long)."""
-        samples = np.concatenate([self.points, self.tangents, self.normals], axis=1).T.copy()
-        return samples, np.diff(samples, axis=1)
+    def _samples(self) -> np.ndarray:
+        """(M, 9) points, tangents and normals side by side, what the compiled kernels interpolate."""
+        return np.concatenate([self.points, self.tangents, self.normals], axis=1)
 
     def frames_at(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Position, tangent, normal and binormal at arc lengths s; beyond the ends along the end tangent."""
-        s = np.asarray(s, dtype=float)
-        if len(self.s) < 2:
-            count = len(s)
-            return (self.points[:1] + (s - self.s[0])[:, None] * self.tangents[:1],
-                    np.repeat(self.tangents[:1], count, axis=0),
-                    np.repeat(self.normals[:1], count, axis=0), np.repeat(self.binormals[:1], count, axis=0))
-        clipped = np.clip(s, 0.0, self.length)
-        position_in_steps = clipped / (self.s[1] - self.s[0])
-        index = np.minimum(position_in_steps.astype(np.intp), len(self.s) - 2)
-        samples, steps = self._rows
-        mixed = np.take(samples, index, axis=1)
-        mixed += np.take(steps, index, axis=1) * (position_in_steps - index)
-        tangent, normal = mixed[3:6], mixed[6:9]
-        tangent /= np.sqrt(tangent[0] * tangent[0] + tangent[1] * tangent[1] + tangent[2] * tangent[2])
-        position = mixed[0:3]
-        position += (s - clipped) * tangent
-        normal -= (normal[0] * tangent[0] + normal[1] * tangent[1] + normal[2] * tangent[2]) * tangent
-        normal /= np.sqrt(normal[0] * normal[0] + normal[1] * normal[1] + normal[2] * normal[2])
-        binormal = _cross_rows(tangent, normal)
-        # back to (N, 3) rows in C order, which is what the callers index and combine
-        return position.T.copy(), tangent.T.copy(), normal.T.copy(), binormal.T.copy()
+        s = np.ascontiguousarray(s, dtype=float)
+        frames = np.empty((4, len(s), 3))
+        _frames_kernel(self._samples, float(self.s[1] - self.s[0]), self.length, s, frames)
+        return frames[0], frames[1], frames[2], frames[3]
 
     @cached_property
     def tree(self) -> cKDTree:
@@ -158,20 +198,15 @@ class Centerline:
         s_guess: arc lengths of the same points on a nearby curve (e.g. the previous iteration's), which
         replaces the KD-tree search by one more step along the tangent.
         """
+        xyz = np.ascontiguousarray(xyz, dtype=float)
         if s_guess is None:
             _, nearest = self.tree.query(xyz)
             s = self.s[nearest] + np.einsum("ij,ij->i", xyz - self.points[nearest], self.tangents[nearest])
         else:
-            s = s_guess
-        # one step along the tangent at s; the frame is not re-evaluated at the corrected s (the step is
-        # tiny next to the radius of curvature, and the offset is made normal to the tangent used)
-        position, tangent, normal, binormal = self.frames_at(s)
-        offset = xyz - position
-        correction = np.einsum("ij,ij->i", offset, tangent)  # (einsum: (N, 3).sum(axis=1) is 3x slower)
-        offset -= correction[:, None] * tangent
-        s = s + correction
-        coords = TubeCoordinates(s, np.einsum("ij,ij->i", offset, normal), np.einsum("ij,ij->i", offset, binormal))
-        return coords, (position + correction[:, None] * tangent, tangent, normal, binormal)
+            s = np.ascontiguousarray(s_guess, dtype=float)
+        frames = np.empty((4, len(s), 3))
+        s, x, y = _project_kernel(self._samples, float(self.s[1] - self.s[0]), self.length, xyz, s, frames)
+        return TubeCoordinates(s, x, y), (frames[0], frames[1], frames[2], frames[3])
 
     def to_points(self, s: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Base-frame points of tube coordinates (the inverse of project)."""
@@ -240,30 +275,51 @@ def fixed_radius_circle_fit(slab: np.ndarray, x: np.ndarray, y: np.ndarray, slab
     point_weight: optional prior weight of each point (e.g. its share of two neighbouring slabs).
     Returns centres (slabs, 2) and the 2x2 information matrices (slabs, 2, 2) (zero where unobserved).
     """
-    centre = np.zeros((slabs, 2))
-    information = np.zeros((slabs, 2, 2))
-    for _ in range(iterations):
-        dx, dy = x - centre[slab, 0], y - centre[slab, 1]
-        distance = np.maximum(np.sqrt(dx * dx + dy * dy), 1e-12)
-        residual = distance - radius
-        nx, ny = dx / distance, dy / distance
-        scaled = np.where(residual < 0, 2.0 * residual, residual) / gate
-        weight = np.where(np.abs(scaled) < 1.0, (1.0 - scaled**2) ** 2, 0.0)
-        if point_weight is not None:
-            weight = weight * point_weight
-        sums = [np.bincount(slab, weights=weight * term, minlength=slabs)
-                for term in (nx * nx, nx * ny, ny * ny, residual * nx, residual * ny)]
-        a, b, c, gx, gy = sums
-        damping = 1e-6 * (a + c) + 1e-30
-        det = (a + damping) * (c + damping) - b * b
-        step_x = ((c + damping) * gx - b * gy) / det
-        step_y = ((a + damping) * gy - b * gx) / det
-        centre[:, 0] += step_x
-        centre[:, 1] += step_y
-        information = np.stack([np.stack([a, b], axis=1), np.stack([b, c], axis=1)], axis=1)
-        if max(np.abs(step_x).max(initial=0.0), np.abs(step_y).max(initial=0.0)) < 1e-3 * gate:
-            break
+    if point_weight is None:
+        point_weight = np.ones(len(x))
+    centre, sums = _circle_fit_kernel(slab, x, y, point_weight, slabs, radius, gate, iterations)
+    a, b, c = sums[:, 0], sums[:, 1], sums[:, 2]
+    information = np.stack([np.stack([a, b], axis=1), np.stack([b, c], axis=1)], axis=1)
     return centre, information
+
+
+@jit
+def _circle_fit_kernel(slab, x, y, point_weight, slabs, radius, gate, iterations):
+    """fixed_radius_circle_fit's iterations: centres (slabs, 2) and the last step's weighted sums (slabs, 5) of
+    nx nx, nx ny, ny ny, r nx, r ny (n: the unit offset of a point from its slab's centre, r: its residual)."""
+    centre = np.zeros((slabs, 2))
+    sums = np.zeros((slabs, 5))
+    for _ in range(iterations):
+        sums[:] = 0.0
+        for i in range(x.shape[0]):
+            k = slab[i]
+            dx, dy = x[i] - centre[k, 0], y[i] - centre[k, 1]
+            distance = max(np.sqrt(dx * dx + dy * dy), 1e-12)
+            residual = distance - radius
+            nx, ny = dx / distance, dy / distance
+            scaled = (2.0 * residual if residual < 0 else residual) / gate
+            if not abs(scaled) < 1.0:
+                continue
+            taper = 1.0 - scaled * scaled
+            weight = taper * taper * point_weight[i]
+            sums[k, 0] += weight * (nx * nx)
+            sums[k, 1] += weight * (nx * ny)
+            sums[k, 2] += weight * (ny * ny)
+            sums[k, 3] += weight * (residual * nx)
+            sums[k, 4] += weight * (residual * ny)
+        largest = 0.0
+        for k in range(slabs):
+            a, b, c, gx, gy = sums[k, 0], sums[k, 1], sums[k, 2], sums[k, 3], sums[k, 4]
+            damping = 1e-6 * (a + c) + 1e-30
+            det = (a + damping) * (c + damping) - b * b
+            step_x = ((c + damping) * gx - b * gy) / det
+            step_y = ((a + damping) * gy - b * gx) / det
+            centre[k, 0] += step_x
+            centre[k, 1] += step_y
+            largest = max(largest, abs(step_x), abs(step_y))
+        if largest < 1e-3 * gate:
+            break
+    return centre, sums
 
 
 def _smooth_update(nodes: np.ndarray, tangents: np.ndarray, targets: np.ndarray, information: np.ndarray,
