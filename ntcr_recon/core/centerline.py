@@ -4,8 +4,8 @@ Each camera sees one (flattened) side of the tube, so a free circle fit of a cro
 flattening; with the radius known, a fixed-radius fit of the arcs that both cameras see recovers the axis.
 The estimate alternates, until the centreline moves less than a tolerance:
 
-1. correspondences: every point is projected onto the current centreline (nearest centreline sample by a
-   KD-tree, then along the local tangent) giving its arc length s and its offset in the normal plane;
+1. correspondences: every point is projected onto the current centreline (its nearest centreline sample,
+   then along the local tangent) giving its arc length s and its offset in the normal plane;
 2. a Gauss-Newton step of the point-to-reference objective (Eq. 10 with the reference tube swept along the
    centreline): per slab of arc length, the fixed-radius circle residual |p - c| - r_o, robustly weighted
    (points deep inside the tube are cut faces or bore, points far outside are outliers);
@@ -25,7 +25,6 @@ from functools import cached_property
 
 import numpy as np
 import scipy.linalg
-from scipy.spatial import cKDTree
 
 from ntcr_recon.core.compiled import jit
 from ntcr_recon.core.geometry import TubeGeometry
@@ -100,6 +99,64 @@ def _project_kernel(samples, spacing, length, xyz, s, frames):
         frames[0, i, 1] += correction * t1
         frames[0, i, 2] += correction * t2
     return new_s, x, y
+
+
+# Samples per bounding sphere of the nearest-sample search: about the square root of a centreline's samples
+# (a hundred or a few), so that both the spheres and the samples of the few spheres searched are few.
+SAMPLES_PER_BOUND = 12
+
+
+@jit
+def _nearest_in_run(points, first, stop, px, py, pz, best, nearest):
+    """The nearest of samples first .. stop - 1 to (px, py, pz) and its squared distance, if nearer than
+    `best` (squared); else best and nearest as given."""
+    for j in range(first, stop):
+        dx, dy, dz = px - points[j, 0], py - points[j, 1], pz - points[j, 2]
+        squared = dx * dx + dy * dy + dz * dz
+        if squared < best:
+            best, nearest = squared, j
+    return best, nearest
+
+
+@jit
+def _nearest_sample_arc_kernel(points, tangents, s, xyz, per_bound):
+    """Arc length of each point xyz from its nearest sample (exact) of a centreline (points, tangents at s):
+    that sample's s plus the point's offset from it along its tangent.
+
+    Runs of `per_bound` consecutive samples are bounded by spheres; a run is searched only where its sphere
+    comes nearer the point than the nearest sample found so far (first: the run whose sphere is nearest).
+    """
+    samples = points.shape[0]
+    runs = (samples + per_bound - 1) // per_bound
+    centre = np.zeros((runs, 3))
+    reach = np.zeros(runs)
+    for run in range(runs):
+        first, stop = run * per_bound, min((run + 1) * per_bound, samples)
+        for j in range(first, stop):
+            for d in range(3):
+                centre[run, d] += points[j, d] / (stop - first)
+        for j in range(first, stop):
+            dx, dy, dz = points[j, 0] - centre[run, 0], points[j, 1] - centre[run, 1], points[j, 2] - centre[run, 2]
+            reach[run] = max(reach[run], np.sqrt(dx * dx + dy * dy + dz * dz))
+    bound = np.empty(runs)
+    arc = np.empty(xyz.shape[0])
+    for i in range(xyz.shape[0]):
+        px, py, pz = xyz[i, 0], xyz[i, 1], xyz[i, 2]
+        for run in range(runs):
+            dx, dy, dz = px - centre[run, 0], py - centre[run, 1], pz - centre[run, 2]
+            bound[run] = np.sqrt(dx * dx + dy * dy + dz * dz) - reach[run]
+        start = np.argmin(bound)
+        best, nearest = _nearest_in_run(points, start * per_bound, min((start + 1) * per_bound, samples),
+                                        px, py, pz, np.inf, 0)
+        for run in range(runs):
+            # only a run whose sphere comes nearer than the nearest sample so far can hold a nearer one
+            if run != start and (bound[run] <= 0.0 or bound[run] * bound[run] <= best):
+                best, nearest = _nearest_in_run(points, run * per_bound, min((run + 1) * per_bound, samples),
+                                                px, py, pz, best, nearest)
+        arc[i] = s[nearest] + ((px - points[nearest, 0]) * tangents[nearest, 0]
+                               + (py - points[nearest, 1]) * tangents[nearest, 1]
+                               + (pz - points[nearest, 2]) * tangents[nearest, 2])
+    return arc
 
 
 @dataclass(frozen=True)
@@ -183,12 +240,8 @@ class Centerline:
         _frames_kernel(self._samples, float(self.s[1] - self.s[0]), self.length, s, frames)
         return frames[0], frames[1], frames[2], frames[3]
 
-    @cached_property
-    def tree(self) -> cKDTree:
-        return cKDTree(self.points)
-
     def project(self, xyz: np.ndarray, s_guess: np.ndarray | None = None) -> TubeCoordinates:
-        """Tube coordinates of points: nearest sample (KD-tree), then slid along the local tangent."""
+        """Tube coordinates of points: nearest sample, then slid along the local tangent."""
         return self.project_with_frames(xyz, s_guess)[0]
 
     def project_with_frames(self, xyz: np.ndarray, s_guess: np.ndarray | None = None
@@ -196,12 +249,11 @@ class Centerline:
         """project(), and the centreline frames (position, tangent, normal, binormal) at each point's s.
 
         s_guess: arc lengths of the same points on a nearby curve (e.g. the previous iteration's), which
-        replaces the KD-tree search by one more step along the tangent.
+        replaces the search for the nearest sample by one more step along the tangent.
         """
         xyz = np.ascontiguousarray(xyz, dtype=float)
         if s_guess is None:
-            _, nearest = self.tree.query(xyz)
-            s = self.s[nearest] + np.einsum("ij,ij->i", xyz - self.points[nearest], self.tangents[nearest])
+            s = _nearest_sample_arc_kernel(self.points, self.tangents, self.s, xyz, SAMPLES_PER_BOUND)
         else:
             s = np.ascontiguousarray(s_guess, dtype=float)
         frames = np.empty((4, len(s), 3))
