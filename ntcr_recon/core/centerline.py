@@ -374,6 +374,43 @@ def _circle_fit_kernel(slab, x, y, point_weight, slabs, radius, gate, iterations
     return centre, sums
 
 
+@jit
+def _hat_shares_kernel(s, x, y, selected, step, slabs):
+    """Each selected point's shares of its two neighbouring nodes (nodes `step` apart along s, `slabs` of them;
+    linear hat weights): (slab, x, y, weight) of every positive share on a node, the lower nodes' first."""
+    picked = np.flatnonzero(selected)
+    position_in_steps = s[picked] / step
+    lower = np.floor(position_in_steps).astype(np.intp)
+    share = position_in_steps - lower
+    slab, weight = np.empty(2 * len(picked), np.intp), np.empty(2 * len(picked))
+    slab_x, slab_y = np.empty(2 * len(picked)), np.empty(2 * len(picked))
+    kept = 0
+    for upper in range(2):
+        for j in range(len(picked)):
+            node, node_weight = lower[j] + upper, share[j] if upper else 1.0 - share[j]
+            if 0 <= node < slabs and node_weight > 0:
+                slab[kept], weight[kept] = node, node_weight
+                slab_x[kept], slab_y[kept] = x[picked[j]], y[picked[j]]
+                kept += 1
+    return slab[:kept], slab_x[:kept], slab_y[:kept], weight[:kept]
+
+
+@jit
+def _slab_directions_kernel(slab, x, y, weight, slabs):
+    """Per slab the weight of its points and the length of the weighted sum of their unit directions
+    (x, y) / |(x, y)| about the axis."""
+    counts, cos_sum, sin_sum = np.zeros(slabs), np.zeros(slabs), np.zeros(slabs)
+    for i in range(slab.shape[0]):
+        radius = np.sqrt(x[i] * x[i] + y[i] * y[i])
+        counts[slab[i]] += weight[i]
+        if radius > 0.0:
+            cos_sum[slab[i]] += weight[i] * (x[i] / radius)
+            sin_sum[slab[i]] += weight[i] * (y[i] / radius)
+        else:  # on the axis: the direction of angle 0
+            cos_sum[slab[i]] += weight[i]
+    return counts, np.hypot(cos_sum, sin_sum)
+
+
 def _smooth_update(nodes: np.ndarray, tangents: np.ndarray, targets: np.ndarray, information: np.ndarray,
                    anchor: np.ndarray, smoothing_steps: float) -> np.ndarray:
     """Positions minimising sum (P - target)^T W (P - target) + lam |second differences|^2 + anchor term.
@@ -498,15 +535,7 @@ def estimate_centerline(xyz: np.ndarray, geometry: TubeGeometry, settings: Cente
         slabs = max(int(np.ceil(observed_end / step)) + 1, 2)
         # each point feeds its two neighbouring nodes with linear (hat) weights, so the fit changes
         # smoothly as points slide along s between iterations
-        position_in_steps = coordinates.s[near_tube] / step
-        lower = np.floor(position_in_steps).astype(np.intp)
-        share = position_in_steps - lower
-        slab = np.concatenate([lower, lower + 1])
-        weight = np.concatenate([1.0 - share, share])
-        keep = (slab >= 0) & (slab < slabs) & (weight > 0)
-        x = np.tile(coordinates.x[near_tube], 2)[keep]
-        y = np.tile(coordinates.y[near_tube], 2)[keep]
-        slab, weight = slab[keep], weight[keep]
+        slab, x, y, weight = _hat_shares_kernel(coordinates.s, coordinates.x, coordinates.y, near_tube, step, slabs)
         # stereo depth puts the seen wall a little inside (flattening) or outside the true one, about equally
         # all round: the circle is fitted at the radius this cloud's wall points lie at, its centre is the axis
         level, _ = surface_band(coordinates.radius - geometry.outer_radius, settings.gate)
@@ -518,14 +547,11 @@ def estimate_centerline(xyz: np.ndarray, geometry: TubeGeometry, settings: Cente
         targets = position + np.einsum("mij,mj->mi", basis, centre)
         information = np.einsum("mia,mab,mjb->mij", basis, information_2d, basis)
         # slabs too thinly observed to place a circle are left to the smoothness prior
-        counts = np.bincount(slab, weights=weight, minlength=slabs)
+        counts, resultant = _slab_directions_kernel(slab, x, y, weight, slabs)
         information[counts < 6] = 0.0
         # A slab seen on one side only (e.g. across a notch, where only the spine is left) places the axis
         # through the radius alone, so any radial bias of stereo depth moves it sideways: such slabs count
         # less, by 1 - |mean direction of their points about the axis|^2, and the smoothness prior bridges.
-        angle = np.arctan2(y, x)
-        resultant = np.hypot(np.bincount(slab, weights=weight * np.cos(angle), minlength=slabs),
-                             np.bincount(slab, weights=weight * np.sin(angle), minlength=slabs))
         balance = 1.0 - (resultant / np.maximum(counts, 1e-12)) ** 2
         information *= balance[:, None, None]
         updated = _smooth_update(position, tangent, targets, information, base, smoothing_steps)
