@@ -159,6 +159,21 @@ def _nearest_sample_arc_kernel(points, tangents, s, xyz, per_bound):
     return arc
 
 
+@jit
+def _bend_kernel(samples, spacing, length, s0, s1):
+    """Signed angle between the tangents at s0 and s1 of a centreline (samples as _frames_kernel's), positive
+    where the tangent at s1 leans towards the normal at s0."""
+    start, end = np.empty((4, s0.shape[0], 3)), np.empty((4, s1.shape[0], 3))
+    _frames_kernel(samples, spacing, length, s0, start)
+    _frames_kernel(samples, spacing, length, s1, end)
+    angle = np.empty(s0.shape[0])
+    for i in range(s0.shape[0]):
+        cosine = start[1, i, 0] * end[1, i, 0] + start[1, i, 1] * end[1, i, 1] + start[1, i, 2] * end[1, i, 2]
+        towards = end[1, i, 0] * start[2, i, 0] + end[1, i, 1] * start[2, i, 1] + end[1, i, 2] * start[2, i, 2]
+        angle[i] = (1.0 if towards >= 0 else -1.0) * np.arccos(min(max(cosine, -1.0), 1.0))
+    return angle
+
+
 @dataclass(frozen=True)
 class TubeCoordinates:
     """Points in the tube's own coordinates: arc length s of their cross-section, offset (x towards the notch
@@ -268,10 +283,8 @@ class Centerline:
     def bend_angle(self, s0, s1) -> np.ndarray | float:
         """Signed turn of the tangent from s0 to s1 (scalars or arrays), positive towards the notch side."""
         s0, s1 = np.broadcast_arrays(np.atleast_1d(np.asarray(s0, float)), np.atleast_1d(np.asarray(s1, float)))
-        _, t0, n0, _ = self.frames_at(s0)
-        _, t1, _, _ = self.frames_at(s1)
-        cosine = np.clip((t0 * t1).sum(axis=1), -1.0, 1.0)
-        angle = np.where((t1 * n0).sum(axis=1) >= 0, 1.0, -1.0) * np.arccos(cosine)
+        angle = _bend_kernel(self._samples, float(self.s[1] - self.s[0]), self.length, np.ascontiguousarray(s0),
+                             np.ascontiguousarray(s1))
         return float(angle[0]) if angle.size == 1 else angle
 
 
