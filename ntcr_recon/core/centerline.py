@@ -35,10 +35,54 @@ from ntcr_recon.core.wall import surface_band
 def resample_polyline(points: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
     """Arc lengths s (uniform, at most `step` apart, from 0 to the length) and the polyline's points there
     (linear between its vertices)."""
-    chord = np.linalg.norm(np.diff(points, axis=0), axis=1)
-    arc = np.concatenate([[0.0], np.cumsum(chord)])
+    return _resample_kernel(np.ascontiguousarray(points, dtype=float), step)
+
+
+@jit
+def _resample_kernel(points, step):
+    """resample_polyline's arc lengths and points."""
+    arc = np.zeros(points.shape[0])
+    for i in range(1, points.shape[0]):
+        d0, d1, d2 = points[i, 0] - points[i - 1, 0], points[i, 1] - points[i - 1, 1], points[i, 2] - points[i - 1, 2]
+        arc[i] = arc[i - 1] + np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
     s = np.linspace(0.0, arc[-1], max(int(np.ceil(arc[-1] / step)), 1) + 1)
-    return s, np.stack([np.interp(s, arc, points[:, d]) for d in range(3)], axis=1)
+    resampled = np.empty((len(s), 3))
+    for d in range(3):
+        resampled[:, d] = np.interp(s, arc, points[:, d])
+    return s, resampled
+
+
+@jit
+def _untwisted_frames_kernel(s, points, binormal_hint):
+    """Tangents, normals and binormals (M, 3) of a curve sampled at increasing arc lengths s: the tangent by
+    second-order differences (np.gradient's, one-sided at the ends; the chord where there are two samples),
+    normalised; the binormal the hint made perpendicular to it and normalised; normal = binormal x tangent."""
+    count = s.shape[0]
+    tangents, normals, binormals = np.empty((count, 3)), np.empty((count, 3)), np.empty((count, 3))
+    for i in range(count):
+        for d in range(3):
+            if count == 2:
+                tangents[i, d] = points[1, d] - points[0, d]
+            elif i == 0:
+                tangents[i, d] = (points[1, d] - points[0, d]) / (s[1] - s[0])
+            elif i == count - 1:
+                tangents[i, d] = (points[i, d] - points[i - 1, d]) / (s[i] - s[i - 1])
+            else:
+                before, after = s[i] - s[i - 1], s[i + 1] - s[i]
+                tangents[i, d] = (-after / (before * (before + after)) * points[i - 1, d]
+                                  + (after - before) / (before * after) * points[i, d]
+                                  + before / (after * (before + after)) * points[i + 1, d])
+        t0, t1, t2 = tangents[i, 0], tangents[i, 1], tangents[i, 2]
+        norm = np.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+        t0, t1, t2 = t0 / norm, t1 / norm, t2 / norm
+        along = t0 * binormal_hint[0] + t1 * binormal_hint[1] + t2 * binormal_hint[2]
+        b0, b1, b2 = binormal_hint[0] - along * t0, binormal_hint[1] - along * t1, binormal_hint[2] - along * t2
+        norm = np.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
+        b0, b1, b2 = b0 / norm, b1 / norm, b2 / norm
+        tangents[i, 0], tangents[i, 1], tangents[i, 2] = t0, t1, t2
+        binormals[i, 0], binormals[i, 1], binormals[i, 2] = b0, b1, b2
+        normals[i, 0], normals[i, 1], normals[i, 2] = b1 * t2 - b2 * t1, b2 * t0 - b0 * t2, b0 * t1 - b1 * t0
+    return tangents, normals, binormals
 
 
 @jit
@@ -162,14 +206,16 @@ def _nearest_sample_arc_kernel(points, tangents, s, xyz, per_bound):
 @jit
 def _bend_kernel(samples, spacing, length, s0, s1):
     """Signed angle between the tangents at s0 and s1 of a centreline (samples as _frames_kernel's), positive
-    where the tangent at s1 leans towards the normal at s0."""
+    where the tangent at s1 leans towards the normal at s0; an array of length 1 pairs with every s of the
+    other."""
     start, end = np.empty((4, s0.shape[0], 3)), np.empty((4, s1.shape[0], 3))
     _frames_kernel(samples, spacing, length, s0, start)
     _frames_kernel(samples, spacing, length, s1, end)
-    angle = np.empty(s0.shape[0])
-    for i in range(s0.shape[0]):
-        cosine = start[1, i, 0] * end[1, i, 0] + start[1, i, 1] * end[1, i, 1] + start[1, i, 2] * end[1, i, 2]
-        towards = end[1, i, 0] * start[2, i, 0] + end[1, i, 1] * start[2, i, 1] + end[1, i, 2] * start[2, i, 2]
+    angle = np.empty(max(s0.shape[0], s1.shape[0]))
+    for i in range(angle.shape[0]):
+        a, b = min(i, s0.shape[0] - 1), min(i, s1.shape[0] - 1)
+        cosine = start[1, a, 0] * end[1, b, 0] + start[1, a, 1] * end[1, b, 1] + start[1, a, 2] * end[1, b, 2]
+        towards = end[1, b, 0] * start[2, a, 0] + end[1, b, 1] * start[2, a, 1] + end[1, b, 2] * start[2, a, 2]
         angle[i] = (1.0 if towards >= 0 else -1.0) * np.arccos(min(max(cosine, -1.0), 1.0))
     return angle
 
@@ -228,13 +274,7 @@ class Centerline:
         perpendicular to the tangent, so the frame does not twist and needs no sequential transport.
         """
         s, resampled = resample_polyline(points, step)
-        count = len(s)
-        tangents = np.gradient(resampled, s, axis=0) if count > 2 else np.repeat(
-            (resampled[-1:] - resampled[:1]), count, axis=0)
-        tangents /= np.linalg.norm(tangents, axis=1, keepdims=True)
-        binormals = binormal_hint - np.einsum("ij,j->i", tangents, binormal_hint)[:, None] * tangents
-        binormals /= np.linalg.norm(binormals, axis=1, keepdims=True)
-        normals = np.cross(binormals, tangents)
+        tangents, normals, binormals = _untwisted_frames_kernel(s, resampled, np.asarray(binormal_hint, dtype=float))
         return cls(s, resampled, tangents, normals, binormals)
 
     def rolled(self, angle: float) -> Centerline:
@@ -281,10 +321,10 @@ class Centerline:
         return position + x[:, None] * normal + y[:, None] * binormal
 
     def bend_angle(self, s0, s1) -> np.ndarray | float:
-        """Signed turn of the tangent from s0 to s1 (scalars or arrays), positive towards the notch side."""
-        s0, s1 = np.broadcast_arrays(np.atleast_1d(np.asarray(s0, float)), np.atleast_1d(np.asarray(s1, float)))
-        angle = _bend_kernel(self._samples, float(self.s[1] - self.s[0]), self.length, np.ascontiguousarray(s0),
-                             np.ascontiguousarray(s1))
+        """Signed turn of the tangent from s0 to s1 (scalars or arrays, one of them of length 1 or both of the
+        same length), positive towards the notch side."""
+        angle = _bend_kernel(self._samples, float(self.s[1] - self.s[0]), self.length,
+                             np.atleast_1d(np.asarray(s0, dtype=float)), np.atleast_1d(np.asarray(s1, dtype=float)))
         return float(angle[0]) if angle.size == 1 else angle
 
 
