@@ -472,37 +472,50 @@ def _smooth_update(nodes: np.ndarray, tangents: np.ndarray, targets: np.ndarray,
     place along its tangent (else the smoothness prior would let the curve stretch freely) and weakly
     everywhere. information: (M, 3, 3) data weights. lam = smoothing_steps^4 sets the cut-off length.
     """
-    count = len(nodes)
-    traces = np.trace(information, axis1=1, axis2=2)
-    typical = float(np.median(traces[traces > 0])) if np.any(traces > 0) else 1.0
+    bands, rhs = _smoothing_system_kernel(nodes, tangents, targets, information, np.asarray(anchor, dtype=float),
+                                          smoothing_steps)
+    return scipy.linalg.solveh_banded(bands, rhs).reshape(len(nodes), 3)
+
+
+@jit
+def _smoothing_system_kernel(nodes, tangents, targets, information, anchor, smoothing_steps):
+    """_smooth_update's normal equations, in LAPACK's upper band storage (9, 3M) and their right-hand side.
+
+    The system couples a node with itself (3x3 block) and, through the second differences, with the next two:
+    symmetric, positive definite and banded (8 above the diagonal in x, y, z order per node):
+    bands[8 - offset, column] = system[column - offset, column]. No dense matrix, no matrix product (which
+    would wake BLAS threads for nothing).
+    """
+    count = nodes.shape[0]
+    traces = information[:, 0, 0] + information[:, 1, 1] + information[:, 2, 2]
+    observed = traces[traces > 0]
+    typical = np.median(observed) if observed.size else 1.0
     weak = 1e-4 * typical
     lam = typical * smoothing_steps**4
-    along = typical * np.einsum("mi,mj->mij", tangents, tangents)
-    block = information + along + weak * np.eye(3)[None]
-    block[0] += 1e3 * typical * np.eye(3)                      # the base is clamped at the configured pose
-    rhs = np.einsum("mij,mj->mi", information, targets) + np.einsum("mij,mj->mi", along, nodes) + weak * nodes
-    rhs[0] += 1e3 * typical * anchor
-    # The system couples a node with itself (3x3 block) and, through the second differences, with the next
-    # two: symmetric, positive definite and banded (8 above the diagonal in x, y, z order per node). It is
-    # assembled in LAPACK's upper band storage, bands[8 - offset, column] = system[column - offset, column]:
-    # no dense matrix, no matrix product (which would wake BLAS threads for nothing).
-    size = 3 * count
-    bands = np.zeros((9, size))
-    for row in range(3):
-        for column in range(row, 3):
-            bands[8 - (column - row), column::3] += block[:, row, column]
+    clamp = 1e3 * typical  # the base is clamped at the configured pose
+    bands, rhs = np.zeros((9, 3 * count)), np.zeros(3 * count)
+    for m in range(count):
+        for row in range(3):
+            for column in range(3):
+                along = typical * (tangents[m, row] * tangents[m, column])
+                rhs[3 * m + row] += information[m, row, column] * targets[m, column]
+                rhs[3 * m + row] += along * nodes[m, column]
+                if column >= row:
+                    block = information[m, row, column] + along
+                    if column == row:
+                        block += weak + (clamp if m == 0 else 0.0)
+                    bands[8 - (column - row), 3 * m + column] = block
+            rhs[3 * m + row] += weak * nodes[m, row] + (clamp * anchor[row] if m == 0 else 0.0)
     if count >= 3:
         # second difference of nodes i, i+1, i+2 with coefficients (1, -2, 1): lam * D^T D, per axis
         coefficients = (1.0, -2.0, 1.0)
         for first in range(3):
             for second in range(first, 3):
-                offset = 3 * (second - first)
                 value = lam * coefficients[first] * coefficients[second]
-                for axis in range(3):
-                    # node pairs (i + first, i + second), i = 0 .. count - 3, at column 3 (i + second) + axis
-                    start = 3 * second + axis
-                    bands[8 - offset, start:start + 3 * (count - 2):3] += value
-    return scipy.linalg.solveh_banded(bands, rhs.reshape(-1)).reshape(count, 3)
+                for i in range(count - 2):
+                    for axis in range(3):  # node pair (i + first, i + second)
+                        bands[8 - 3 * (second - first), 3 * (i + second) + axis] += value
+    return bands, rhs
 
 
 def _march(xyz: np.ndarray, geometry: TubeGeometry, settings: CenterlineSettings) -> np.ndarray:
