@@ -22,6 +22,7 @@ from ntcr_recon.core.centerline import Centerline, TubeCoordinates
 from ntcr_recon.core.comb import cut_intervals, inside_intervals
 from ntcr_recon.core.compiled import jit
 from ntcr_recon.core.geometry import TubeGeometry
+from ntcr_recon.core.wall import median
 
 # Mean resultant length of a window's point directions about the axis above which it is seen from one side.
 MAX_ONE_SIDEDNESS = 0.6
@@ -114,6 +115,6 @@ def align_to_trusted_wall(centerline: Centerline, coords: TubeCoordinates, frame
     weights = counts[solvable].astype(float)
     bias = np.average(shifts[solvable], axis=0, weights=weights)
     fitted = shifts[index, 0] * cos_a + shifts[index, 1] * sin_a
-    level = np.median(residual - fitted)
+    level = median(residual - fitted)
     rms = float(np.sqrt(np.mean((residual - fitted - level) ** 2)))
     return Alignment(aligned, float(bias[0]), float(bias[1]), rms, count)

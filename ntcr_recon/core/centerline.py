@@ -29,7 +29,7 @@ import scipy.linalg
 from ntcr_recon.core.compiled import jit
 from ntcr_recon.core.geometry import TubeGeometry
 from ntcr_recon.core.tip import tube_end
-from ntcr_recon.core.wall import surface_band
+from ntcr_recon.core.wall import median, surface_band
 
 
 def resample_polyline(points: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
@@ -489,7 +489,7 @@ def _smoothing_system_kernel(nodes, tangents, targets, information, anchor, smoo
     count = nodes.shape[0]
     traces = information[:, 0, 0] + information[:, 1, 1] + information[:, 2, 2]
     observed = traces[traces > 0]
-    typical = np.median(observed) if observed.size else 1.0
+    typical = median(observed) if observed.size else 1.0
     weak = 1e-4 * typical
     lam = typical * smoothing_steps**4
     clamp = 1e3 * typical  # the base is clamped at the configured pose

@@ -15,9 +15,51 @@ MAD_TO_SIGMA = 1.4826  # a normal distribution's sigma per median absolute devia
 
 
 @jit
+def _select(values, k):
+    """The k-th smallest of values (k from 0), found by partitioning values in place (Hoare, median-of-three
+    pivots); values[:k] end up no larger than it."""
+    low, high = 0, values.shape[0] - 1
+    while high > low:
+        a, b, c = values[low], values[(low + high) // 2], values[high]
+        pivot = max(min(a, b), min(max(a, b), c))
+        i, j = low, high
+        while i <= j:
+            while values[i] < pivot:
+                i += 1
+            while values[j] > pivot:
+                j -= 1
+            if i <= j:
+                values[i], values[j] = values[j], values[i]
+                i += 1
+                j -= 1
+        if k <= j:
+            high = j
+        elif k >= i:
+            low = i
+        else:
+            break
+    return values[k]
+
+
+@jit
+def median(values):
+    """The median of values, as np.median (the mean of the two middle values of an even count), by selection
+    on a copy (np.median's sort-free partition costs more in numpy's overhead, and numba's is slower still);
+    NaN for no values."""
+    if values.shape[0] == 0:
+        return np.nan
+    scratch = values.copy()
+    half = scratch.shape[0] // 2
+    upper = _select(scratch, half)
+    if scratch.shape[0] % 2:
+        return upper
+    return (scratch[:half].max() + upper) / 2
+
+
+@jit
 def _median_absolute_deviation(values, centre):
     """Median of |values - centre|."""
-    return np.median(np.abs(values - centre))
+    return median(np.abs(values - centre))
 
 
 @jit
@@ -39,7 +81,7 @@ def _level_and_deviation(offset, gate, spine):
             count += 1
     if count < 8:
         return 0.0, 0.0, count
-    level = np.median(near)
+    level = median(near)
     return level, _median_absolute_deviation(near, level), count
 
 
