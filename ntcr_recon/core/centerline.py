@@ -168,7 +168,8 @@ def _nearest_sample_arc_kernel(points, tangents, s, xyz, per_bound):
     that sample's s plus the point's offset from it along its tangent.
 
     Runs of `per_bound` consecutive samples are bounded by spheres; a run is searched only where its sphere
-    comes nearer the point than the nearest sample found so far (first: the run whose sphere is nearest).
+    comes nearer the point than the nearest sample found so far (first: the run of the previous point's
+    nearest sample, a neighbour in a cloud stored in scan order).
     """
     samples = points.shape[0]
     runs = (samples + per_bound - 1) // per_bound
@@ -182,21 +183,22 @@ def _nearest_sample_arc_kernel(points, tangents, s, xyz, per_bound):
         for j in range(first, stop):
             dx, dy, dz = points[j, 0] - centre[run, 0], points[j, 1] - centre[run, 1], points[j, 2] - centre[run, 2]
             reach[run] = max(reach[run], np.sqrt(dx * dx + dy * dy + dz * dz))
-    bound = np.empty(runs)
     arc = np.empty(xyz.shape[0])
+    nearest = 0
     for i in range(xyz.shape[0]):
         px, py, pz = xyz[i, 0], xyz[i, 1], xyz[i, 2]
-        for run in range(runs):
-            dx, dy, dz = px - centre[run, 0], py - centre[run, 1], pz - centre[run, 2]
-            bound[run] = np.sqrt(dx * dx + dy * dy + dz * dz) - reach[run]
-        start = np.argmin(bound)
+        start = nearest // per_bound
         best, nearest = _nearest_in_run(points, start * per_bound, min((start + 1) * per_bound, samples),
                                         px, py, pz, np.inf, 0)
+        best_distance = np.sqrt(best)
         for run in range(runs):
-            # only a run whose sphere comes nearer than the nearest sample so far can hold a nearer one
-            if run != start and (bound[run] <= 0.0 or bound[run] * bound[run] <= best):
+            dx, dy, dz = px - centre[run, 0], py - centre[run, 1], pz - centre[run, 2]
+            # a run can hold a nearer sample only where its sphere comes within the best distance
+            limit = reach[run] + best_distance
+            if run != start and dx * dx + dy * dy + dz * dz <= limit * limit:
                 best, nearest = _nearest_in_run(points, run * per_bound, min((run + 1) * per_bound, samples),
                                                 px, py, pz, best, nearest)
+                best_distance = np.sqrt(best)
         arc[i] = s[nearest] + ((px - points[nearest, 0]) * tangents[nearest, 0]
                                + (py - points[nearest, 1]) * tangents[nearest, 1]
                                + (pz - points[nearest, 2]) * tangents[nearest, 2])
