@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ntcr_recon.core.centerline import Centerline, TubeCoordinates
+from ntcr_recon.core.centerline import Centerline, TubeCoordinates, unit_direction
 from ntcr_recon.core.comb import cut_intervals, inside_intervals
 from ntcr_recon.core.compiled import jit
 from ntcr_recon.core.geometry import TubeGeometry
@@ -64,9 +64,9 @@ def _trusted_window_sums(s, x, y, position, normal, binormal, viewpoints, outer_
         vy = v0 * binormal[i, 0] + v1 * binormal[i, 1] + v2 * binormal[i, 2]
         if not (x[i] * vx + y[i] * vy) / max(radius * np.sqrt(vx * vx + vy * vy), 1e-15) > least_cosine:
             continue
-        angle = np.arctan2(y[i], x[i])
         k = min(int(s[i] / window), windows - 1)
-        terms = (np.cos(angle), np.sin(angle), 1.0)
+        cos_angle, sin_angle = unit_direction(x[i], y[i])
+        terms = (cos_angle, sin_angle, 1.0)
         for row in range(3):
             rhs[k, row] += terms[row] * offset
             for column in range(3):

@@ -222,6 +222,15 @@ def _bend_kernel(samples, spacing, length, s0, s1):
     return angle
 
 
+@jit
+def unit_direction(x, y):
+    """(cos, sin) of the angle of (x, y) about the axis, without the trigonometry; (1, 0) on the axis."""
+    radius = np.sqrt(x * x + y * y)
+    if radius == 0.0:
+        return 1.0, 0.0
+    return x / radius, y / radius
+
+
 @dataclass(frozen=True)
 class TubeCoordinates:
     """Points in the tube's own coordinates: arc length s of their cross-section, offset (x towards the notch
@@ -456,13 +465,10 @@ def _slab_directions_kernel(slab, x, y, weight, slabs):
     (x, y) / |(x, y)| about the axis."""
     counts, cos_sum, sin_sum = np.zeros(slabs), np.zeros(slabs), np.zeros(slabs)
     for i in range(slab.shape[0]):
-        radius = np.sqrt(x[i] * x[i] + y[i] * y[i])
+        cos_angle, sin_angle = unit_direction(x[i], y[i])
         counts[slab[i]] += weight[i]
-        if radius > 0.0:
-            cos_sum[slab[i]] += weight[i] * (x[i] / radius)
-            sin_sum[slab[i]] += weight[i] * (y[i] / radius)
-        else:  # on the axis: the direction of angle 0
-            cos_sum[slab[i]] += weight[i]
+        cos_sum[slab[i]] += weight[i] * cos_angle
+        sin_sum[slab[i]] += weight[i] * sin_angle
     return counts, np.hypot(cos_sum, sin_sum)
 
 

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ntcr_recon.core.centerline import Centerline, TubeCoordinates
+from ntcr_recon.core.centerline import Centerline, TubeCoordinates, unit_direction
 from ntcr_recon.core.compiled import jit
 from ntcr_recon.core.geometry import TubeGeometry
 from ntcr_recon.core.notches import Notch
@@ -117,18 +117,17 @@ def _nearest_surface_kernel(s, x, y, starts, ends, outer_radius, inner_radius, c
     for i in range(count):
         si, xi, yi = s[i], x[i], y[i]
         radius = np.sqrt(xi * xi + yi * yi)
-        angle = np.arctan2(yi, xi)
+        unit_x, unit_y = unit_direction(xi, yi)
         k = min(max(np.searchsorted(starts, si, side="right") - 1, 0), notches - 1)
         in_notch = notches > 0 and starts[k] <= si <= ends[k]
-        cos_angle = np.cos(angle)
         face_radius = min(max(radius, r_i), r_o)
         floor_y, face_s = 0.0, si
         # candidates in order: outer wall, bore, notch floor, cut face, tip cap (the first nearest wins)
         best, choice = np.inf, 0
-        if not (in_notch and r_o * cos_angle > -d):
+        if not (in_notch and r_o * unit_x > -d):
             best = np.sqrt((radius - r_o) ** 2 + (si - min(max(si, 0.0), tip_s)) ** 2)
         if in_notch:
-            if r_i * cos_angle < -d and abs(radius - r_i) < best:
+            if r_i * unit_x < -d and abs(radius - r_i) < best:
                 best, choice = abs(radius - r_i), 1
             floor_y = np.sign(yi) * min(max(abs(yi), half_i), half_o)
             floor = np.sqrt((xi + d) ** 2 + (yi - floor_y) ** 2)
@@ -147,8 +146,7 @@ def _nearest_surface_kernel(s, x, y, starts, ends, outer_radius, inner_radius, c
         accepted[i] = True
         if choice == 0 and hit[i] and 0.0 <= ray_s[i] <= tip_s:
             si, xi, yi = ray_s[i], ray_x[i], ray_y[i]
-            angle = np.arctan2(yi, xi)
-        unit_x, unit_y = np.cos(angle), np.sin(angle)
+            unit_x, unit_y = unit_direction(xi, yi)
         distance[kept] = best
         new_s[kept] = min(max(si, 0.0), tip_s)
         if choice == 0:
