@@ -140,8 +140,9 @@ def test_depth_too_coarse_for_the_tube_is_reported_on_diagnostics(setup):
     assert coarse.level == DiagnosticStatus.WARN
     assert "depth of cam_a is quantised in 1 mm steps" in coarse.message
     assert {v.key: v.value for v in coarse.values}["depth_step_mm"] == "1.0"
-    assert fine.level == DiagnosticStatus.OK
-    assert {v.key: v.value for v in fine.values}["depth_step_mm"] == "0.1"
+    # (its level may still be WARN for frames skipped to keep pace on a busy machine)
+    assert "quantised" not in fine.message
+    assert {v.key: v.value for v in fine.values}["depth_step_mm"] == "0.1", fine
     assert "quantised in 1 mm steps" in graph.all_logs()
 
 
