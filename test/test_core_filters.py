@@ -8,14 +8,18 @@ import pytest
 from synthetic_views import INTRINSICS, make_config
 
 from ntcr_recon.core.cloud import Cloud, pack_rgb
-from ntcr_recon.core.deproject import Intrinsics, crop_window, depth_to_points
+from ntcr_recon.core.deproject import Intrinsics, PixelWindow, crop_window, depth_to_points
 from ntcr_recon.core.filters import (
-    _smallest_eigenvectors_of,
+    _image_window_neighbours,
+    _mean_neighbour_distances,
+    _neighbours_among_kept,
+    _quadric_height,
     color_mask,
     crop_box_mask,
+    filter_cloud,
     mls_smooth,
     nearest_neighbours,
-    smallest_eigenvectors,
+    smallest_eigenvector,
     statistical_outlier_mask,
     voxel_downsample,
 )
@@ -39,6 +43,24 @@ def test_depth_to_points_inverts_the_pinhole_projection():
     metres = np.where(depth > 0, depth * 1e-4, np.nan).astype(np.float32)   # 32FC1 with NaN holes
     xyz32, _, _ = depth_to_points(metres, intrinsics, 1.0)
     assert np.allclose(xyz32, xyz, atol=1e-7)
+
+
+def test_depth_to_points_keeps_the_window_and_its_depth_range_only():
+    intrinsics = Intrinsics(8, 6, 10.0, 12.0, 3.5, 2.5)
+    depth = np.arange(48, dtype=np.uint16).reshape(6, 8) * 10 + 400     # 40.0 mm .. 87.0 mm at 0.1 mm
+    window = PixelWindow(u0=2, u1=6, v0=1, v1=4, z_min=0.0525, z_max=0.0665)
+    xyz, _, pixel = depth_to_points(depth, intrinsics, 1e-4, window=window)
+    raw = depth[pixel[:, 1], pixel[:, 0]]
+    assert np.all((pixel[:, 0] >= 2) & (pixel[:, 0] < 6) & (pixel[:, 1] >= 1) & (pixel[:, 1] < 4))
+    assert np.all((raw * 1e-4 >= 0.0525) & (raw * 1e-4 <= 0.0665))
+    inside = depth[1:4, 2:6] * 1e-4
+    assert len(xyz) == np.count_nonzero((inside >= 0.0525) & (inside <= 0.0665)) == 6
+    np.testing.assert_array_equal(xyz[:, 2], raw * 1e-4)
+    # row by row, as the image is stored
+    assert np.all(np.diff(pixel[:, 1] * 8 + pixel[:, 0]) > 0)
+    # big-endian depth (a flagged sensor_msgs/Image) reads the same
+    swapped, _, _ = depth_to_points(depth.astype(">u2"), intrinsics, 1e-4, window=window)
+    np.testing.assert_array_equal(swapped, xyz)
 
 
 def test_crop_window_holds_every_pixel_that_sees_the_box():
@@ -131,10 +153,7 @@ def test_mls_leaves_coincident_points_finite_and_where_they_are(order):
     assert np.isfinite(smoothed).all()
     np.testing.assert_allclose(smoothed[300:], xyz[300:], atol=1e-9)
     # the closed form itself, on the all-zero moments of coincident points (p = 0: its cube once underflowed)
-    zero = np.zeros(2)
-    with np.errstate(divide="raise", invalid="raise"):
-        assert np.isfinite(_smallest_eigenvectors_of(zero, zero, zero, zero, zero, zero)).all()
-        assert np.isfinite(smallest_eigenvectors(np.zeros((2, 3, 3)))).all()
+    assert np.isfinite(smallest_eigenvector(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)).all()
 
 
 def test_closed_form_normals_match_eigh():
@@ -142,7 +161,72 @@ def test_closed_form_normals_match_eigh():
     a = rng.normal(size=(200, 3, 3))
     matrices = a @ a.transpose(0, 2, 1)
     _, vectors = np.linalg.eigh(matrices)
-    assert np.allclose(np.abs(np.einsum("ni,ni->n", smallest_eigenvectors(matrices), vectors[:, :, 0])), 1.0)
+    normals = np.array([smallest_eigenvector(m[0, 0], m[0, 1], m[0, 2], m[1, 1], m[1, 2], m[2, 2]) for m in matrices])
+    assert np.allclose(np.abs(np.einsum("ni,ni->n", normals, vectors[:, :, 0])), 1.0)
+    # a matrix that is already diagonal: the axis of its smallest entry
+    assert np.allclose(np.abs(smallest_eigenvector(3.0, 0.0, 0.0, 1.0, 0.0, 2.0)), (0.0, 1.0, 0.0))
+
+
+def test_mls_moves_noisy_plane_points_onto_the_plane():
+    rng = np.random.default_rng(5)
+    tangent = rng.random((2000, 2)) * 4e-3
+    noise = rng.normal(scale=2e-5, size=2000)
+    # a tilted plane through (1, 2, 3) mm with unit normal n
+    normal = np.array([1.0, -2.0, 2.0]) / 3.0
+    axis_a = np.cross(normal, [0.0, 0.0, 1.0])
+    axis_a /= np.linalg.norm(axis_a)
+    axis_b = np.cross(normal, axis_a)
+    xyz = 1e-3 * np.array([1.0, 2.0, 3.0]) + tangent[:, :1] * axis_a + tangent[:, 1:] * axis_b + noise[:, None] * normal
+    # a plane averages the noise of 24 neighbours away; a quadric (6 unknowns) keeps more of it
+    for order, left in ((1, 0.35), (2, 0.6)):
+        height = (mls_smooth(xyz, 24, order) - 1e-3 * np.array([1.0, 2.0, 3.0])) @ normal
+        assert np.abs(height).mean() < left * np.abs(noise).mean()
+
+
+def test_quadric_height_is_the_fitted_constant_of_an_exact_quadric():
+    rng = np.random.default_rng(6)
+    a, b = rng.uniform(-1, 1, 12), rng.uniform(-1, 1, 12)
+    h = 0.3 - 0.2 * a + 0.1 * b + 0.5 * a * a - 0.4 * a * b + 0.25 * b * b
+    weights = rng.uniform(0.4, 1.0, 12)
+    height = _quadric_height(a, b, h, weights, np.empty((6, 6)), np.empty(6))
+    assert height == pytest.approx(0.3, abs=1e-5)  # (the regularisation of 1e-6 pulls the fit a little)
+    # a paraboloid z = x^2 + y^2 (in mm) sampled on a grid: order 2 leaves its apex on it, a plane (order 1)
+    # cuts the curvature; a point lifted off the apex is pulled most of the way back (it is its own neighbour)
+    grid = np.stack(np.meshgrid(np.linspace(-1, 1, 21), np.linspace(-1, 1, 21)), axis=-1).reshape(-1, 2)
+    xyz = 1e-3 * np.column_stack([grid, (grid ** 2).sum(axis=1)])
+    apex = np.flatnonzero((grid == 0).all(axis=1))[0]
+    assert mls_smooth(xyz, 25, order=2)[apex, 2] == pytest.approx(0.0, abs=1e-9)
+    assert mls_smooth(xyz, 25, order=1)[apex, 2] > 1e-6
+    xyz[apex, 2] = 5e-5
+    assert abs(mls_smooth(xyz, 25, order=2)[apex, 2]) < 0.25 * 5e-5
+
+
+def test_mean_neighbour_distances_skip_the_point_itself_and_missing_neighbours():
+    inf = np.inf
+    distances = np.array([[0.0, 1.0, 2.0, 3.0, 6.0],        # k = 3: the first 4 columns, the point itself out
+                          [0.0, 1.0, inf, 2.0, 3.0],        # one missing: the mean of the two it has
+                          [0.0, 1.0, 2.0, 3.0, inf]])
+    means = _mean_neighbour_distances(distances, 3)
+    assert means[0] == pytest.approx(2.0)
+    assert means[1] == np.inf                               # only 2 neighbours: counted as alone
+    assert means[2] == pytest.approx(2.0)
+    assert _mean_neighbour_distances(distances, 4)[1] == pytest.approx(2.0)
+
+
+def test_statistical_outlier_removal_drops_an_isolated_point_of_an_image():
+    """On an organised cloud (neighbours from the image window), a pixel whose depth is far off its
+    neighbours' is removed, and nothing else is."""
+    depth = np.full((20, 20), 900, np.uint16)
+    depth += np.arange(20, dtype=np.uint16)[None, :]        # a slope: not every distance alike
+    depth[8, 11] = 1300                                     # 4 mm behind the surface
+    intrinsics = Intrinsics(20, 20, 430.0, 430.0, 10.0, 10.0)
+    xyz, _, pixel = depth_to_points(depth, intrinsics, 1e-4)
+    cloud = Cloud(xyz, camera=np.zeros(len(xyz), np.int8), pixel=pixel)
+    distances, _ = nearest_neighbours(cloud, 13)
+    keep = statistical_outlier_mask(xyz, 12, 2.0, distances)
+    outlier = np.flatnonzero((pixel == (11, 8)).all(axis=1))
+    assert not keep[outlier].any()
+    assert np.count_nonzero(~keep) == 1
 
 
 def test_image_neighbours_agree_with_a_kd_tree_on_an_organised_cloud():
@@ -154,6 +238,46 @@ def test_image_neighbours_agree_with_a_kd_tree_on_an_organised_cloud():
     tree_distance, _ = nearest_neighbours(Cloud(xyz), 9)
     interior = (pixel[:, 0] > 2) & (pixel[:, 0] < 27) & (pixel[:, 1] > 2) & (pixel[:, 1] < 27)
     assert np.allclose(image_distance[interior], tree_distance[interior])
+
+
+def test_image_window_neighbours_are_the_nearest_of_the_window_in_order():
+    """A 3x3 image of one camera and one pixel of another: the window (half 1) of the centre pixel holds the
+    other eight; the nearest come first, equal distances in index order, missing ones at -1 / inf, and the
+    other camera's pixel is no neighbour."""
+    pixel = np.array([(u, v) for v in range(3) for u in range(3)] + [(1, 1)], dtype=np.int32)
+    camera = np.array([0] * 9 + [1], np.int8)
+    xyz = np.column_stack([pixel[:, 0] * 1e-4, pixel[:, 1] * 1e-4, np.zeros(10)])
+    xyz[9] = xyz[4] + 1e-6                                  # close to the centre, but seen by camera 1
+    distances, index = _image_window_neighbours(xyz, camera, pixel, 6, 1)
+    centre = 4
+    assert index[centre].tolist() == [4, 1, 3, 5, 7, 0]
+    np.testing.assert_allclose(distances[centre], [0.0, 1e-4, 1e-4, 1e-4, 1e-4, np.sqrt(2) * 1e-4], rtol=1e-6)
+    corner = 0                                              # its window holds 4 points of its camera
+    assert index[corner].tolist() == [0, 1, 3, 4, -1, -1]
+    assert np.isinf(distances[corner, 4:]).all()
+    assert index[9].tolist() == [9, -1, -1, -1, -1, -1]     # alone in camera 1
+
+
+def test_neighbours_among_kept_renumber_and_drop():
+    index = np.array([[0, 1, 2], [1, 0, 3], [2, 3, -1], [3, 2, 1]])
+    keep = np.array([True, False, True, True])
+    assert _neighbours_among_kept(index, keep).tolist() == [[0, -1, 1], [1, 2, -1], [2, 1, -1]]
+
+
+def test_filter_chain_on_an_organised_cloud_keeps_the_surface_and_drops_the_outlier():
+    config = make_config({})
+    depth = np.full((INTRINSICS.height, INTRINSICS.width), 0, np.uint16)
+    depth[220:260, 400:440] = 900                           # a flat patch 90 mm in front of cam_a
+    depth[240, 420] = 1000                                  # one pixel 10 mm behind it
+    frame = CameraFrame("cam_a", 0, depth=depth, intrinsics=INTRINSICS)
+    cloud = fuse(pair_frames({"cam_a": [frame]}, 1)[0], config)
+    filtered = filter_cloud(cloud, config)
+    assert len(filtered) == len(cloud) - 1
+    assert not ((filtered.pixel == (420, 240)).all(axis=1)).any()
+    # the patch is flat: MLS leaves it flat (its distance from cam_a's plane stays 90 mm)
+    camera = config.cameras["cam_a"]
+    in_camera = (filtered.xyz - camera.translation) @ camera.extrinsic[:3, :3]
+    np.testing.assert_allclose(in_camera[:, 2], 0.09, atol=1e-9)
 
 
 def test_crop_colour_and_voxel_filters():

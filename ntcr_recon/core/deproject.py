@@ -18,6 +18,7 @@ from itertools import product
 import numpy as np
 
 from ntcr_recon.core.cloud import pack_rgb
+from ntcr_recon.core.compiled import jit
 from ntcr_recon.core.transforms import invert_transform, transform_points
 
 
@@ -98,23 +99,13 @@ def depth_to_points(depth: np.ndarray, intrinsics: Intrinsics, depth_unit: float
                          f"{intrinsics.width}x{intrinsics.height}")
     if window is None:
         window = PixelWindow(0, width, 0, height, 0.0, np.inf)
-    patch = depth[window.v0:window.v1, window.u0:window.u1]
-    if np.issubdtype(patch.dtype, np.integer) and depth_unit > 0:
-        # raw units compared with the window's range in raw units: no float64 copy of the whole patch
-        low, high = _raw_depth_range(patch.dtype, depth_unit, window.z_min, window.z_max)
-        rows, cols = np.nonzero((patch >= low) & (patch <= high))
-        z = patch[rows, cols].astype(np.float64) * depth_unit
-    else:
-        z = patch.astype(np.float64) * depth_unit
-        valid = np.isfinite(z) & (z > 0) & (z >= window.z_min) & (z <= window.z_max)
-        rows, cols = np.nonzero(valid)
-        z = z[rows, cols]
-    v = rows + window.v0
-    u = cols + window.u0
-    xyz = np.empty((len(z), 3))
-    xyz[:, 0] = (u - intrinsics.cx) * z / intrinsics.fx
-    xyz[:, 1] = (v - intrinsics.cy) * z / intrinsics.fy
-    xyz[:, 2] = z
+    if not depth.dtype.isnative:      # (a compiled kernel reads native byte order only)
+        depth = depth.astype(depth.dtype.newbyteorder("="))
+    # the whole image (contiguous rows: the kernel's loops vectorise) and the window's bounds
+    xyz, pixel = _deproject_window(np.ascontiguousarray(depth), float(depth_unit), window.u0, window.u1, window.v0,
+                                   window.v1, float(window.z_min), float(window.z_max), float(intrinsics.fx),
+                                   float(intrinsics.fy), float(intrinsics.cx), float(intrinsics.cy))
+    u, v = pixel[:, 0].astype(np.intp), pixel[:, 1].astype(np.intp)
     rgb = None
     if color is not None:
         if color.ndim != 3 or color.shape[2] < 3:
@@ -122,21 +113,35 @@ def depth_to_points(depth: np.ndarray, intrinsics: Intrinsics, depth_unit: float
         cu = (u * color.shape[1]) // width
         cv = (v * color.shape[0]) // height
         rgb = pack_rgb(color[cv, cu, :3])
-    return xyz, rgb, np.stack([u, v], axis=1).astype(np.int32)
+    return xyz, rgb, pixel
 
 
-def _raw_depth_range(dtype, depth_unit: float, z_min: float, z_max: float) -> tuple[int, int]:
-    """The smallest and largest raw value r > 0 of an integer depth image with z_min <= r * depth_unit <= z_max,
-    checked with the same float64 product as the metres (so the same pixels pass); low > high when none."""
-    largest = int(np.iinfo(dtype).max)
-    low = max(int(np.ceil(z_min / depth_unit)), 1) if z_min > 0 else 1
-    high = min(int(np.floor(z_max / depth_unit)), largest) if np.isfinite(z_max) else largest
-    while low > 1 and (low - 1) * depth_unit >= z_min:
-        low -= 1
-    while low <= largest and low * depth_unit < z_min:
-        low += 1
-    while high >= 1 and high * depth_unit > z_max:
-        high -= 1
-    while high < largest and (high + 1) * depth_unit <= z_max:
-        high += 1
-    return low, high
+@jit
+def _valid_depth(z, z_min, z_max):
+    """A depth that is finite, positive and within [z_min, z_max] (NaN fails every comparison)."""
+    # & rather than `and`: no branch per test, so a loop of it vectorises
+    return (z > 0.0) & (z >= z_min) & (z <= z_max) & (z < np.inf)
+
+
+@jit
+def _deproject_window(depth, depth_unit, u0, u1, v0, v1, z_min, z_max, fx, fy, cx, cy):
+    """Eq. 3-4 over the window [v0, v1) x [u0, u1) of a depth image: the pixels whose depth z = raw value *
+    depth_unit is finite, positive and within [z_min, z_max], row by row. Returns their points
+    (x, y, z) = ((u - cx) z / fx, (v - cy) z / fy, z) (N, 3) and pixels (u, v) (N, 2) int32."""
+    count = 0
+    for v in range(v0, v1):
+        for u in range(u0, u1):
+            count += _valid_depth(np.float64(depth[v, u]) * depth_unit, z_min, z_max)
+    xyz = np.empty((count, 3))
+    pixel = np.empty((count, 2), dtype=np.int32)
+    point = 0
+    for v in range(v0, v1):
+        for u in range(u0, u1):
+            z = np.float64(depth[v, u]) * depth_unit
+            if _valid_depth(z, z_min, z_max):
+                xyz[point, 0] = (u - cx) * z / fx
+                xyz[point, 1] = (v - cy) * z / fy
+                xyz[point, 2] = z
+                pixel[point, 0], pixel[point, 1] = u, v
+                point += 1
+    return xyz, pixel

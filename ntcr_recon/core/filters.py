@@ -18,10 +18,10 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
 from scipy.spatial import cKDTree
 
 from ntcr_recon.core.cloud import Cloud, unpack_rgb
+from ntcr_recon.core.compiled import jit
 
 
 def crop_box_mask(xyz: np.ndarray, box_min, box_max) -> np.ndarray:
@@ -41,24 +41,34 @@ def color_mask(rgb: np.ndarray, color_min, color_max) -> np.ndarray:
     return np.all((channels >= np.asarray(color_min)) & (channels <= np.asarray(color_max)), axis=1)
 
 
+@jit
+def _mean_neighbour_distances(distances, k):
+    """Eq. 5's per-point statistic: the mean distance to the point's k nearest neighbours (the first k + 1
+    columns of `distances`, the point itself at 0 among them). Missing neighbours (inf) count out, so a point
+    at a hole or a thin part of the image is judged by the neighbours it has; with fewer than 3, inf."""
+    means = np.empty(len(distances))
+    for point in range(len(distances)):
+        total, count = 0.0, -1                  # the point itself counts out
+        for n in range(min(k + 1, distances.shape[1])):
+            if np.isfinite(distances[point, n]):
+                total += distances[point, n]
+                count += 1
+        means[point] = total / count if count >= 3 else np.inf
+    return means
+
+
 def statistical_outlier_mask(xyz: np.ndarray, k: int, alpha: float,
                              distances: np.ndarray | None = None) -> np.ndarray:
     """Eq. 5: keep points whose mean distance to their k nearest neighbours is <= mu + alpha * sigma.
 
-    distances: optional (N, k + 1) distances to each point's k + 1 nearest, itself included, from an earlier
-    query (any order).
+    distances: optional (N, k') distances to each point's nearest, itself included and nearest first, k' >= k + 1,
+    from an earlier query.
     """
     if len(xyz) <= k:
         return np.ones(len(xyz), dtype=bool)
     if distances is None:
         distances, _ = cKDTree(xyz).query(xyz, k=k + 1, workers=-1)
-    # the point itself is at distance 0 and counts out; neighbours missing from an image window (inf) count
-    # out too, so a point at a hole or a thin part of the image is judged by the neighbours it has
-    near = distances[:, : k + 1]
-    present = np.isfinite(near)
-    count = np.count_nonzero(present, axis=1) - 1                        # (a boolean sum converts to int first)
-    mean_distance = np.where(present, near, 0.0).sum(axis=1) / np.maximum(count, 1)
-    mean_distance[count < 3] = np.inf                                     # (almost) alone: an outlier
+    mean_distance = _mean_neighbour_distances(np.ascontiguousarray(distances, dtype=np.float64), k)
     finite = np.isfinite(mean_distance)
     if not finite.any():
         return finite
@@ -67,103 +77,211 @@ def statistical_outlier_mask(xyz: np.ndarray, k: int, alpha: float,
 
 
 # floor of p^2 (the spread of a 3x3 matrix's eigenvalues) in the closed-form eigensolver: a neighbourhood of
-# coincident points has p = 0, and p^3 of the old 1e-300 floor underflowed to 0 (0 / 0 = NaN normals)
+# coincident points has p = 0, and p^3 of a 1e-300 floor underflowed to 0 (0 / 0 = NaN normals)
 _TINY_SPREAD = 1e-60
 
 
-def smallest_eigenvectors(matrices: np.ndarray) -> np.ndarray:
-    """Unit eigenvector of the smallest eigenvalue of each symmetric (N, 3, 3) matrix (closed form)."""
-    a = np.asarray(matrices, dtype=float)
-    return _smallest_eigenvectors_of(a[:, 0, 0], a[:, 0, 1], a[:, 0, 2], a[:, 1, 1], a[:, 1, 2], a[:, 2, 2])
+@jit
+def smallest_eigenvector(xx, xy, xz, yy, yz, zz):
+    """Unit eigenvector (x, y, z) of the smallest eigenvalue of the symmetric 3x3 matrix given by its six
+    distinct entries.
 
-
-def _smallest_eigenvectors_of(xx, xy, xz, yy, yz, zz) -> np.ndarray:
-    """Smallest-eigenvalue unit eigenvectors of symmetric 3x3 matrices given by their six distinct entries
-    (each (N,) float64), vectorised over N.
-
-    Eigenvalues by the trigonometric solution of the characteristic cubic; the eigenvector is the largest
-    cross product of two rows of (A - lambda I), which is orthogonal to both.
+    The eigenvalue by the trigonometric solution of the characteristic cubic; the eigenvector is the longest
+    cross product of two rows of (A - lambda I), which is orthogonal to both ((0, 0, 1) when all vanish).
     """
     trace = (xx + yy + zz) / 3.0
     dx, dy, dz = xx - trace, yy - trace, zz - trace
-    p = np.sqrt(np.maximum((dx * dx + dy * dy + dz * dz + 2.0 * (xy * xy + xz * xz + yz * yz)) / 6.0,
-                           _TINY_SPREAD))
+    p = np.sqrt(max((dx * dx + dy * dy + dz * dz + 2.0 * (xy * xy + xz * xz + yz * yz)) / 6.0, _TINY_SPREAD))
     # det(shifted / p) / 2
     det = dx * (dy * dz - yz * yz) - xy * (xy * dz - yz * xz) + xz * (xy * yz - dy * xz)
-    half_det = np.clip(det / (2.0 * p * p * p), -1.0, 1.0)
+    half_det = min(max(det / (2.0 * p * p * p), -1.0), 1.0)
     smallest = trace + 2.0 * p * np.cos(np.arccos(half_det) / 3.0 + 2.0 * np.pi / 3.0)
     mx, my, mz = xx - smallest, yy - smallest, zz - smallest
-    # rows of (A - lambda I): r0 = (mx, xy, xz), r1 = (xy, my, yz), r2 = (xz, yz, mz); crosses r0xr1, r0xr2, r1xr2
-    crosses = np.stack([
-        np.stack([xy * yz - xz * my, xz * xy - mx * yz, mx * my - xy * xy]),
-        np.stack([xy * mz - xz * yz, xz * xz - mx * mz, mx * yz - xy * xz]),
-        np.stack([my * mz - yz * yz, yz * xz - xy * mz, xy * yz - my * xz]),
-    ])                                                                         # (3 crosses, 3, N)
-    squared = np.einsum("cdn,cdn->cn", crosses, crosses)
-    # the longest cross by two selections (an argmax over the short axis and a fancy gather cost twice as
-    # much); ties go to the first, as with argmax
-    first = squared[0] >= squared[1]
-    longer = np.where(first, squared[0], squared[1])
-    third = squared[2] > longer
-    vector = np.where(third, crosses[2], np.where(first, crosses[0], crosses[1]))   # (3, N)
-    length = np.sqrt(np.where(third, squared[2], longer))
-    degenerate = length < 1e-300
-    vector[:, degenerate] = ((0.0,), (0.0,), (1.0,))
-    length[degenerate] = 1.0
-    return (vector / length).T
+    # rows of (A - lambda I): r0 = (mx, xy, xz), r1 = (xy, my, yz), r2 = (xz, yz, mz); ties go to the first cross
+    best = (xy * yz - xz * my, xz * xy - mx * yz, mx * my - xy * xy)                     # r0 x r1
+    best_squared = best[0] * best[0] + best[1] * best[1] + best[2] * best[2]
+    for cross in ((xy * mz - xz * yz, xz * xz - mx * mz, mx * yz - xy * xz),             # r0 x r2
+                  (my * mz - yz * yz, yz * xz - xy * mz, xy * yz - my * xz)):            # r1 x r2
+        squared = cross[0] * cross[0] + cross[1] * cross[1] + cross[2] * cross[2]
+        if squared > best_squared:
+            best, best_squared = cross, squared
+    length = np.sqrt(best_squared)
+    if length < 1e-300:
+        return 0.0, 0.0, 1.0
+    return best[0] / length, best[1] / length, best[2] / length
 
 
-_QUADRIC_EXPONENTS = ((2, 0), (1, 1), (0, 2), (1, 0), (0, 1), (0, 0))   # the constant last: c0 is then
-# the last unknown, which forward substitution alone yields
+# the quadric's monomials a^i b^j as (i, j); the constant last: c0 is then the last unknown, which forward
+# substitution alone yields
+_QUADRIC_EXPONENTS = ((2, 0), (1, 1), (0, 2), (1, 0), (0, 1), (0, 0))
+_QUADRIC_REGULARISATION = 1e-6    # added to the normal matrix's diagonal (a, b are in units of the scale)
+_TINY_PIVOT = 1e-30               # floor of a Cholesky pivot: a degenerate neighbourhood gives c0 = 0, not NaN
 
 
-def _quadric_height(a: np.ndarray, b: np.ndarray, h: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """c0 of the weighted least-squares quadric h ~ c0 + c1 a + c2 b + c3 a^2 + c4 ab + c5 b^2 per column.
+@jit
+def _quadric_height(a, b, h, weights, normal_matrix, rhs):
+    """c0 of the weighted least-squares quadric h ~ c0 + c1 a + c2 b + c3 a^2 + c4 ab + c5 b^2 (Eq. 6's
+    polynomial of order 2) over one neighbourhood.
 
-    a, b, h, weights: (k, N). The 6x6 normal matrix is assembled from the 15 weighted moments sum w a^i b^j
-    (i + j <= 4) and solved by a Cholesky factorisation vectorised over the N systems (a loop over rows).
+    a, b, h, weights: (k,) the neighbours' tangent coordinates, heights and weights. normal_matrix (6, 6),
+    rhs (6,): scratch space. The 6x6 normal matrix is assembled from the 15 moments m_ij = sum w a^i b^j
+    (i + j <= 4) and solved by Cholesky; c0 is the last unknown, so forward substitution and one division by
+    the last pivot yield it.
     """
-    # sum over the neighbours of w a^i times b^j as one einsum each: a product and its sum in one pass, no
-    # (moments, k, N) buffer written and read back (half the time)
-    weighted_a = [weights]                                                 # w a^i, i = 0..4
-    for _ in range(4):
-        weighted_a.append(weighted_a[-1] * a)
-    powers_b = [None, b]                                                   # b^j, j = 1..4
-    for _ in range(3):
-        powers_b.append(powers_b[-1] * b)
-
-    def weighted_sum(weighted: np.ndarray, j: int) -> np.ndarray:
-        return weighted.sum(axis=0) if j == 0 else np.einsum("kn,kn->n", weighted, powers_b[j])
-
-    moments = {(i, j): weighted_sum(weighted_a[i], j) for i in range(5) for j in range(5 - i)}
-    weighted_h = [weights * h]                                             # w h a^i, i = 0..1
-    weighted_h.append(weighted_h[0] * a)
-    rhs = [np.einsum("kn,kn->n", weighted_h[1], a) if i == 2 else weighted_sum(weighted_h[i], j)
-           for i, j in _QUADRIC_EXPONENTS]
-    regularisation = np.float32(1e-6)
-    tiny = np.float32(1e-30)
-    lower: list[list[np.ndarray]] = []
-    inverse_diagonal: list[np.ndarray] = []
-    solution: list[np.ndarray] = []
-    for row, (ri, rj) in enumerate(_QUADRIC_EXPONENTS):
-        lower.append([])
+    # the moments and right-hand sides as scalars: in registers, not in memory that might alias the inputs
+    m00 = m10 = m01 = m20 = m11 = m02 = m30 = m21 = m12 = m03 = m40 = m31 = m22 = m13 = m04 = 0.0
+    r20 = r11 = r02 = r10 = r01 = r00 = 0.0       # sum w h a^i b^j
+    for n in range(len(a)):
+        w, x, y = weights[n], a[n], b[n]
+        wx, wy = w * x, w * y
+        wxx, wxy, wyy = wx * x, wx * y, wy * y
+        # one line per degree i + j
+        m00 += w
+        m10, m01 = m10 + wx, m01 + wy
+        m20, m11, m02 = m20 + wxx, m11 + wxy, m02 + wyy
+        m30, m21, m12, m03 = m30 + wxx * x, m21 + wxx * y, m12 + wxy * y, m03 + wyy * y
+        m40, m31, m22, m13, m04 = (m40 + wxx * x * x, m31 + wxx * x * y, m22 + wxx * y * y, m13 + wxy * y * y,
+                                   m04 + wyy * y * y)
+        r20 += wxx * h[n]
+        r11 += wxy * h[n]
+        r02 += wyy * h[n]
+        r10 += wx * h[n]
+        r01 += wy * h[n]
+        r00 += w * h[n]
+    # entry (row, column) = m_(ri + ci)(rj + cj) over _QUADRIC_EXPONENTS; the lower triangle is what Cholesky reads
+    moments = ((m00, m01, m02, m03, m04), (m10, m11, m12, m13, 0.0), (m20, m21, m22, 0.0, 0.0),
+               (m30, m31, 0.0, 0.0, 0.0), (m40, 0.0, 0.0, 0.0, 0.0))
+    for row in range(6):
+        ri, rj = _QUADRIC_EXPONENTS[row]
         for column in range(row + 1):
             ci, cj = _QUADRIC_EXPONENTS[column]
-            entry = moments[(ri + ci, rj + cj)]
-            if row == column:
-                entry = entry + regularisation
+            normal_matrix[row, column] = moments[ri + ci][rj + cj]
+        normal_matrix[row, row] += _QUADRIC_REGULARISATION
+    rhs[0], rhs[1], rhs[2], rhs[3], rhs[4], rhs[5] = r20, r11, r02, r10, r01, r00
+    # in place: the lower triangle becomes L with the inverse pivots on its diagonal; rhs becomes L^-1 rhs
+    for row in range(6):
+        for column in range(row + 1):
+            entry = normal_matrix[row, column]
             for m in range(column):
-                entry = entry - lower[row][m] * lower[column][m]
+                entry -= normal_matrix[row, m] * normal_matrix[column, m]
             if row == column:
-                inverse_diagonal.append(1.0 / np.sqrt(np.maximum(entry, tiny)))
-                lower[row].append(None)
+                normal_matrix[row, row] = 1.0 / np.sqrt(max(entry, _TINY_PIVOT))
             else:
-                lower[row].append(entry * inverse_diagonal[column])
+                normal_matrix[row, column] = entry * normal_matrix[column, column]
         value = rhs[row]
         for m in range(row):
-            value = value - lower[row][m] * solution[m]
-        solution.append(value * inverse_diagonal[row])
-    return solution[-1] * inverse_diagonal[-1]
+            value -= normal_matrix[row, m] * rhs[m]
+        rhs[row] = value * normal_matrix[row, row]
+    return rhs[5] * normal_matrix[5, 5]
+
+
+@jit
+def _weight_exponents(index, distances, radius):
+    """Eq. 6's weights w = exp(-d^2 / s^2) before the exponential, per neighbour (index, distances (N, k)):
+    -d^2 / s^2, s the point's farthest neighbour, or -inf (w = 0) for a missing neighbour (index < 0,
+    infinite distance, or beyond radius > 0). Returns them and s per point. (The exponential is numpy's: its
+    SIMD version is five times faster than a compiled scalar call.)"""
+    count, k = index.shape
+    exponents = np.empty((count, k))
+    scale = np.empty(count)
+    for point in range(count):
+        farthest = 1e-12
+        for n in range(k):
+            if index[point, n] >= 0 and distances[point, n] < np.inf:
+                farthest = max(farthest, distances[point, n])
+        for n in range(k):
+            distance = distances[point, n]
+            present = index[point, n] >= 0 and distance < np.inf and not (radius > 0 and distance > radius)
+            exponents[point, n] = -(distance / farthest) ** 2 if present else -np.inf
+        scale[point] = farthest
+    return exponents, scale
+
+
+@jit
+def _neighbour_offsets(xyz, point, index, weights, relative):
+    """Each neighbour's offset from the point (into `relative` (k, 3)); a neighbour of weight 0 stands at the
+    point itself. Returns the count of weighted neighbours."""
+    weighted = 0
+    x, y, z = xyz[point, 0], xyz[point, 1], xyz[point, 2]
+    for n in range(len(index)):
+        if weights[n] > 0.0:
+            neighbour = index[n]
+            relative[n, 0] = xyz[neighbour, 0] - x
+            relative[n, 1] = xyz[neighbour, 1] - y
+            relative[n, 2] = xyz[neighbour, 2] - z
+            weighted += 1
+        else:
+            relative[n, 0] = relative[n, 1] = relative[n, 2] = 0.0
+    return weighted
+
+
+@jit
+def _weighted_normal(relative, weights, mean):
+    """The weighted centroid of a neighbourhood (into `mean` (3,)) and the unit normal of its weighted
+    least-squares plane: the least eigenvector of the weighted covariance."""
+    # sums as scalars: in registers, not in memory that might alias the inputs
+    sw = sx = sy = sz = sxx = sxy = sxz = syy = syz = szz = 0.0
+    for n in range(len(weights)):
+        w, x, y, z = weights[n], relative[n, 0], relative[n, 1], relative[n, 2]
+        wx, wy, wz = w * x, w * y, w * z
+        sw += w
+        sx += wx
+        sy += wy
+        sz += wz
+        sxx += wx * x
+        sxy += wx * y
+        sxz += wx * z
+        syy += wy * y
+        syz += wy * z
+        szz += wz * z
+    mx, my, mz = sx / sw, sy / sw, sz / sw
+    mean[0], mean[1], mean[2] = mx, my, mz
+    return smallest_eigenvector(sxx / sw - mx * mx, sxy / sw - mx * my, sxz / sw - mx * mz, syy / sw - my * my,
+                                syz / sw - my * mz, szz / sw - mz * mz)
+
+
+@jit
+def _tangent_coordinates(relative, normal, scale, a, b, h):
+    """Offsets in a local frame: (a, b) along an orthonormal tangent pair, in units of `scale`, and the height
+    h along the normal. Any tangent pair will do: the quadric's basis spans the same space under rotation
+    about the normal."""
+    # normal x (1, 0, 0), or normal x (0, 1, 0) when the normal is close to x
+    tangent = (0.0, normal[2], -normal[1]) if abs(normal[0]) < 0.9 else (-normal[2], 0.0, normal[0])
+    length = np.sqrt(tangent[0] ** 2 + tangent[1] ** 2 + tangent[2] ** 2)
+    axis_a = (tangent[0] / length, tangent[1] / length, tangent[2] / length)
+    axis_b = (normal[1] * axis_a[2] - normal[2] * axis_a[1], normal[2] * axis_a[0] - normal[0] * axis_a[2],
+              normal[0] * axis_a[1] - normal[1] * axis_a[0])
+    for n in range(len(relative)):
+        x, y, z = relative[n, 0], relative[n, 1], relative[n, 2]
+        a[n] = (x * axis_a[0] + y * axis_a[1] + z * axis_a[2]) / scale
+        b[n] = (x * axis_b[0] + y * axis_b[1] + z * axis_b[2]) / scale
+        h[n] = x * normal[0] + y * normal[1] + z * normal[2]
+
+
+@jit
+def _moving_least_squares(xyz, index, weights, scale, order, minimum):
+    """Eq. 6 for every point: moved along its local normal onto the weighted least-squares plane through its
+    neighbours' centroid (order 1) or onto their quadric h(a, b) at its own (a, b) = (0, 0), i.e. by c0
+    (order 2); left where it is with fewer than `minimum` weighted neighbours. index, weights: (N, k) rows of
+    neighbours and their Eq. 6 weights; scale (N,): the unit of the quadric's tangent coordinates."""
+    count, k = index.shape
+    smoothed = xyz.copy()
+    relative = np.empty((k, 3))
+    a, b, h = np.empty(k), np.empty(k), np.empty(k)
+    mean = np.empty(3)
+    normal_matrix, rhs = np.empty((6, 6)), np.empty(6)
+    for point in range(count):
+        if _neighbour_offsets(xyz, point, index[point], weights[point], relative) < minimum:
+            continue
+        normal = _weighted_normal(relative, weights[point], mean)
+        if order == 1:
+            height = mean[0] * normal[0] + mean[1] * normal[1] + mean[2] * normal[2]
+        else:
+            _tangent_coordinates(relative, normal, scale[point], a, b, h)
+            height = _quadric_height(a, b, h, weights[point], normal_matrix, rhs)
+        for d in range(3):
+            smoothed[point, d] += height * normal[d]
+    return smoothed
 
 
 def mls_smooth(xyz: np.ndarray, k: int, order: int = 2, radius: float = 0.0,
@@ -183,58 +301,14 @@ def mls_smooth(xyz: np.ndarray, k: int, order: int = 2, radius: float = 0.0,
     minimum = 3 * order + 1
     if count < minimum + 1:
         return xyz.copy()
-    k = min(k, count)
     if neighbour_index is None:
-        neighbour_distances, neighbour_index = cKDTree(xyz).query(xyz, k=k, workers=-1)
-    # neighbour-major (k, N) layout: every per-neighbour quantity is a contiguous row, sums over neighbours
-    # are row additions (copies: numpy's results keep the memory order of a transposed view, strided)
-    index, distances = np.ascontiguousarray(neighbour_index.T), np.ascontiguousarray(neighbour_distances.T)
-    origin = xyz.mean(axis=0)
-    # float32 in metres about the centroid: sub-micrometre resolution, half the memory traffic
-    local = np.ascontiguousarray((xyz - origin).T, dtype=np.float32)      # (3, N)
-    # a dropped neighbour's distance is NaN: fmax skips it in the scale and turns its weight into 0
-    present = (index >= 0) & np.isfinite(distances)
-    known = np.where(present, distances, np.nan).astype(np.float32)
-    scale = np.maximum(np.fmax.reduce(known, axis=0), np.float32(1e-12))
-    weights = np.fmax(np.exp(-np.square(known / scale)), np.float32(0.0))
-    if radius > 0:
-        weights[known > radius] = 0.0
-    enough = np.count_nonzero(weights, axis=0) >= minimum
-    # neighbours relative to the point: the covariance is translation invariant, and the quadric's basis is
-    # centred at the point. A dropped neighbour stands at the point itself (0): a far one's powers in the
-    # quadric's sums would overflow. np.take: 3x faster than indexing with an array
-    relative = np.take(local, np.where(present, index, np.arange(count)), axis=1)   # (3, k, N)
-    relative -= local[:, None, :]
-    weight_sum = np.maximum(weights.sum(axis=0), np.float32(1e-30))
-    weighted = relative * weights
-    mean = weighted.sum(axis=1) / weight_sum                               # (3, N) centroid - point
-    entries = [(weighted[i] * relative[j]).sum(axis=0) / weight_sum - mean[i] * mean[j]
-               for i, j in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))]
-    normal = _smallest_eigenvectors_of(*(e.astype(np.float64) for e in entries)).T.astype(np.float32)  # (3, N)
-    if order == 1:
-        smoothed = local + (mean * normal).sum(axis=0) * normal             # onto the plane through the centroid
-    else:
-        # any orthonormal tangent pair: the quadric's basis spans the same space under rotation about the
-        # normal, and under translation, so the basis is centred at the point itself: its height is then c0
-        use_x = np.abs(normal[0]) < 0.9
-        zero = np.zeros_like(normal[0])
-        # normal x (1, 0, 0) = (0, n_z, -n_y); normal x (0, 1, 0) = (-n_z, 0, n_x)
-        axis_a = np.stack([np.where(use_x, zero, -normal[2]), np.where(use_x, normal[2], zero),
-                           np.where(use_x, -normal[1], normal[0])])
-        axis_a /= np.sqrt((axis_a * axis_a).sum(axis=0))
-        axis_b = np.cross(normal, axis_a, axis=0)
-        inverse_scale = 1.0 / scale
-        # each coordinate row by row, in place: no (3, k, N) temporaries (einsum was slower still)
-        in_frame, term = np.empty_like(relative), np.empty_like(relative[0])
-        for coordinate, axis in zip(in_frame, (axis_a * inverse_scale, axis_b * inverse_scale, normal),
-                                    strict=True):
-            np.multiply(relative[0], axis[0], out=coordinate)
-            for d in (1, 2):
-                np.multiply(relative[d], axis[d], out=term)
-                coordinate += term
-        a, b, h = in_frame
-        smoothed = local + _quadric_height(a, b, h, weights) * normal
-    return np.where(enough, smoothed, local).T.astype(np.float64) + origin
+        neighbour_distances, neighbour_index = cKDTree(xyz).query(xyz, k=min(k, count), workers=-1)
+    index = np.ascontiguousarray(neighbour_index, dtype=np.int64)
+    exponents, scale = _weight_exponents(index, np.ascontiguousarray(neighbour_distances, dtype=np.float64),
+                                         float(radius))
+    weights = np.exp(exponents, out=exponents)
+    return _moving_least_squares(np.ascontiguousarray(xyz, dtype=np.float64), index, weights, scale, order,
+                                 minimum)
 
 
 def voxel_downsample(cloud: Cloud, size: float) -> Cloud:
@@ -250,26 +324,56 @@ def voxel_downsample(cloud: Cloud, size: float) -> Cloud:
     return picked.with_points(centroids / counts[:, None])
 
 
-def _window_candidates(cloud: Cloud, half: int) -> np.ndarray:
-    """(N, (2 half + 1)^2) indices of the points in each point's pixel window (same camera), N (one past
-    the last point) where none; column (2 half + 1)^2 // 2 is the point itself. Needs cloud.pixel and
-    cloud.camera."""
-    count = len(cloud)
-    u = cloud.pixel[:, 0]
-    v = cloud.pixel[:, 1]
-    u0, v0 = int(u.min()) - half, int(v.min()) - half
-    width, height = int(u.max()) - u0 + half + 1, int(v.max()) - v0 + half + 1
-    # intp: numpy converts any other index type at every gather
-    grid = np.full((int(cloud.camera.max()) + 1, height, width), count, dtype=np.intp)
-    grid[cloud.camera, v - v0, u - u0] = np.arange(count)
-    # a strided view of every window: one gather of (side, side) blocks, no (N, W) index arithmetic
-    side = 2 * half + 1
-    windows = sliding_window_view(grid, (side, side), axis=(1, 2))
-    return windows[cloud.camera, v - v0 - half, u - u0 - half].reshape(count, side * side)
+@jit
+def _image_window_neighbours(xyz, camera, pixel, k, half):
+    """The k nearest of each point among the points of its (2 half + 1)^2 pixel window in the same camera,
+    itself included, nearest first: (distances (N, k), indices (N, k)); inf and -1 where the window holds
+    fewer. Squared distances in float32 (positions rounded to float32 first), ties going to the lower index,
+    then their square roots in float64."""
+    count = len(xyz)
+    position = xyz.astype(np.float32)
+    u0, v0 = pixel[:, 0].min() - half, pixel[:, 1].min() - half
+    width, height = pixel[:, 0].max() - u0 + half + 1, pixel[:, 1].max() - v0 + half + 1
+    # point index per (camera, pixel), -1 where none, with a margin of `half`: no window leaves the grid
+    grid = np.full((camera.max() + 1, height, width), -1, dtype=np.int64)
+    for point in range(count):
+        grid[camera[point], pixel[point, 1] - v0, pixel[point, 0] - u0] = point
+    nearest = np.full((count, k), np.inf)
+    index = np.full((count, k), -1, dtype=np.int64)
+    # a window's candidates as keys (the float32 distance's bits, which order non-negative floats, above the
+    # index): distinct, so a candidate's rank is the count of smaller keys; this branch-free count takes half
+    # the time of an insertion sort
+    distances = np.empty((2 * half + 1) ** 2, dtype=np.float32)
+    keys = np.empty((2 * half + 1) ** 2, dtype=np.int64)
+    distance_bits = distances.view(np.int32)
+    for point in range(count):
+        u, v = pixel[point, 0] - u0, pixel[point, 1] - v0
+        found = 0
+        for row in range(v - half, v + half + 1):
+            for column in range(u - half, u + half + 1):
+                candidate = grid[camera[point], row, column]
+                if candidate >= 0:
+                    distance = np.float32(0.0)
+                    for d in range(3):
+                        difference = position[candidate, d] - position[point, d]
+                        distance += difference * difference
+                    distances[found] = distance
+                    keys[found] = candidate
+                    found += 1
+        for n in range(found):
+            keys[n] |= np.int64(distance_bits[n]) << 32
+        for n in range(found):
+            rank = 0
+            for m in range(found):
+                rank += keys[m] < keys[n]
+            if rank < k:
+                nearest[point, rank] = np.sqrt(np.float64(distances[n]))
+                index[point, rank] = keys[n] & 0xFFFFFFFF
+    return nearest, index
 
 
 def nearest_neighbours(cloud: Cloud, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """Distances and indices (N, k) of each point's k nearest neighbours, itself included (in no order).
+    """Distances and indices (N, k) of each point's k nearest neighbours, itself included, nearest first.
 
     A cloud deprojected from depth images is organised: a point's 3-D neighbours are among its image
     neighbours, so a (2h+1)^2 pixel window (h from k) of the same camera replaces a KD-tree query, which
@@ -280,38 +384,30 @@ def nearest_neighbours(cloud: Cloud, k: int) -> tuple[np.ndarray, np.ndarray]:
         distances, index = cKDTree(cloud.xyz).query(cloud.xyz, k=min(k, count), workers=-1)
         return distances.reshape(count, -1), index.reshape(count, -1)
     half = max(int(np.ceil((np.sqrt(k + 1.0) - 1.0) / 2.0)), 1)   # the smallest window with k neighbours
-    candidates = _window_candidates(cloud, half)
-    # coordinates as contiguous float32 rows with an infinite point at index N: a missing neighbour is then
-    # infinitely far without a mask
-    coordinates = np.empty((3, count + 1), dtype=np.float32)
-    coordinates[:, :count] = cloud.xyz.T
-    coordinates[:, count] = np.inf
-    squared = np.zeros(candidates.shape, dtype=np.float32)
-    for coordinate in coordinates:
-        difference = np.take(coordinate, candidates)                      # take: faster than []
-        difference -= coordinate[:count, None]
-        difference *= difference
-        squared += difference
-    take = min(k, squared.shape[1])
-    if take < squared.shape[1]:
-        # the k smallest by one partition of int64 keys (the float32's bits, which order non-negative floats,
-        # above the index): half the cost of argpartition and two gathers; ties go to the lower index
-        keys = squared.view(np.int32).astype(np.int64)
-        keys <<= 32
-        keys |= candidates
-        nearest = np.partition(keys, take - 1, axis=1)[:, :take]
-        squared = (nearest >> 32).astype(np.int32).view(np.float32)
-        candidates = nearest & 0xFFFFFFFF
-    distances = np.sqrt(squared, dtype=np.float64)
-    candidates[candidates == count] = -1
-    return distances, candidates
+    return _image_window_neighbours(cloud.xyz, cloud.camera, cloud.pixel, k, half)
+
+
+@jit
+def _neighbours_among_kept(index, keep):
+    """The neighbour index rows of the kept points, renumbered to the kept points' order; a neighbour that was
+    not kept becomes -1 (dropped)."""
+    renumbered = np.cumsum(keep) - 1
+    kept = np.empty((renumbered[-1] + 1, index.shape[1]), dtype=index.dtype)
+    for point in range(len(index)):
+        if keep[point]:
+            for n in range(index.shape[1]):
+                neighbour = index[point, n]
+                kept[renumbered[point], n] = renumbered[neighbour] if neighbour >= 0 and keep[neighbour] else -1
+    return kept
 
 
 def filter_cloud(cloud: Cloud, config) -> Cloud:
     """The configured filter chain: crop box, colour condition, SOR (Eq. 5), MLS (Eq. 6), voxel grid."""
     f = config.filters
     box_min, box_max = config.crop_box()
-    cloud = cloud.subset(crop_box_mask(cloud.xyz, box_min, box_max))
+    inside = crop_box_mask(cloud.xyz, box_min, box_max)
+    if not inside.all():           # (fusion crops to the same box: usually nothing to drop, nothing to copy)
+        cloud = cloud.subset(inside)
     if f.color_filter and cloud.rgb is not None:
         cloud = cloud.subset(color_mask(cloud.rgb, f.color_min, f.color_max))
     # one k-NN query serves both SOR and MLS; MLS then ignores the neighbours SOR dropped
@@ -324,8 +420,7 @@ def filter_cloud(cloud: Cloud, config) -> Cloud:
         if f.sor:
             keep = statistical_outlier_mask(cloud.xyz, f.sor_neighbors, f.sor_alpha, distances)
             if not keep.all():
-                renumber = np.cumsum(keep) - 1
-                index = np.where((index >= 0) & keep[index], renumber[index], -1)[keep]
+                index = _neighbours_among_kept(index, keep)
                 distances = distances[keep]
                 cloud = cloud.subset(keep)
         if f.mls and len(cloud) > f.mls_neighbors:
