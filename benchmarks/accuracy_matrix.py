@@ -8,8 +8,8 @@ same argument parser and `build_simulation`, in process, without writing the bag
 filtered clouds relocated once) and measured against the scene's ground truth. One row each:
 
     found/expected/spurious notches, width MAE and max per-notch error (outer-wall gap facing the notches),
-    centreline RMSE, tip error, relocated surface error (mean distance to the true surface), measured
-    notch side, warnings the result raised
+    centreline RMSE, tip error (and its signed part along the tube), relocated surface error (mean distance
+    to the true surface), measured notch side, warnings the result raised
 
 and a summary of the floors (issue 9, cameras <= 110 mm): all notches and none spurious, width MAE
 <= 0.08 mm and max <= 0.20 mm, centreline <= 0.08 mm, tip <= 0.15 mm, surface <= 0.06 mm. A row that
@@ -167,12 +167,15 @@ def measure(shape, relocation) -> dict:
     errors = np.abs(np.array(errors))
     s = np.linspace(0.0, shape.length, 4000)
     true_centerline, _ = shape.centerline(s)
+    true_tip, tip_frame = shape.tip_pose()
     return {
         "found": len(found), "expected": len(truth), "spurious": spurious,
         "width_mae": float(errors.mean()) if errors.size else math.inf,
         "width_max": float(errors.max()) if errors.size else math.inf,
         "centerline": centerline_rmse(relocation.centerline.points, true_centerline),
-        "tip": float(np.linalg.norm(relocation.tip - shape.tip_pose()[0])),
+        "tip": float(np.linalg.norm(relocation.tip - true_tip)),
+        # signed along the true tip's tangent: + past the tip, - short of it
+        "tip_along": float((relocation.tip - true_tip) @ tip_frame[:, 2]),
         "surface": float(np.mean(shape.surface_distance(relocation.relocated.xyz))),
     }
 
@@ -220,10 +223,12 @@ def format_row(figures: dict) -> str:
                                             + ("" if figures["warnings"] else " (SILENT)"))
     return (f"{figures['row']:<22} {figures['found']:>2}/{figures['expected']:<2} {figures['spurious']:>2}  "
             f"{figures['width_mae'] * mm:6.3f} {figures['width_max'] * mm:6.3f}  {figures['centerline'] * mm:6.3f} "
-            f"{figures['tip'] * mm:6.3f} {figures['surface'] * mm:6.3f} {side:>7} {len(figures['warnings']):>3}{flag}")
+            f"{figures['tip'] * mm:6.3f} {figures['tip_along'] * mm:+7.3f} {figures['surface'] * mm:6.3f} {side:>7} "
+            f"{len(figures['warnings']):>3}{flag}")
 
 
-HEADER = (f"{'row':<22} notch  sp  wMAE   wMax    centre  tip    surf   side   warn   (mm, deg)")
+HEADER = (f"{'row':<22} notch  sp  wMAE   wMax    centre  tip    along   surf   side   warn   (mm, deg; "
+          "along: tip error along the tube, + past the tip)")
 
 
 def main() -> int:
@@ -258,6 +263,10 @@ def main() -> int:
     silent = [r["row"] for r in results if r["misses"] and not r["warnings"]]
     print(f"\nsummary: {len(meeting)}/{len(floored)} rows at cameras <= 110 mm meet every floor; "
           f"silent misses: {', '.join(silent) if silent else 'none'}")
+    along = [r["tip_along"] for r in floored if "error" not in r and abs(r["tip_along"]) < FLOORS["tip"] * 10]
+    if along:
+        print(f"  tip along the tube (cameras <= 110 mm, not cut short): median {np.median(along) * 1e3:+.3f} mm, "
+              f"range {min(along) * 1e3:+.3f} .. {max(along) * 1e3:+.3f} mm")
     for key in ("width_mae", "width_max", "centerline", "tip", "surface"):
         values = [r[key] for r in results if "error" not in r and math.isfinite(r[key])]
         if values:

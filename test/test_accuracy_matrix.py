@@ -28,3 +28,12 @@ def test_a_row_that_misses_says_so():
     print("\n" + accuracy_matrix.format_row(figures) + "\n" + "\n".join(figures["warnings"]))
     assert figures["misses"], "this row was expected to miss a floor; if it no longer does, pick another"
     assert any("quantised in 1 mm steps" in warning for warning in figures["warnings"])
+
+
+def test_a_rig_file_rolled_20_degrees_off_reports_the_side_the_notches_open_to():
+    """The robot's roll in its clamp is never exact: with the rig file's notch_side 20 deg off, every notch is
+    still found and the side reported is the true one (0 deg) to a few degrees."""
+    figures = accuracy_matrix.run_row(ROWS["side_off20"], frames=2)
+    print("\n" + accuracy_matrix.HEADER + "\n" + accuracy_matrix.format_row(figures))
+    assert figures["found"] == figures["expected"] and figures["spurious"] == 0
+    assert abs(figures["side_deg"] - 0.0) <= 3.0

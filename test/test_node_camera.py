@@ -8,6 +8,7 @@ import subprocess
 import numpy as np
 import pytest
 import tiny_rig
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from ros_graph import VENV_BIN, RosGraph
 from rosgraph_msgs.msg import Clock
@@ -26,6 +27,7 @@ CASES = {
     "raw16": dict(encoding="16UC1"),
     "float32": dict(encoding="32FC1"),
     "points": dict(points_only=True),
+    "raw16_1mm": dict(encoding="16UC1", depth_unit=1e-3),  # as realsense-ros records: too coarse for the tube
 }
 
 
@@ -37,10 +39,12 @@ def setup(tmp_path_factory):
             for name, options in CASES.items()}
     with RosGraph() as graph:
         received = {name: [] for name in CASES}
-        infos, clocks = [], []
+        infos, clocks, diagnostics = [], [], []
         for name, bag in bags.items():
+            unit = CASES[name].get("depth_unit")
             graph.start("camera_node", "--params-file", str(rig), "-p", f"bag_path:={bag}", "-p", "camera:=cam_a",
-                        "-p", "loop:=true",
+                        "-p", "loop:=true", "-r", f"__node:=camera_{name}",
+                        *(["-p", f"cam_a.depth_unit:={unit}"] if unit else []),
                         "-r", f"/ntcr/cam_a/depth/color/points:=/{name}/cam_a/depth/color/points",
                         "-r", f"/ntcr/cam_a/depth/camera_info:=/{name}/cam_a/depth/camera_info",
                         *(["-p", "publish_clock:=true"] if name == "raw16" else []))
@@ -48,9 +52,24 @@ def setup(tmp_path_factory):
                                            COLLECT_QOS)
         graph.node.create_subscription(CameraInfo, "/raw16/cam_a/depth/camera_info", infos.append, COLLECT_QOS)
         graph.node.create_subscription(Clock, "/clock", clocks.append, COLLECT_QOS)
-        # Two loops of every bag after discovery.
-        assert graph.spin_until(lambda: all(len(r) >= 2 * FRAMES for r in received.values()), 30), graph.all_logs()
-        yield graph, received, infos, clocks, load_rig_config(rig)
+        graph.node.create_subscription(DiagnosticArray, "/diagnostics", diagnostics.append, COLLECT_QOS)
+        # Two loops of every bag after discovery, and each node's diagnostics after its first frame.
+        assert graph.spin_until(lambda: all(len(r) >= 2 * FRAMES for r in received.values())
+                                and set(camera_statuses(diagnostics)) >= {f"camera_{name}" for name in CASES}
+                                and all(s.values for s in camera_statuses(diagnostics).values()), 30), \
+            graph.all_logs()
+        yield graph, received, infos, clocks, load_rig_config(rig), diagnostics
+
+
+def camera_statuses(diagnostics) -> dict:
+    """The newest diagnostic status of each camera node published after its first frame, by node name."""
+    newest = {}
+    for array in diagnostics:
+        for status in array.status:
+            values = {v.key: v.value for v in status.values}
+            if status.hardware_id.startswith("ntcr_recon/camera_") and int(values.get("frames_published", 0)):
+                newest[status.hardware_id.removeprefix("ntcr_recon/")] = status
+    return newest
 
 
 def expected_points(config, frame_index: int, unit_scale: bool):
@@ -63,7 +82,7 @@ def expected_points(config, frame_index: int, unit_scale: bool):
 
 @pytest.mark.parametrize("case", ["raw16", "float32"])
 def test_depth_frames_are_deprojected_by_the_core(setup, case):
-    _, received, _, _, config = setup
+    _, received, _, _, config, _ = setup
     for msg in received[case][:FRAMES + 2]:
         stamp = stamp_to_ns(msg.header.stamp)
         index = round((stamp - START) / PERIOD) % FRAMES
@@ -79,7 +98,7 @@ def test_depth_frames_are_deprojected_by_the_core(setup, case):
 
 
 def test_16bit_depth_is_scaled_by_the_configured_unit(setup):
-    _, received, _, _, _ = setup
+    _, received, _, _, _, _ = setup
     raw16, metres = (cloud_from_msg(received[case][0])[0] for case in ("raw16", "float32"))
     # Same scene: 16UC1 in 0.1 mm units equals 32FC1 metres to within the quantisation.
     assert np.abs(raw16[:, 2] - metres[:, 2]).max() <= tiny_rig.DEPTH_UNIT / 2 + 1e-7
@@ -87,7 +106,7 @@ def test_16bit_depth_is_scaled_by_the_configured_unit(setup):
 
 
 def test_loop_keeps_stamps_increasing_and_publishes_clock(setup):
-    _, received, infos, clocks, _ = setup
+    _, received, infos, clocks, _, _ = setup
     stamps = [stamp_to_ns(m.header.stamp) for m in received["raw16"]]
     assert np.all(np.diff(stamps) > 0)
     assert stamps[-1] - stamps[0] >= (2 * FRAMES - 1) * PERIOD - 1  # crossed at least one loop boundary
@@ -102,7 +121,7 @@ def test_loop_keeps_stamps_increasing_and_publishes_clock(setup):
 
 
 def test_recorded_clouds_are_republished_as_recorded(setup):
-    _, received, _, _, _ = setup
+    _, received, _, _, _, _ = setup
     msg = received["points"][0]
     index = round((stamp_to_ns(msg.header.stamp) - START) / PERIOD) % FRAMES
     xyz, rgb = cloud_from_msg(msg)
@@ -110,6 +129,21 @@ def test_recorded_clouds_are_republished_as_recorded(setup):
                                             tiny_rig.frame_color("cam_a", index))
     np.testing.assert_allclose(xyz, want_xyz.astype(np.float32))  # not cropped, not re-deprojected
     np.testing.assert_array_equal(rgb, want_rgb)
+
+
+def test_depth_too_coarse_for_the_tube_is_reported_on_diagnostics(setup):
+    """A camera whose depth comes in 1 mm steps (realsense-ros's default unit) says so in the graph, as the
+    offline command's warnings do; 0.1 mm steps pass, with the step measured."""
+    graph, _, _, _, _, diagnostics = setup
+    statuses = camera_statuses(diagnostics)
+    coarse, fine = statuses["camera_raw16_1mm"], statuses["camera_raw16"]
+    assert coarse.level == DiagnosticStatus.WARN
+    assert "depth of cam_a is quantised in 1 mm steps" in coarse.message
+    assert {v.key: v.value for v in coarse.values}["depth_step_mm"] == "1.0"
+    # (its level may still be WARN for frames skipped to keep pace on a busy machine)
+    assert "quantised" not in fine.message
+    assert {v.key: v.value for v in fine.values}["depth_step_mm"] == "0.1", fine
+    assert "quantised in 1 mm steps" in graph.all_logs()
 
 
 def test_a_truncated_bag_is_refused_by_name(tmp_path):

@@ -128,12 +128,33 @@ def test_camera_info_with_an_impossible_value_is_refused_naming_it(field, value,
 def test_notch_markers_are_oriented_by_the_centreline_frames():
     rotations = random_rotations(3)
     notches = [{"index": i, "width": 1.5e-3} for i in range(3)]
-    markers = messages.notch_markers(notches, RNG.normal(size=(3, 3)), rotations, 1.75e-3, "ntcr_base", 5).markers
+    markers = messages.NotchMarkers(1.75e-3).array(notches, RNG.normal(size=(3, 3)), rotations, "ntcr_base", 5).markers
     discs = [m for m in markers if m.ns == "notches" and m.action == Marker.ADD]
     assert len(discs) == 3
     for disc, rotation in zip(discs, rotations, strict=True):
         q = disc.pose.orientation
         np.testing.assert_allclose([q.x, q.y, q.z, q.w], matrix_to_quaternion(rotation), atol=1e-12)
+
+
+def test_notch_markers_kept_between_frames_show_only_the_current_notches():
+    """The markers' objects are reused frame to frame: the second frame's array holds its own notches, stamp and
+    widths, nothing left over from the first."""
+    markers = messages.NotchMarkers(1.75e-3)
+    first = [{"index": i, "width": 1.5e-3} for i in range(4)]
+    markers.array(first, RNG.normal(size=(4, 3)), random_rotations(4), "ntcr_base", 5)
+    second = [{"index": 2, "width": 1.2e-3}, {"index": 7, "width": 1.4e-3}]
+    positions = RNG.normal(size=(2, 3))
+    array = markers.array(second, positions, random_rotations(2), "ntcr_base", 9).markers
+    assert array[0].action == Marker.DELETEALL
+    assert [(m.ns, m.id) for m in array[1:]] == [("notches", 4), ("notch_labels", 5), ("notches", 14),
+                                                 ("notch_labels", 15)]
+    assert all(m.header.stamp.nanosec == 9 for m in array)
+    assert [m.scale.z for m in array[1::2]] == [1.2e-3, 1.4e-3]
+    assert [m.text for m in array[2::2]] == ["2: 1.20 mm", "7: 1.40 mm"]
+    np.testing.assert_allclose([[m.pose.position.x, m.pose.position.y, m.pose.position.z] for m in array[1::2]],
+                               positions)
+    # a published message is serialized: both notches' markers are distinct objects in it
+    assert len({id(m) for m in array}) == len(array)
 
 
 def stage_cloud(pixels, camera, footprint=1e-4) -> PointCloud2:

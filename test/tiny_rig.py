@@ -96,11 +96,12 @@ def frame_color(camera: str, index: int) -> np.ndarray:
 
 def write_bag(path: Path, frames: int = 10, fps: float = 30.0, encoding: str = "16UC1", cameras=tuple(CAMERAS),
               color: bool = True, points_only: bool = False, start_ns: int = 1_000_000_000,
-              skew_ns: dict[str, int] | None = None) -> Path:
+              skew_ns: dict[str, int] | None = None, depth_unit: float = DEPTH_UNIT) -> Path:
     """A rosbag2 (mcap) bag with realsense-ros topics for `cameras`; stamps at `fps` from `start_ns`.
 
-    16UC1 depth is in DEPTH_UNIT, 32FC1 in metres. `points_only`: only `.../depth/color/points` per camera
-    (the clouds a realsense-ros rig records). `skew_ns` shifts one camera's stamps (no hardware sync).
+    16UC1 depth is in `depth_unit` (DEPTH_UNIT unless given), 32FC1 in metres. `points_only`: only
+    `.../depth/color/points` per camera (the clouds a realsense-ros rig records). `skew_ns` shifts one
+    camera's stamps (no hardware sync).
     """
     period = int(round(1e9 / fps))
     with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
@@ -125,7 +126,7 @@ def write_bag(path: Path, frames: int = 10, fps: float = 30.0, encoding: str = "
                     messages["points"] = cloud_to_msg(xyz, rgb, frame_id=frame_id, stamp_ns=stamp, msgtypes=ROSBAGS)
                 else:
                     messages["info"] = camera_info(frame_id, stamp)
-                    depth = (np.round(depth_m / DEPTH_UNIT).astype(np.uint16) if encoding == "16UC1"
+                    depth = (np.round(depth_m / depth_unit).astype(np.uint16) if encoding == "16UC1"
                              else depth_m.astype(np.float32))
                     messages["depth"] = image(depth, encoding, frame_id, stamp)
                     if color:

@@ -18,9 +18,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ntcr_recon.core.centerline import Centerline, TubeCoordinates
+from ntcr_recon.core.centerline import Centerline, TubeCoordinates, unit_direction
 from ntcr_recon.core.comb import cut_intervals, inside_intervals
+from ntcr_recon.core.compiled import jit
 from ntcr_recon.core.geometry import TubeGeometry
+from ntcr_recon.core.wall import median
 
 # Mean resultant length of a window's point directions about the axis above which it is seen from one side.
 MAX_ONE_SIDEDNESS = 0.6
@@ -35,13 +37,44 @@ class Alignment:
     trusted: int             # points the alignment rests on
 
 
-def facing_cosine(coords: TubeCoordinates, frames: tuple, viewpoints: np.ndarray) -> np.ndarray:
-    """Cosine of the angle between each point's outward direction about the axis and its camera's direction."""
-    position, _, normal, binormal = frames
-    view = viewpoints - position
-    vx = np.einsum("ij,ij->i", view, normal)
-    vy = np.einsum("ij,ij->i", view, binormal)
-    return (coords.x * vx + coords.y * vy) / np.maximum(coords.radius * np.sqrt(vx * vx + vy * vy), 1e-15)
+@jit
+def _trusted_window_sums(s, x, y, position, normal, binormal, viewpoints, outer_radius, gate, end_s, least_cosine,
+                         away_from_cuts, window, windows):
+    """The trusted wall points and, per window of s, the normal equations of their offset model.
+
+    Trusted: within `gate` of the wall, 0 < s < end_s, away from the cuts, and facing their camera (the cosine
+    between the point's outward direction about the axis and the direction to its viewpoint above
+    `least_cosine`). Returns the trusted points' window, cos and sin of their angle about the axis and
+    radial offset (compact, in point order), and per window the 3x3 matrix and right-hand side of
+    offset = cx cos + cy sin + level summed over them, and their count.
+    """
+    count = s.shape[0]
+    index, cos_a, sin_a, residual = np.empty(count, np.intp), np.empty(count), np.empty(count), np.empty(count)
+    matrix, rhs, counts = np.zeros((windows, 3, 3)), np.zeros((windows, 3)), np.zeros(windows, np.intp)
+    kept = 0
+    for i in range(count):
+        radius = np.sqrt(x[i] * x[i] + y[i] * y[i])
+        offset = radius - outer_radius
+        if not (abs(offset) < gate and 0.0 < s[i] < end_s and away_from_cuts[i]):
+            continue
+        v0 = viewpoints[i, 0] - position[i, 0]
+        v1 = viewpoints[i, 1] - position[i, 1]
+        v2 = viewpoints[i, 2] - position[i, 2]
+        vx = v0 * normal[i, 0] + v1 * normal[i, 1] + v2 * normal[i, 2]
+        vy = v0 * binormal[i, 0] + v1 * binormal[i, 1] + v2 * binormal[i, 2]
+        if not (x[i] * vx + y[i] * vy) / max(radius * np.sqrt(vx * vx + vy * vy), 1e-15) > least_cosine:
+            continue
+        k = min(int(s[i] / window), windows - 1)
+        cos_angle, sin_angle = unit_direction(x[i], y[i])
+        terms = (cos_angle, sin_angle, 1.0)
+        for row in range(3):
+            rhs[k, row] += terms[row] * offset
+            for column in range(3):
+                matrix[k, row, column] += terms[row] * terms[column]
+        counts[k] += 1
+        index[kept], cos_a[kept], sin_a[kept], residual[kept] = k, terms[0], terms[1], offset
+        kept += 1
+    return index[:kept], cos_a[:kept], sin_a[:kept], residual[:kept], matrix, rhs, counts
 
 
 def align_to_trusted_wall(centerline: Centerline, coords: TubeCoordinates, frames: tuple, viewpoints: np.ndarray,
@@ -49,39 +82,27 @@ def align_to_trusted_wall(centerline: Centerline, coords: TubeCoordinates, frame
                           max_view_angle: float = np.radians(45.0), cut_margin_px: float = 1.0,
                           minimum_points: int = 30) -> Alignment:
     """Shift the centreline onto the trusted wall points (see the module docstring); end_s: the tube's end."""
-    r_o = geometry.outer_radius
-    offset = coords.radius - r_o
-    trusted = (np.abs(offset) < gate) & (coords.s > 0) & (coords.s < end_s)
-    trusted &= facing_cosine(coords, frames, viewpoints) > np.cos(max_view_angle)
-    trusted &= ~inside_intervals(coords.s, cut_intervals(geometry, centerline, cut_margin_px * footprint))
-    count = int(np.count_nonzero(trusted))
-    if count < minimum_points:
-        return Alignment(centerline, 0.0, 0.0, float("nan"), count)
-    s, angle, residual = coords.s[trusted], coords.angle[trusted], offset[trusted]
-    cos_a, sin_a = np.cos(angle), np.sin(angle)
     window = geometry.notch_pitch
     windows = max(int(np.ceil(end_s / window)), 1)
-    index = np.minimum((s / window).astype(np.intp), windows - 1)
-    # per window the normal equations of offset = cx cos + cy sin + level (3x3, summed by bincount)
-    terms = (cos_a, sin_a, np.ones_like(s))
-    matrix = np.zeros((windows, 3, 3))
-    rhs = np.zeros((windows, 3))
-    for i in range(3):
-        rhs[:, i] = np.bincount(index, weights=terms[i] * residual, minlength=windows)
-        for j in range(i, 3):
-            matrix[:, i, j] = matrix[:, j, i] = np.bincount(index, weights=terms[i] * terms[j], minlength=windows)
-    counts = np.bincount(index, minlength=windows)
+    away_from_cuts = ~inside_intervals(coords.s, cut_intervals(geometry, centerline, cut_margin_px * footprint))
+    position, _, normal, binormal = frames
+    # per window the normal equations of offset = cx cos + cy sin + level
+    index, cos_a, sin_a, residual, matrix, rhs, counts = _trusted_window_sums(
+        coords.s, coords.x, coords.y, position, normal, binormal, np.ascontiguousarray(viewpoints, dtype=float),
+        geometry.outer_radius, gate, end_s, np.cos(max_view_angle), away_from_cuts, window, windows)
+    count = len(index)
+    if count < minimum_points:
+        return Alignment(centerline, 0.0, 0.0, float("nan"), count)
     # a window seen from one side only cannot tell a shift towards the camera from the wall's level
     # (the offset model is then degenerate): it needs points spread around the axis
     resultant = np.hypot(matrix[:, 0, 2], matrix[:, 1, 2]) / np.maximum(counts, 1)
     solvable = (counts >= minimum_points // 3) & (resultant < MAX_ONE_SIDEDNESS)
     solvable &= np.abs(np.linalg.det(matrix)) > 1e-9 * np.maximum(counts, 1) ** 3
-    shifts = np.zeros((windows, 2))
-    if np.any(solvable):
-        solution = np.linalg.solve(matrix[solvable] + 1e-12 * np.eye(3), rhs[solvable][..., None])[..., 0]
-        shifts[solvable] = solution[:, :2]
     if not np.any(solvable):
         return Alignment(centerline, 0.0, 0.0, float("nan"), count)
+    shifts = np.zeros((windows, 2))
+    solution = np.linalg.solve(matrix[solvable] + 1e-12 * np.eye(3), rhs[solvable][..., None])[..., 0]
+    shifts[solvable] = solution[:, :2]
     centres = (np.arange(windows) + 0.5) * window
     # windows without enough trusted points take their neighbours' shift; the base stays clamped
     known_s = np.concatenate([[0.0], centres[solvable]])
@@ -89,11 +110,11 @@ def align_to_trusted_wall(centerline: Centerline, coords: TubeCoordinates, frame
                            for k in range(2)], axis=1)
     moved = centerline.points + node_shift[:, :1] * centerline.normals + node_shift[:, 1:] * centerline.binormals
     binormal_hint = centerline.binormals[0]
-    step = float(centerline.s[1] - centerline.s[0]) if len(centerline.s) > 1 else window
+    step = float(centerline.s[1] - centerline.s[0])
     aligned = Centerline.from_points(moved, binormal_hint, step)
     weights = counts[solvable].astype(float)
     bias = np.average(shifts[solvable], axis=0, weights=weights)
     fitted = shifts[index, 0] * cos_a + shifts[index, 1] * sin_a
-    level = np.median(residual - fitted)
+    level = median(residual - fitted)
     rms = float(np.sqrt(np.mean((residual - fitted - level) ** 2)))
     return Alignment(aligned, float(bias[0]), float(bias[1]), rms, count)

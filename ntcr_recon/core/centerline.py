@@ -4,8 +4,8 @@ Each camera sees one (flattened) side of the tube, so a free circle fit of a cro
 flattening; with the radius known, a fixed-radius fit of the arcs that both cameras see recovers the axis.
 The estimate alternates, until the centreline moves less than a tolerance:
 
-1. correspondences: every point is projected onto the current centreline (nearest centreline sample by a
-   KD-tree, then along the local tangent) giving its arc length s and its offset in the normal plane;
+1. correspondences: every point is projected onto the current centreline (its nearest centreline sample,
+   then along the local tangent) giving its arc length s and its offset in the normal plane;
 2. a Gauss-Newton step of the point-to-reference objective (Eq. 10 with the reference tube swept along the
    centreline): per slab of arc length, the fixed-radius circle residual |p - c| - r_o, robustly weighted
    (points deep inside the tube are cut faces or bore, points far outside are outliers);
@@ -25,25 +25,210 @@ from functools import cached_property
 
 import numpy as np
 import scipy.linalg
-from scipy.spatial import cKDTree
 
+from ntcr_recon.core.compiled import jit
 from ntcr_recon.core.geometry import TubeGeometry
 from ntcr_recon.core.tip import tube_end
-from ntcr_recon.core.wall import surface_band
-
-
-def _cross_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Cross products of (3, N) arrays of column vectors, row by row (np.cross costs more for them)."""
-    return np.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+from ntcr_recon.core.wall import median, surface_band
 
 
 def resample_polyline(points: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
     """Arc lengths s (uniform, at most `step` apart, from 0 to the length) and the polyline's points there
     (linear between its vertices)."""
-    chord = np.linalg.norm(np.diff(points, axis=0), axis=1)
-    arc = np.concatenate([[0.0], np.cumsum(chord)])
+    return _resample_kernel(np.ascontiguousarray(points, dtype=float), step)
+
+
+@jit
+def _resample_kernel(points, step):
+    """resample_polyline's arc lengths and points."""
+    arc = np.zeros(points.shape[0])
+    for i in range(1, points.shape[0]):
+        d0, d1, d2 = points[i, 0] - points[i - 1, 0], points[i, 1] - points[i - 1, 1], points[i, 2] - points[i - 1, 2]
+        arc[i] = arc[i - 1] + np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
     s = np.linspace(0.0, arc[-1], max(int(np.ceil(arc[-1] / step)), 1) + 1)
-    return s, np.stack([np.interp(s, arc, points[:, d]) for d in range(3)], axis=1)
+    resampled = np.empty((len(s), 3))
+    for d in range(3):
+        resampled[:, d] = np.interp(s, arc, points[:, d])
+    return s, resampled
+
+
+@jit
+def _untwisted_frames_kernel(s, points, binormal_hint):
+    """Tangents, normals and binormals (M, 3) of a curve sampled at increasing arc lengths s: the tangent by
+    second-order differences (np.gradient's, one-sided at the ends; the chord where there are two samples),
+    normalised; the binormal the hint made perpendicular to it and normalised; normal = binormal x tangent."""
+    count = s.shape[0]
+    tangents, normals, binormals = np.empty((count, 3)), np.empty((count, 3)), np.empty((count, 3))
+    for i in range(count):
+        for d in range(3):
+            if count == 2:
+                tangents[i, d] = points[1, d] - points[0, d]
+            elif i == 0:
+                tangents[i, d] = (points[1, d] - points[0, d]) / (s[1] - s[0])
+            elif i == count - 1:
+                tangents[i, d] = (points[i, d] - points[i - 1, d]) / (s[i] - s[i - 1])
+            else:
+                before, after = s[i] - s[i - 1], s[i + 1] - s[i]
+                tangents[i, d] = (-after / (before * (before + after)) * points[i - 1, d]
+                                  + (after - before) / (before * after) * points[i, d]
+                                  + before / (after * (before + after)) * points[i + 1, d])
+        t0, t1, t2 = tangents[i, 0], tangents[i, 1], tangents[i, 2]
+        norm = np.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+        t0, t1, t2 = t0 / norm, t1 / norm, t2 / norm
+        along = t0 * binormal_hint[0] + t1 * binormal_hint[1] + t2 * binormal_hint[2]
+        b0, b1, b2 = binormal_hint[0] - along * t0, binormal_hint[1] - along * t1, binormal_hint[2] - along * t2
+        norm = np.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
+        b0, b1, b2 = b0 / norm, b1 / norm, b2 / norm
+        tangents[i, 0], tangents[i, 1], tangents[i, 2] = t0, t1, t2
+        binormals[i, 0], binormals[i, 1], binormals[i, 2] = b0, b1, b2
+        normals[i, 0], normals[i, 1], normals[i, 2] = b1 * t2 - b2 * t1, b2 * t0 - b0 * t2, b0 * t1 - b1 * t0
+    return tangents, normals, binormals
+
+
+@jit
+def _frames_kernel(samples, spacing, length, s, frames):
+    """Frames of a centreline at arc lengths s into frames (4, N, 3): position, tangent, normal, binormal.
+
+    samples (M, 9): point, tangent and normal at s = 0, spacing, ..., length. Each is interpolated linearly
+    between the two samples around s; the tangent normalised, the normal made perpendicular to it and
+    normalised, binormal = tangent x normal; beyond the ends the position goes on along the end tangent.
+    """
+    last = samples.shape[0] - 2
+    for i in range(s.shape[0]):
+        clipped = min(max(s[i], 0.0), length)
+        position_in_steps = clipped / spacing
+        index = max(min(int(position_in_steps), last), 0)
+        fraction = position_in_steps - index
+        for d in range(3):
+            for row in range(3):  # point, tangent, normal
+                low = samples[index, 3 * row + d]
+                frames[row, i, d] = low + (samples[index + 1, 3 * row + d] - low) * fraction
+        t0, t1, t2 = frames[1, i, 0], frames[1, i, 1], frames[1, i, 2]
+        norm = np.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+        t0, t1, t2 = t0 / norm, t1 / norm, t2 / norm
+        beyond = s[i] - clipped
+        n0, n1, n2 = frames[2, i, 0], frames[2, i, 1], frames[2, i, 2]
+        along = n0 * t0 + n1 * t1 + n2 * t2
+        n0, n1, n2 = n0 - along * t0, n1 - along * t1, n2 - along * t2
+        norm = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+        n0, n1, n2 = n0 / norm, n1 / norm, n2 / norm
+        frames[0, i, 0] += beyond * t0
+        frames[0, i, 1] += beyond * t1
+        frames[0, i, 2] += beyond * t2
+        frames[1, i, 0], frames[1, i, 1], frames[1, i, 2] = t0, t1, t2
+        frames[2, i, 0], frames[2, i, 1], frames[2, i, 2] = n0, n1, n2
+        frames[3, i, 0] = t1 * n2 - t2 * n1
+        frames[3, i, 1] = t2 * n0 - t0 * n2
+        frames[3, i, 2] = t0 * n1 - t1 * n0
+
+
+@jit
+def _project_kernel(samples, spacing, length, xyz, s, frames):
+    """Tube coordinates (s, x, y) of points xyz lying near arc lengths s of a centreline (samples as
+    _frames_kernel's): the point's offset from the centreline at s, its part along the tangent added to s,
+    the rest resolved on normal (x) and binormal (y). frames (4, N, 3) receives the frames at s, the position
+    moved along the tangent by that part."""
+    _frames_kernel(samples, spacing, length, s, frames)
+    count = s.shape[0]
+    new_s, x, y = np.empty(count), np.empty(count), np.empty(count)
+    for i in range(count):
+        t0, t1, t2 = frames[1, i, 0], frames[1, i, 1], frames[1, i, 2]
+        o0, o1, o2 = xyz[i, 0] - frames[0, i, 0], xyz[i, 1] - frames[0, i, 1], xyz[i, 2] - frames[0, i, 2]
+        correction = o0 * t0 + o1 * t1 + o2 * t2
+        o0, o1, o2 = o0 - correction * t0, o1 - correction * t1, o2 - correction * t2
+        new_s[i] = s[i] + correction
+        x[i] = o0 * frames[2, i, 0] + o1 * frames[2, i, 1] + o2 * frames[2, i, 2]
+        y[i] = o0 * frames[3, i, 0] + o1 * frames[3, i, 1] + o2 * frames[3, i, 2]
+        frames[0, i, 0] += correction * t0
+        frames[0, i, 1] += correction * t1
+        frames[0, i, 2] += correction * t2
+    return new_s, x, y
+
+
+# Samples per bounding sphere of the nearest-sample search: about the square root of a centreline's samples
+# (a hundred or a few), so that both the spheres and the samples of the few spheres searched are few.
+SAMPLES_PER_BOUND = 12
+
+
+@jit
+def _nearest_in_run(points, first, stop, px, py, pz, best, nearest):
+    """The nearest of samples first .. stop - 1 to (px, py, pz) and its squared distance, if nearer than
+    `best` (squared); else best and nearest as given."""
+    for j in range(first, stop):
+        dx, dy, dz = px - points[j, 0], py - points[j, 1], pz - points[j, 2]
+        squared = dx * dx + dy * dy + dz * dz
+        if squared < best:
+            best, nearest = squared, j
+    return best, nearest
+
+
+@jit
+def _nearest_sample_arc_kernel(points, tangents, s, xyz, per_bound):
+    """Arc length of each point xyz from its nearest sample (exact) of a centreline (points, tangents at s):
+    that sample's s plus the point's offset from it along its tangent.
+
+    Runs of `per_bound` consecutive samples are bounded by spheres; a run is searched only where its sphere
+    comes nearer the point than the nearest sample found so far (first: the run of the previous point's
+    nearest sample, a neighbour in a cloud stored in scan order).
+    """
+    samples = points.shape[0]
+    runs = (samples + per_bound - 1) // per_bound
+    centre = np.zeros((runs, 3))
+    reach = np.zeros(runs)
+    for run in range(runs):
+        first, stop = run * per_bound, min((run + 1) * per_bound, samples)
+        for j in range(first, stop):
+            for d in range(3):
+                centre[run, d] += points[j, d] / (stop - first)
+        for j in range(first, stop):
+            dx, dy, dz = points[j, 0] - centre[run, 0], points[j, 1] - centre[run, 1], points[j, 2] - centre[run, 2]
+            reach[run] = max(reach[run], np.sqrt(dx * dx + dy * dy + dz * dz))
+    arc = np.empty(xyz.shape[0])
+    nearest = 0
+    for i in range(xyz.shape[0]):
+        px, py, pz = xyz[i, 0], xyz[i, 1], xyz[i, 2]
+        start = nearest // per_bound
+        best, nearest = _nearest_in_run(points, start * per_bound, min((start + 1) * per_bound, samples),
+                                        px, py, pz, np.inf, 0)
+        best_distance = np.sqrt(best)
+        for run in range(runs):
+            dx, dy, dz = px - centre[run, 0], py - centre[run, 1], pz - centre[run, 2]
+            # a run can hold a nearer sample only where its sphere comes within the best distance
+            limit = reach[run] + best_distance
+            if run != start and dx * dx + dy * dy + dz * dz <= limit * limit:
+                best, nearest = _nearest_in_run(points, run * per_bound, min((run + 1) * per_bound, samples),
+                                                px, py, pz, best, nearest)
+                best_distance = np.sqrt(best)
+        arc[i] = s[nearest] + ((px - points[nearest, 0]) * tangents[nearest, 0]
+                               + (py - points[nearest, 1]) * tangents[nearest, 1]
+                               + (pz - points[nearest, 2]) * tangents[nearest, 2])
+    return arc
+
+
+@jit
+def _bend_kernel(samples, spacing, length, s0, s1):
+    """Signed angle between the tangents at s0 and s1 of a centreline (samples as _frames_kernel's), positive
+    where the tangent at s1 leans towards the normal at s0; an array of length 1 pairs with every s of the
+    other."""
+    start, end = np.empty((4, s0.shape[0], 3)), np.empty((4, s1.shape[0], 3))
+    _frames_kernel(samples, spacing, length, s0, start)
+    _frames_kernel(samples, spacing, length, s1, end)
+    angle = np.empty(max(s0.shape[0], s1.shape[0]))
+    for i in range(angle.shape[0]):
+        a, b = min(i, s0.shape[0] - 1), min(i, s1.shape[0] - 1)
+        cosine = start[1, a, 0] * end[1, b, 0] + start[1, a, 1] * end[1, b, 1] + start[1, a, 2] * end[1, b, 2]
+        towards = end[1, b, 0] * start[2, a, 0] + end[1, b, 1] * start[2, a, 1] + end[1, b, 2] * start[2, a, 2]
+        angle[i] = (1.0 if towards >= 0 else -1.0) * np.arccos(min(max(cosine, -1.0), 1.0))
+    return angle
+
+
+@jit
+def unit_direction(x, y):
+    """(cos, sin) of the angle of (x, y) about the axis, without the trigonometry; (1, 0) on the axis."""
+    radius = np.sqrt(x * x + y * y)
+    if radius == 0.0:
+        return 1.0, 0.0
+    return x / radius, y / radius
 
 
 @dataclass(frozen=True)
@@ -80,6 +265,10 @@ class Centerline:
     normals: np.ndarray     # unit, towards the notch side
     binormals: np.ndarray   # tangent x normal
 
+    def __post_init__(self):
+        if len(self.s) < 2:
+            raise ValueError(f"a centreline needs at least 2 samples, got {len(self.s)}")
+
     @property
     def length(self) -> float:
         return float(self.s[-1])
@@ -96,13 +285,7 @@ class Centerline:
         perpendicular to the tangent, so the frame does not twist and needs no sequential transport.
         """
         s, resampled = resample_polyline(points, step)
-        count = len(s)
-        tangents = np.gradient(resampled, s, axis=0) if count > 2 else np.repeat(
-            (resampled[-1:] - resampled[:1]), count, axis=0)
-        tangents /= np.linalg.norm(tangents, axis=1, keepdims=True)
-        binormals = binormal_hint - np.einsum("ij,j->i", tangents, binormal_hint)[:, None] * tangents
-        binormals /= np.linalg.norm(binormals, axis=1, keepdims=True)
-        normals = np.cross(binormals, tangents)
+        tangents, normals, binormals = _untwisted_frames_kernel(s, resampled, np.asarray(binormal_hint, dtype=float))
         return cls(s, resampled, tangents, normals, binormals)
 
     def rolled(self, angle: float) -> Centerline:
@@ -112,43 +295,19 @@ class Centerline:
         return Centerline(self.s, self.points, self.tangents, normals, np.cross(self.tangents, normals))
 
     @cached_property
-    def _rows(self) -> tuple[np.ndarray, np.ndarray]:
-        """(9, M) points, tangents and normals as rows, and (9, M - 1) their steps to the next sample: one
-        gather of each interpolates all three, and per-point arithmetic runs along contiguous rows (numpy is
-        slow on (N, 3) arrays, whose inner loops are three long)."""
-        samples = np.concatenate([self.points, self.tangents, self.normals], axis=1).T.copy()
-        return samples, np.diff(samples, axis=1)
+    def _samples(self) -> np.ndarray:
+        """(M, 9) points, tangents and normals side by side, what the compiled kernels interpolate."""
+        return np.concatenate([self.points, self.tangents, self.normals], axis=1)
 
     def frames_at(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Position, tangent, normal and binormal at arc lengths s; beyond the ends along the end tangent."""
-        s = np.asarray(s, dtype=float)
-        if len(self.s) < 2:
-            count = len(s)
-            return (self.points[:1] + (s - self.s[0])[:, None] * self.tangents[:1],
-                    np.repeat(self.tangents[:1], count, axis=0),
-                    np.repeat(self.normals[:1], count, axis=0), np.repeat(self.binormals[:1], count, axis=0))
-        clipped = np.clip(s, 0.0, self.length)
-        position_in_steps = clipped / (self.s[1] - self.s[0])
-        index = np.minimum(position_in_steps.astype(np.intp), len(self.s) - 2)
-        samples, steps = self._rows
-        mixed = np.take(samples, index, axis=1)
-        mixed += np.take(steps, index, axis=1) * (position_in_steps - index)
-        tangent, normal = mixed[3:6], mixed[6:9]
-        tangent /= np.sqrt(tangent[0] * tangent[0] + tangent[1] * tangent[1] + tangent[2] * tangent[2])
-        position = mixed[0:3]
-        position += (s - clipped) * tangent
-        normal -= (normal[0] * tangent[0] + normal[1] * tangent[1] + normal[2] * tangent[2]) * tangent
-        normal /= np.sqrt(normal[0] * normal[0] + normal[1] * normal[1] + normal[2] * normal[2])
-        binormal = _cross_rows(tangent, normal)
-        # back to (N, 3) rows in C order, which is what the callers index and combine
-        return position.T.copy(), tangent.T.copy(), normal.T.copy(), binormal.T.copy()
-
-    @cached_property
-    def tree(self) -> cKDTree:
-        return cKDTree(self.points)
+        s = np.ascontiguousarray(s, dtype=float)
+        frames = np.empty((4, len(s), 3))
+        _frames_kernel(self._samples, float(self.s[1] - self.s[0]), self.length, s, frames)
+        return frames[0], frames[1], frames[2], frames[3]
 
     def project(self, xyz: np.ndarray, s_guess: np.ndarray | None = None) -> TubeCoordinates:
-        """Tube coordinates of points: nearest sample (KD-tree), then slid along the local tangent."""
+        """Tube coordinates of points: nearest sample, then slid along the local tangent."""
         return self.project_with_frames(xyz, s_guess)[0]
 
     def project_with_frames(self, xyz: np.ndarray, s_guess: np.ndarray | None = None
@@ -156,22 +315,16 @@ class Centerline:
         """project(), and the centreline frames (position, tangent, normal, binormal) at each point's s.
 
         s_guess: arc lengths of the same points on a nearby curve (e.g. the previous iteration's), which
-        replaces the KD-tree search by one more step along the tangent.
+        replaces the search for the nearest sample by one more step along the tangent.
         """
+        xyz = np.ascontiguousarray(xyz, dtype=float)
         if s_guess is None:
-            _, nearest = self.tree.query(xyz)
-            s = self.s[nearest] + np.einsum("ij,ij->i", xyz - self.points[nearest], self.tangents[nearest])
+            s = _nearest_sample_arc_kernel(self.points, self.tangents, self.s, xyz, SAMPLES_PER_BOUND)
         else:
-            s = s_guess
-        # one step along the tangent at s; the frame is not re-evaluated at the corrected s (the step is
-        # tiny next to the radius of curvature, and the offset is made normal to the tangent used)
-        position, tangent, normal, binormal = self.frames_at(s)
-        offset = xyz - position
-        correction = np.einsum("ij,ij->i", offset, tangent)  # (einsum: (N, 3).sum(axis=1) is 3x slower)
-        offset -= correction[:, None] * tangent
-        s = s + correction
-        coords = TubeCoordinates(s, np.einsum("ij,ij->i", offset, normal), np.einsum("ij,ij->i", offset, binormal))
-        return coords, (position + correction[:, None] * tangent, tangent, normal, binormal)
+            s = np.ascontiguousarray(s_guess, dtype=float)
+        frames = np.empty((4, len(s), 3))
+        s, x, y = _project_kernel(self._samples, float(self.s[1] - self.s[0]), self.length, xyz, s, frames)
+        return TubeCoordinates(s, x, y), (frames[0], frames[1], frames[2], frames[3])
 
     def to_points(self, s: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Base-frame points of tube coordinates (the inverse of project)."""
@@ -179,12 +332,10 @@ class Centerline:
         return position + x[:, None] * normal + y[:, None] * binormal
 
     def bend_angle(self, s0, s1) -> np.ndarray | float:
-        """Signed turn of the tangent from s0 to s1 (scalars or arrays), positive towards the notch side."""
-        s0, s1 = np.broadcast_arrays(np.atleast_1d(np.asarray(s0, float)), np.atleast_1d(np.asarray(s1, float)))
-        _, t0, n0, _ = self.frames_at(s0)
-        _, t1, _, _ = self.frames_at(s1)
-        cosine = np.clip((t0 * t1).sum(axis=1), -1.0, 1.0)
-        angle = np.where((t1 * n0).sum(axis=1) >= 0, 1.0, -1.0) * np.arccos(cosine)
+        """Signed turn of the tangent from s0 to s1 (scalars or arrays, one of them of length 1 or both of the
+        same length), positive towards the notch side."""
+        angle = _bend_kernel(self._samples, float(self.s[1] - self.s[0]), self.length,
+                             np.atleast_1d(np.asarray(s0, dtype=float)), np.atleast_1d(np.asarray(s1, dtype=float)))
         return float(angle[0]) if angle.size == 1 else angle
 
 
@@ -240,30 +391,85 @@ def fixed_radius_circle_fit(slab: np.ndarray, x: np.ndarray, y: np.ndarray, slab
     point_weight: optional prior weight of each point (e.g. its share of two neighbouring slabs).
     Returns centres (slabs, 2) and the 2x2 information matrices (slabs, 2, 2) (zero where unobserved).
     """
-    centre = np.zeros((slabs, 2))
-    information = np.zeros((slabs, 2, 2))
-    for _ in range(iterations):
-        dx, dy = x - centre[slab, 0], y - centre[slab, 1]
-        distance = np.maximum(np.sqrt(dx * dx + dy * dy), 1e-12)
-        residual = distance - radius
-        nx, ny = dx / distance, dy / distance
-        scaled = np.where(residual < 0, 2.0 * residual, residual) / gate
-        weight = np.where(np.abs(scaled) < 1.0, (1.0 - scaled**2) ** 2, 0.0)
-        if point_weight is not None:
-            weight = weight * point_weight
-        sums = [np.bincount(slab, weights=weight * term, minlength=slabs)
-                for term in (nx * nx, nx * ny, ny * ny, residual * nx, residual * ny)]
-        a, b, c, gx, gy = sums
-        damping = 1e-6 * (a + c) + 1e-30
-        det = (a + damping) * (c + damping) - b * b
-        step_x = ((c + damping) * gx - b * gy) / det
-        step_y = ((a + damping) * gy - b * gx) / det
-        centre[:, 0] += step_x
-        centre[:, 1] += step_y
-        information = np.stack([np.stack([a, b], axis=1), np.stack([b, c], axis=1)], axis=1)
-        if max(np.abs(step_x).max(initial=0.0), np.abs(step_y).max(initial=0.0)) < 1e-3 * gate:
-            break
+    if point_weight is None:
+        point_weight = np.ones(len(x))
+    centre, sums = _circle_fit_kernel(slab, x, y, point_weight, slabs, radius, gate, iterations)
+    a, b, c = sums[:, 0], sums[:, 1], sums[:, 2]
+    information = np.stack([np.stack([a, b], axis=1), np.stack([b, c], axis=1)], axis=1)
     return centre, information
+
+
+@jit
+def _circle_fit_kernel(slab, x, y, point_weight, slabs, radius, gate, iterations):
+    """fixed_radius_circle_fit's iterations: centres (slabs, 2) and the last step's weighted sums (slabs, 5) of
+    nx nx, nx ny, ny ny, r nx, r ny (n: the unit offset of a point from its slab's centre, r: its residual)."""
+    centre = np.zeros((slabs, 2))
+    sums = np.zeros((slabs, 5))
+    for _ in range(iterations):
+        sums[:] = 0.0
+        for i in range(x.shape[0]):
+            k = slab[i]
+            dx, dy = x[i] - centre[k, 0], y[i] - centre[k, 1]
+            distance = max(np.sqrt(dx * dx + dy * dy), 1e-12)
+            residual = distance - radius
+            nx, ny = dx / distance, dy / distance
+            scaled = (2.0 * residual if residual < 0 else residual) / gate
+            if not abs(scaled) < 1.0:
+                continue
+            taper = 1.0 - scaled * scaled
+            weight = taper * taper * point_weight[i]
+            sums[k, 0] += weight * (nx * nx)
+            sums[k, 1] += weight * (nx * ny)
+            sums[k, 2] += weight * (ny * ny)
+            sums[k, 3] += weight * (residual * nx)
+            sums[k, 4] += weight * (residual * ny)
+        largest = 0.0
+        for k in range(slabs):
+            a, b, c, gx, gy = sums[k, 0], sums[k, 1], sums[k, 2], sums[k, 3], sums[k, 4]
+            damping = 1e-6 * (a + c) + 1e-30
+            det = (a + damping) * (c + damping) - b * b
+            step_x = ((c + damping) * gx - b * gy) / det
+            step_y = ((a + damping) * gy - b * gx) / det
+            centre[k, 0] += step_x
+            centre[k, 1] += step_y
+            largest = max(largest, abs(step_x), abs(step_y))
+        if largest < 1e-3 * gate:
+            break
+    return centre, sums
+
+
+@jit
+def _hat_shares_kernel(s, x, y, selected, step, slabs):
+    """Each selected point's shares of its two neighbouring nodes (nodes `step` apart along s, `slabs` of them;
+    linear hat weights): (slab, x, y, weight) of every positive share on a node, the lower nodes' first."""
+    picked = np.flatnonzero(selected)
+    position_in_steps = s[picked] / step
+    lower = np.floor(position_in_steps).astype(np.intp)
+    share = position_in_steps - lower
+    slab, weight = np.empty(2 * len(picked), np.intp), np.empty(2 * len(picked))
+    slab_x, slab_y = np.empty(2 * len(picked)), np.empty(2 * len(picked))
+    kept = 0
+    for upper in range(2):
+        for j in range(len(picked)):
+            node, node_weight = lower[j] + upper, share[j] if upper else 1.0 - share[j]
+            if 0 <= node < slabs and node_weight > 0:
+                slab[kept], weight[kept] = node, node_weight
+                slab_x[kept], slab_y[kept] = x[picked[j]], y[picked[j]]
+                kept += 1
+    return slab[:kept], slab_x[:kept], slab_y[:kept], weight[:kept]
+
+
+@jit
+def _slab_directions_kernel(slab, x, y, weight, slabs):
+    """Per slab the weight of its points and the length of the weighted sum of their unit directions
+    (x, y) / |(x, y)| about the axis."""
+    counts, cos_sum, sin_sum = np.zeros(slabs), np.zeros(slabs), np.zeros(slabs)
+    for i in range(slab.shape[0]):
+        cos_angle, sin_angle = unit_direction(x[i], y[i])
+        counts[slab[i]] += weight[i]
+        cos_sum[slab[i]] += weight[i] * cos_angle
+        sin_sum[slab[i]] += weight[i] * sin_angle
+    return counts, np.hypot(cos_sum, sin_sum)
 
 
 def _smooth_update(nodes: np.ndarray, tangents: np.ndarray, targets: np.ndarray, information: np.ndarray,
@@ -274,37 +480,50 @@ def _smooth_update(nodes: np.ndarray, tangents: np.ndarray, targets: np.ndarray,
     place along its tangent (else the smoothness prior would let the curve stretch freely) and weakly
     everywhere. information: (M, 3, 3) data weights. lam = smoothing_steps^4 sets the cut-off length.
     """
-    count = len(nodes)
-    traces = np.trace(information, axis1=1, axis2=2)
-    typical = float(np.median(traces[traces > 0])) if np.any(traces > 0) else 1.0
+    bands, rhs = _smoothing_system_kernel(nodes, tangents, targets, information, np.asarray(anchor, dtype=float),
+                                          smoothing_steps)
+    return scipy.linalg.solveh_banded(bands, rhs).reshape(len(nodes), 3)
+
+
+@jit
+def _smoothing_system_kernel(nodes, tangents, targets, information, anchor, smoothing_steps):
+    """_smooth_update's normal equations, in LAPACK's upper band storage (9, 3M) and their right-hand side.
+
+    The system couples a node with itself (3x3 block) and, through the second differences, with the next two:
+    symmetric, positive definite and banded (8 above the diagonal in x, y, z order per node):
+    bands[8 - offset, column] = system[column - offset, column]. No dense matrix, no matrix product (which
+    would wake BLAS threads for nothing).
+    """
+    count = nodes.shape[0]
+    traces = information[:, 0, 0] + information[:, 1, 1] + information[:, 2, 2]
+    observed = traces[traces > 0]
+    typical = median(observed) if observed.size else 1.0
     weak = 1e-4 * typical
     lam = typical * smoothing_steps**4
-    along = typical * np.einsum("mi,mj->mij", tangents, tangents)
-    block = information + along + weak * np.eye(3)[None]
-    block[0] += 1e3 * typical * np.eye(3)                      # the base is clamped at the configured pose
-    rhs = np.einsum("mij,mj->mi", information, targets) + np.einsum("mij,mj->mi", along, nodes) + weak * nodes
-    rhs[0] += 1e3 * typical * anchor
-    # The system couples a node with itself (3x3 block) and, through the second differences, with the next
-    # two: symmetric, positive definite and banded (8 above the diagonal in x, y, z order per node). It is
-    # assembled in LAPACK's upper band storage, bands[8 - offset, column] = system[column - offset, column]:
-    # no dense matrix, no matrix product (which would wake BLAS threads for nothing).
-    size = 3 * count
-    bands = np.zeros((9, size))
-    for row in range(3):
-        for column in range(row, 3):
-            bands[8 - (column - row), column::3] += block[:, row, column]
+    clamp = 1e3 * typical  # the base is clamped at the configured pose
+    bands, rhs = np.zeros((9, 3 * count)), np.zeros(3 * count)
+    for m in range(count):
+        for row in range(3):
+            for column in range(3):
+                along = typical * (tangents[m, row] * tangents[m, column])
+                rhs[3 * m + row] += information[m, row, column] * targets[m, column]
+                rhs[3 * m + row] += along * nodes[m, column]
+                if column >= row:
+                    block = information[m, row, column] + along
+                    if column == row:
+                        block += weak + (clamp if m == 0 else 0.0)
+                    bands[8 - (column - row), 3 * m + column] = block
+            rhs[3 * m + row] += weak * nodes[m, row] + (clamp * anchor[row] if m == 0 else 0.0)
     if count >= 3:
         # second difference of nodes i, i+1, i+2 with coefficients (1, -2, 1): lam * D^T D, per axis
         coefficients = (1.0, -2.0, 1.0)
         for first in range(3):
             for second in range(first, 3):
-                offset = 3 * (second - first)
                 value = lam * coefficients[first] * coefficients[second]
-                for axis in range(3):
-                    # node pairs (i + first, i + second), i = 0 .. count - 3, at column 3 (i + second) + axis
-                    start = 3 * second + axis
-                    bands[8 - offset, start:start + 3 * (count - 2):3] += value
-    return scipy.linalg.solveh_banded(bands, rhs.reshape(-1)).reshape(count, 3)
+                for i in range(count - 2):
+                    for axis in range(3):  # node pair (i + first, i + second)
+                        bands[8 - 3 * (second - first), 3 * (i + second) + axis] += value
+    return bands, rhs
 
 
 def _march(xyz: np.ndarray, geometry: TubeGeometry, settings: CenterlineSettings) -> np.ndarray:
@@ -390,15 +609,7 @@ def estimate_centerline(xyz: np.ndarray, geometry: TubeGeometry, settings: Cente
         slabs = max(int(np.ceil(observed_end / step)) + 1, 2)
         # each point feeds its two neighbouring nodes with linear (hat) weights, so the fit changes
         # smoothly as points slide along s between iterations
-        position_in_steps = coordinates.s[near_tube] / step
-        lower = np.floor(position_in_steps).astype(np.intp)
-        share = position_in_steps - lower
-        slab = np.concatenate([lower, lower + 1])
-        weight = np.concatenate([1.0 - share, share])
-        keep = (slab >= 0) & (slab < slabs) & (weight > 0)
-        x = np.tile(coordinates.x[near_tube], 2)[keep]
-        y = np.tile(coordinates.y[near_tube], 2)[keep]
-        slab, weight = slab[keep], weight[keep]
+        slab, x, y, weight = _hat_shares_kernel(coordinates.s, coordinates.x, coordinates.y, near_tube, step, slabs)
         # stereo depth puts the seen wall a little inside (flattening) or outside the true one, about equally
         # all round: the circle is fitted at the radius this cloud's wall points lie at, its centre is the axis
         level, _ = surface_band(coordinates.radius - geometry.outer_radius, settings.gate)
@@ -410,14 +621,11 @@ def estimate_centerline(xyz: np.ndarray, geometry: TubeGeometry, settings: Cente
         targets = position + np.einsum("mij,mj->mi", basis, centre)
         information = np.einsum("mia,mab,mjb->mij", basis, information_2d, basis)
         # slabs too thinly observed to place a circle are left to the smoothness prior
-        counts = np.bincount(slab, weights=weight, minlength=slabs)
+        counts, resultant = _slab_directions_kernel(slab, x, y, weight, slabs)
         information[counts < 6] = 0.0
         # A slab seen on one side only (e.g. across a notch, where only the spine is left) places the axis
         # through the radius alone, so any radial bias of stereo depth moves it sideways: such slabs count
         # less, by 1 - |mean direction of their points about the axis|^2, and the smoothness prior bridges.
-        angle = np.arctan2(y, x)
-        resultant = np.hypot(np.bincount(slab, weights=weight * np.cos(angle), minlength=slabs),
-                             np.bincount(slab, weights=weight * np.sin(angle), minlength=slabs))
         balance = 1.0 - (resultant / np.maximum(counts, 1e-12)) ** 2
         information *= balance[:, None, None]
         updated = _smooth_update(position, tangent, targets, information, base, smoothing_steps)

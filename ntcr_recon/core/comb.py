@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ntcr_recon.core.compiled import jit
 from ntcr_recon.core.geometry import TubeGeometry
 
 
@@ -30,7 +31,17 @@ def cut_intervals(geometry: TubeGeometry, centerline, margin: float) -> np.ndarr
 
 def inside_intervals(s: np.ndarray, intervals: np.ndarray) -> np.ndarray:
     """(N,) bool: s lies in one of the sorted, disjoint (K, 2) intervals."""
-    if len(intervals) == 0:
-        return np.zeros(len(s), dtype=bool)
-    k = np.clip(np.searchsorted(intervals[:, 0], s, side="right") - 1, 0, len(intervals) - 1)
-    return (s >= intervals[k, 0]) & (s <= intervals[k, 1])
+    return _inside_kernel(np.ascontiguousarray(s, dtype=float), np.ascontiguousarray(intervals[:, 0], dtype=float),
+                          np.ascontiguousarray(intervals[:, 1], dtype=float))
+
+
+@jit
+def _inside_kernel(s, starts, ends):
+    """Whether each s lies in [starts[k], ends[k]] of the last interval starting at or before it."""
+    inside = np.zeros(s.shape[0], np.bool_)
+    if starts.shape[0] == 0:
+        return inside
+    for i in range(s.shape[0]):
+        k = max(np.searchsorted(starts, s[i], side="right") - 1, 0)
+        inside[i] = starts[k] <= s[i] <= ends[k]
+    return inside

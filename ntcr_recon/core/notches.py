@@ -211,7 +211,8 @@ def measure_notch_side(observed: TubeCoordinates, notches: list[Notch], geometry
 
     Inside the found notches the outer wall is missing over |angle - side| < gap_half_angle; spines keep it
     all round. Per sector of angle, the wall points' density inside the notches relative to that on the
-    spines (what the cameras can see cancels in the ratio) is matched to that window, slid over +-`search`.
+    spines (what the cameras can see cancels in the ratio) is matched to that window, slid over +-`search`
+    (to a sector), then placed within a sector by its two edges where both are seen (_window_edges).
     None when fewer than two notches were found or less than two thirds of the ring is seen.
     """
     if len(notches) < 2:
@@ -247,4 +248,40 @@ def measure_notch_side(observed: TubeCoordinates, notches: list[Notch], geometry
     score = (outside @ ratio) / np.maximum(count_out, 1) - (inside @ ratio) / np.maximum(count_in, 1)
     score = np.where(valid, score, -np.inf)
     best = np.flatnonzero(score >= score.max() - 1e-12)
-    return float(sides[best[np.argmin(np.abs(sides[best]))]])  # ties: the smallest turn
+    side = float(sides[best[np.argmin(np.abs(sides[best]))]])  # ties: the smallest turn
+    # the sectors place the window to a sector; a window edge between two seen neighbouring sectors is
+    # placed within them, where the ratio crosses half its level outside the window
+    located = _window_edges(ratio, seen, centres, width, side, geometry.gap_half_angle, outside[sides == side][0])
+    if not located:
+        return side
+    refined = float(np.mean(located))
+    low, high = sides[best].min() - width / 2, sides[best].max() + width / 2  # what the sectors allow
+    return float(np.clip(refined, low, high))
+
+
+def _window_edges(ratio: np.ndarray, seen: np.ndarray, centres: np.ndarray, width: float, side: float,
+                  half_angle: float, outside: np.ndarray) -> list[float]:
+    """The side the window's two edges put the notches at, when each falls between two seen neighbouring
+    sectors, one mostly open and one mostly walled (their ratios either side of half the median outside the
+    window): a sector holds as much wall as the share of it outside the window, which places the edge within
+    them. Near an edge the matcher thins the wall as much on one side of the window as on the other, so only
+    both edges together (their mean) place it; an empty list when one is not seen so. Sectors at the border
+    of what is seen are left out: grazing views thin the wall there unevenly, which would read as an edge."""
+    sectors = len(ratio)
+    usable = seen & np.roll(seen, 1) & np.roll(seen, -1)
+    if not np.any(usable & outside):
+        return []
+    level = float(np.median(ratio[usable & outside]))
+    share = np.clip(ratio / max(level, 1e-12), 0.0, 1.0)
+    found = []
+    for sign in (1, -1):  # the edge at side + half_angle (wall beyond it at larger angles), at side - half_angle
+        edge = side + sign * half_angle
+        nearest = int(np.argmin(np.abs(np.angle(np.exp(1j * (centres - edge))))))
+        for step in (0, -1, 1, -2):
+            open_, walled = (nearest + sign * step) % sectors, (nearest + sign * (step + 1)) % sectors
+            if usable[open_] and usable[walled] and share[open_] < 0.5 <= share[walled]:
+                boundary = centres[open_] + sign * width / 2
+                located = boundary - sign * share[open_] * width + sign * (1.0 - share[walled]) * width
+                found.append(float(np.angle(np.exp(1j * (located - sign * half_angle)))))
+                break
+    return found if len(found) == 2 else []

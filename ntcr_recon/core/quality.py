@@ -102,10 +102,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
         warnings.append(f"a depth pixel covers {footprint * 1e3:.2f} mm, the tube is only "
                         f"{diameter / footprint:.0f} px across: expect errors above 0.1 mm (move the cameras "
                         "closer)")
-    for name, step in depth_steps.items():
-        if step > QUANTISATION_RADIUS_FRACTION * r_o:
-            warnings.append(f"depth of {name} is quantised in {step * 1e3:.2g} mm steps: a {diameter * 1e3:.1f} mm "
-                            "tube loses most of its depth profile (realsense-ros records 1 mm units; use 0.1 mm)")
+    warnings += [w for name, step in depth_steps.items() if (w := depth_quantisation_warning(name, step, geometry))]
     if abs(bias_notch_side) > BIAS_WARN_FOOTPRINTS * footprint:
         warnings.append(f"stereo edges pulled the centreline {bias_notch_side * 1e3:+.2f} mm towards the notch "
                         "side (corrected); residual bias may remain")
@@ -124,6 +121,14 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
         "depth_step_mm": {k: v * 1e3 for k, v in depth_steps.items()},
     }
     return quality, warnings
+
+
+def depth_quantisation_warning(camera: str, step: float, geometry) -> str | None:
+    """The warning for a camera whose depth steps (m) are too coarse for the tube's roundness, else None."""
+    if step <= QUANTISATION_RADIUS_FRACTION * geometry.outer_radius:
+        return None
+    return (f"depth of {camera} is quantised in {step * 1e3:.2g} mm steps: a {geometry.outer_diameter * 1e3:.1f} mm "
+            "tube loses most of its depth profile (realsense-ros records 1 mm units; use 0.1 mm)")
 
 
 def depth_step(depth: np.ndarray, unit: float, samples: int = 4096) -> float:

@@ -25,7 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ntcr_recon.core.centerline import Centerline, TubeCoordinates
+from ntcr_recon.core.centerline import Centerline, TubeCoordinates, unit_direction
+from ntcr_recon.core.compiled import jit
 from ntcr_recon.core.geometry import TubeGeometry
 from ntcr_recon.core.notches import Notch
 from ntcr_recon.core.robot_surface import (
@@ -51,9 +52,33 @@ class RelocatedPoints:
         return int(np.count_nonzero(~self.accepted))
 
 
-def _length(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """|(a, b)| elementwise (np.hypot guards against overflow, which millimetres never reach, at 3x the cost)."""
-    return np.sqrt(a * a + b * b)
+@jit
+def _along_rays_kernel(s, x, y, position, tangent, normal, binormal, origins, radius, gate):
+    """Each point (tube coordinates s, x, y; its frame) moved along its ray from `origins` onto the local
+    cylinder of `radius` about the tangent, to the intersection nearer the camera: new (s, x, y), and
+    whether the ray meets the cylinder within `gate` (where not, the point keeps its coordinates)."""
+    count = s.shape[0]
+    moved_s, moved_x, moved_y = np.empty(count), np.empty(count), np.empty(count)
+    hit = np.empty(count, np.bool_)
+    for i in range(count):
+        r0 = position[i, 0] + x[i] * normal[i, 0] + y[i] * binormal[i, 0] - origins[i, 0]
+        r1 = position[i, 1] + x[i] * normal[i, 1] + y[i] * binormal[i, 1] - origins[i, 1]
+        r2 = position[i, 2] + x[i] * normal[i, 2] + y[i] * binormal[i, 2] - origins[i, 2]
+        length = np.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+        r0, r1, r2 = r0 / length, r1 / length, r2 / length
+        ray_t = r0 * tangent[i, 0] + r1 * tangent[i, 1] + r2 * tangent[i, 2]
+        ray_x = r0 * normal[i, 0] + r1 * normal[i, 1] + r2 * normal[i, 2]
+        ray_y = r0 * binormal[i, 0] + r1 * binormal[i, 1] + r2 * binormal[i, 2]
+        a = ray_x * ray_x + ray_y * ray_y
+        b = x[i] * ray_x + y[i] * ray_y
+        c = x[i] * x[i] + y[i] * y[i] - radius * radius
+        discriminant = b * b - a * c
+        step = (-b - np.sqrt(max(discriminant, 0.0))) / (a if a > 1e-12 else 1.0)
+        hit[i] = discriminant >= 0 and a > 1e-12 and abs(step) <= gate
+        if not hit[i]:
+            step = 0.0
+        moved_s[i], moved_x[i], moved_y[i] = s[i] + step * ray_t, x[i] + step * ray_x, y[i] + step * ray_y
+    return moved_s, moved_x, moved_y, hit
 
 
 def along_rays(coords: TubeCoordinates, frames: tuple, origins: np.ndarray, radius: float, gate: float
@@ -64,124 +89,108 @@ def along_rays(coords: TubeCoordinates, frames: tuple, origins: np.ndarray, radi
     intersections the one nearer the camera is the surface the camera saw. hit: the ray meets the tube within
     `gate` of the point; other points keep their coordinates. frames: Centerline.project_with_frames's.
     """
-    position, tangent, normal, binormal = frames
-    points = position + coords.x[:, None] * normal + coords.y[:, None] * binormal
-    ray = points - origins
-    ray /= np.linalg.norm(ray, axis=1, keepdims=True)
-    ray_t = np.einsum("ij,ij->i", ray, tangent)
-    ray_x = np.einsum("ij,ij->i", ray, normal)
-    ray_y = np.einsum("ij,ij->i", ray, binormal)
-    a = ray_x**2 + ray_y**2
-    b = coords.x * ray_x + coords.y * ray_y
-    c = coords.x**2 + coords.y**2 - radius**2
-    discriminant = b * b - a * c
-    safe_a = np.where(a > 1e-12, a, 1.0)
-    step = (-b - np.sqrt(np.maximum(discriminant, 0.0))) / safe_a
-    hit = (discriminant >= 0) & (a > 1e-12) & (np.abs(step) <= gate)
-    step = np.where(hit, step, 0.0)
-    moved = TubeCoordinates(coords.s + step * ray_t, coords.x + step * ray_x, coords.y + step * ray_y)
-    return moved, hit
+    moved_s, moved_x, moved_y, hit = _along_rays_kernel(coords.s, coords.x, coords.y, *frames,
+                                                        np.ascontiguousarray(origins, dtype=float), radius, gate)
+    return TubeCoordinates(moved_s, moved_x, moved_y), hit
+
+
+@jit
+def _nearest_surface_kernel(s, x, y, starts, ends, outer_radius, inner_radius, chord_offset, tip_s, gate,
+                            ray_s, ray_x, ray_y, hit):
+    """Per point (tube coordinates s, x, y) the nearest reference surface that exists at its arc length, and
+    where on it the point goes (see the module docstring); the points farther than `gate` are left out.
+
+    starts, ends: the notches' intervals along s (sorted); ray_*, hit: along_rays's (a point bound for the
+    outer wall whose ray hits it within [0, tip_s] goes there instead of radially). Returns accepted (N,), the
+    distance moved, the new tube coordinates, local normal (x, y, along the tangent) and PART_* of each
+    accepted point.
+    """
+    r_o, r_i, d = outer_radius, inner_radius, chord_offset
+    half_o = np.sqrt(max(r_o**2 - d**2, 0.0))
+    half_i = np.sqrt(max(r_i**2 - d**2, 0.0)) if abs(d) < r_i else 0.0
+    count, notches = s.shape[0], starts.shape[0]
+    accepted = np.zeros(count, np.bool_)
+    distance, new_s, new_x, new_y = np.empty(count), np.empty(count), np.empty(count), np.empty(count)
+    local_normal = np.zeros((count, 3))
+    part = np.empty(count, np.uint8)
+    kept = 0
+    for i in range(count):
+        si, xi, yi = s[i], x[i], y[i]
+        radius = np.sqrt(xi * xi + yi * yi)
+        unit_x, unit_y = unit_direction(xi, yi)
+        k = min(max(np.searchsorted(starts, si, side="right") - 1, 0), notches - 1)
+        in_notch = notches > 0 and starts[k] <= si <= ends[k]
+        face_radius = min(max(radius, r_i), r_o)
+        floor_y, face_s = 0.0, si
+        # candidates in order: outer wall, bore, notch floor, cut face, tip cap (the first nearest wins)
+        best, choice = np.inf, 0
+        if not (in_notch and r_o * unit_x > -d):
+            best = np.sqrt((radius - r_o) ** 2 + (si - min(max(si, 0.0), tip_s)) ** 2)
+        if in_notch:
+            if r_i * unit_x < -d and abs(radius - r_i) < best:
+                best, choice = abs(radius - r_i), 1
+            floor_y = np.sign(yi) * min(max(abs(yi), half_i), half_o)
+            floor = np.sqrt((xi + d) ** 2 + (yi - floor_y) ** 2)
+            if floor < best:
+                best, choice = floor, 2
+            face_s = starts[k] if si - starts[k] < ends[k] - si else ends[k]
+            face = np.sqrt((si - face_s) ** 2 + (radius - face_radius) ** 2)
+            if xi > -d and face < best:
+                best, choice = face, 3
+        if si > tip_s:
+            cap = np.sqrt((si - tip_s) ** 2 + (radius - face_radius) ** 2)
+            if cap < best:
+                best, choice = cap, 4
+        if not best <= gate:
+            continue
+        accepted[i] = True
+        if choice == 0 and hit[i] and 0.0 <= ray_s[i] <= tip_s:
+            si, xi, yi = ray_s[i], ray_x[i], ray_y[i]
+            unit_x, unit_y = unit_direction(xi, yi)
+        distance[kept] = best
+        new_s[kept] = min(max(si, 0.0), tip_s)
+        if choice == 0:
+            new_x[kept], new_y[kept] = r_o * unit_x, r_o * unit_y
+            local_normal[kept, 0], local_normal[kept, 1] = unit_x, unit_y
+            part[kept] = PART_OUTER_WALL
+        elif choice == 1:
+            new_x[kept], new_y[kept] = r_i * unit_x, r_i * unit_y
+            local_normal[kept, 0], local_normal[kept, 1] = -unit_x, -unit_y
+            part[kept] = PART_INNER_WALL
+        elif choice == 2:
+            new_x[kept], new_y[kept] = -d, floor_y
+            local_normal[kept, 0] = 1.0
+            part[kept] = PART_NOTCH_FLOOR
+        elif choice == 3:
+            new_s[kept] = face_s
+            new_x[kept], new_y[kept] = face_radius * unit_x, face_radius * unit_y
+            local_normal[kept, 2] = -1.0 if si > face_s else 1.0  # cut faces look into the gap
+            part[kept] = PART_CUT_FACE
+        else:
+            new_s[kept] = tip_s
+            new_x[kept], new_y[kept] = face_radius * unit_x, face_radius * unit_y
+            local_normal[kept, 2] = 1.0
+            part[kept] = PART_END_CAP
+        kept += 1
+    return (accepted, distance[:kept], new_s[:kept], new_x[:kept], new_y[:kept], local_normal[:kept],
+            part[:kept])
 
 
 def relocate_points(coords: TubeCoordinates, centerline: Centerline, geometry: TubeGeometry,
                     notches: list[Notch], tip_s: float, gate: float,
                     ray_coords: tuple[TubeCoordinates, np.ndarray] | None = None) -> RelocatedPoints:
-    """Move each point onto the nearest existing reference surface within `gate` (vectorised).
+    """Move each point onto the nearest existing reference surface within `gate`.
 
     ray_coords: `along_rays` output; a point bound for the outer wall whose ray hits it goes there.
     """
-    r_o, r_i, d = geometry.outer_radius, geometry.inner_radius, geometry.chord_offset
-    s, x, y = coords.s, coords.x, coords.y
-    radius, angle = coords.radius, coords.angle
-    count = len(s)
-    # which detected notch (if any) each point's arc length falls in
-    starts = np.array([n.start_s for n in notches])
-    ends = np.array([n.end_s for n in notches])
-    if notches:
-        k = np.clip(np.searchsorted(starts, s, side="right") - 1, 0, len(notches) - 1)
-        in_notch = (s >= starts[k]) & (s <= ends[k])
-    else:
-        k = np.zeros(count, dtype=np.intp)
-        in_notch = np.zeros(count, dtype=bool)
-    in_cut = in_notch & (x > -d)          # where the cut removed material
-    along = np.clip(s, 0.0, tip_s)
-    cos_angle = np.cos(angle)
-
-    # candidate 1: outer wall, where it exists (not in a notch's open window, not beyond the ends)
-    outer_exists = ~(in_notch & (r_o * cos_angle > -d))
-    outer_distance = np.where(outer_exists, _length(radius - r_o, s - along), np.inf)
-    # candidates 2-4 exist only inside a notch, 5 only beyond the tip: computed for those points alone
-    bore_distance = np.full(count, np.inf)
-    floor_distance = np.full(count, np.inf)
-    face_distance = np.full(count, np.inf)
-    cap_distance = np.full(count, np.inf)
-    floor_y = np.zeros(count)
-    face_s = s.copy()
-    face_radius = np.clip(radius, r_i, r_o)
-    inside = np.flatnonzero(in_notch)
-    if len(inside):
-        xi, yi, ri, si, ki = x[inside], y[inside], radius[inside], s[inside], k[inside]
-        # candidate 2: bore, where the cut exposes it (behind the floor)
-        bore_distance[inside] = np.where(r_i * cos_angle[inside] < -d, np.abs(ri - r_i), np.inf)
-        # candidate 3: notch floor, the chord x = -d between bore and outer wall
-        half_o = np.sqrt(max(r_o**2 - d**2, 0.0))
-        half_i = np.sqrt(max(r_i**2 - d**2, 0.0)) if abs(d) < r_i else 0.0
-        floor_y[inside] = np.sign(yi) * np.clip(np.abs(yi), half_i, half_o)
-        floor_distance[inside] = _length(xi + d, yi - floor_y[inside])
-        # candidate 4: the cut faces at the notch's ends (annulus part removed by the cut)
-        face_s[inside] = np.where(si - starts[ki] < ends[ki] - si, starts[ki], ends[ki])
-        face_distance[inside] = np.where(in_cut[inside], _length(si - face_s[inside], ri - face_radius[inside]),
-                                         np.inf)
-    # candidate 5: the tip cap, for points beyond the tip
-    beyond = s > tip_s
-    cap_distance[beyond] = _length(s[beyond] - tip_s, radius[beyond] - face_radius[beyond])
-
-    distances = np.stack([outer_distance, bore_distance, floor_distance, face_distance, cap_distance])
-    choice = np.argmin(distances, axis=0)
-    best = distances[choice, np.arange(count)]
-    accepted = best <= gate
-    if ray_coords is not None:
-        on_ray = ray_coords[1] & (choice == 0) & (ray_coords[0].s >= 0) & (ray_coords[0].s <= tip_s)
-        on_ray &= accepted
-        s, x, y = (np.where(on_ray, new, old) for new, old in zip(
-            (ray_coords[0].s, ray_coords[0].x, ray_coords[0].y), (s, x, y), strict=True))
-        angle = np.arctan2(y, x)
-    choice, s, x, y, radius, angle = (a[accepted] for a in (choice, s, x, y, radius, angle))
-    floor_y, face_s, face_radius = floor_y[accepted], face_s[accepted], face_radius[accepted]
-    unit_x = np.cos(angle)
-    unit_y = np.sin(angle)
-    new_s = np.clip(s, 0.0, tip_s)
-    new_x = r_o * unit_x
-    new_y = r_o * unit_y
-    # local normal (x, y, along-tangent)
-    nx, ny, nt = unit_x.copy(), unit_y.copy(), np.zeros_like(s)
-    part = np.full(len(s), PART_OUTER_WALL, dtype=np.uint8)
-
-    bore = choice == 1
-    new_x[bore], new_y[bore] = r_i * unit_x[bore], r_i * unit_y[bore]
-    nx[bore], ny[bore] = -unit_x[bore], -unit_y[bore]
-    part[bore] = PART_INNER_WALL
-
-    floor = choice == 2
-    new_x[floor], new_y[floor] = -d, floor_y[floor]
-    nx[floor], ny[floor] = 1.0, 0.0
-    part[floor] = PART_NOTCH_FLOOR
-
-    face = choice == 3
-    new_s[face] = face_s[face]
-    new_x[face], new_y[face] = face_radius[face] * unit_x[face], face_radius[face] * unit_y[face]
-    nx[face], ny[face] = 0.0, 0.0
-    nt[face] = np.where(s[face] > face_s[face], -1.0, 1.0)  # cut faces look into the gap
-    part[face] = PART_CUT_FACE
-
-    cap = choice == 4
-    cap_radius = np.clip(radius[cap], r_i, r_o)
-    new_s[cap] = tip_s
-    new_x[cap], new_y[cap] = cap_radius * unit_x[cap], cap_radius * unit_y[cap]
-    nx[cap], ny[cap], nt[cap] = 0.0, 0.0, 1.0
-    part[cap] = PART_END_CAP
-
-    position, tangent, normal, binormal = centerline.frames_at(new_s)
-    points = position + new_x[:, None] * normal + new_y[:, None] * binormal
-    normals = nx[:, None] * normal + ny[:, None] * binormal + nt[:, None] * tangent
-    return RelocatedPoints(accepted, points, normals, part, best[accepted], TubeCoordinates(new_s, new_x, new_y))
+    starts = np.array([n.start_s for n in notches], dtype=float)
+    ends = np.array([n.end_s for n in notches], dtype=float)
+    if ray_coords is None:
+        ray_coords = coords, np.zeros(len(coords.s), dtype=bool)
+    accepted, distance, s, x, y, local_normal, part = _nearest_surface_kernel(
+        coords.s, coords.x, coords.y, starts, ends, geometry.outer_radius, geometry.inner_radius,
+        geometry.chord_offset, tip_s, gate, ray_coords[0].s, ray_coords[0].x, ray_coords[0].y, ray_coords[1])
+    position, tangent, normal, binormal = centerline.frames_at(s)
+    points = position + x[:, None] * normal + y[:, None] * binormal
+    normals = local_normal[:, :1] * normal + local_normal[:, 1:2] * binormal + local_normal[:, 2:] * tangent
+    return RelocatedPoints(accepted, points, normals, part, distance, TubeCoordinates(s, x, y))

@@ -9,12 +9,85 @@ from __future__ import annotations
 
 import numpy as np
 
+from ntcr_recon.core.compiled import jit
+
 MAD_TO_SIGMA = 1.4826  # a normal distribution's sigma per median absolute deviation
+
+
+@jit
+def _select(values, k):
+    """The k-th smallest of values (k from 0), found by partitioning values in place (Hoare, median-of-three
+    pivots); values[:k] end up no larger than it."""
+    low, high = 0, values.shape[0] - 1
+    while high > low:
+        a, b, c = values[low], values[(low + high) // 2], values[high]
+        pivot = max(min(a, b), min(max(a, b), c))
+        i, j = low, high
+        while i <= j:
+            while values[i] < pivot:
+                i += 1
+            while values[j] > pivot:
+                j -= 1
+            if i <= j:
+                values[i], values[j] = values[j], values[i]
+                i += 1
+                j -= 1
+        if k <= j:
+            high = j
+        elif k >= i:
+            low = i
+        else:
+            break
+    return values[k]
+
+
+@jit
+def median(values):
+    """The median of values, as np.median (the mean of the two middle values of an even count), by selection
+    on a copy (np.median's sort-free partition costs more in numpy's overhead, and numba's is slower still);
+    NaN for no values."""
+    if values.shape[0] == 0:
+        return np.nan
+    scratch = values.copy()
+    half = scratch.shape[0] // 2
+    upper = _select(scratch, half)
+    if scratch.shape[0] % 2:
+        return upper
+    return (scratch[:half].max() + upper) / 2
+
+
+@jit
+def _median_absolute_deviation(values, centre):
+    """Median of |values - centre|."""
+    return median(np.abs(values - centre))
+
+
+@jit
+def _level_and_deviation(offset, gate, spine):
+    """Median and median absolute deviation of the offsets within the gate (those on `spine` only, when at
+    least 8 of them are; spine of length 0: no such choice), and how many offsets they are taken over."""
+    near_count, spine_count = 0, 0
+    for i in range(offset.shape[0]):
+        if abs(offset[i]) < gate:
+            near_count += 1
+            if spine.shape[0] and spine[i]:
+                spine_count += 1
+    on_spine = spine_count >= 8
+    near = np.empty(spine_count if on_spine else near_count)
+    count = 0
+    for i in range(offset.shape[0]):
+        if abs(offset[i]) < gate and (not on_spine or spine[i]):
+            near[count] = offset[i]
+            count += 1
+    if count < 8:
+        return 0.0, 0.0, count
+    level = median(near)
+    return level, _median_absolute_deviation(near, level), count
 
 
 def robust_spread(values: np.ndarray, centre: float) -> float:
     """sigma estimated from the median absolute deviation about `centre`."""
-    return MAD_TO_SIGMA * float(np.median(np.abs(values - centre))) if values.size else 0.0
+    return MAD_TO_SIGMA * float(_median_absolute_deviation(values, centre)) if values.size else 0.0
 
 
 def surface_band(offset: np.ndarray, gate: float, spine: np.ndarray | None = None) -> tuple[float, float]:
@@ -23,12 +96,8 @@ def surface_band(offset: np.ndarray, gate: float, spine: np.ndarray | None = Non
     The band level +- spread is where this cloud's outer-wall points lie, cut faces and flying pixels
     mostly outside. spine: (N,) bool, measure on these points only (when at least 8 of them are near).
     """
-    near_wall = np.abs(offset) < gate
-    if spine is not None and np.count_nonzero(near_wall & spine) >= 8:
-        near_wall &= spine
-    near = offset[near_wall]
-    if near.size < 8:
+    level, deviation, count = _level_and_deviation(offset, gate, np.zeros(0, bool) if spine is None else spine)
+    if count < 8:
         return 0.0, gate
-    level = float(np.median(near))
-    spread = 3.0 * robust_spread(near, level)
-    return level, min(max(spread, 1e-6), gate)
+    spread = 3.0 * (MAD_TO_SIGMA * deviation)
+    return float(level), min(max(spread, 1e-6), gate)

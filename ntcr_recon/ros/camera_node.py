@@ -13,6 +13,8 @@ only the image window that can see the robot's crop box is deprojected, as the o
 the points inside the box are published (what fusion keeps anyway; a fifth of the bytes on the wire). The
 cloud holds the valid points with their pixel (fields pixel_u, pixel_v: the later stages find neighbours in
 the image by it), in the camera's optical frame (the configuration's frame_id), with the frame's own stamp.
+The first frame's depth step is measured (`depth_step_mm` on /diagnostics): depth too coarse for the tube (a
+realsense-ros recording's 1 mm unit) is a WARN there and a log line, the warning the offline command gives.
 
 A live camera that is not connected at start-up is waited for (`wait_for_device`, default true): a log line
 every few seconds and /diagnostics ERROR naming what is missing until it appears, as the source already
@@ -36,6 +38,7 @@ from sensor_msgs.msg import CameraInfo, PointCloud2
 
 from ntcr_recon.core.deproject import Intrinsics, crop_window, depth_to_points
 from ntcr_recon.core.filters import crop_box_mask
+from ntcr_recon.core.quality import depth_quantisation_warning, depth_step
 from ntcr_recon.core.transforms import transform_points
 from ntcr_recon.io.camera_sources import BagSource, SourceError, SourceFrame
 from ntcr_recon.ros.messages import RCLPY, camera_cloud_to_msg, checked_intrinsics, header, stamp_msg
@@ -137,6 +140,10 @@ class CameraNode(RigNode):
         self.rig, self.camera, self._params = rig, params["camera"], params
         self._box = rig.crop_box()
         self._windows: dict[Intrinsics, object] = {}
+        # the depth quantisation the frames show, measured on the first one (the self-check the offline
+        # command makes; in the graph no other node sees depth images)
+        self._depth_step: float | None = None
+        self._depth_warning: str | None = None
 
     def _open_source(self, rig, params: dict):
         try:
@@ -183,7 +190,18 @@ class CameraNode(RigNode):
     def _status(self) -> tuple[bytes | None, str, dict[str, object]]:
         if self._waiting_for is not None:
             return DiagnosticStatus.ERROR, f"waiting for the camera: {self._waiting_for}", {}
-        return None, "", {"frames_published": self.frames_published, "frames_skipped": self.frames_skipped}
+        values = {"frames_published": self.frames_published, "frames_skipped": self.frames_skipped}
+        if self._depth_step is not None:
+            values["depth_step_mm"] = round(self._depth_step * 1e3, 4)
+        if self._depth_warning is not None:
+            return DiagnosticStatus.WARN, self._depth_warning, values
+        return None, "", values
+
+    def _note_depth_step(self, depth: np.ndarray, unit: float) -> None:
+        self._depth_step = depth_step(depth, unit)
+        self._depth_warning = depth_quantisation_warning(self.camera, self._depth_step, self.rig.robot)
+        if self._depth_warning is not None:
+            self.get_logger().warning(self._depth_warning)
 
     def _wait_for_device(self) -> bool:
         """Try to open the live source every reconnect_period until it opens (True) or the node stops."""
@@ -262,6 +280,8 @@ class CameraNode(RigNode):
         i = frame.intrinsics  # before any arithmetic on them (an inf focal length overflowed the crop window)
         checked_intrinsics(i.width, i.height, i.fx, i.fy, i.cx, i.cy)
         unit = camera.depth_unit if frame.depth_unit is None else frame.depth_unit
+        if self._depth_step is None:
+            self._note_depth_step(frame.depth, unit)
         window = self._window(frame.intrinsics) if self._params["crop_to_robot"] else None
         if self._params["crop_to_robot"] and window is None:  # the camera cannot see the crop box at all
             xyz, rgb, pixel = np.empty((0, 3)), None, np.empty((0, 2), np.int32)

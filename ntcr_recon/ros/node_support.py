@@ -98,22 +98,23 @@ def guarded(callback: Callable) -> Callable:
 
     @functools.wraps(callback)
     def wrapper(self: Node, *args) -> None:
-        stats = getattr(self, "stats", None)  # a node with a NodeStats counts the drop and limits the log
         try:
             callback(self, *args)
         except ValueError as error:  # bad input: say what was wrong with it
-            if stats is not None:
-                stats.dropped(getattr(error, "reason", "invalid"), str(error))
-            else:
-                self.get_logger().error(f"dropped a message: {error}")
+            _drop(self, getattr(error, "reason", "invalid"), str(error))
         except Exception as error:  # a bug must not take the graph down either
-            text = f"unexpected {type(error).__name__}: {error}"
-            if stats is not None:
-                stats.dropped("error", text)
-            else:
-                self.get_logger().error(f"dropped a message after an {text}")
+            _drop(self, "error", f"unexpected {type(error).__name__}: {error}")
 
     return wrapper
+
+
+def _drop(node: Node, reason: str, text: str) -> None:
+    """A dropped message: counted with a rate-limited log line by a node's NodeStats, else logged."""
+    stats = getattr(node, "stats", None)
+    if stats is not None:
+        stats.dropped(reason, text)
+    else:
+        node.get_logger().error(f"dropped a message: {text}")
 
 
 EXECUTOR_VARIABLE = "NTCR_EXECUTOR"  # "events" (default) or "single": which rclpy executor the nodes spin on

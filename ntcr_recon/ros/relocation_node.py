@@ -33,10 +33,10 @@ from visualization_msgs.msg import MarkerArray
 
 from ntcr_recon.core.pipeline import ReconstructionError, Reconstructor
 from ntcr_recon.ros.messages import (
+    NotchMarkers,
     centerline_path_bytes,
     check_point_count,
     frame_rotations,
-    notch_markers,
     notches_array,
     pose_stamped,
     relocation_cloud_msg,
@@ -80,6 +80,7 @@ class RelocationNode(RigNode):
         if params["output_dir"] and not PathLib(params["output_dir"]).expanduser().is_dir():
             raise ParameterError(f"parameter 'output_dir': {params['output_dir']!r} is not an existing folder")
         self.rig, self._reconstructor, self._params = rig, Reconstructor(rig), params
+        self._notch_markers = NotchMarkers(rig.robot.outer_radius)
 
     @guarded
     def _on_cloud(self, msg: PointCloud2) -> None:
@@ -104,8 +105,8 @@ class RelocationNode(RigNode):
         self._notches.publish(notches_array(notches))
         centres = np.array([n.center_s for n in relocation.notches], dtype=float)
         position, tangent, normal, binormal = centerline.frames_at(centres)
-        self._markers.publish(notch_markers(notches, position, frame_rotations(normal, binormal, tangent),
-                                            self.rig.robot.outer_radius, frame, stamp))
+        self._markers.publish(self._notch_markers.array(notches, position, frame_rotations(normal, binormal, tangent),
+                                                        frame, stamp))
         self._publish_quality(relocation, msg.header)
         if self._params["output_dir"]:
             self._write(PathLib(self._params["output_dir"]).expanduser() / "relocated.ply", relocation)

@@ -1,0 +1,62 @@
+"""The notch side measured on known inputs: a straight tube whose notches open at a known angle from the
+configured side (the robot rolled in its clamp), its wall drawn analytically (no renderer), so the true roll is
+exact; each figure asserted is printed."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from ntcr_recon.core.centerline import Centerline
+from ntcr_recon.core.geometry import TubeGeometry
+from ntcr_recon.core.notches import Notch, measure_notch_side
+
+GEOMETRY = TubeGeometry()   # 3.5 mm, 16 notches, configured to open towards +x
+FOOTPRINT = 0.2e-3          # a D405 pixel at 90 mm
+SPACING = FOOTPRINT / 2
+
+
+def rolled_robot_wall(roll: float, seen_half_width: float = math.radians(80.0)):
+    """Outer-wall points of a straight robot whose notches open at `roll` from +x, as two cameras on +-y see it
+    (each the part of the ring within `seen_half_width` of its direction), and its notches."""
+    length = GEOMETRY.length
+    s = np.arange(0.0, length, SPACING)
+    phi = np.radians(np.arange(-180.0, 180.0, 1.0))
+    ss, pp = (a.ravel() for a in np.meshgrid(s, phi, indexing="ij"))
+    seen = np.zeros(ss.shape, dtype=bool)
+    for camera_direction in (math.pi / 2, -math.pi / 2):
+        seen |= np.abs(np.angle(np.exp(1j * (pp - camera_direction)))) < seen_half_width
+    notches = []
+    cut = np.zeros(ss.shape, dtype=bool)
+    for index, centre in enumerate(GEOMETRY.notch_centers_s):
+        start, end = centre - GEOMETRY.notch_width / 2, centre + GEOMETRY.notch_width / 2
+        notches.append(Notch(index, centre, start, end, GEOMETRY.notch_width, 0.0))
+        opening = np.abs(np.angle(np.exp(1j * (pp - roll)))) < GEOMETRY.gap_half_angle
+        cut |= (ss > start) & (ss < end) & opening
+    keep = seen & ~cut
+    points = np.stack([GEOMETRY.outer_radius * np.cos(pp[keep]), GEOMETRY.outer_radius * np.sin(pp[keep]),
+                       ss[keep]], axis=1)
+    axis = np.arange(0.0, length + 2e-3, 0.1e-3)
+    centerline = Centerline.from_points(np.stack([np.zeros_like(axis), np.zeros_like(axis), axis], axis=1),
+                                        np.array([0.0, 1.0, 0.0]), 0.1e-3)
+    return centerline, centerline.project(points), notches
+
+
+# rolls that fall between the measurement's 10-degree sectors as well as on them
+@pytest.mark.parametrize("roll_deg", [-20.0, -7.3, 0.0, 4.0, 13.7])
+def test_notch_side_of_a_rolled_robot_is_measured_within_a_degree(roll_deg):
+    centerline, coords, notches = rolled_robot_wall(math.radians(roll_deg))
+    measured = measure_notch_side(coords, notches, GEOMETRY, centerline, 0.8e-3, FOOTPRINT)
+    print(f"\nnotches open {roll_deg:+.1f} deg from the configured side: measured {math.degrees(measured):+.2f} deg")
+    assert measured is not None
+    assert abs(math.degrees(measured) - roll_deg) <= 1.0
+
+
+def test_notch_side_is_not_claimed_when_no_notch_edge_is_seen():
+    """Cameras that see only the middle of the open window cannot place its edges: no side is claimed."""
+    centerline, coords, notches = rolled_robot_wall(0.0, seen_half_width=math.radians(20.0))
+    measured = measure_notch_side(coords, notches, GEOMETRY, centerline, 0.8e-3, FOOTPRINT)
+    print(f"\nonly +-20 deg about each camera seen: {measured}")
+    assert measured is None
