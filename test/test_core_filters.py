@@ -61,6 +61,10 @@ def test_depth_to_points_keeps_the_window_and_its_depth_range_only():
     # big-endian depth (a flagged sensor_msgs/Image) reads the same
     swapped, _, _ = depth_to_points(depth.astype(">u2"), intrinsics, 1e-4, window=window)
     np.testing.assert_array_equal(swapped, xyz)
+    # a window reaching past the image is read within the image only
+    beyond = PixelWindow(u0=-2, u1=64, v0=-1, v1=64, z_min=0.0, z_max=np.inf)
+    _, _, pixel = depth_to_points(depth, intrinsics, 1e-4, window=beyond)
+    assert len(pixel) == depth.size
 
 
 def test_crop_window_holds_every_pixel_that_sees_the_box():

@@ -102,8 +102,11 @@ def depth_to_points(depth: np.ndarray, intrinsics: Intrinsics, depth_unit: float
     if not depth.dtype.isnative:      # (a compiled kernel reads native byte order only)
         depth = depth.astype(depth.dtype.newbyteorder("="))
     # the whole image (contiguous rows: the kernel's loops vectorise) and the window's bounds
-    xyz, pixel = _deproject_window(np.ascontiguousarray(depth), float(depth_unit), window.u0, window.u1, window.v0,
-                                   window.v1, float(window.z_min), float(window.z_max), float(intrinsics.fx),
+    # clipped to the image: the kernel does not check its indices
+    u0, u1 = min(max(int(window.u0), 0), width), min(max(int(window.u1), 0), width)
+    v0, v1 = min(max(int(window.v0), 0), height), min(max(int(window.v1), 0), height)
+    xyz, pixel = _deproject_window(np.ascontiguousarray(depth), float(depth_unit), u0, u1, v0, v1,
+                                   float(window.z_min), float(window.z_max), float(intrinsics.fx),
                                    float(intrinsics.fy), float(intrinsics.cx), float(intrinsics.cy))
     u, v = pixel[:, 0].astype(np.intp), pixel[:, 1].astype(np.intp)
     rgb = None
