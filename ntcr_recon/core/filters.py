@@ -422,7 +422,7 @@ def filter_cloud(cloud: Cloud, config) -> Cloud:
     if k and len(cloud) > k:
         distances, index = nearest_neighbours(cloud, k)
         if cloud.pixel_footprint <= 0 and distances.shape[1] > 1:  # unknown intrinsics: nearest spacing
-            nearest = np.partition(distances, 1, axis=1)[:, 1]  # [:, 0] is the point itself
+            nearest = distances[:, 1]  # rows are nearest first; [:, 0] is the point itself
             cloud = replace(cloud, pixel_footprint=float(np.median(nearest[np.isfinite(nearest)])))
         if f.sor:
             keep = statistical_outlier_mask(cloud.xyz, f.sor_neighbors, f.sor_alpha, distances)

@@ -331,7 +331,7 @@ def _rolled_axes(normal: np.ndarray, binormal: np.ndarray, angle: float) -> tupl
 
 def _cut(centerline: Centerline, tip_s: float) -> Centerline:
     """The centreline from the base to the tip (extended along the end tangent when the tip lies beyond)."""
-    step = float(centerline.s[1] - centerline.s[0]) if len(centerline.s) > 1 else tip_s
+    step = float(centerline.s[1] - centerline.s[0])  # (a Centerline has at least two samples)
     count = max(int(np.ceil(tip_s / step)), 1) + 1
     s = np.linspace(0.0, tip_s, count)
     position, tangent, normal, binormal = centerline.frames_at(s)
