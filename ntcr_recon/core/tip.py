@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ntcr_recon.core.compiled import jit
 from ntcr_recon.core.wall import surface_band
 
 if TYPE_CHECKING:  # centerline.py imports this module
@@ -32,13 +33,23 @@ def visible_sectors(centerline: Centerline, s: np.ndarray, viewpoints: np.ndarra
     """(len(s), sectors) bool: some camera (optical centres `viewpoints` (C, 3)) sees the sector's wall."""
     position, _, normal, binormal = centerline.frames_at(s)
     angles = -np.pi + (np.arange(sectors) + 0.5) * (2 * np.pi / sectors)
-    outward = (np.cos(angles)[None, :, None] * normal[:, None, :]
-               + np.sin(angles)[None, :, None] * binormal[:, None, :])          # (S, sectors, 3)
-    seen = np.zeros((len(s), sectors), dtype=bool)
-    for origin in np.atleast_2d(viewpoints):
-        view = origin - position
-        view /= np.maximum(np.linalg.norm(view, axis=1, keepdims=True), 1e-12)
-        seen |= np.einsum("ijk,ik->ij", outward, view) > np.cos(grazing)
+    return _visible_kernel(position, normal, binormal, np.cos(angles), np.sin(angles),
+                           np.atleast_2d(viewpoints).astype(float), np.cos(grazing))
+
+
+@jit
+def _visible_kernel(position, normal, binormal, cos_angles, sin_angles, viewpoints, least_cosine):
+    """Per slab (its frame) and sector (its angle), whether the sector's outward direction
+    cos normal + sin binormal is within acos(least_cosine) of the direction to some viewpoint."""
+    seen = np.zeros((position.shape[0], cos_angles.shape[0]), np.bool_)
+    for i in range(position.shape[0]):
+        for origin in viewpoints:
+            v0, v1, v2 = origin[0] - position[i, 0], origin[1] - position[i, 1], origin[2] - position[i, 2]
+            length = max(np.sqrt(v0 * v0 + v1 * v1 + v2 * v2), 1e-12)
+            along_normal = (v0 * normal[i, 0] + v1 * normal[i, 1] + v2 * normal[i, 2]) / length
+            along_binormal = (v0 * binormal[i, 0] + v1 * binormal[i, 1] + v2 * binormal[i, 2]) / length
+            for k in range(cos_angles.shape[0]):
+                seen[i, k] |= cos_angles[k] * along_normal + sin_angles[k] * along_binormal > least_cosine
     return seen
 
 
