@@ -285,7 +285,7 @@ class Centerline:
         perpendicular to the tangent, so the frame does not twist and needs no sequential transport.
         """
         s, resampled = resample_polyline(points, step)
-        tangents, normals, binormals = _untwisted_frames_kernel(s, resampled, np.asarray(binormal_hint, dtype=float))
+        tangents, normals, binormals = _untwisted_frames_kernel(s, resampled, np.array(binormal_hint, dtype=float))
         return cls(s, resampled, tangents, normals, binormals)
 
     def rolled(self, angle: float) -> Centerline:
@@ -334,8 +334,11 @@ class Centerline:
     def bend_angle(self, s0, s1) -> np.ndarray | float:
         """Signed turn of the tangent from s0 to s1 (scalars or arrays, one of them of length 1 or both of the
         same length), positive towards the notch side."""
-        angle = _bend_kernel(self._samples, float(self.s[1] - self.s[0]), self.length,
-                             np.atleast_1d(np.asarray(s0, dtype=float)), np.atleast_1d(np.asarray(s1, dtype=float)))
+        s0, s1 = (np.atleast_1d(np.asarray(s, dtype=float)) for s in (s0, s1))
+        np.broadcast_shapes(s0.shape, s1.shape)  # refuses lengths that do not pair (the kernel would not check)
+        if not s0.size or not s1.size:
+            return np.empty(0)
+        angle = _bend_kernel(self._samples, float(self.s[1] - self.s[0]), self.length, s0, s1)
         return float(angle[0]) if angle.size == 1 else angle
 
 
@@ -393,6 +396,8 @@ def fixed_radius_circle_fit(slab: np.ndarray, x: np.ndarray, y: np.ndarray, slab
     """
     if point_weight is None:
         point_weight = np.ones(len(x))
+    if len(slab) and (slab.min() < 0 or slab.max() >= slabs):  # (the kernel does not check its indices)
+        raise ValueError(f"slab indices must lie in [0, {slabs}), got {slab.min()}..{slab.max()}")
     centre, sums = _circle_fit_kernel(slab, x, y, point_weight, slabs, radius, gate, iterations)
     a, b, c = sums[:, 0], sums[:, 1], sums[:, 2]
     information = np.stack([np.stack([a, b], axis=1), np.stack([b, c], axis=1)], axis=1)

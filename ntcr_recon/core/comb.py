@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ntcr_recon.core.compiled import jit
 from ntcr_recon.core.geometry import TubeGeometry
 
 
@@ -31,17 +30,9 @@ def cut_intervals(geometry: TubeGeometry, centerline, margin: float) -> np.ndarr
 
 def inside_intervals(s: np.ndarray, intervals: np.ndarray) -> np.ndarray:
     """(N,) bool: s lies in one of the sorted, disjoint (K, 2) intervals."""
-    return _inside_kernel(np.ascontiguousarray(s, dtype=float), np.ascontiguousarray(intervals[:, 0], dtype=float),
-                          np.ascontiguousarray(intervals[:, 1], dtype=float))
-
-
-@jit
-def _inside_kernel(s, starts, ends):
-    """Whether each s lies in [starts[k], ends[k]] of the last interval starting at or before it."""
-    inside = np.zeros(s.shape[0], np.bool_)
-    if starts.shape[0] == 0:
-        return inside
-    for i in range(s.shape[0]):
-        k = max(np.searchsorted(starts, s[i], side="right") - 1, 0)
-        inside[i] = starts[k] <= s[i] <= ends[k]
-    return inside
+    s = np.asarray(s, dtype=float)
+    intervals = np.asarray(intervals, dtype=float).reshape(-1, 2)
+    if not len(intervals):
+        return np.zeros(s.shape, bool)
+    k = np.maximum(np.searchsorted(intervals[:, 0], s, side="right") - 1, 0)  # the last one starting at or before
+    return (intervals[k, 0] <= s) & (s <= intervals[k, 1])

@@ -89,8 +89,9 @@ def along_rays(coords: TubeCoordinates, frames: tuple, origins: np.ndarray, radi
     intersections the one nearer the camera is the surface the camera saw. hit: the ray meets the tube within
     `gate` of the point; other points keep their coordinates. frames: Centerline.project_with_frames's.
     """
-    moved_s, moved_x, moved_y, hit = _along_rays_kernel(coords.s, coords.x, coords.y, *frames,
-                                                        np.ascontiguousarray(origins, dtype=float), radius, gate)
+    origins = np.ascontiguousarray(np.broadcast_to(origins, (len(coords.s), 3)), dtype=float)  # or one for all
+    moved_s, moved_x, moved_y, hit = _along_rays_kernel(coords.s, coords.x, coords.y, *frames, origins, radius,
+                                                        gate)
     return TubeCoordinates(moved_s, moved_x, moved_y), hit
 
 

@@ -45,8 +45,8 @@ def _select(values, k):
 def median(values):
     """The median of values, as np.median (the mean of the two middle values of an even count), by selection
     on a copy (np.median's sort-free partition costs more in numpy's overhead, and numba's is slower still);
-    NaN for no values."""
-    if values.shape[0] == 0:
+    NaN for no values or any NaN among them."""
+    if values.shape[0] == 0 or np.isnan(values).any():
         return np.nan
     scratch = values.copy()
     half = scratch.shape[0] // 2
@@ -96,6 +96,8 @@ def surface_band(offset: np.ndarray, gate: float, spine: np.ndarray | None = Non
     The band level +- spread is where this cloud's outer-wall points lie, cut faces and flying pixels
     mostly outside. spine: (N,) bool, measure on these points only (when at least 8 of them are near).
     """
+    if spine is not None and spine.shape != offset.shape:  # (the kernel does not check its indices)
+        raise ValueError(f"spine has shape {spine.shape}, the offsets {offset.shape}")
     level, deviation, count = _level_and_deviation(offset, gate, np.zeros(0, bool) if spine is None else spine)
     if count < 8:
         return 0.0, gate
