@@ -283,6 +283,9 @@ def _stage_cloud(msg: PointCloud2, expected_frame: str, rig=None) -> tuple[Cloud
     unknown), and with `rig`, a `camera` index past its camera_names or pixels outside its largest camera
     image, are refused (RefusedInputError, "inconsistent")."""
     xyz, rgb = input_cloud(msg, expected_frame, keep_nan=True)
+    # float64 as the offline pipeline's clouds: the core's kernels then run (and were compiled and cached) for
+    # one type, whichever of the two calls them first
+    xyz = xyz.astype(np.float64)
     points = read_points(msg, STAGE_FIELDS)
     finite = np.isfinite(xyz).all(axis=1)
     if not finite.all():
