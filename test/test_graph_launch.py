@@ -105,6 +105,14 @@ def test_run_stops_the_graph_when_a_node_fails(tmp_path):
     assert "mesh_node exited with code" in result.stderr, result.stderr
 
 
+def run_bend45_in_a_loop(graph, log, *options: str) -> subprocess.Popen:
+    """`ntcr-recon run` replaying bags/bend45 in a loop (for two minutes at most) in `graph`'s DDS domain, its
+    output into the open file `log`."""
+    return subprocess.Popen([str(RUN), "run", "--config", "bags/bend45/rig.yaml", "--bag", "bags/bend45", "--loop",
+                             *options, "--duration", "120"], cwd=REPO, env=graph.env, stdout=log,
+                            stderr=subprocess.STDOUT)
+
+
 def test_run_respawns_a_node_that_dies_and_the_graph_goes_on(tmp_path):
     # issue 11: a killed node (here SIGKILL, as the OOM killer would) is started again with a log line, and
     # the fused clouds flow again; the other nodes were never stopped.
@@ -117,9 +125,7 @@ def test_run_respawns_a_node_that_dies_and_the_graph_goes_on(tmp_path):
         fused = []
         graph.node.create_subscription(PointCloud2, "/ntcr/fused/points", fused.append, COLLECT_RELIABLE)
         with log_path.open("w") as log:
-            run = subprocess.Popen([str(RUN), "run", "--config", "bags/bend45/rig.yaml", "--bag", "bags/bend45",
-                                    "--loop", "--no-mesh", "--duration", "120"], cwd=REPO, env=graph.env,
-                                   stdout=log, stderr=subprocess.STDOUT)
+            run = run_bend45_in_a_loop(graph, log, "--no-mesh")
         try:
             assert graph.spin_until(lambda: fused, 60), log_path.read_text()
             children = {name: pid for pid, name in node_names(run.pid).items()}
@@ -146,9 +152,7 @@ def test_nodes_end_when_run_is_killed(tmp_path):
 
     log_path = tmp_path / "run.log"
     with RosGraph() as ros, log_path.open("w") as log:
-        run = subprocess.Popen([str(RUN), "run", "--config", "bags/bend45/rig.yaml", "--bag", "bags/bend45",
-                                "--loop", "--no-mesh", "--duration", "120"], cwd=REPO, env=ros.env, stdout=log,
-                               stderr=subprocess.STDOUT)
+        run = run_bend45_in_a_loop(ros, log, "--no-mesh")
         try:
             assert ros.spin_until(lambda: len(node_names(run.pid)) == 5, 60), log_path.read_text()
             children = list(node_names(run.pid))
@@ -309,10 +313,7 @@ def test_run_single_process_hosts_every_node_in_one_process(tmp_path):
         tips = []
         ros.node.create_subscription(PoseStamped, "/ntcr/tip", tips.append, COLLECT_RELIABLE)
         with log_path.open("w") as log:
-            run = subprocess.Popen([str(RUN), "run", "--config", "bags/bend45/rig.yaml", "--bag", "bags/bend45",
-                                    "--loop", "--single-process", "--param", "mesh_node:rate:=2.0",
-                                    "--duration", "120"], cwd=REPO, env=ros.env, stdout=log,
-                                   stderr=subprocess.STDOUT)
+            run = run_bend45_in_a_loop(ros, log, "--single-process", "--param", "mesh_node:rate:=2.0")
         try:
             assert ros.spin_until(lambda: len(tips) >= 3, 90), log_path.read_text()
             names = set(ros.node.get_node_names())
