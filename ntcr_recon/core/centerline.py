@@ -539,7 +539,7 @@ def _march(xyz: np.ndarray, geometry: TubeGeometry, settings: CenterlineSettings
     reach = 1.5 * r_o + settings.gate
     nodes = [base]
     tangent = axis
-    limit = int(np.ceil((geometry.length + geometry.outer_diameter) / step)) + 2  # never past the robot
+    limit = int(np.ceil(geometry.reach / step)) + 2  # never past the robot
     misses = 0
     allowed_misses = max(3, int(np.ceil(geometry.proximal_length / step)) + 1)
     for _ in range(limit):
@@ -575,10 +575,10 @@ def _march(xyz: np.ndarray, geometry: TubeGeometry, settings: CenterlineSettings
 
 
 def _observed_end(coordinates: TubeCoordinates, geometry: TubeGeometry, settings: CenterlineSettings,
-                  centerline: Centerline, viewpoints: np.ndarray | None) -> float:
-    """Where the tube seen ends, never past the robot's own length and a diameter."""
-    return tube_end(coordinates, geometry.outer_radius, settings.gate, settings.cell,
-                    max_s=geometry.length + geometry.outer_diameter, centerline=centerline, viewpoints=viewpoints)
+                  centerline: Centerline, viewpoints: np.ndarray | None, band: tuple[float, float]) -> float:
+    """Where the tube seen ends, never past the robot's reach; band: the wall band of the coordinates."""
+    return tube_end(coordinates, geometry.outer_radius, settings.gate, settings.cell, max_s=geometry.reach,
+                    centerline=centerline, viewpoints=viewpoints, band=band)
 
 
 def estimate_centerline(xyz: np.ndarray, geometry: TubeGeometry, settings: CenterlineSettings,
@@ -609,16 +609,16 @@ def estimate_centerline(xyz: np.ndarray, geometry: TubeGeometry, settings: Cente
         near_tube &= coordinates.s > -settings.gate
         if np.count_nonzero(near_tube) < 16:
             break
+        # stereo depth puts the seen wall a little inside (flattening) or outside the true one, about equally
+        # all round: the circle is fitted at the radius this cloud's wall points lie at, its centre is the axis
+        band = surface_band(coordinates.radius - geometry.outer_radius, settings.gate)
         # the curve reaches as far as the tube is seen, never past the robot's own length (and a margin)
-        observed_end = _observed_end(coordinates, geometry, settings, centerline, viewpoints)
+        observed_end = _observed_end(coordinates, geometry, settings, centerline, viewpoints, band)
         slabs = max(int(np.ceil(observed_end / step)) + 1, 2)
         # each point feeds its two neighbouring nodes with linear (hat) weights, so the fit changes
         # smoothly as points slide along s between iterations
         slab, x, y, weight = _hat_shares_kernel(coordinates.s, coordinates.x, coordinates.y, near_tube, step, slabs)
-        # stereo depth puts the seen wall a little inside (flattening) or outside the true one, about equally
-        # all round: the circle is fitted at the radius this cloud's wall points lie at, its centre is the axis
-        level, _ = surface_band(coordinates.radius - geometry.outer_radius, settings.gate)
-        centre, information_2d = fixed_radius_circle_fit(slab, x, y, slabs, geometry.outer_radius + level,
+        centre, information_2d = fixed_radius_circle_fit(slab, x, y, slabs, geometry.outer_radius + band[0],
                                                           settings.gate, iterations=3, point_weight=weight)
         s_nodes = np.arange(slabs) * step
         position, tangent, normal, binormal = centerline.frames_at(s_nodes)

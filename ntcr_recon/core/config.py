@@ -224,7 +224,7 @@ class RigConfig:
         """
         if not self.filters.crop_box_auto:
             return np.asarray(self.filters.crop_box_min, float), np.asarray(self.filters.crop_box_max, float)
-        reach = self.robot.length + self.robot.outer_diameter
+        reach = self.robot.reach
         corners = np.array(np.meshgrid([-reach, reach], [-reach, reach], [0.0, reach], indexing="ij")).reshape(3, -1)
         corners = (self.robot.base_rotation @ corners).T + np.asarray(self.robot.base_position, float)
         return corners.min(axis=0), corners.max(axis=0)

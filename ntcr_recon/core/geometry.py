@@ -135,6 +135,12 @@ class TubeGeometry:
                 + self.distal_length)
 
     @property
+    def reach(self) -> float:
+        """How far along its centreline the robot can be seen from its base: its length and a diameter (the
+        end cap, and the stereo matcher's spread at the end). No tube is searched for past it."""
+        return self.length + self.outer_diameter
+
+    @property
     def notch_centers_s(self) -> np.ndarray:
         """Undeformed arc length of each notch's centre."""
         return self.proximal_length + self.notch_width / 2.0 + self.notch_pitch * np.arange(self.notch_count)

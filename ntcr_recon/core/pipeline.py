@@ -153,7 +153,7 @@ class Reconstructor:
         # 2. alignment: the reference tube shifted onto the wall points stereo measures without bias
         alignment = None
         if viewpoints is not None:
-            end = tube_end(coords, geometry.outer_radius, settings.gate, footprint, max_s=self._max_length)
+            end = tube_end(coords, geometry.outer_radius, settings.gate, footprint, max_s=geometry.reach)
             alignment = align_to_trusted_wall(centerline, coords, frames, viewpoints, geometry, settings.gate,
                                               footprint, end)
             centerline = alignment.centerline
@@ -163,7 +163,7 @@ class Reconstructor:
                                                           settings.gate)
         measured = coords if rays is None else rays[0]
         # 3. tip, coarse: where the wall stops, over the sectors the cameras can see (core.tip)
-        tip_s = tube_end(measured, geometry.outer_radius, settings.gate, footprint, max_s=self._max_length,
+        tip_s = tube_end(measured, geometry.outer_radius, settings.gate, footprint, max_s=geometry.reach,
                          centerline=centerline, viewpoints=self._camera_origins if seen_by is not None else None)
         # 4. notches: the robot's comb matched to the evidence, edges refined locally (core.notches)
         found = detect_notches(measured, centerline, geometry, settings.gate, footprint, options.notch_kernel_px,
@@ -250,11 +250,6 @@ class Reconstructor:
         # than a tube wants mesh.method: poisson)
         moved = replace(moved, coordinates=centerline.project(moved.points))
         return moved, rotation @ tip + translation
-
-    @property
-    def _max_length(self) -> float:
-        """No tube is searched for past the robot's own length and a diameter."""
-        return self.geometry.length + self.geometry.outer_diameter
 
     def _centerline(self, cloud: Cloud, settings, warm_start: bool):
         prior = self._prior if warm_start else None

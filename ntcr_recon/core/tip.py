@@ -55,14 +55,14 @@ def _visible_kernel(position, normal, binormal, cos_angles, sin_angles, viewpoin
 
 def tube_end(coords: TubeCoordinates, radius: float, gate: float, cell: float, sectors: int = 24,
              max_s: float = np.inf, centerline: Centerline | None = None, viewpoints: np.ndarray | None = None,
-             spine: np.ndarray | None = None) -> float:
+             spine: np.ndarray | None = None, band: tuple[float, float] | None = None) -> float:
     """Arc length where the tube seen in the cloud ends, to a fraction of `cell` (see the module docstring).
 
     Without `centerline` and `viewpoints` every sector counts as visible. spine: points to measure the wall
-    band on (see wall.surface_band).
+    band on (see wall.surface_band); band: that band (level, spread) when the caller has it already.
     """
     offset = coords.radius - radius
-    level, spread = surface_band(offset, gate, spine)
+    level, spread = surface_band(offset, gate, spine) if band is None else band
     on_wall = (np.abs(offset - level) <= spread) & (coords.s >= 0) & (coords.s <= max_s)
     if np.count_nonzero(on_wall) < 8:
         return float(min(coords.s.max(initial=0.0), max_s))
