@@ -226,11 +226,10 @@ def camera_frame(camera: str, stamp_ns: int, xyz: np.ndarray, rgb: np.ndarray | 
     """The core's CameraFrame of a camera cloud (`camera_cloud_from_msg`): points with pixels are laid out
     row-major on the grid of the pixels they span (NaN where none), which the core reads as an organised
     cloud; others go as they are."""
-    if pixel is not None and not len(xyz):  # an empty grid: the fused cloud keeps the other camera's pixels
-        return CameraFrame(camera, stamp_ns, points=xyz, rgb=rgb, organised_width=1, intrinsics=intrinsics)
     if pixel is None or not len(xyz):
-        return CameraFrame(camera, stamp_ns, points=xyz, rgb=rgb, organised_width=organised_width,
-                           intrinsics=intrinsics)
+        # an empty cloud with pixels is an empty grid (width 1): the fused cloud keeps the other camera's pixels
+        width = 1 if pixel is not None else organised_width
+        return CameraFrame(camera, stamp_ns, points=xyz, rgb=rgb, organised_width=width, intrinsics=intrinsics)
     u, v = pixel[:, 0] - pixel[:, 0].min(), pixel[:, 1] - pixel[:, 1].min()
     width, height = int(u.max() + 1), int(v.max() + 1)
     cell = v * width + u
