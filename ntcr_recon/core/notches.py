@@ -23,6 +23,7 @@ from scipy.ndimage import gaussian_filter1d, percentile_filter
 
 from ntcr_recon.core.centerline import Centerline, TubeCoordinates
 from ntcr_recon.core.comb import cut_intervals, expected_centres, inside_intervals
+from ntcr_recon.core.compiled import jit
 from ntcr_recon.core.geometry import TubeGeometry
 from ntcr_recon.core.wall import robust_spread, surface_band
 
@@ -43,18 +44,32 @@ def coverage_profile(s: np.ndarray, lo: float, hi: float, cell: float, kernel: f
                      ) -> tuple[np.ndarray, np.ndarray]:
     """Points per metre along s on a grid of `cell`, smoothed by a Gaussian of width `kernel`."""
     edges = np.arange(lo, hi + cell, cell)
-    counts, _ = np.histogram(s, bins=edges)
-    density = gaussian_filter1d(counts.astype(float), max(kernel / cell, 0.5), mode="constant") / cell
+    counts = _counts_in_bins(np.ascontiguousarray(s, dtype=float), edges)
+    density = gaussian_filter1d(counts, max(kernel / cell, 0.5), mode="constant") / cell
     return 0.5 * (edges[:-1] + edges[1:]), density
 
 
-def _crossing(grid: np.ndarray, density: np.ndarray, level: np.ndarray, i: int, j: int) -> float:
-    """Sub-cell s where density crosses level between grid cells i and j (linear interpolation)."""
-    a, b = density[i] - level[i], density[j] - level[j]
-    if a == b:
-        return float(0.5 * (grid[i] + grid[j]))
-    t = np.clip(a / (a - b), 0.0, 1.0)
-    return float(grid[i] + t * (grid[j] - grid[i]))
+@jit
+def _counts_in_bins(values, edges):
+    """np.histogram(values, bins=edges)[0] as floats, for evenly spaced edges: each value's bin from its
+    distance to the first edge, then checked against the bin's own edges (as numpy bins them: [left, right),
+    the last bin closed), in one pass instead of numpy's sort."""
+    bins = edges.shape[0] - 1
+    counts = np.zeros(max(bins, 0))
+    if bins < 1:
+        return counts
+    first, last = edges[0], edges[bins]
+    step = (last - first) / bins
+    for v in values:
+        if not first <= v <= last:  # (outside, or NaN)
+            continue
+        i = min(max(int((v - first) / step), 0), bins - 1)
+        while i > 0 and v < edges[i]:
+            i -= 1
+        while i < bins - 1 and v >= edges[i + 1]:
+            i += 1
+        counts[i] += 1.0
+    return counts
 
 
 def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: TubeGeometry, gate: float,
@@ -140,8 +155,8 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
         start, end = found
         # the signal: a slot seen through leaves the window empty; one seen obliquely fills it with its
         # floor and faces, inside the wall's radius
-        middle = (grid >= start) & (grid <= end)
-        see_through = anything[middle].mean() < 0.5 * plateau[middle].mean() if np.any(middle) else True
+        middle = slice(np.searchsorted(grid, start, "left"), np.searchsorted(grid, end, "right"))
+        see_through = anything[middle].mean() < 0.5 * plateau[middle].mean() if middle.stop > middle.start else True
         signal = "coverage" if see_through else "depression"
         gaps.append((start, end))
         signals.append(signal)
@@ -157,19 +172,40 @@ def _plausible(gap: tuple[float, float], geometry: TubeGeometry, footprint: floa
 
 def _run_around(grid: np.ndarray, evidence: np.ndarray, centre: float, reach: float) -> tuple[float, float] | None:
     """The run of evidence >= 1/2 nearest `centre` (within `reach`), its ends at the half crossings."""
-    high = evidence >= 0.5
-    inside = np.flatnonzero((grid >= centre - reach) & (grid <= centre + reach) & high)
-    if inside.size == 0:
-        return None
-    seed = int(inside[np.argmin(np.abs(grid[inside] - centre))])
-    low_before = np.flatnonzero(~high[:seed])
-    low_after = np.flatnonzero(~high[seed:])
-    first = int(low_before[-1]) + 1 if low_before.size else 0
-    last = seed + int(low_after[0]) - 1 if low_after.size else len(grid) - 1
-    if first == 0 or last == len(grid) - 1:
-        return None  # touches the base or the tip: not a notch
-    half = np.full(len(grid), 0.5)
-    return _crossing(grid, evidence, half, first - 1, first), _crossing(grid, evidence, half, last, last + 1)
+    start, end = _run_edges(grid, evidence, centre, reach)
+    return None if np.isnan(start) else (float(start), float(end))
+
+
+@jit
+def _run_edges(grid, evidence, centre, reach):
+    """The run of evidence >= 1/2 holding the cell nearest `centre` among those within `reach` of it (the first
+    such on a tie), its ends where evidence crosses 1/2 between cells (linear interpolation); NaNs when no cell
+    within reach is high, or the run touches either end of the grid (the base or the tip: not a notch). Scans
+    outwards from the seed, not the whole grid once per notch."""
+    seed, nearest = -1, np.inf
+    for i in range(grid.shape[0]):
+        if centre - reach <= grid[i] <= centre + reach and evidence[i] >= 0.5 and abs(grid[i] - centre) < nearest:
+            seed, nearest = i, abs(grid[i] - centre)
+    if seed < 0:
+        return np.nan, np.nan
+    first, last = seed, seed
+    while first > 0 and evidence[first - 1] >= 0.5:
+        first -= 1
+    while last < grid.shape[0] - 1 and evidence[last + 1] >= 0.5:
+        last += 1
+    if first == 0 or last == grid.shape[0] - 1:
+        return np.nan, np.nan
+    return _half_crossing(grid, evidence, first - 1, first), _half_crossing(grid, evidence, last, last + 1)
+
+
+@jit
+def _half_crossing(grid, evidence, i, j):
+    """Sub-cell s where evidence crosses 1/2 between grid cells i and j (linear interpolation)."""
+    a, b = evidence[i] - 0.5, evidence[j] - 0.5
+    if a == b:
+        return 0.5 * (grid[i] + grid[j])
+    t = min(max(a / (a - b), 0.0), 1.0)
+    return grid[i] + t * (grid[j] - grid[i])
 
 
 def _measure(gaps: list[tuple[float, float]], indices: list[int], signals: list[str], centerline: Centerline,
