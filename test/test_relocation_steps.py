@@ -335,7 +335,7 @@ def test_coverage_counts_bin_as_numpys_histogram_and_runs_are_found_around_their
     evidence[40:45] = 0.8
     evidence[19], evidence[30] = 0.25, 0.75   # the crossings of 1/2: 19 + 1/3 and 30 + 1/3
     assert _run_around(grid, evidence, 26.0, 10.0) == pytest.approx((19 + 1 / 3, 30 + 1 / 3))
-    assert _run_around(grid, evidence, 41.0, 10.0) == pytest.approx((39.5, 44.5))  # the nearer run
+    assert _run_around(grid, evidence, 41.0, 10.0) == pytest.approx((39.625, 44.375))  # the nearer run
     assert _run_around(grid, evidence, 70.0, 10.0) is None                         # nothing within reach
     evidence[:5] = 1.0
     assert _run_around(grid, evidence, 2.0, 10.0) is None                          # touches the base
