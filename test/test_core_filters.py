@@ -292,3 +292,19 @@ def test_crop_colour_and_voxel_filters():
     thinned = voxel_downsample(Cloud(xyz, rgb), 0.002)
     assert len(thinned) == 3
     assert np.allclose(sorted(thinned.xyz[:, 0]), [0.0005, 0.0021, 0.5])
+
+
+def test_cloud_subset_by_mask_or_index_keeps_attributes_together_and_refuses_a_mask_of_another_length():
+    rng = np.random.default_rng(5)
+    xyz = rng.normal(size=(50, 3))
+    cloud = Cloud(xyz, pack_rgb(rng.integers(0, 255, (50, 3))), np.arange(50, dtype=np.int8) % 2, 7, 1e-4,
+                  rng.integers(0, 640, (50, 2)).astype(np.int32))
+    mask = rng.random(50) > 0.5
+    for selection in (mask, np.flatnonzero(mask)):
+        picked = cloud.subset(selection)
+        assert np.array_equal(picked.xyz, xyz[mask]) and np.array_equal(picked.pixel, cloud.pixel[mask])
+        assert np.array_equal(picked.rgb, cloud.rgb[mask]) and np.array_equal(picked.camera, cloud.camera[mask])
+    moved = cloud.subset(mask, xyz=np.zeros((mask.sum(), 3)))
+    assert not moved.xyz.any() and np.array_equal(moved.pixel, cloud.pixel[mask])
+    with pytest.raises(ValueError, match="mask of 10 entries for a cloud of 50"):
+        cloud.subset(mask[:10])

@@ -41,12 +41,16 @@ class Cloud:
     def __len__(self) -> int:
         return len(self.xyz)
 
-    def subset(self, selection: np.ndarray) -> Cloud:
-        """The points picked by a boolean mask or an index array, attributes alike."""
-        return replace(self, xyz=self.xyz[selection],
-                       rgb=None if self.rgb is None else self.rgb[selection],
-                       camera=None if self.camera is None else self.camera[selection],
-                       pixel=None if self.pixel is None else self.pixel[selection])
+    def subset(self, selection: np.ndarray, xyz: np.ndarray | None = None) -> Cloud:
+        """The points picked by a boolean mask or an index array, attributes alike; xyz: the picked points
+        moved there instead (same count)."""
+        if np.asarray(selection).dtype == bool and len(selection) != len(self):
+            raise ValueError(f"a mask of {len(selection)} entries for a cloud of {len(self)} points")
+        index = rows(selection)
+        return replace(self, xyz=np.take(self.xyz, index, axis=0) if xyz is None else xyz,
+                       rgb=None if self.rgb is None else np.take(self.rgb, index, axis=0),
+                       camera=None if self.camera is None else np.take(self.camera, index, axis=0),
+                       pixel=None if self.pixel is None else np.take(self.pixel, index, axis=0))
 
     def with_points(self, xyz: np.ndarray) -> Cloud:
         """The same points moved (same count and attributes)."""
@@ -63,6 +67,13 @@ class Cloud:
         footprints = [c.pixel_footprint for c in clouds if c.pixel_footprint > 0]
         return Cloud(np.concatenate([c.xyz for c in clouds]), rgb, camera, min(c.stamp_ns for c in clouds),
                      float(np.median(footprints)) if footprints else 0.0)
+
+
+def rows(selection: np.ndarray) -> np.ndarray:
+    """The row indices a boolean mask (or an index array) picks, for np.take(array, rows(mask), axis=0):
+    numpy's boolean indexing of an (N, k) array costs five to eight times more than taking its rows."""
+    selection = np.asarray(selection)
+    return np.flatnonzero(selection) if selection.dtype == bool else selection
 
 
 def pack_rgb(rgb_u8: np.ndarray) -> np.ndarray:

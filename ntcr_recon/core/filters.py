@@ -22,7 +22,7 @@ from dataclasses import replace
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ntcr_recon.core.cloud import Cloud, unpack_rgb
+from ntcr_recon.core.cloud import Cloud, rows, unpack_rgb
 from ntcr_recon.core.compiled import jit
 
 
@@ -428,7 +428,7 @@ def filter_cloud(cloud: Cloud, config) -> Cloud:
             keep = statistical_outlier_mask(cloud.xyz, f.sor_neighbors, f.sor_alpha, distances)
             if not keep.all():
                 index = _neighbours_among_kept(index, keep)
-                distances = distances[keep]
+                distances = np.take(distances, rows(keep), axis=0)
                 cloud = cloud.subset(keep)
         if f.mls and len(cloud) > f.mls_neighbors:
             radius = f.mls_radius_px * cloud.pixel_footprint

@@ -13,11 +13,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ntcr_recon.core.cloud import Cloud
+from ntcr_recon.core.cloud import Cloud, rows
 from ntcr_recon.core.config import RigConfig
 from ntcr_recon.core.deproject import Intrinsics, crop_window, depth_to_points
 from ntcr_recon.core.filters import crop_box_mask
 from ntcr_recon.core.transforms import transform_points
+from ntcr_recon.core.wall import median
 
 
 @dataclass(frozen=True)
@@ -75,9 +76,10 @@ def camera_cloud(frame: CameraFrame, config: RigConfig, box_min: np.ndarray, box
     xyz = transform_points(extrinsic, xyz)
     inside = crop_box_mask(xyz, box_min, box_max)
     if frame.intrinsics is not None and np.any(inside):  # a point frame gives it too when its camera_info came
-        footprint = float(np.median(depth[inside])) / frame.intrinsics.fx
-    return (xyz[inside], None if rgb is None else rgb[inside], None if pixel is None else pixel[inside],
-            footprint)
+        footprint = float(median(depth[inside])) / frame.intrinsics.fx
+    index = rows(inside)
+    return (np.take(xyz, index, axis=0), None if rgb is None else rgb[index],
+            None if pixel is None else np.take(pixel, index, axis=0), footprint)
 
 
 def fuse(pair: FramePair, config: RigConfig, box: tuple[np.ndarray, np.ndarray] | None = None) -> Cloud:

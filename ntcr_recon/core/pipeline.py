@@ -212,7 +212,7 @@ class Reconstructor:
             moved, tip = self._relocate_by_icp(cloud, centerline, notches, tip_s, tip, settings.gate, footprint)
         else:
             moved = relocate_points(coords, centerline, geometry, notches, tip_s, settings.gate, rays)
-        relocated = cloud.subset(moved.accepted).with_points(moved.points)
+        relocated = cloud.subset(moved.accepted, xyz=moved.points)
         # 7. quality: how sure this result is (core.quality)
         offset = coords.radius - geometry.outer_radius
         level, _ = surface_band(offset, settings.gate)

@@ -191,7 +191,18 @@ def relocate_points(coords: TubeCoordinates, centerline: Centerline, geometry: T
     accepted, distance, s, x, y, local_normal, part = _nearest_surface_kernel(
         coords.s, coords.x, coords.y, starts, ends, geometry.outer_radius, geometry.inner_radius,
         geometry.chord_offset, tip_s, gate, ray_coords[0].s, ray_coords[0].x, ray_coords[0].y, ray_coords[1])
-    position, tangent, normal, binormal = centerline.frames_at(s)
-    points = position + x[:, None] * normal + y[:, None] * binormal
-    normals = local_normal[:, :1] * normal + local_normal[:, 1:2] * binormal + local_normal[:, 2:] * tangent
+    points, normals = _in_base_frame(*centerline.frames_at(s), x, y, local_normal)
     return RelocatedPoints(accepted, points, normals, part, distance, TubeCoordinates(s, x, y))
+
+
+@jit
+def _in_base_frame(position, tangent, normal, binormal, x, y, local_normal):
+    """Points (tube coordinates x, y at their frames) and normals (local: along normal, binormal, tangent) in
+    the base frame, in one pass (numpy's broadcasting took four temporaries of (N, 3))."""
+    points, normals = np.empty_like(position), np.empty_like(position)
+    for i in range(position.shape[0]):
+        for d in range(3):
+            points[i, d] = position[i, d] + x[i] * normal[i, d] + y[i] * binormal[i, d]
+            normals[i, d] = (local_normal[i, 0] * normal[i, d] + local_normal[i, 1] * binormal[i, d]
+                             + local_normal[i, 2] * tangent[i, d])
+    return points, normals
