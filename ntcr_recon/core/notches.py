@@ -233,7 +233,7 @@ def _measure(gaps: list[tuple[float, float]], indices: list[int], signals: list[
     notches = []
     for (start, end), index, signal, normal in zip(gaps, indices, signals, normals, strict=True):
         before, after = chords[index], chords[index + 1]
-        bend = float(np.arccos(np.clip(before @ after, -1.0, 1.0)))
+        bend = float(np.arccos(min(max(before @ after, -1.0), 1.0)))  # (np.clip costs more on a scalar)
         bend *= 1.0 if (after - before) @ normal >= 0 else -1.0   # positive towards the notch side
         width = (end - start) - bend * r_o  # s_n (1 - kappa r_o) with kappa s_n = theta
         notches.append(Notch(index, float((start + end) / 2), float(start), float(end), float(max(width, 0.0)),

@@ -143,7 +143,7 @@ class Reconstructor:
         settings = settings_for(geometry, cloud.pixel_footprint, options)
         footprint = settings.cell
         seen_by = cloud.camera if cloud.camera is not None and len(cloud.camera) else None
-        viewpoints = None if seen_by is None else self._camera_origins[seen_by]
+        viewpoints = None if seen_by is None else np.take(self._camera_origins, seen_by, axis=0)
 
         # 1. centreline: fixed-radius circle fits per slab, smoothed, iterated (core.centerline)
         centerline, iterations, coords, frames = self._centerline(cloud, settings, warm_start)
