@@ -76,6 +76,12 @@ def rows(selection: np.ndarray) -> np.ndarray:
     return np.flatnonzero(selection) if selection.dtype == bool else selection
 
 
+def finite_rows(xyz: np.ndarray) -> np.ndarray:
+    """(N,) bool: the rows of an (N, 3) array whose coordinates are all finite (a column at a time:
+    np.isfinite(xyz).all(axis=1) reduces over the short axis, at ten times the cost)."""
+    return np.isfinite(xyz[:, 0]) & np.isfinite(xyz[:, 1]) & np.isfinite(xyz[:, 2])
+
+
 def pack_rgb(rgb_u8: np.ndarray) -> np.ndarray:
     """(N, 3) uint8 colours -> (N,) uint32 0x00RRGGBB."""
     rgb = np.asarray(rgb_u8, dtype=np.uint32)

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ntcr_recon.core.cloud import Cloud, rows
+from ntcr_recon.core.cloud import Cloud, finite_rows, rows
 from ntcr_recon.core.config import RigConfig
 from ntcr_recon.core.deproject import Intrinsics, crop_window, depth_to_points
 from ntcr_recon.core.filters import crop_box_mask
@@ -66,7 +66,7 @@ def camera_cloud(frame: CameraFrame, config: RigConfig, box_min: np.ndarray, box
     else:
         xyz = np.asarray(frame.points, dtype=np.float64)
         rgb = frame.rgb
-        finite = np.all(np.isfinite(xyz), axis=1)
+        finite = finite_rows(xyz)
         pixel = None
         if frame.organised_width:  # an organised cloud (row-major) keeps its pixel grid
             flat = np.flatnonzero(finite)

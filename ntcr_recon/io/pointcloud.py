@@ -22,6 +22,8 @@ from typing import Any
 
 import numpy as np
 
+from ntcr_recon.core.cloud import finite_rows
+
 # sensor_msgs/PointField datatype constants
 INT8, UINT8, INT16, UINT16, INT32, UINT32, FLOAT32, FLOAT64 = range(1, 9)
 DATATYPES = {INT8: np.int8, UINT8: np.uint8, INT16: np.int16, UINT16: np.uint16,
@@ -148,7 +150,7 @@ def cloud_from_msg(msg, drop_nan: bool = False) -> tuple[np.ndarray, np.ndarray 
         xyz[:, column] = points[axis]
     rgb = (points[color_name].astype(np.uint32) & 0x00FFFFFF) if color_name else None
     if drop_nan:
-        finite = np.isfinite(xyz).all(axis=1)
+        finite = finite_rows(xyz)
         if not finite.all():
             xyz = xyz[finite]
             rgb = rgb[finite] if rgb is not None else None

@@ -39,7 +39,7 @@ from shape_msgs.msg import Mesh
 from std_msgs.msg import ColorRGBA, Float64MultiArray, Header, MultiArrayDimension, MultiArrayLayout
 from visualization_msgs.msg import Marker, MarkerArray
 
-from ntcr_recon.core.cloud import Cloud
+from ntcr_recon.core.cloud import Cloud, finite_rows
 from ntcr_recon.core.deproject import Intrinsics
 from ntcr_recon.core.fusion import CameraFrame
 from ntcr_recon.core.transforms import matrix_to_quaternion, quaternion_to_matrix
@@ -211,7 +211,7 @@ def camera_cloud_from_msg(msg: PointCloud2, expected_frame: str
     if msg.height > 1:
         return xyz, rgb, None, int(msg.width)
     pixels = read_points(msg, ("pixel_u", "pixel_v"))
-    finite = np.isfinite(xyz).all(axis=1)
+    finite = finite_rows(xyz)
     xyz, rgb = xyz[finite], None if rgb is None else rgb[finite]
     if len(pixels.dtype.names) < 2:
         return xyz, rgb, None, 0
@@ -253,7 +253,7 @@ def input_cloud(msg: PointCloud2, expected_frame: str, keep_nan: bool = False, a
         if allow_empty:
             return xyz, rgb
         raise ValueError("empty cloud (0 points)")
-    finite = np.isfinite(xyz).all(axis=1)
+    finite = finite_rows(xyz)
     if not finite.any():
         raise ValueError(f"cloud has no finite point ({len(xyz)} points, all NaN or infinite)")
     if keep_nan or finite.all():
@@ -286,7 +286,7 @@ def _stage_cloud(msg: PointCloud2, expected_frame: str, rig=None) -> tuple[Cloud
     # one type, whichever of the two calls them first
     xyz = xyz.astype(np.float64)
     points = read_points(msg, STAGE_FIELDS)
-    finite = np.isfinite(xyz).all(axis=1)
+    finite = finite_rows(xyz)
     if not finite.all():
         xyz, rgb, points = xyz[finite], None if rgb is None else rgb[finite], points[finite]
     columns = {name: points[name].astype(np.float32) for name in points.dtype.names}
