@@ -189,6 +189,25 @@ def test_quality_says_what_is_doubtful():
     assert "+20 deg from the configured robot.notch_side" in text
     assert "depth of cam_a is quantised in 1 mm steps" in text and "cam_b is quantised" not in text
     assert quality["notches_found"] == 0 and quality["notch_side_deg"] == pytest.approx(20.0)
+    assert "crop box" not in text
+
+
+def test_quality_tells_a_tube_cut_short_by_the_crop_box_from_one_that_ends_inside_it():
+    box = (np.array([-0.05, -0.05, 0.0]), np.array([0.05, 0.05, 0.06]))
+    s = np.linspace(0.0, 30e-3, 3000)
+
+    def warnings_for(tip):
+        return " ".join(assess(
+            geometry=GEOMETRY, camera_names=("cam_a",), notches=[], notch_signals={}, coords_s=s,
+            camera=np.zeros(len(s), np.int8), tip_s=30e-3, total_bend=0.0, footprint=FOOTPRINT,
+            wall_residual=0.0, notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0,
+            depth_steps={}, tip_position=np.array(tip), crop_box=box)[1])
+
+    on_face = warnings_for([0.02, 0.0, 0.5e-3])    # the robot curled down to the base plane
+    print("\n" + on_face)
+    assert "short of the robot's length" in on_face and "crop box's face z = 0.0 mm" in on_face
+    inside = warnings_for([0.0, 0.0, 0.03])
+    assert "short of the robot's length" in inside and "crop box" not in inside
 
 
 def test_depth_step_is_read_from_the_data():

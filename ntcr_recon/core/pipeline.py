@@ -225,7 +225,7 @@ class Reconstructor:
             configured_side=geometry.notch_side,
             bias_notch_side=0.0 if alignment is None else alignment.bias_notch_side,
             bias_binormal=0.0 if alignment is None else alignment.bias_binormal, depth_steps=dict(self._depth_steps),
-            tip_erosion=tip_s - eroded_end)
+            tip_erosion=tip_s - eroded_end, tip_position=tip, crop_box=self.config.crop_box())
         self._prior = fitted
         self._update_roi(relocated)
         self._timed("relocate", start)

@@ -52,8 +52,11 @@ def camera_coverage(s: np.ndarray, camera: np.ndarray | None, camera_names: tupl
 def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_signals: dict[int, str],
            coords_s: np.ndarray, camera: np.ndarray | None, tip_s: float, total_bend: float, footprint: float,
            wall_residual: float, notch_side: float, configured_side: float, bias_notch_side: float,
-           bias_binormal: float, depth_steps: dict[str, float], tip_erosion: float = 0.0) -> tuple[dict, list[str]]:
-    """The `quality` document and the warnings (see the module docstring)."""
+           bias_binormal: float, depth_steps: dict[str, float], tip_erosion: float = 0.0,
+           tip_position: np.ndarray | None = None, crop_box: tuple[np.ndarray, np.ndarray] | None = None
+           ) -> tuple[dict, list[str]]:
+    """The `quality` document and the warnings (see the module docstring). tip_position, crop_box: where the
+    tip is and the box the points were cropped to (base frame), to tell a tube cut off by the box."""
     warnings: list[str] = []
     r_o, diameter = geometry.outer_radius, geometry.outer_diameter
     found = sorted(n.index for n in notches)
@@ -92,8 +95,14 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
     short = expected_length - tip_s
     if abs(short) > TIP_SHORT_DIAMETERS * diameter:
         where = "short of" if short > 0 else "past"
-        warnings.append(f"the tube ends {abs(short) * 1e3:.1f} mm {where} the robot's length "
-                        f"({expected_length * 1e3:.1f} mm at this bend): the tip is uncertain")
+        warning = (f"the tube ends {abs(short) * 1e3:.1f} mm {where} the robot's length "
+                   f"({expected_length * 1e3:.1f} mm at this bend): the tip is uncertain")
+        if short > 0 and tip_position is not None and crop_box is not None:
+            edge = _nearest_box_face(np.asarray(tip_position, float), crop_box)
+            if edge[2] < diameter:  # the points were cut there, not the robot
+                warning += (f"; it ends on the crop box's face {'xyz'[edge[0]]} = {edge[1] * 1e3:.1f} mm: the robot "
+                            "may go on outside the box")
+        warnings.append(warning)
     side_off = math.degrees(math.remainder(notch_side - configured_side, 2 * math.pi))
     if abs(side_off) > SIDE_OFF_DEG:
         warnings.append(f"the notches open {side_off:+.0f} deg from the configured robot.notch_side: the robot "
@@ -121,6 +130,16 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
         "depth_step_mm": {k: v * 1e3 for k, v in depth_steps.items()},
     }
     return quality, warnings
+
+
+def _nearest_box_face(point: np.ndarray, box: tuple[np.ndarray, np.ndarray]) -> tuple[int, float, float]:
+    """The axis and coordinate of the box face nearest a point inside it, and the point's distance to it."""
+    low, high = (np.asarray(corner, float) for corner in box)
+    below, above = point - low, high - point
+    axis = int(np.argmin(np.minimum(below, above)))
+    if below[axis] <= above[axis]:
+        return axis, float(low[axis]), float(below[axis])
+    return axis, float(high[axis]), float(above[axis])
 
 
 def depth_quantisation_warning(camera: str, step: float, geometry) -> str | None:
