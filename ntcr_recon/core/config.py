@@ -222,12 +222,21 @@ class RigConfig:
         Automatic: what the robot can reach - within its length (plus a diameter) of the base on the side its
         axis points to, starting at the base, so the clamp or post it stands on stays out.
         """
+        return self._crop_box
+
+    @cached_property
+    def _crop_box(self) -> tuple[np.ndarray, np.ndarray]:
+        """crop_box(), computed once (each stage asks every frame; read-only, as it is shared)."""
         if not self.filters.crop_box_auto:
-            return np.asarray(self.filters.crop_box_min, float), np.asarray(self.filters.crop_box_max, float)
-        reach = self.robot.reach
-        corners = np.array(np.meshgrid([-reach, reach], [-reach, reach], [0.0, reach], indexing="ij")).reshape(3, -1)
-        corners = (self.robot.base_rotation @ corners).T + np.asarray(self.robot.base_position, float)
-        return corners.min(axis=0), corners.max(axis=0)
+            low, high = np.array(self.filters.crop_box_min, float), np.array(self.filters.crop_box_max, float)
+        else:
+            reach = self.robot.reach
+            corners = np.array(np.meshgrid([-reach, reach], [-reach, reach], [0.0, reach],
+                                           indexing="ij")).reshape(3, -1)
+            corners = (self.robot.base_rotation @ corners).T + np.asarray(self.robot.base_position, float)
+            low, high = corners.min(axis=0), corners.max(axis=0)
+        low.flags.writeable = high.flags.writeable = False
+        return low, high
 
 
 # Sections with defaults, in the order of the documented file (the cameras' and the robot's come before).
