@@ -36,6 +36,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, PointCloud2
 
+from ntcr_recon.core.cloud import rows
 from ntcr_recon.core.deproject import Intrinsics, crop_window, depth_to_points
 from ntcr_recon.core.filters import crop_box_mask
 from ntcr_recon.core.quality import depth_quantisation_warning, depth_step
@@ -291,8 +292,8 @@ class CameraNode(RigNode):
                 # Only the points inside the crop box travel: fusion would drop the others, and a D405 window's
                 # full cloud (~28 000 points, 0.7 MB) overflows a shared-memory segment, so that over UDP a
                 # best-effort subscriber lost half of them on a busy machine.
-                inside = crop_box_mask(transform_points(camera.extrinsic, xyz), *self._box)
-                xyz, pixel = xyz[inside], pixel[inside]
+                inside = rows(crop_box_mask(transform_points(camera.extrinsic, xyz), *self._box))
+                xyz, pixel = np.take(xyz, inside, axis=0), np.take(pixel, inside, axis=0)
                 rgb = None if rgb is None else rgb[inside]
         self._cloud_publisher.publish(camera_cloud_to_msg(xyz, rgb, pixel, camera.frame_id, frame.stamp_ns))
         self._info_publisher.publish(camera_info_msg(frame, camera.frame_id))
