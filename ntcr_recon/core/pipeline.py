@@ -29,6 +29,7 @@ import numpy as np
 from ntcr_recon.core.alignment import align_to_trusted_wall
 from ntcr_recon.core.centerline import Centerline, TubeCoordinates, estimate_centerline, settings_for
 from ntcr_recon.core.cloud import Cloud
+from ntcr_recon.core.comb import inside_intervals
 from ntcr_recon.core.config import RigConfig
 from ntcr_recon.core.filters import filter_cloud
 from ntcr_recon.core.fusion import FramePair, fuse
@@ -36,7 +37,7 @@ from ntcr_recon.core.icp import icp, mesh_reference, posed_reference, relocate_o
 from ntcr_recon.core.notches import Notch, detect_notches, measure_notch_side
 from ntcr_recon.core.quality import assess, depth_step
 from ntcr_recon.core.relocation import RelocatedPoints, along_rays, relocate_points
-from ntcr_recon.core.tip import cap_faces_a_camera, end_cap_plane, give_back_erosion, tube_end
+from ntcr_recon.core.tip import cap_faces_a_camera, edge_band, end_cap_plane, give_back_erosion, rim_tip, tube_end
 from ntcr_recon.core.wall import surface_band
 
 # A measured notch side further than this from the configured one turns the tube frame (smaller: within
@@ -92,6 +93,9 @@ class Reconstructor:
         self._camera_origins = np.array([config.cameras[name].translation for name in config.camera_names], float)
         self.timings_ms: dict[str, float] = {}
         self._depth_steps: dict[str, float] = {}  # per camera, the depth quantisation seen in its first frame
+        # per camera, the band its matcher spoils at depth edges (core.tip.edge_band) over its focal length
+        # (an angle: the band in metres at any distance), from the first frame showing one
+        self._edge_bands: dict[str, float] = {}
         self._mesh_reference = None  # relocation.reference_mesh, sampled once
 
     def reset(self) -> None:
@@ -122,6 +126,15 @@ class Reconstructor:
                 continue
             unit = frame.depth_unit if frame.depth_unit is not None else self.config.cameras[name].depth_unit
             self._depth_steps[name] = depth_step(frame.depth, unit)
+        for name, frame in pair.frames.items():
+            if name in self._edge_bands or frame.depth is None or frame.intrinsics is None:
+                continue
+            if name not in self.config.cameras:
+                continue
+            unit = frame.depth_unit if frame.depth_unit is not None else self.config.cameras[name].depth_unit
+            band = edge_band(frame.depth, unit)
+            if band is not None:
+                self._edge_bands[name] = band / frame.intrinsics.fx
 
     def filter(self, cloud: Cloud) -> Cloud:
         start = time.perf_counter()
@@ -203,8 +216,19 @@ class Reconstructor:
             tip_s = tip_s if cap is None else cap
             eroded_end = tip_s
         elif seen_by is not None and not cap_seen:
-            tip_s = give_back_erosion(tip_s, coords, frames, seen_by, self._camera_origins, geometry.outer_radius,
-                                      settings.gate, [(n.start_s, n.end_s) for n in notches], footprint)
+            # each camera's end where its wall points thin to half, plus the band its matcher spoils at depth
+            # edges, measured in its depth images, as the end's outline in its image lets it bite (core.tip)
+            intervals = np.array([(n.start_s - 2 * footprint, n.end_s + 2 * footprint) for n in notches])
+            bands = np.array([self._edge_bands.get(name, np.nan) for name in self.config.camera_names])
+            rim = rim_tip(coords, seen_by, self._camera_origins, centerline, tip_s, geometry.outer_radius,
+                          settings.gate, footprint, options.notch_kernel_px * footprint, bands,
+                          ~inside_intervals(coords.s, intervals), 2 * geometry.notch_pitch)
+            if rim is not None:
+                eroded_end, tip_s = rim
+            else:  # no depth images (clouds only): the erosion the silhouettes show, given back
+                tip_s = give_back_erosion(tip_s, coords, frames, seen_by, self._camera_origins,
+                                          geometry.outer_radius, settings.gate,
+                                          [(n.start_s, n.end_s) for n in notches], footprint)
         notches = _calibrate_rims(notches, geometry)
         # 6. relocation: every point within the gate onto the reference surface (core.relocation)
         tip = centerline.frames_at(np.array([tip_s]))[0][0]
