@@ -215,9 +215,10 @@ class Reconstructor:
                                 geometry.outer_diameter, footprint)
             tip_s = tip_s if cap is None else cap
             eroded_end = tip_s
-        elif seen_by is not None and not cap_seen:
+        elif seen_by is not None:
             # each camera's end where its wall points thin to half, plus the band its matcher spoils at depth
-            # edges, measured in its depth images, as the end's outline in its image lets it bite (core.tip)
+            # edges, measured in its depth images, as far as it reaches into the end's outline in its image
+            # (where the end turns towards a camera, the cap makes that outline; core.tip)
             intervals = np.array([(n.start_s - 2 * footprint, n.end_s + 2 * footprint) for n in notches])
             bands = np.array([self._edge_bands.get(name, np.nan) for name in self.config.camera_names])
             rim = rim_tip(coords, seen_by, self._camera_origins, centerline, tip_s, geometry.outer_radius,
@@ -225,7 +226,7 @@ class Reconstructor:
                           ~inside_intervals(coords.s, intervals), 2 * geometry.notch_pitch)
             if rim is not None:
                 eroded_end, tip_s = rim
-            else:  # no depth images (clouds only): the erosion the silhouettes show, given back
+            elif not cap_seen:  # no depth images (clouds only): the erosion the silhouettes show, given back
                 tip_s = give_back_erosion(tip_s, coords, frames, seen_by, self._camera_origins,
                                           geometry.outer_radius, settings.gate,
                                           [(n.start_s, n.end_s) for n in notches], footprint)

@@ -187,9 +187,9 @@ def edge_band(depth: np.ndarray, unit: float, sigmas: float = EDGE_NOISE_SIGMAS,
     depth image (`depth` in device units of `unit` metres, 0 = none).
 
     Along each image column (across the stereo baseline: the left-right occlusion shadow lies along the rows),
-    a pixel is clean where its inverse depth (the matcher's disparity, up to a constant) continues the line
-    of its two neighbours on one side to within `sigmas` of the matcher's noise (measured on the image: the
-    spread of that residual) and two depth units. At every edge between a clean near surface and a clean
+    a pixel is clean where its inverse depth (the matcher's disparity, up to a constant) continues its
+    neighbours on one side (their line, or their quadratic) to within `sigmas` of the matcher's noise
+    (measured on the image) and the depth quantisation. At every edge between a clean near surface and a clean
     surface at least `far_ratio` further, the pixels between them are spoiled: dropped, or mixed between the
     two depths. A matcher's window straddles the edge symmetrically, so half the median gap is what each side
     loses. None when fewer than `least` such edges are seen (no far background, e.g. a renderer with none).
@@ -197,19 +197,28 @@ def edge_band(depth: np.ndarray, unit: float, sigmas: float = EDGE_NOISE_SIGMAS,
     z = np.asarray(depth, dtype=float).T * unit  # columns as lines
     valid = z > 0
     q = np.where(valid, 1.0 / np.where(valid, z, 1.0), 0.0)
+    if q.shape[1] < 5:
+        return None
+    # a surface's continuation from either side: the line through a pixel's two neighbours, or - a tube's
+    # profile curves towards its silhouette, where a line would call its last clean pixels spoiled - the
+    # quadratic through three
     three = valid[:, 2:] & valid[:, 1:-1] & valid[:, :-2]
+    four = three[:, 1:] & valid[:, :-3]
     if np.count_nonzero(three) < least:
         return None
-    curvature = (q[:, 2:] - 2.0 * q[:, 1:-1] + q[:, :-2])[three]
-    curvature = curvature[np.abs(curvature) < 0.05 * float(np.median(q[valid]))]  # not across edges
-    centre = float(np.median(curvature)) if curvature.size else 0.0
-    sigma = 1.4826 * float(np.median(np.abs(curvature - centre))) if curvature.size else 0.0
-    tolerance = sigmas * sigma + 2.0 * unit * q * q
-    from_before = np.full(q.shape, np.inf)
-    from_after = np.full(q.shape, np.inf)
-    from_before[:, 2:] = np.where(three, 2.0 * q[:, 1:-1] - q[:, :-2], np.inf)
-    from_after[:, :-2] = np.where(three, 2.0 * q[:, 1:-1] - q[:, 2:], np.inf)
-    clean = valid & ((np.abs(q - from_before) <= tolerance) | (np.abs(q - from_after) <= tolerance))
+    predictions = np.full((4, *q.shape), np.inf)
+    predictions[0, :, 2:] = np.where(three, 2.0 * q[:, 1:-1] - q[:, :-2], np.inf)
+    predictions[1, :, :-2] = np.where(three, 2.0 * q[:, 1:-1] - q[:, 2:], np.inf)
+    predictions[2, :, 3:] = np.where(four, 3.0 * q[:, 2:-1] - 3.0 * q[:, 1:-2] + q[:, :-3], np.inf)
+    predictions[3, :, :-3] = np.where(four, 3.0 * q[:, 1:-2] - 3.0 * q[:, 2:-1] + q[:, 3:], np.inf)
+    residual = (q[:, 2:] - predictions[0, :, 2:])[three]
+    residual = residual[np.abs(residual) < 0.05 * float(np.median(q[valid]))]  # not across edges
+    centre = float(np.median(residual)) if residual.size else 0.0
+    sigma = 1.4826 * float(np.median(np.abs(residual - centre))) if residual.size else 0.0
+    # the matcher's noise (measured, as the line's residual), and the worst rounding of the quadratic's
+    # prediction: (3 + 3 + 1 + 1) half depth units
+    tolerance = sigmas * sigma + 4.0 * unit * q * q
+    clean = valid & np.any(np.abs(q[None] - predictions) <= tolerance[None], axis=0)
     line, column = np.nonzero(clean)
     same = line[1:] == line[:-1]
     first, second, line = column[:-1][same], column[1:][same], line[:-1][same]
