@@ -94,8 +94,10 @@ class Reconstructor:
         self.timings_ms: dict[str, float] = {}
         self._depth_steps: dict[str, float] = {}  # per camera, the depth quantisation seen in its first frame
         # per camera, the band its matcher spoils at depth edges (core.tip.edge_band) over its focal length
-        # (an angle: the band in metres at any distance), from the first frame showing one
+        # (an angle: the band in metres at any distance), measured when the tip first needs it on the latest
+        # depth image noted until then (depth, unit, focal length), e.g. the first frame's
         self._edge_bands: dict[str, float] = {}
+        self._edge_images: dict[str, tuple[np.ndarray, float, float]] = {}
         self._mesh_reference = None  # relocation.reference_mesh, sampled once
 
     def reset(self) -> None:
@@ -120,7 +122,8 @@ class Reconstructor:
         return cloud
 
     def _note_depth_steps(self, pair: FramePair) -> None:
-        """The depth step each camera's data show, measured once per camera (for the self-check)."""
+        """The depth step each camera's data show, measured once per camera (for the self-check); and its
+        latest depth image while its edge band is not yet measured (for the tip: `_edge_band`)."""
         for name, frame in pair.frames.items():
             if name in self._depth_steps or frame.depth is None or name not in self.config.cameras:
                 continue
@@ -132,9 +135,16 @@ class Reconstructor:
             if name not in self.config.cameras:
                 continue
             unit = frame.depth_unit if frame.depth_unit is not None else self.config.cameras[name].depth_unit
-            band = edge_band(frame.depth, unit)
+            self._edge_images[name] = (frame.depth, unit, frame.intrinsics.fx)
+
+    def _edge_band(self, name: str) -> float:
+        """The camera's edge band as an angle (rad), NaN while no depth image of it showed one."""
+        if name not in self._edge_bands and name in self._edge_images:
+            depth, unit, focal = self._edge_images.pop(name)
+            band = edge_band(depth, unit)
             if band is not None:
-                self._edge_bands[name] = band / frame.intrinsics.fx
+                self._edge_bands[name] = band / focal
+        return self._edge_bands.get(name, np.nan)
 
     def filter(self, cloud: Cloud) -> Cloud:
         start = time.perf_counter()
@@ -220,7 +230,7 @@ class Reconstructor:
             # edges, measured in its depth images, as far as it reaches into the end's outline in its image
             # (where the end turns towards a camera, the cap makes that outline; core.tip)
             intervals = np.array([(n.start_s - 2 * footprint, n.end_s + 2 * footprint) for n in notches])
-            bands = np.array([self._edge_bands.get(name, np.nan) for name in self.config.camera_names])
+            bands = np.array([self._edge_band(name) for name in self.config.camera_names])
             rim = rim_tip(coords, seen_by, self._camera_origins, centerline, tip_s, geometry.outer_radius,
                           settings.gate, footprint, options.notch_kernel_px * footprint, bands,
                           ~inside_intervals(coords.s, intervals), 2 * geometry.notch_pitch)
