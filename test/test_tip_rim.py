@@ -142,5 +142,18 @@ def test_tip_on_the_test_renderer_with_a_backdrop(bend_deg, notch_side_deg):
     print(f"\nbend {bend_deg:.0f} deg, notches at {notch_side_deg:.0f} deg, backdrop: bands {bands} px, tip error "
           f"{error * 1e3:.3f} mm ({along * 1e3:+.3f} along the tube)")
     assert all(band == pytest.approx(1.0, abs=0.5) for band in bands.values())
+    assert "edge band" in relocation.quality["tip_refinement"]
+    assert set(relocation.quality["edge_band_mrad"]) == {"cam_a", "cam_b"}
     assert abs(along) <= 0.1e-3
     assert error <= 0.15e-3
+
+
+def test_without_a_far_background_the_tip_falls_back_to_the_silhouettes_and_says_so():
+    """The test renderer without a backdrop: nothing but the robot has depth, no edge band can be read."""
+    config, shape, pair = posed_scene({}, 30.0, 0.0, seed=2)
+    relocation = Reconstructor(config).process(pair).relocation
+    error = float(np.linalg.norm(relocation.tip - shape.tip_pose()[0]))
+    print(f"\nno backdrop: tip by {relocation.quality['tip_refinement']!r}, error {error * 1e3:.3f} mm")
+    assert "silhouette" in relocation.quality["tip_refinement"]
+    assert relocation.quality["edge_band_mrad"] == {}
+    assert error <= 0.30e-3

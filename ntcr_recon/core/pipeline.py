@@ -214,7 +214,7 @@ class Reconstructor:
             frames = (frames[0], frames[1], *_rolled_axes(frames[2], frames[3], roll))
         notches, signals = found, {n.index: n.signal for n in found}
         # 5. tip, refined: the rim the stereo matcher erodes at depth edges given back
-        eroded_end = tip_s
+        eroded_end, refinement = tip_s, "coarse end (no camera seen)"
         # where a camera looks onto the end cap - wider in its image than 4 pixels, more than a matcher's
         # silhouette band - the end is that face (measured), not a rim the matcher erodes
         cap_seen = seen_by is not None and cap_faces_a_camera(centerline, tip_s, self._camera_origins,
@@ -224,7 +224,7 @@ class Reconstructor:
             cap = end_cap_plane(measured, geometry.inner_radius, geometry.outer_radius, tip_s,
                                 geometry.outer_diameter, footprint)
             tip_s = tip_s if cap is None else cap
-            eroded_end = tip_s
+            eroded_end, refinement = tip_s, "end cap" if cap is not None else "coarse end (no end cap found)"
         elif seen_by is not None:
             # each camera's end where its wall points thin to half, plus the band its matcher spoils at depth
             # edges, measured in its depth images, as far as it reaches into the end's outline in its image
@@ -236,10 +236,14 @@ class Reconstructor:
                           ~inside_intervals(coords.s, intervals), 2 * geometry.notch_pitch)
             if rim is not None:
                 eroded_end, tip_s = rim
+                refinement = "half-density end + edge band measured in the depth images"
             elif not cap_seen:  # no depth images (clouds only): the erosion the silhouettes show, given back
+                refinement = "coarse end + silhouette erosion (no edge band: no depth images with a far background)"
                 tip_s = give_back_erosion(tip_s, coords, frames, seen_by, self._camera_origins,
                                           geometry.outer_radius, settings.gate,
                                           [(n.start_s, n.end_s) for n in notches], footprint)
+            else:
+                refinement = "coarse end (the end turns towards a camera; no edge band measured)"
         notches = _calibrate_rims(notches, geometry)
         # 6. relocation: every point within the gate onto the reference surface (core.relocation)
         tip = centerline.frames_at(np.array([tip_s]))[0][0]
@@ -261,6 +265,8 @@ class Reconstructor:
             bias_notch_side=0.0 if alignment is None else alignment.bias_notch_side,
             bias_binormal=0.0 if alignment is None else alignment.bias_binormal, depth_steps=dict(self._depth_steps),
             tip_erosion=tip_s - eroded_end)
+        quality = {**quality, "tip_refinement": refinement,
+                   "edge_band_mrad": {name: band * 1e3 for name, band in self._edge_bands.items()}}
         self._prior = fitted
         self._update_roi(relocated)
         self._timed("relocate", start)
