@@ -114,12 +114,14 @@ def test_tip_of_a_tube_whose_rim_lost_a_known_band_in_each_camera():
     spine = np.ones(len(camera), bool)
     bands = np.array(lost) / 0.09  # angles
     coarse = length - 0.3e-3  # as a slab-wise coarse end might read it
-    ends, tip = rim_tip(coords, camera, origins, centerline, coarse, R_O, 0.8e-3, FOOTPRINT, 2 * FOOTPRINT, bands,
-                        spine, 6e-3)
+    ends, tip, uncertainty = rim_tip(coords, camera, origins, centerline, coarse, R_O, 0.8e-3, FOOTPRINT,
+                                     2 * FOOTPRINT, bands, spine, 6e-3)
     print(f"\nrims lost {lost[0] * 1e3:.2f} / {lost[1] * 1e3:.2f} mm: ends {(ends - length) * 1e3:+.3f} mm, "
           f"tip {(tip - length) * 1e3:+.3f} mm")
     assert ends == pytest.approx(length - np.mean(lost), abs=FOOTPRINT / 2)
     assert tip == pytest.approx(length, abs=FOOTPRINT / 2)
+    # half a pixel for the end, half for a band of whole pixels: a footprint along s, over the view's sine
+    assert uncertainty == pytest.approx(FOOTPRINT * math.hypot(0.09, coarse) / 0.09)
     # a camera seeing the end without a measured band: no refined tip (the caller falls back)
     assert rim_tip(coords, camera, origins, centerline, coarse, R_O, 0.8e-3, FOOTPRINT, 2 * FOOTPRINT,
                    np.array([bands[0], np.nan]), spine, 6e-3) is None
@@ -157,3 +159,28 @@ def test_without_a_far_background_the_tip_falls_back_to_the_silhouettes_and_says
     assert "silhouette" in relocation.quality["tip_refinement"]
     assert relocation.quality["edge_band_mrad"] == {}
     assert error <= 0.30e-3
+
+
+@pytest.mark.parametrize("erosion, uncertainty, warned", [
+    (0.45e-3, None, "uncertain by about 0.55 mm"),     # the silhouette give-back: the erosion itself is doubtful
+    (0.45e-3, 0.22e-3, "uncertain by about 0.22 mm"),  # measured in the depth images: to a pixel
+    (0.0, 0.10e-3, None),                               # nothing given back, the end placed to half a pixel
+])
+def test_tip_warning_states_how_well_the_erosion_is_known(erosion, uncertainty, warned):
+    from ntcr_recon.core.geometry import TubeGeometry
+    from ntcr_recon.core.quality import assess
+
+    geometry = TubeGeometry()
+    s = np.linspace(0.0, geometry.length, 2000)
+    _, warnings = assess(
+        geometry=geometry, camera_names=("cam_a", "cam_b"), notches=[], notch_signals={}, coords_s=s,
+        camera=(np.arange(len(s)) % 2).astype(np.int8), tip_s=geometry.length, total_bend=0.0, footprint=0.2e-3,
+        wall_residual=0.05e-3, notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0,
+        depth_steps={}, tip_erosion=erosion, tip_uncertainty=uncertainty)
+    tip = [w for w in warnings if "stereo-eroded rim" in w]
+    print(f"\ngiven back {erosion * 1e3:.2f} mm, uncertainty {uncertainty}: {tip}")
+    if warned is None:
+        assert not tip
+    else:
+        assert len(tip) == 1 and warned in tip[0]
+        assert ("measured in the depth images" in tip[0]) == (uncertainty is not None)

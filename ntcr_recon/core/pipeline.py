@@ -214,7 +214,7 @@ class Reconstructor:
             frames = (frames[0], frames[1], *_rolled_axes(frames[2], frames[3], roll))
         notches, signals = found, {n.index: n.signal for n in found}
         # 5. tip, refined: the rim the stereo matcher erodes at depth edges given back
-        eroded_end, refinement = tip_s, "coarse end (no camera seen)"
+        eroded_end, refinement, tip_uncertainty = tip_s, "coarse end (no camera seen)", None
         # where a camera looks onto the end cap - wider in its image than 4 pixels, more than a matcher's
         # silhouette band - the end is that face (measured), not a rim the matcher erodes
         cap_seen = seen_by is not None and cap_faces_a_camera(centerline, tip_s, self._camera_origins,
@@ -235,7 +235,7 @@ class Reconstructor:
                           settings.gate, footprint, options.notch_kernel_px * footprint, bands,
                           ~inside_intervals(coords.s, intervals), 2 * geometry.notch_pitch)
             if rim is not None:
-                eroded_end, tip_s = rim
+                eroded_end, tip_s, tip_uncertainty = rim
                 refinement = "half-density end + edge band measured in the depth images"
             elif not cap_seen:  # no depth images (clouds only): the erosion the silhouettes show, given back
                 refinement = "coarse end + silhouette erosion (no edge band: no depth images with a far background)"
@@ -264,7 +264,7 @@ class Reconstructor:
             configured_side=geometry.notch_side,
             bias_notch_side=0.0 if alignment is None else alignment.bias_notch_side,
             bias_binormal=0.0 if alignment is None else alignment.bias_binormal, depth_steps=dict(self._depth_steps),
-            tip_erosion=tip_s - eroded_end)
+            tip_erosion=tip_s - eroded_end, tip_uncertainty=tip_uncertainty)
         quality = {**quality, "tip_refinement": refinement,
                    "edge_band_mrad": {name: band * 1e3 for name, band in self._edge_bands.items()}}
         self._prior = fitted

@@ -280,15 +280,17 @@ def rim_tip(coords: TubeCoordinates, camera: np.ndarray, origins: np.ndarray, ce
     spine: points to measure the wall band on (away from notches). reach: how far before the coarse end the
     density plateau is taken (over spines and notches alike: a notch takes the same share of the ring there).
     Cameras are weighed by sin^2 of their view angle to the tangent (an image error becomes that much less
-    along s). Returns (the measured ends' mean, the tip), or None when a camera seeing the end has no band
-    or none sees enough of it.
+    along s). Returns (the measured ends' mean, the tip, how well the tip is known along s), or None when a
+    camera seeing the end has no band or none sees enough of it. The uncertainty: half a pixel for the end
+    (a pixel's phase), and half a pixel for the band where one was spoiled (read as whole pixels, halved), each
+    along s (a pixel footprint `cell` over the view angle's sine).
     """
     offset = coords.radius - radius
     level, spread = surface_band(offset, gate, spine)
     wall = (np.abs(offset - level) <= max(spread, cell / 2)) & (coords.s > coarse - reach)
     wall &= coords.s < coarse + 2 * radius
     position, tangent, _, _ = centerline.frames_at(np.array([coarse]))
-    ends, tips, weights = [], [], []
+    ends, tips, weights, uncertainties = [], [], [], []
     for index in np.unique(camera[wall]):
         mine = wall & (camera == index)
         if np.count_nonzero(mine) < least:
@@ -304,6 +306,9 @@ def rim_tip(coords: TubeCoordinates, camera: np.ndarray, origins: np.ndarray, ce
         ends.append(end)
         tips.append(end + rim_erosion(bands[index] * distance, cos_view, radius))
         weights.append(max(1.0 - cos_view * cos_view, 1e-6))
+        pixels = 0.5 + (0.5 if bands[index] > 0 else 0.0)
+        uncertainties.append(pixels * cell / np.sqrt(weights[-1]))
     if not ends:
         return None
-    return float(np.average(ends, weights=weights)), float(np.average(tips, weights=weights))
+    return (float(np.average(ends, weights=weights)), float(np.average(tips, weights=weights)),
+            float(np.average(uncertainties, weights=weights)))
