@@ -188,8 +188,8 @@ def edge_band(depth: np.ndarray, unit: float, sigmas: float = EDGE_NOISE_SIGMAS,
 
     Along each image column (across the stereo baseline: the left-right occlusion shadow lies along the rows),
     a pixel is clean where its inverse depth (the matcher's disparity, up to a constant) continues its
-    neighbours on one side (their line, or their quadratic) to within `sigmas` of the matcher's noise
-    (measured on the image) and the depth quantisation. At every edge between a clean near surface and a clean
+    neighbours on one side (their line, or their quadratic) to within `sigmas` of the matcher's noise per
+    pixel (measured on the image) and the depth quantisation. At every edge between a clean near surface and a clean
     surface at least `far_ratio` further, the pixels between them are spoiled: dropped, or mixed between the
     two depths. A matcher's window straddles the edge symmetrically, so half the median gap is what each side
     loses. None when fewer than `least` such edges are seen (no far background, e.g. a renderer with none).
@@ -211,12 +211,15 @@ def edge_band(depth: np.ndarray, unit: float, sigmas: float = EDGE_NOISE_SIGMAS,
     predictions[1, :, :-2] = np.where(three, 2.0 * q[:, 1:-1] - q[:, 2:], np.inf)
     predictions[2, :, 3:] = np.where(four, 3.0 * q[:, 2:-1] - 3.0 * q[:, 1:-2] + q[:, :-3], np.inf)
     predictions[3, :, :-3] = np.where(four, 3.0 * q[:, 1:-2] - 3.0 * q[:, 2:-1] + q[:, 3:], np.inf)
+    # the matcher's noise per pixel: the spread of the line's residual (robust, not across edges) over the
+    # line's noise gain sqrt(1 + 4 + 1)
     residual = (q[:, 2:] - predictions[0, :, 2:])[three]
-    residual = residual[np.abs(residual) < 0.05 * float(np.median(q[valid]))]  # not across edges
+    residual = residual[np.abs(residual) < 0.05 * float(np.median(q[valid]))]
     centre = float(np.median(residual)) if residual.size else 0.0
-    sigma = 1.4826 * float(np.median(np.abs(residual - centre))) if residual.size else 0.0
-    # the matcher's noise (measured, as the line's residual), and the worst rounding of the quadratic's
-    # prediction: (3 + 3 + 1 + 1) half depth units
+    sigma = 1.4826 * float(np.median(np.abs(residual - centre))) / np.sqrt(6.0) if residual.size else 0.0
+    # clean: within `sigmas` of that noise of the surface's continuation (as a point within its wall band:
+    # a mixed pixel's own error, not the prediction's, decides), and the worst rounding of the quadratic's
+    # prediction, (3 + 3 + 1 + 1) half depth units
     tolerance = sigmas * sigma + 4.0 * unit * q * q
     clean = valid & np.any(np.abs(q[None] - predictions) <= tolerance[None], axis=0)
     line, column = np.nonzero(clean)
