@@ -45,7 +45,10 @@ def rig_mapping(geometry_mapping: dict, distance: float = 0.09, height: float = 
 
 
 def render_pair(shape, config, seed: int = 0, blur_px: int = 3, noise_at_90mm: float = 2e-5,
-                spacing: float = 0.03e-3, stamp_ns: int = 0) -> FramePair:
+                spacing: float = 0.03e-3, stamp_ns: int = 0, backdrop: float | None = None) -> FramePair:
+    """backdrop: depth (m) of a wall perpendicular to each camera's optical axis behind the robot, or none (the
+    robot alone has depth). With a wall, the blur mixes its depth into the robot's edge pixels and the robot's
+    into the wall's: each side of an edge spoils by about half the blur window."""
     rng = np.random.default_rng(seed)
     sample = shape.sample_surface_parts(spacing)
     frames = {}
@@ -66,6 +69,8 @@ def render_pair(shape, config, seed: int = 0, blur_px: int = 3, noise_at_90mm: f
         depth = np.full((fine * INTRINSICS.height, fine * INTRINSICS.width), np.inf)
         np.minimum.at(depth, (v[inside], u[inside]), z[inside])
         depth = depth[fine // 2::fine, fine // 2::fine]
+        if backdrop is not None:
+            depth = np.minimum(depth, backdrop)
         valid = np.isfinite(depth)
         depth[~valid] = 0.0
         if blur_px > 1:

@@ -29,6 +29,7 @@ import numpy as np
 from ntcr_recon.core.alignment import align_to_trusted_wall
 from ntcr_recon.core.centerline import Centerline, TubeCoordinates, estimate_centerline, settings_for
 from ntcr_recon.core.cloud import Cloud
+from ntcr_recon.core.comb import inside_intervals
 from ntcr_recon.core.config import RigConfig
 from ntcr_recon.core.filters import filter_cloud
 from ntcr_recon.core.fusion import FramePair, fuse
@@ -36,7 +37,7 @@ from ntcr_recon.core.icp import icp, mesh_reference, posed_reference, relocate_o
 from ntcr_recon.core.notches import Notch, detect_notches, measure_notch_side
 from ntcr_recon.core.quality import assess, depth_step
 from ntcr_recon.core.relocation import RelocatedPoints, along_rays, relocate_points
-from ntcr_recon.core.tip import cap_faces_a_camera, end_cap_plane, give_back_erosion, tube_end
+from ntcr_recon.core.tip import cap_faces_a_camera, edge_band, end_cap_plane, give_back_erosion, rim_tip, tube_end
 from ntcr_recon.core.wall import surface_band
 
 # A measured notch side further than this from the configured one turns the tube frame (smaller: within
@@ -92,6 +93,11 @@ class Reconstructor:
         self._camera_origins = np.array([config.cameras[name].translation for name in config.camera_names], float)
         self.timings_ms: dict[str, float] = {}
         self._depth_steps: dict[str, float] = {}  # per camera, the depth quantisation seen in its first frame
+        # per camera, the band its matcher spoils at depth edges (core.tip.edge_band) over its focal length
+        # (an angle: the band in metres at any distance), measured when the tip first needs it on the latest
+        # depth image noted until then (depth, unit, focal length), e.g. the first frame's
+        self._edge_bands: dict[str, float] = {}
+        self._edge_images: dict[str, tuple[np.ndarray, float, float]] = {}
         self._mesh_reference = None  # relocation.reference_mesh, sampled once
 
     def reset(self) -> None:
@@ -116,12 +122,29 @@ class Reconstructor:
         return cloud
 
     def _note_depth_steps(self, pair: FramePair) -> None:
-        """The depth step each camera's data show, measured once per camera (for the self-check)."""
+        """The depth step each camera's data show, measured once per camera (for the self-check); and its
+        latest depth image while its edge band is not yet measured (for the tip: `_edge_band`)."""
         for name, frame in pair.frames.items():
             if name in self._depth_steps or frame.depth is None or name not in self.config.cameras:
                 continue
             unit = frame.depth_unit if frame.depth_unit is not None else self.config.cameras[name].depth_unit
             self._depth_steps[name] = depth_step(frame.depth, unit)
+        for name, frame in pair.frames.items():
+            if name in self._edge_bands or frame.depth is None or frame.intrinsics is None:
+                continue
+            if name not in self.config.cameras:
+                continue
+            unit = frame.depth_unit if frame.depth_unit is not None else self.config.cameras[name].depth_unit
+            self._edge_images[name] = (frame.depth, unit, frame.intrinsics.fx)
+
+    def _edge_band(self, name: str) -> float:
+        """The camera's edge band as an angle (rad), NaN while no depth image of it showed one."""
+        if name not in self._edge_bands and name in self._edge_images:
+            depth, unit, focal = self._edge_images.pop(name)
+            band = edge_band(depth, unit)
+            if band is not None:
+                self._edge_bands[name] = band / focal
+        return self._edge_bands.get(name, np.nan)
 
     def filter(self, cloud: Cloud) -> Cloud:
         start = time.perf_counter()
@@ -191,7 +214,7 @@ class Reconstructor:
             frames = (frames[0], frames[1], *_rolled_axes(frames[2], frames[3], roll))
         notches, signals = found, {n.index: n.signal for n in found}
         # 5. tip, refined: the rim the stereo matcher erodes at depth edges given back
-        eroded_end = tip_s
+        eroded_end, refinement, tip_uncertainty = tip_s, "coarse end (no camera seen)", None
         # where a camera looks onto the end cap - wider in its image than 4 pixels, more than a matcher's
         # silhouette band - the end is that face (measured), not a rim the matcher erodes
         cap_seen = seen_by is not None and cap_faces_a_camera(centerline, tip_s, self._camera_origins,
@@ -201,10 +224,26 @@ class Reconstructor:
             cap = end_cap_plane(measured, geometry.inner_radius, geometry.outer_radius, tip_s,
                                 geometry.outer_diameter, footprint)
             tip_s = tip_s if cap is None else cap
-            eroded_end = tip_s
-        elif seen_by is not None and not cap_seen:
-            tip_s = give_back_erosion(tip_s, coords, frames, seen_by, self._camera_origins, geometry.outer_radius,
-                                      settings.gate, [(n.start_s, n.end_s) for n in notches], footprint)
+            eroded_end, refinement = tip_s, "end cap" if cap is not None else "coarse end (no end cap found)"
+        elif seen_by is not None:
+            # each camera's end where its wall points thin to half, plus the band its matcher spoils at depth
+            # edges, measured in its depth images, as far as it reaches into the end's outline in its image
+            # (where the end turns towards a camera, the cap makes that outline; core.tip)
+            intervals = np.array([(n.start_s - 2 * footprint, n.end_s + 2 * footprint) for n in notches])
+            bands = np.array([self._edge_band(name) for name in self.config.camera_names])
+            rim = rim_tip(coords, seen_by, self._camera_origins, centerline, tip_s, geometry.outer_radius,
+                          settings.gate, footprint, options.notch_kernel_px * footprint, bands,
+                          ~inside_intervals(coords.s, intervals), 2 * geometry.notch_pitch)
+            if rim is not None:
+                eroded_end, tip_s, tip_uncertainty = rim
+                refinement = "half-density end + edge band measured in the depth images"
+            elif not cap_seen:  # no depth images (clouds only): the erosion the silhouettes show, given back
+                refinement = "coarse end + silhouette erosion (no edge band: no depth images with a far background)"
+                tip_s = give_back_erosion(tip_s, coords, frames, seen_by, self._camera_origins,
+                                          geometry.outer_radius, settings.gate,
+                                          [(n.start_s, n.end_s) for n in notches], footprint)
+            else:
+                refinement = "coarse end (the end turns towards a camera; no edge band measured)"
         notches = _calibrate_rims(notches, geometry)
         # 6. relocation: every point within the gate onto the reference surface (core.relocation)
         tip = centerline.frames_at(np.array([tip_s]))[0][0]
@@ -225,7 +264,10 @@ class Reconstructor:
             configured_side=geometry.notch_side,
             bias_notch_side=0.0 if alignment is None else alignment.bias_notch_side,
             bias_binormal=0.0 if alignment is None else alignment.bias_binormal, depth_steps=dict(self._depth_steps),
-            tip_erosion=tip_s - eroded_end, tip_position=tip, crop_box=self.config.crop_box())
+            tip_erosion=tip_s - eroded_end, tip_uncertainty=tip_uncertainty, tip_position=tip,
+            crop_box=self.config.crop_box())
+        quality = {**quality, "tip_refinement": refinement,
+                   "edge_band_mrad": {name: band * 1e3 for name, band in self._edge_bands.items()}}
         self._prior = fitted
         self._update_roi(relocated)
         self._timed("relocate", start)

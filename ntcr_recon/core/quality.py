@@ -53,10 +53,12 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
            coords_s: np.ndarray, camera: np.ndarray | None, tip_s: float, total_bend: float, footprint: float,
            wall_residual: float, notch_side: float, configured_side: float, bias_notch_side: float,
            bias_binormal: float, depth_steps: dict[str, float], tip_erosion: float = 0.0,
-           tip_position: np.ndarray | None = None, crop_box: tuple[np.ndarray, np.ndarray] | None = None
-           ) -> tuple[dict, list[str]]:
-    """The `quality` document and the warnings (see the module docstring). tip_position, crop_box: where the
-    tip is and the box the points were cropped to (base frame), to tell a tube cut off by the box."""
+           tip_uncertainty: float | None = None, tip_position: np.ndarray | None = None,
+           crop_box: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[dict, list[str]]:
+    """The `quality` document and the warnings (see the module docstring). tip_uncertainty: how well the tip's
+    refinement placed it along the tube, when it measured the erosion it gave back (else the erosion itself
+    counts as uncertain, and half a footprint). tip_position, crop_box: where the tip is and the box the points
+    were cropped to (base frame), to tell a tube cut off by the box."""
     warnings: list[str] = []
     r_o, diameter = geometry.outer_radius, geometry.outer_diameter
     found = sorted(n.index for n in notches)
@@ -76,10 +78,13 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
     if doubtful:
         listed = ", ".join(f"{i} ({off_model[i] * 1e3:+.2f} mm)" for i in doubtful)
         warnings.append(f"notch widths off what their bends imply: {listed}; check those notches")
-    # the tip's rim is a depth edge: it rests on the erosion given back, known to about that much
-    tip_uncertainty = abs(tip_erosion) + footprint / 2
+    # the tip's rim is a depth edge: it rests on the erosion given back, known to about that much unless the
+    # refinement measured it
+    measured = tip_uncertainty is not None
+    tip_uncertainty = tip_uncertainty if measured else abs(tip_erosion) + footprint / 2
     if tip_uncertainty > TIP_FLOOR:
-        warnings.append(f"the tip rests on a stereo-eroded rim ({tip_erosion * 1e3:.2f} mm given back): "
+        how = ", as the edge band measured in the depth images" if measured else ""
+        warnings.append(f"the tip rests on a stereo-eroded rim ({tip_erosion * 1e3:.2f} mm given back{how}): "
                         f"its position is uncertain by about {tip_uncertainty * 1e3:.2f} mm along the tube")
     cell = max(footprint, r_o / 8)
     share, alone = camera_coverage(coords_s, camera, camera_names, tip_s, cell)

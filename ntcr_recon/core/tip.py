@@ -7,9 +7,16 @@ so occupancy is counted over the visible sectors only: a distal part pointing at
 other hardly sees, still counts as tube. Where no sector is visible (the tube points straight at a camera)
 the wall showing in a few sectors counts. The search never runs past the robot's known length plus a margin.
 
-The end is then refined below a slab: per occupied sector near the coarse end the last wall point, the
-median of those. A stereo matcher erodes (or smears) the rim at the tip as it does the silhouettes, so the
-erosion measured on each camera's silhouettes of plain tube is given back (`silhouette_erosion`).
+The end is then refined below a slab, per camera: where the density of its wall points along s falls to half
+its plateau (`half_density_end`; pixels sample the image uniformly, so the crossing is the end whatever the
+pixel phase). A stereo matcher spoils the pixels next to a depth edge: where the tip is seen against a far
+background, a band of pixels either side of the end's outline in the image reads no depth or a depth mixed
+between tube and background. That band is measured in the depth images themselves (`edge_band`: the pixels
+between a clean near surface and a clean far background at depth edges, half of them on each side), and
+what it takes off each camera's end along s follows from the end's outline in that camera's image
+(`rim_erosion`). Without depth images (a node that receives clouds only) the erosion measured on each
+camera's silhouettes of plain tube is given back instead (`silhouette_erosion`), which reads less than the
+tip loses (a silhouette's mixed pixels move along the wall, not off it).
 """
 
 from __future__ import annotations
@@ -17,6 +24,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
+from scipy.ndimage import gaussian_filter1d
 
 from ntcr_recon.core.compiled import jit
 from ntcr_recon.core.wall import surface_band
@@ -26,6 +34,17 @@ if TYPE_CHECKING:  # centerline.py imports this module
 
 GRAZING = np.radians(80.0)  # a surface turned further than this from a camera gives it (almost) no depth
 MIN_SECTORS_WHEN_UNSEEN = 3  # of the ring's sectors, holding wall points where no sector faces a camera
+# A depth edge whose far side lies at least this factor further than its near side is an edge against a
+# background (the tip's, in any rig: the tube is millimetres thick, its background centimetres behind it).
+FAR_BACKGROUND_RATIO = 1.2
+# A gap of spoiled pixels wider than this between a near and a far surface is no matcher band (which spans at
+# most its matching window, 7-17 px on a D405) but an occlusion shadow or a surface missing for another reason.
+MAX_EDGE_GAP_PX = 16
+EDGE_NOISE_SIGMAS = 3.0  # a pixel off its surface's linear continuation by more than this many sigma is spoiled
+MIN_EDGES = 20  # edges needed to measure a band
+# The sector at this angle from the one facing a camera holds the median of that camera's wall points at an
+# end (sectors weigh by their width in the image, cos psi; half the weight lies within sin psi = 1/2).
+MEDIAN_SECTOR = np.radians(30.0)
 
 
 def visible_sectors(centerline: Centerline, s: np.ndarray, viewpoints: np.ndarray, sectors: int,
@@ -159,3 +178,140 @@ def end_cap_plane(coords: TubeCoordinates, inner_radius: float, outer_radius: fl
         return None
     in_peak = (s >= edges[max(peak - 1, 0)]) & (s < edges[min(peak + 2, len(edges) - 1)])
     return float(np.median(s[in_peak]))
+
+
+def edge_band(depth: np.ndarray, unit: float, sigmas: float = EDGE_NOISE_SIGMAS,
+              far_ratio: float = FAR_BACKGROUND_RATIO, max_gap: int = MAX_EDGE_GAP_PX,
+              least: int = MIN_EDGES) -> float | None:
+    """Pixels (per side) a stereo matcher spoils at a depth edge against a far background, measured in a raw
+    depth image (`depth` in device units of `unit` metres, 0 = none).
+
+    Along each image column (across the stereo baseline: the left-right occlusion shadow lies along the rows),
+    a pixel is clean where its inverse depth (the matcher's disparity, up to a constant) continues its
+    neighbours on one side (their line, or their quadratic) to within `sigmas` of the matcher's noise per
+    pixel (measured on the image) and the depth quantisation. At every edge between a clean near surface and a clean
+    surface at least `far_ratio` further, the pixels between them are spoiled: dropped, or mixed between the
+    two depths. A matcher's window straddles the edge symmetrically, so half the median gap is what each side
+    loses. None when fewer than `least` such edges are seen (no far background, e.g. a renderer with none).
+    """
+    z = np.asarray(depth, dtype=float).T * unit  # columns as lines
+    valid = z > 0
+    q = np.where(valid, 1.0 / np.where(valid, z, 1.0), 0.0)
+    if q.shape[1] < 5:
+        return None
+    # a surface's continuation from either side: the line through a pixel's two neighbours, or - a tube's
+    # profile curves towards its silhouette, where a line would call its last clean pixels spoiled - the
+    # quadratic through three
+    three = valid[:, 2:] & valid[:, 1:-1] & valid[:, :-2]
+    four = three[:, 1:] & valid[:, :-3]
+    if np.count_nonzero(three) < least:
+        return None
+    predictions = np.full((4, *q.shape), np.inf)
+    predictions[0, :, 2:] = np.where(three, 2.0 * q[:, 1:-1] - q[:, :-2], np.inf)
+    predictions[1, :, :-2] = np.where(three, 2.0 * q[:, 1:-1] - q[:, 2:], np.inf)
+    predictions[2, :, 3:] = np.where(four, 3.0 * q[:, 2:-1] - 3.0 * q[:, 1:-2] + q[:, :-3], np.inf)
+    predictions[3, :, :-3] = np.where(four, 3.0 * q[:, 1:-2] - 3.0 * q[:, 2:-1] + q[:, 3:], np.inf)
+    # the matcher's noise per pixel: the spread of the line's residual (robust, not across edges) over the
+    # line's noise gain sqrt(1 + 4 + 1)
+    residual = (q[:, 2:] - predictions[0, :, 2:])[three]
+    residual = residual[np.abs(residual) < 0.05 * float(np.median(q[valid]))]
+    centre = float(np.median(residual)) if residual.size else 0.0
+    sigma = 1.4826 * float(np.median(np.abs(residual - centre))) / np.sqrt(6.0) if residual.size else 0.0
+    # clean: within `sigmas` of that noise of the surface's continuation (as a point within its wall band:
+    # a mixed pixel's own error, not the prediction's, decides), and the worst rounding of the quadratic's
+    # prediction, (3 + 3 + 1 + 1) half depth units
+    tolerance = sigmas * sigma + 4.0 * unit * q * q
+    clean = valid & np.any(np.abs(q[None] - predictions) <= tolerance[None], axis=0)
+    line, column = np.nonzero(clean)
+    same = line[1:] == line[:-1]
+    first, second, line = column[:-1][same], column[1:][same], line[:-1][same]
+    gap = second - first - 1
+    q_first, q_second = q[line, first], q[line, second]
+    edge = ((q_first > far_ratio * q_second) | (q_second > far_ratio * q_first)) & (gap <= max_gap)
+    if np.count_nonzero(edge) < least:
+        return None
+    return float(np.median(gap[edge])) / 2.0
+
+
+def rim_erosion(band: float, cos_view: float, radius: float) -> float:
+    """How far (along s) the half-density end of one camera's wall points falls short of the tube's end.
+
+    band: what the matcher spoils either side of an edge, in metres at the tip's distance. cos_view: the
+    cosine between the end tangent and the direction to the camera (> 0: the end turns towards it).
+    In the camera's image the end's outline is the rim, an ellipse of semi-axes r (across) and r |cos_view|
+    (along the axis). The wall sector at psi from the one facing the camera ends on that outline where the end
+    turns away, and 2 r cos_view cos psi inside it where it turns towards (the end cap then makes the
+    outline). The band, perpendicular to the outline, reaches band sqrt(cos^2 psi + cos_view^2 sin^2 psi) /
+    cos psi along the sector's line in the image; the half-density end is that of the median sector
+    (MEDIAN_SECTOR); along s the image is foreshortened by the sine of the view angle.
+    """
+    c = float(np.clip(cos_view, -1.0, 1.0))
+    psi = MEDIAN_SECTOR
+    reach = band * np.sqrt(np.cos(psi) ** 2 + c * c * np.sin(psi) ** 2) / np.cos(psi)
+    inside = 2.0 * radius * c * np.cos(psi) if c > 0 else 0.0
+    return max(reach - inside, 0.0) / max(np.sqrt(1.0 - c * c), 1e-6)
+
+
+def half_density_end(s: np.ndarray, coarse: float, cell: float, kernel: float, before: float,
+                     after: float) -> float | None:
+    """Where the density of wall points along s (smoothed by a Gaussian of width `kernel`) last falls to half
+    its plateau (the upper quartile over [coarse - before, coarse - 3 cell]), searched up to coarse + after.
+    None when there is no plateau or no crossing."""
+    step = cell / 8.0
+    edges = np.arange(coarse - before, coarse + after + step, step)
+    counts, _ = np.histogram(s, bins=edges)
+    density = gaussian_filter1d(counts.astype(float), max(kernel / step, 0.5), mode="constant")
+    grid = 0.5 * (edges[:-1] + edges[1:])
+    plateau_zone = grid < coarse - 3.0 * cell
+    if not np.any(plateau_zone):
+        return None
+    half = 0.5 * float(np.percentile(density[plateau_zone], 75))
+    above = np.flatnonzero(density >= half)
+    if half <= 0 or above.size == 0 or above[-1] + 1 >= len(grid):
+        return None
+    last = int(above[-1])
+    a, b = density[last] - half, density[last + 1] - half
+    return float(grid[last] + step * (a / (a - b) if a != b else 0.5))
+
+
+def rim_tip(coords: TubeCoordinates, camera: np.ndarray, origins: np.ndarray, centerline: Centerline,
+            coarse: float, radius: float, gate: float, cell: float, kernel: float, bands: np.ndarray,
+            spine: np.ndarray, reach: float, least: int = 50) -> tuple[float, float] | None:
+    """The tip from each camera's rim: its half-density end plus the matcher's erosion there.
+
+    bands: per camera index, the band `edge_band` measured, as an angle (px / focal length; NaN: not measured).
+    spine: points to measure the wall band on (away from notches). reach: how far before the coarse end the
+    density plateau is taken (over spines and notches alike: a notch takes the same share of the ring there).
+    Cameras are weighed by sin^2 of their view angle to the tangent (an image error becomes that much less
+    along s). Returns (the measured ends' mean, the tip, how well the tip is known along s), or None when a
+    camera seeing the end has no band or none sees enough of it. The uncertainty: half a pixel for the end
+    (a pixel's phase), and half a pixel for the band where one was spoiled (read as whole pixels, halved), each
+    along s (a pixel footprint `cell` over the view angle's sine).
+    """
+    offset = coords.radius - radius
+    level, spread = surface_band(offset, gate, spine)
+    wall = (np.abs(offset - level) <= max(spread, cell / 2)) & (coords.s > coarse - reach)
+    wall &= coords.s < coarse + 2 * radius
+    position, tangent, _, _ = centerline.frames_at(np.array([coarse]))
+    ends, tips, weights, uncertainties = [], [], [], []
+    for index in np.unique(camera[wall]):
+        mine = wall & (camera == index)
+        if np.count_nonzero(mine) < least:
+            continue
+        end = half_density_end(coords.s[mine], coarse, cell, kernel, reach, 2 * radius)
+        if end is None:
+            continue
+        if not np.isfinite(bands[index]):
+            return None
+        view = origins[index] - position[0]
+        distance = float(np.linalg.norm(view))
+        cos_view = float(view @ tangent[0]) / max(distance, 1e-12)
+        ends.append(end)
+        tips.append(end + rim_erosion(bands[index] * distance, cos_view, radius))
+        weights.append(max(1.0 - cos_view * cos_view, 1e-6))
+        pixels = 0.5 + (0.5 if bands[index] > 0 else 0.0)
+        uncertainties.append(pixels * cell / np.sqrt(weights[-1]))
+    if not ends:
+        return None
+    return (float(np.average(ends, weights=weights)), float(np.average(tips, weights=weights)),
+            float(np.average(uncertainties, weights=weights)))

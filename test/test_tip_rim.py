@@ -1,0 +1,194 @@
+"""The tip's refinement (core.tip) on known inputs: the band a stereo matcher spoils at a depth edge, measured
+in a depth image; how much of an end that band takes in a camera's image; the half-density end; and the tip
+from analytic wall points cut short by a known band. Then the whole reconstruction on the tests' own renderer
+(not the package's simulator) given a backdrop, whose blur spoils edges differently from the simulator's
+matcher. Each number asserted is printed."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from synthetic_views import posed_scene, render_pair
+
+from ntcr_recon.core.centerline import Centerline
+from ntcr_recon.core.pipeline import Reconstructor
+from ntcr_recon.core.tip import edge_band, half_density_end, rim_erosion, rim_tip
+
+UNIT = 1e-4
+R_O = 1.75e-3
+FOOTPRINT = 0.2e-3
+
+
+def _depth_image(band: int, shadow: int = 0, background: bool = True, seed: int = 0,
+                 noise_at_90mm: float = 2e-5) -> np.ndarray:
+    """A near block (90 mm) on a far wall (300 mm), `band` pixels spoiled either side of every edge (dropped or
+    mixed), and `shadow` pixels of no depth left of the block (a stereo pair's occlusion shadow, along rows).
+    Depth noise grows with z^2 (a matcher's is constant in disparity)."""
+    rng = np.random.default_rng(seed)
+    height, width = 120, 200
+    near = np.zeros((height, width), bool)
+    near[40:80, 60:150] = True
+    depth = np.where(near, 0.090, 0.300)
+    depth = depth + rng.normal(0.0, 1.0, (height, width)) * noise_at_90mm * (depth / 0.09) ** 2
+    if band:
+        # pixels within `band` of the other surface (Chebyshev distance), either side of the edge
+        from scipy.ndimage import binary_dilation
+        structure = np.ones((2 * band + 1, 2 * band + 1), bool)
+        spoiled = binary_dilation(near, structure) & binary_dilation(~near, structure)
+        mixed = rng.uniform(0.1, 0.9, (height, width))
+        depth = np.where(spoiled, np.where(rng.random((height, width)) < 0.5, 0.0,
+                                           0.090 * mixed + 0.300 * (1 - mixed)), depth)
+    if shadow:
+        depth[40:80, 60 - band - shadow:60 - band] = 0.0
+    if not background:
+        depth = np.where(near, depth, 0.0)
+    return np.rint(depth / UNIT).astype(np.uint16)
+
+
+@pytest.mark.parametrize("noise_at_90mm", [2e-5, 1.7e-4])  # the tests' renderer's; twice a D405's
+@pytest.mark.parametrize("band", [0, 1, 2, 3])
+def test_edge_band_is_read_off_the_depth_image(band, noise_at_90mm):
+    measured = edge_band(_depth_image(band, shadow=25, noise_at_90mm=noise_at_90mm), UNIT)
+    print(f"\n{band} px spoiled either side of the edges, noise {noise_at_90mm * 1e3:.2f} mm at 90 mm: "
+          f"measured {measured} px")
+    assert measured == pytest.approx(band, abs=0.5)
+
+
+def test_edge_band_needs_a_far_background():
+    assert edge_band(_depth_image(2, background=False), UNIT) is None
+
+
+def test_rim_erosion_follows_the_ends_outline_in_the_image():
+    band = 0.4e-3
+    side_on = rim_erosion(band, 0.0, R_O)
+    print(f"\nband {band * 1e3:.2f} mm: side-on {side_on * 1e3:.3f} mm, turned away 45 deg "
+          f"{rim_erosion(band, -math.sqrt(0.5), R_O) * 1e3:.3f} mm, turned towards 45 deg "
+          f"{rim_erosion(band, math.sqrt(0.5), R_O) * 1e3:.3f} mm")
+    assert side_on == pytest.approx(band)
+    # turned away: the facing wall's rim is the outline, the band bites along the foreshortened axis
+    c = -math.sqrt(0.5)
+    psi = math.radians(30.0)
+    expected = band * math.sqrt(math.cos(psi) ** 2 + c * c * math.sin(psi) ** 2) / math.cos(psi) / math.sqrt(0.5)
+    assert rim_erosion(band, c, R_O) == pytest.approx(expected)
+    assert rim_erosion(band, c, R_O) > side_on
+    # turned towards: the cap makes the outline and the facing wall ends well inside it
+    assert rim_erosion(band, math.sqrt(0.5), R_O) == 0.0
+    assert 0.0 < rim_erosion(band, 0.05, R_O) < side_on
+    assert rim_erosion(0.0, -0.3, R_O) == 0.0
+
+
+def _seen_wall(end: float, facing_y: float, rng, start: float = 10e-3) -> np.ndarray:
+    """Wall points a camera on the `facing_y` side sees of a straight tube along z: lateral positions uniform
+    (pixel columns across the tube), each line of pixels along the axis with its own phase, up to `end`."""
+    points = []
+    for x in np.arange(-0.95 * R_O, 0.95 * R_O, FOOTPRINT / 2):
+        s = np.arange(start + rng.uniform(0, FOOTPRINT), end, FOOTPRINT)
+        y = facing_y * math.sqrt(R_O**2 - x**2)
+        points.append(np.stack([np.full_like(s, x), np.full_like(s, y), s], axis=1))
+    return np.concatenate(points)
+
+
+def test_half_density_end_is_the_end_whatever_the_pixel_phase():
+    rng = np.random.default_rng(3)
+    errors = []
+    for _ in range(20):
+        end = 30e-3 + rng.uniform(0, FOOTPRINT)
+        s = _seen_wall(end, -1.0, rng)[:, 2]
+        errors.append(half_density_end(s, end + 0.3e-3, FOOTPRINT, 2 * FOOTPRINT, 6e-3, 3.5e-3) - end)
+    errors = np.array(errors)
+    print(f"\nhalf-density end: mean {errors.mean() * 1e3:+.3f} mm, worst {np.abs(errors).max() * 1e3:.3f} mm")
+    assert abs(errors.mean()) < FOOTPRINT / 4
+    assert np.abs(errors).max() < FOOTPRINT / 2
+    assert half_density_end(np.zeros(0), 30e-3, FOOTPRINT, 2 * FOOTPRINT, 6e-3, 3.5e-3) is None
+
+
+def test_tip_of_a_tube_whose_rim_lost_a_known_band_in_each_camera():
+    """Two cameras side-on at -y and +y; each lost a different band at the end (what its depth images show)."""
+    length = 30e-3
+    rng = np.random.default_rng(5)
+    s = np.linspace(0.0, length + 5e-3, 351)
+    centerline = Centerline.from_points(np.stack([np.zeros_like(s), np.zeros_like(s), s], axis=1),
+                                        np.array([0.0, 1.0, 0.0]), 0.1e-3)
+    origins = np.array([[0.0, -0.09, 0.0], [0.0, 0.09, 0.0]])
+    lost = [0.4e-3, 0.25e-3]  # m at 90 mm
+    a, b = _seen_wall(length - lost[0], -1.0, rng), _seen_wall(length - lost[1], 1.0, rng)
+    coords = centerline.project(np.concatenate([a, b]))
+    camera = np.concatenate([np.zeros(len(a), np.int8), np.ones(len(b), np.int8)])
+    spine = np.ones(len(camera), bool)
+    bands = np.array(lost) / 0.09  # angles
+    coarse = length - 0.3e-3  # as a slab-wise coarse end might read it
+    ends, tip, uncertainty = rim_tip(coords, camera, origins, centerline, coarse, R_O, 0.8e-3, FOOTPRINT,
+                                     2 * FOOTPRINT, bands, spine, 6e-3)
+    print(f"\nrims lost {lost[0] * 1e3:.2f} / {lost[1] * 1e3:.2f} mm: ends {(ends - length) * 1e3:+.3f} mm, "
+          f"tip {(tip - length) * 1e3:+.3f} mm")
+    assert ends == pytest.approx(length - np.mean(lost), abs=FOOTPRINT / 2)
+    assert tip == pytest.approx(length, abs=FOOTPRINT / 2)
+    # half a pixel for the end, half for a band of whole pixels: a footprint along s, over the view's sine
+    assert uncertainty == pytest.approx(FOOTPRINT * math.hypot(0.09, coarse) / 0.09)
+    # a camera seeing the end without a measured band: no refined tip (the caller falls back)
+    assert rim_tip(coords, camera, origins, centerline, coarse, R_O, 0.8e-3, FOOTPRINT, 2 * FOOTPRINT,
+                   np.array([bands[0], np.nan]), spine, 6e-3) is None
+
+
+@pytest.mark.parametrize("bend_deg, notch_side_deg, noise_at_90mm", [(30.0, 0.0, 2e-5), (40.0, 90.0, 2e-5),
+                                                                    (30.0, 0.0, 1.7e-4)])
+def test_tip_on_the_test_renderer_with_a_backdrop(bend_deg, notch_side_deg, noise_at_90mm):
+    """The tests' renderer with a wall 300 mm from each camera: its 3 px blur mixes the wall's depth into the
+    robot's edge pixels (and back), a band of one pixel each side the reconstruction must measure and give
+    back. (Turned towards a camera by the bend at notch side 90 deg, the end's own outline matters; the noise
+    twice a D405's must not hide the band.)"""
+    config, shape, _ = posed_scene({}, bend_deg, notch_side_deg, seed=2)
+    pair = render_pair(shape, config, seed=2, backdrop=0.3, noise_at_90mm=noise_at_90mm)
+    reconstructor = Reconstructor(config)
+    relocation = reconstructor.process(pair).relocation
+    true_tip, tip_frame = shape.tip_pose()
+    along = float((relocation.tip - true_tip) @ tip_frame[:, 2])
+    error = float(np.linalg.norm(relocation.tip - true_tip))
+    fx = pair.frames["cam_a"].intrinsics.fx
+    bands = {name: round(band * fx, 2) for name, band in reconstructor._edge_bands.items()}  # px
+    print(f"\nbend {bend_deg:.0f} deg, notches at {notch_side_deg:.0f} deg, noise {noise_at_90mm * 1e3:.2f} mm, "
+          f"backdrop: bands {bands} px, tip error "
+          f"{error * 1e3:.3f} mm ({along * 1e3:+.3f} along the tube)")
+    assert all(band == pytest.approx(1.0, abs=0.5) for band in bands.values())
+    assert "edge band" in relocation.quality["tip_refinement"]
+    assert set(relocation.quality["edge_band_mrad"]) == {"cam_a", "cam_b"}
+    assert abs(along) <= 0.1e-3
+    assert error <= 0.15e-3
+
+
+def test_without_a_far_background_the_tip_falls_back_to_the_silhouettes_and_says_so():
+    """The test renderer without a backdrop: nothing but the robot has depth, no edge band can be read."""
+    config, shape, pair = posed_scene({}, 30.0, 0.0, seed=2)
+    relocation = Reconstructor(config).process(pair).relocation
+    error = float(np.linalg.norm(relocation.tip - shape.tip_pose()[0]))
+    print(f"\nno backdrop: tip by {relocation.quality['tip_refinement']!r}, error {error * 1e3:.3f} mm")
+    assert "silhouette" in relocation.quality["tip_refinement"]
+    assert relocation.quality["edge_band_mrad"] == {}
+    assert error <= 0.30e-3
+
+
+@pytest.mark.parametrize("erosion, uncertainty, warned", [
+    (0.45e-3, None, "uncertain by about 0.55 mm"),     # the silhouette give-back: the erosion itself is doubtful
+    (0.45e-3, 0.22e-3, "uncertain by about 0.22 mm"),  # measured in the depth images: to a pixel
+    (0.0, 0.10e-3, None),                               # nothing given back, the end placed to half a pixel
+])
+def test_tip_warning_states_how_well_the_erosion_is_known(erosion, uncertainty, warned):
+    from ntcr_recon.core.geometry import TubeGeometry
+    from ntcr_recon.core.quality import assess
+
+    geometry = TubeGeometry()
+    s = np.linspace(0.0, geometry.length, 2000)
+    _, warnings = assess(
+        geometry=geometry, camera_names=("cam_a", "cam_b"), notches=[], notch_signals={}, coords_s=s,
+        camera=(np.arange(len(s)) % 2).astype(np.int8), tip_s=geometry.length, total_bend=0.0, footprint=0.2e-3,
+        wall_residual=0.05e-3, notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0,
+        depth_steps={}, tip_erosion=erosion, tip_uncertainty=uncertainty)
+    tip = [w for w in warnings if "stereo-eroded rim" in w]
+    print(f"\ngiven back {erosion * 1e3:.2f} mm, uncertainty {uncertainty}: {tip}")
+    if warned is None:
+        assert not tip
+    else:
+        assert len(tip) == 1 and warned in tip[0]
+        assert ("measured in the depth images" in tip[0]) == (uncertainty is not None)
