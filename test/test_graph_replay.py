@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import tiny_rig
+from geometry_msgs.msg import PoseStamped
 from ros_graph import RosGraph
 from scipy.spatial import cKDTree
 from sensor_msgs.msg import PointCloud2
@@ -87,7 +88,8 @@ def read_ply_points(path: Path) -> np.ndarray:
 def replay(reference, tmp_path_factory):
     output = tmp_path_factory.mktemp("replay")
     with RosGraph() as graph:
-        out = {name: [] for name in ("relocated", "notches", "mesh", "mesh_raw")}
+        out = {name: [] for name in ("relocated", "notches", "tip", "mesh", "mesh_raw")}
+        graph.node.create_subscription(PoseStamped, "/ntcr/tip", out["tip"].append, COLLECT_RELIABLE)
         graph.node.create_subscription(PointCloud2, "/ntcr/relocated/points", out["relocated"].append,
                                        COLLECT_RELIABLE)
         graph.node.create_subscription(Float64MultiArray, "/ntcr/notches", out["notches"].append, COLLECT_RELIABLE)
@@ -152,6 +154,25 @@ def test_relocated_clouds_and_notches_match_the_core(reference, replay):
         # centres and two for the widths over a frame's notches, and no notch beyond the width floor.
         assert np.median(center_errors) < 40e-6 and np.median(width_errors) < 75e-6
         assert max(center_errors) < 150e-6 and max(width_errors) < 150e-6
+
+
+def test_the_tip_is_placed_with_the_edge_band_camera_node_measured(reference, replay):
+    """relocation_node sees clouds only; camera_node measures each camera's edge band on the depth images and
+    hands it on (`<ns>/<cam>/edge_band`), so the graph's tip is the core's, which read the same images."""
+    config, by_offset, first, loop_span = reference
+    out, *_ = replay
+    tips = {stamp_to_ns(m.header.stamp): m.pose.position for m in out["tip"]}
+    compared = 0
+    for cloud_msg in out["relocated"][:OUTPUTS]:
+        stamp = stamp_to_ns(cloud_msg.header.stamp)
+        cloud, _ = stage_cloud_and_normals(cloud_msg, config.base_frame)
+        expected = by_offset[(stamp - first) % loop_span, tuple(int(c) for c in np.unique(cloud.camera))]
+        assert expected.quality["tip_refinement"].startswith("half-density end + edge band")
+        got = np.array([tips[stamp].x, tips[stamp].y, tips[stamp].z])
+        print(f"tip {np.linalg.norm(got - expected.tip) * 1e6:.2f} um from the core's")
+        assert np.linalg.norm(got - expected.tip) < 5e-6
+        compared += 1
+    assert compared == OUTPUTS
 
 
 def test_the_first_frame_matches_ntcr_recon_reconstruct(reference, reconstructed, replay):

@@ -169,6 +169,43 @@ def test_without_a_far_background_the_tip_falls_back_to_the_silhouettes_and_says
     assert error <= 0.30e-3
 
 
+def test_a_camera_without_a_far_background_is_tried_a_few_frames_then_left_alone(monkeypatch):
+    """Measuring a band costs most of a frame: a scene that shows none is not measured on every frame."""
+    import ntcr_recon.core.pipeline as pipeline
+
+    config, _, pair = posed_scene({}, 30.0, 0.0, seed=2)
+    measured = []
+    monkeypatch.setattr(pipeline, "edge_band_angle", lambda *image: measured.append(image) and None)
+    reconstructor = Reconstructor(config)
+    for _ in range(pipeline.EDGE_BAND_ATTEMPTS + 3):
+        reconstructor.process(pair)
+    print(f"\n{len(measured)} images measured in {pipeline.EDGE_BAND_ATTEMPTS + 3} frames of two cameras")
+    assert len(measured) == pipeline.EDGE_BAND_ATTEMPTS * len(config.camera_names)
+
+
+def test_an_edge_band_measured_elsewhere_places_the_tip_and_a_wrong_one_is_refused():
+    """The graph's relocation node sees clouds only: camera_node's band, handed over, places the tip as the
+    depth images would."""
+    config, shape, _ = posed_scene({}, 30.0, 0.0, seed=2)
+    pair = render_pair(shape, config, seed=2, backdrop=0.3)
+    offline = Reconstructor(config).process(pair)
+    relocation = offline.relocation
+    bands = {name: mrad * 1e-3 for name, mrad in relocation.quality["edge_band_mrad"].items()}
+    assert set(bands) == set(config.camera_names)
+    assert "silhouette" in Reconstructor(config).relocate(offline.filtered).quality["tip_refinement"]
+    clouds_only = Reconstructor(config)  # relocates the filtered cloud, never sees a depth image
+    for name, band in bands.items():
+        clouds_only.note_edge_band(name, band)
+    handed_over = clouds_only.relocate(offline.filtered)
+    print(f"\nbands {bands} rad; tip {np.linalg.norm(handed_over.tip - relocation.tip) * 1e6:.2f} um apart")
+    assert handed_over.quality["tip_refinement"] == relocation.quality["tip_refinement"]
+    assert np.linalg.norm(handed_over.tip - relocation.tip) < 1e-9
+    with pytest.raises(ValueError, match="cam_z"):
+        clouds_only.note_edge_band("cam_z", 0.004)
+    with pytest.raises(ValueError, match="not in"):
+        clouds_only.note_edge_band(config.camera_names[0], float("nan"))
+
+
 @pytest.mark.parametrize("erosion, uncertainty, warned", [
     (0.45e-3, None, "uncertain by about 0.55 mm"),     # the silhouette give-back: the erosion itself is doubtful
     (0.45e-3, 0.22e-3, "uncertain by about 0.22 mm"),  # measured in the depth images: to a pixel

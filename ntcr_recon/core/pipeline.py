@@ -21,6 +21,7 @@ on every side); a frame whose robot is not found whole there is fused again from
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field, replace
 
@@ -37,7 +38,16 @@ from ntcr_recon.core.icp import icp, mesh_reference, posed_reference, relocate_o
 from ntcr_recon.core.notches import Notch, detect_notches, measure_notch_side
 from ntcr_recon.core.quality import assess, depth_step
 from ntcr_recon.core.relocation import RelocatedPoints, along_rays, relocate_points
-from ntcr_recon.core.tip import cap_faces_a_camera, edge_band, end_cap_plane, give_back_erosion, rim_tip, tube_end
+from ntcr_recon.core.tip import (
+    EDGE_BAND_ATTEMPTS,
+    MAX_EDGE_BAND_RAD,
+    cap_faces_a_camera,
+    edge_band_angle,
+    end_cap_plane,
+    give_back_erosion,
+    rim_tip,
+    tube_end,
+)
 from ntcr_recon.core.wall import surface_band
 
 # A measured notch side further than this from the configured one turns the tube frame (smaller: within
@@ -98,6 +108,7 @@ class Reconstructor:
         # depth image noted until then (depth, unit, focal length), e.g. the first frame's
         self._edge_bands: dict[str, float] = {}
         self._edge_images: dict[str, tuple[np.ndarray, float, float]] = {}
+        self._edge_attempts: dict[str, int] = {}  # images measured per camera, at most EDGE_BAND_ATTEMPTS
         self._mesh_reference = None  # relocation.reference_mesh, sampled once
 
     def reset(self) -> None:
@@ -132,7 +143,7 @@ class Reconstructor:
         for name, frame in pair.frames.items():
             if name in self._edge_bands or frame.depth is None or frame.intrinsics is None:
                 continue
-            if name not in self.config.cameras:
+            if name not in self.config.cameras or self._edge_attempts.get(name, 0) >= EDGE_BAND_ATTEMPTS:
                 continue
             unit = frame.depth_unit if frame.depth_unit is not None else self.config.cameras[name].depth_unit
             self._edge_images[name] = (frame.depth, unit, frame.intrinsics.fx)
@@ -140,11 +151,21 @@ class Reconstructor:
     def _edge_band(self, name: str) -> float:
         """The camera's edge band as an angle (rad), NaN while no depth image of it showed one."""
         if name not in self._edge_bands and name in self._edge_images:
-            depth, unit, focal = self._edge_images.pop(name)
-            band = edge_band(depth, unit)
-            if band is not None:
-                self._edge_bands[name] = band / focal
+            self._edge_attempts[name] = self._edge_attempts.get(name, 0) + 1
+            angle = edge_band_angle(*self._edge_images.pop(name))
+            if angle is not None:
+                self._edge_bands[name] = angle
         return self._edge_bands.get(name, np.nan)
+
+    def note_edge_band(self, camera: str, angle: float) -> None:
+        """A camera's edge band (rad, `core.tip.edge_band_angle`) measured where its depth images are: in the
+        graph by camera_node, as this process sees clouds only. ValueError for an unknown camera or a band
+        that cannot be one."""
+        if camera not in self.config.camera_names:
+            raise ValueError(f"edge band of camera {camera!r}, which the rig configuration does not list")
+        if not (math.isfinite(angle) and 0.0 <= angle < MAX_EDGE_BAND_RAD):
+            raise ValueError(f"edge band of {camera} is {angle} rad: not in [0, {MAX_EDGE_BAND_RAD}) rad")
+        self._edge_bands[camera] = float(angle)
 
     def filter(self, cloud: Cloud) -> Cloud:
         start = time.perf_counter()

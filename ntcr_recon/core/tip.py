@@ -42,6 +42,9 @@ FAR_BACKGROUND_RATIO = 1.2
 MAX_EDGE_GAP_PX = 16
 EDGE_NOISE_SIGMAS = 3.0  # a pixel off its surface's linear continuation by more than this many sigma is spoiled
 MIN_EDGES = 20  # edges needed to measure a band
+MAX_EDGE_BAND_RAD = 0.1  # an edge band wider than this angle is no camera's (half MAX_EDGE_GAP_PX over a focal
+                         # length of 80 px)
+EDGE_BAND_ATTEMPTS = 3  # depth images of a camera tried for its band (a scene without a far background shows none)
 # The sector at this angle from the one facing a camera holds the median of that camera's wall points at an
 # end (sectors weigh by their width in the image, cos psi; half the weight lies within sin psi = 1/2).
 MEDIAN_SECTOR = np.radians(30.0)
@@ -231,6 +234,13 @@ def edge_band(depth: np.ndarray, unit: float, sigmas: float = EDGE_NOISE_SIGMAS,
     if np.count_nonzero(edge) < least:
         return None
     return float(np.median(gap[edge])) / 2.0
+
+
+def edge_band_angle(depth: np.ndarray, unit: float, focal: float) -> float | None:
+    """A camera's edge band (`edge_band`, pixels) over its focal length (pixels): an angle, so the band in
+    metres at any distance is that distance times it. None when the image shows no band."""
+    band = edge_band(depth, unit)
+    return None if band is None else band / focal
 
 
 def rim_erosion(band: float, cos_view: float, radius: float) -> float:

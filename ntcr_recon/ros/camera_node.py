@@ -15,6 +15,10 @@ cloud holds the valid points with their pixel (fields pixel_u, pixel_v: the late
 the image by it), in the camera's optical frame (the configuration's frame_id), with the frame's own stamp.
 The first frame's depth step is measured (`depth_step_mm` on /diagnostics): depth too coarse for the tube (a
 realsense-ros recording's 1 mm unit) is a WARN there and a log line, the warning the offline command gives.
+So is the band its stereo matcher spoils at depth edges (`core.tip.edge_band_angle`, rad: on the first frames
+until one shows a far background, at most EDGE_BAND_ATTEMPTS): published once on `<ns>/<cam>/edge_band`
+(std_msgs/Float64, transient local) for relocation_node, which places the tip with it as the offline command
+does with the depth images (`edge_band_mrad` on /diagnostics).
 
 A live camera that is not connected at start-up is waited for (`wait_for_device`, default true): a log line
 every few seconds and /diagnostics ERROR naming what is missing until it appears, as the source already
@@ -35,16 +39,19 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, PointCloud2
+from std_msgs.msg import Float64
 
 from ntcr_recon.core.cloud import rows
 from ntcr_recon.core.deproject import Intrinsics, crop_window, depth_to_points
 from ntcr_recon.core.filters import crop_box_mask
 from ntcr_recon.core.quality import depth_quantisation_warning, depth_step
+from ntcr_recon.core.tip import EDGE_BAND_ATTEMPTS, edge_band_angle
 from ntcr_recon.core.transforms import transform_points
 from ntcr_recon.io.camera_sources import BagSource, SourceError, SourceFrame
 from ntcr_recon.ros.messages import RCLPY, camera_cloud_to_msg, checked_intrinsics, header, stamp_msg
 from ntcr_recon.ros.node_stats import NodeStats
-from ntcr_recon.ros.node_support import SENSOR_QOS, ParameterError, RigNode, describe, run_node
+from ntcr_recon.ros.node_support import LATCHED_QOS, SENSOR_QOS, ParameterError, RigNode, describe, run_node
+from ntcr_recon.ros.topics import edge_band_topic
 
 SOURCES = ("bag", "realsense", "file")
 
@@ -118,6 +125,8 @@ class CameraNode(RigNode):
         self._info_publisher = self.create_publisher(
             CameraInfo, self.rig.topics.camera_topic(self.camera, "depth_info"), SENSOR_QOS)
         self._clock_publisher = self.create_publisher(Clock, "/clock", 10) if self._params["publish_clock"] else None
+        self._edge_band_publisher = self.create_publisher(Float64, edge_band_topic(self.rig.topics, self.camera),
+                                                          LATCHED_QOS)
         self._stop = threading.Event()
         self.failure: str | None = None  # set when the producer thread died: run_nodes then exits non-zero
         self.frames_published = self.frames_skipped = 0
@@ -145,6 +154,8 @@ class CameraNode(RigNode):
         # command makes; in the graph no other node sees depth images)
         self._depth_step: float | None = None
         self._depth_warning: str | None = None
+        self._edge_band: float | None = None  # rad, published once measured
+        self._edge_attempts = 0
 
     def _open_source(self, rig, params: dict):
         try:
@@ -194,6 +205,8 @@ class CameraNode(RigNode):
         values = {"frames_published": self.frames_published, "frames_skipped": self.frames_skipped}
         if self._depth_step is not None:
             values["depth_step_mm"] = round(self._depth_step * 1e3, 4)
+        if self._edge_band is not None:
+            values["edge_band_mrad"] = round(self._edge_band * 1e3, 4)
         if self._depth_warning is not None:
             return DiagnosticStatus.WARN, self._depth_warning, values
         return None, "", values
@@ -203,6 +216,16 @@ class CameraNode(RigNode):
         self._depth_warning = depth_quantisation_warning(self.camera, self._depth_step, self.rig.robot)
         if self._depth_warning is not None:
             self.get_logger().warning(self._depth_warning)
+
+    def _note_edge_band(self, depth: np.ndarray, unit: float, focal: float) -> None:
+        self._edge_attempts += 1
+        self._edge_band = edge_band_angle(depth, unit, focal)
+        if self._edge_band is not None:
+            self._edge_band_publisher.publish(Float64(data=self._edge_band))
+            self.get_logger().info(f"edge band of '{self.camera}': {self._edge_band * focal:.2f} px")
+        elif self._edge_attempts == EDGE_BAND_ATTEMPTS:
+            self.get_logger().info(f"no edge band in {EDGE_BAND_ATTEMPTS} frames of '{self.camera}' (no far "
+                                   "background): the tip is placed by the silhouettes' erosion")
 
     def _wait_for_device(self) -> bool:
         """Try to open the live source every reconnect_period until it opens (True) or the node stops."""
@@ -283,6 +306,8 @@ class CameraNode(RigNode):
         unit = camera.depth_unit if frame.depth_unit is None else frame.depth_unit
         if self._depth_step is None:
             self._note_depth_step(frame.depth, unit)
+        if self._edge_band is None and self._edge_attempts < EDGE_BAND_ATTEMPTS:
+            self._note_edge_band(frame.depth, unit, i.fx)
         window = self._window(frame.intrinsics) if self._params["crop_to_robot"] else None
         if self._params["crop_to_robot"] and window is None:  # the camera cannot see the crop box at all
             xyz, rgb, pixel = np.empty((0, 3)), None, np.empty((0, 2), np.int32)

@@ -11,7 +11,10 @@ Publishes (reliable, depth 1; all in the base frame, stamped with the input clou
   `<ns>/notches/markers`    visualization_msgs/MarkerArray for RViz (a disc per notch, its width in mm)
   `/diagnostics`            diagnostic_msgs/DiagnosticArray: the result's self-check (core.quality), WARN with
                             its warnings, OK without
-The relocation warm-starts from the previous frame's centreline, as the offline command does over a bag.
+The relocation warm-starts from the previous frame's centreline, as the offline command does over a bag. The
+tip is placed with each camera's edge band (`<ns>/<cam>/edge_band`, from camera_node, which sees the depth
+images), as the offline command places it; until a camera's band arrives (or with a source that publishes none)
+by the erosion of the silhouettes, which `tip_refinement` on /diagnostics names.
 A cloud the core cannot reconstruct (too few points, no tube along the base axis) is logged and skipped; a cloud
 of more than `max_points` points is dropped before it is read. The centreline goes out serialized from arrays
 (ros/cdr.py): a Path of PoseStamped objects built one by one cost more than the relocation itself.
@@ -19,6 +22,7 @@ of more than `max_points` points is dropped before it is read. The centreline go
 
 from __future__ import annotations
 
+import functools
 import sys
 import time
 from pathlib import Path as PathLib
@@ -28,7 +32,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from sensor_msgs.msg import PointCloud2
-from std_msgs.msg import Float64MultiArray
+from std_msgs.msg import Float64, Float64MultiArray
 from visualization_msgs.msg import MarkerArray
 
 from ntcr_recon.core.pipeline import ReconstructionError, Reconstructor
@@ -44,6 +48,7 @@ from ntcr_recon.ros.messages import (
 )
 from ntcr_recon.ros.node_stats import NodeStats
 from ntcr_recon.ros.node_support import (
+    LATCHED_QOS,
     STAGE_QOS,
     ParameterError,
     RigNode,
@@ -52,7 +57,7 @@ from ntcr_recon.ros.node_support import (
     max_points_parameter,
     run_node,
 )
-from ntcr_recon.ros.topics import stage_topic
+from ntcr_recon.ros.topics import edge_band_topic, stage_topic
 
 PARAMETERS = {
     "output_dir": ("", describe("when set, the newest relocated cloud is also written to <output_dir>/relocated.ply")),
@@ -64,6 +69,7 @@ PARAMETERS = {
 
 class RelocationNode(RigNode):
     def __init__(self, node_name: str = "relocation_node") -> None:
+        self._edge_bands: dict[str, float] = {}  # rad per camera, as received (configure hands them on)
         super().__init__(node_name, PARAMETERS)
         self.stats = NodeStats(self, "ntcr_recon: relocation")
         topic = self.rig.topics
@@ -74,13 +80,25 @@ class RelocationNode(RigNode):
         self._markers = self.create_publisher(MarkerArray, stage_topic(topic, "notches/markers"), STAGE_QOS)
         self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_subscription(PointCloud2, stage_topic(topic, "filtered/points"), self._on_cloud, STAGE_QOS)
+        for camera in self.rig.camera_names:
+            self.create_subscription(Float64, edge_band_topic(topic, camera),
+                                     functools.partial(self._on_edge_band, camera), LATCHED_QOS)
         self.get_logger().info("relocating filtered clouds onto the reference robot")
 
     def configure(self, rig, params: dict) -> None:
         if params["output_dir"] and not PathLib(params["output_dir"]).expanduser().is_dir():
             raise ParameterError(f"parameter 'output_dir': {params['output_dir']!r} is not an existing folder")
         self.rig, self._reconstructor, self._params = rig, Reconstructor(rig), params
+        for camera, band in self._edge_bands.items():  # received before a change of parameters
+            if camera in rig.camera_names:
+                self._reconstructor.note_edge_band(camera, band)
         self._notch_markers = NotchMarkers(rig.robot.outer_radius)
+
+    @guarded
+    def _on_edge_band(self, camera: str, msg: Float64) -> None:
+        self._reconstructor.note_edge_band(camera, msg.data)
+        self._edge_bands[camera] = msg.data
+        self.get_logger().info(f"edge band of '{camera}' received: {msg.data * 1e3:.2f} mrad")
 
     @guarded
     def _on_cloud(self, msg: PointCloud2) -> None:

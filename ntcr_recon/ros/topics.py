@@ -13,3 +13,8 @@ from ntcr_recon.core.config import TopicConfig
 def stage_topic(topics: TopicConfig, name: str) -> str:
     """`<ns>/<name>`, e.g. stage_topic(topics, "fused/points") -> "/ntcr/fused/points"."""
     return "/" + "/".join(part.strip("/") for part in (topics.namespace, name) if part.strip("/"))
+
+
+def edge_band_topic(topics: TopicConfig, camera: str) -> str:
+    """`<ns>/<camera>/edge_band`: the band (rad) the camera's stereo matcher spoils at depth edges."""
+    return stage_topic(topics, f"{camera}/edge_band")
