@@ -340,7 +340,8 @@ def test_compiled_steps_keep_the_edges_of_the_numpy_code_they_replaced():
 def test_coverage_counts_bin_as_numpys_histogram_and_runs_are_found_around_their_centre():
     """The compiled counts put every value in the bin np.histogram does (values on an edge, beyond the last
     edge, NaN); a run of evidence is found from the cell nearest the centre, and none that touches an end."""
-    from ntcr_recon.core.notches import _counts_in_bins, _run_around
+    from ntcr_recon.core.notches import _run_around
+    from ntcr_recon.core.profile import _counts_in_bins
 
     rng = np.random.default_rng(3)
     cell = FOOTPRINT / 8

@@ -19,12 +19,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import gaussian_filter1d, percentile_filter
+from scipy.ndimage import percentile_filter
 
 from ntcr_recon.core.centerline import Centerline, TubeCoordinates
 from ntcr_recon.core.comb import cut_intervals, expected_centres, inside_intervals
 from ntcr_recon.core.compiled import jit
 from ntcr_recon.core.geometry import TubeGeometry
+from ntcr_recon.core.profile import coverage_profile
 from ntcr_recon.core.wall import robust_spread, surface_band
 
 
@@ -38,38 +39,6 @@ class Notch:
     bend: float | None    # rad, the centreline's turn across the notch
     signal: str = "coverage"  # what measured it: "coverage" (a slot seen through) or "depression" (seen
                               # obliquely: its floor and faces inside the wall's radius)
-
-
-def coverage_profile(s: np.ndarray, lo: float, hi: float, cell: float, kernel: float
-                     ) -> tuple[np.ndarray, np.ndarray]:
-    """Points per metre along s on a grid of `cell`, smoothed by a Gaussian of width `kernel`."""
-    edges = np.arange(lo, hi + cell, cell)
-    counts = _counts_in_bins(np.ascontiguousarray(s, dtype=float), edges)
-    density = gaussian_filter1d(counts, max(kernel / cell, 0.5), mode="constant") / cell
-    return 0.5 * (edges[:-1] + edges[1:]), density
-
-
-@jit
-def _counts_in_bins(values, edges):
-    """np.histogram(values, bins=edges)[0] as floats, for evenly spaced edges: each value's bin from its
-    distance to the first edge, then checked against the bin's own edges (as numpy bins them: [left, right),
-    the last bin closed), in one pass instead of numpy's sort."""
-    bins = edges.shape[0] - 1
-    counts = np.zeros(max(bins, 0))
-    if bins < 1:
-        return counts
-    first, last = edges[0], edges[bins]
-    step = (last - first) / bins
-    for v in values:
-        if not first <= v <= last:  # (outside, or NaN)
-            continue
-        i = min(max(int((v - first) / step), 0), bins - 1)
-        while i > 0 and v < edges[i]:
-            i -= 1
-        while i < bins - 1 and v >= edges[i + 1]:
-            i += 1
-        counts[i] += 1.0
-    return counts
 
 
 def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: TubeGeometry, gate: float,

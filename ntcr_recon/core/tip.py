@@ -24,10 +24,10 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.ndimage import gaussian_filter1d
 
 from ntcr_recon.core.compiled import jit
-from ntcr_recon.core.wall import surface_band
+from ntcr_recon.core.profile import coverage_profile
+from ntcr_recon.core.wall import median, surface_band
 
 if TYPE_CHECKING:  # centerline.py imports this module
     from ntcr_recon.core.centerline import Centerline, TubeCoordinates
@@ -105,7 +105,7 @@ def tube_end(coords: TubeCoordinates, radius: float, gate: float, cell: float, s
     else:
         occupied = np.count_nonzero(grid, axis=1) / float(sectors)
     occupied = np.convolve(occupied, np.ones(3) / 3.0, mode="same")
-    half = 0.5 * float(np.median(occupied[occupied > 0]))
+    half = 0.5 * float(median(occupied[occupied > 0]))
     above = np.flatnonzero(occupied >= half)
     last = int(above[-1])
     a, b = occupied[last] - half, occupied[last + 1] - half if last + 1 < len(occupied) else -half
@@ -268,10 +268,7 @@ def half_density_end(s: np.ndarray, coarse: float, cell: float, kernel: float, b
     its plateau (the upper quartile over [coarse - before, coarse - 3 cell]), searched up to coarse + after.
     None when there is no plateau or no crossing."""
     step = cell / 8.0
-    edges = np.arange(coarse - before, coarse + after + step, step)
-    counts, _ = np.histogram(s, bins=edges)
-    density = gaussian_filter1d(counts.astype(float), max(kernel / step, 0.5), mode="constant")
-    grid = 0.5 * (edges[:-1] + edges[1:])
+    grid, density = coverage_profile(s, coarse - before, coarse + after, step, kernel)
     plateau_zone = grid < coarse - 3.0 * cell
     if not np.any(plateau_zone):
         return None
