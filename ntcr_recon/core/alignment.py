@@ -27,6 +27,24 @@ from ntcr_recon.core.wall import median
 # Mean resultant length of a window's point directions about the axis above which it is seen from one side.
 MAX_ONE_SIDEDNESS = 0.6
 
+# Trusted points lie at least this many pixels inside the tube's silhouette in their camera's image: a stereo
+# matcher's window (7-11 px on a D405) reaches half its width across a depth edge, and every pixel within that
+# reach of the silhouette - or of the rows a notch leaves open beside it - has its depth pulled towards the
+# nearer rows of its window (the silhouette bulges outward, the rows next to a notch fall inward), a bias that
+# is not symmetric about the view once a notch is near.
+SILHOUETTE_MARGIN_PX = 4.0
+
+# Weight of the difference of two consecutive windows' shifts, in a window's typical information.
+SHIFT_SMOOTHING = 1.0
+
+
+def facing_cosine(outer_radius: float, footprint: float, margin_px: float, max_view_angle: float) -> float:
+    """The least cosine of the view angle (between a wall point's outward direction and the direction to its
+    camera) of a point lying `margin_px` pixel footprints or more inside the tube's silhouette, never above
+    `max_view_angle`: a point at view angle a lies r (1 - sin a) inside the silhouette, across the view."""
+    sine = min(max(1.0 - margin_px * footprint / outer_radius, 0.0), np.sin(max_view_angle))
+    return float(np.sqrt(1.0 - sine * sine))
+
 
 @dataclass(frozen=True)
 class Alignment:
@@ -77,9 +95,33 @@ def _trusted_window_sums(s, x, y, position, normal, binormal, viewpoints, outer_
     return index[:kept], cos_a[:kept], sin_a[:kept], residual[:kept], matrix, rhs, counts
 
 
+def smoothed_shifts(matrix: np.ndarray, rhs: np.ndarray, smoothing: float) -> np.ndarray:
+    """The windows' shifts (W, 2) solved jointly: each window's normal equations of offset = cx cos + cy sin +
+    level (matrix (W, 3, 3), rhs (W, 3), the level free per window) plus smoothing x (typical information of a
+    window's shift) x the squared difference of consecutive windows' shifts. A window's few facing points
+    place its shift only to a tenth of a millimetre; the robot's axis does not jump from one notch to the
+    next, so its neighbours share the estimate (smoothing 0: each window alone)."""
+    count = len(matrix)
+    system = np.zeros((3 * count, 3 * count))
+    for k in range(count):
+        system[3 * k:3 * k + 3, 3 * k:3 * k + 3] = matrix[k]
+    typical = float(np.median(matrix[:, 0, 0] + matrix[:, 1, 1])) / 2 if count else 0.0
+    weight = smoothing * typical
+    for k in range(count - 1):
+        for axis in range(2):
+            a, b = 3 * k + axis, 3 * (k + 1) + axis
+            system[a, a] += weight
+            system[b, b] += weight
+            system[a, b] -= weight
+            system[b, a] -= weight
+    solution = np.linalg.solve(system + 1e-12 * np.eye(3 * count), rhs.reshape(-1))
+    return solution.reshape(count, 3)[:, :2]
+
+
 def align_to_trusted_wall(centerline: Centerline, coords: TubeCoordinates, frames: tuple, viewpoints: np.ndarray,
                           geometry: TubeGeometry, gate: float, footprint: float, end_s: float,
                           max_view_angle: float = np.radians(45.0), cut_margin_px: float = 1.0,
+                          silhouette_margin_px: float = SILHOUETTE_MARGIN_PX, smoothing: float = SHIFT_SMOOTHING,
                           minimum_points: int = 30) -> Alignment:
     """Shift the centreline onto the trusted wall points (see the module docstring); end_s: the tube's end."""
     window = geometry.notch_pitch
@@ -89,7 +131,8 @@ def align_to_trusted_wall(centerline: Centerline, coords: TubeCoordinates, frame
     # per window the normal equations of offset = cx cos + cy sin + level
     index, cos_a, sin_a, residual, matrix, rhs, counts = _trusted_window_sums(
         coords.s, coords.x, coords.y, position, normal, binormal, np.ascontiguousarray(viewpoints, dtype=float),
-        geometry.outer_radius, gate, end_s, np.cos(max_view_angle), away_from_cuts, window, windows)
+        geometry.outer_radius, gate, end_s, facing_cosine(geometry.outer_radius, footprint, silhouette_margin_px,
+                                                          max_view_angle), away_from_cuts, window, windows)
     count = len(index)
     if count < minimum_points:
         return Alignment(centerline, 0.0, 0.0, float("nan"), count)
@@ -101,8 +144,7 @@ def align_to_trusted_wall(centerline: Centerline, coords: TubeCoordinates, frame
     if not np.any(solvable):
         return Alignment(centerline, 0.0, 0.0, float("nan"), count)
     shifts = np.zeros((windows, 2))
-    solution = np.linalg.solve(matrix[solvable] + 1e-12 * np.eye(3), rhs[solvable][..., None])[..., 0]
-    shifts[solvable] = solution[:, :2]
+    shifts[solvable] = smoothed_shifts(matrix[solvable], rhs[solvable], smoothing)
     centres = (np.arange(windows) + 0.5) * window
     # windows without enough trusted points take their neighbours' shift; the base stays clamped
     known_s = np.concatenate([[0.0], centres[solvable]])
