@@ -35,7 +35,7 @@ MAX_ONE_SIDEDNESS = 0.6
 SILHOUETTE_MARGIN_PX = 4.0
 
 # Weight of the difference of two consecutive windows' shifts, in a window's typical information.
-SHIFT_SMOOTHING = 1.0
+SHIFT_SMOOTHING = 0.3
 
 
 def facing_cosine(outer_radius: float, footprint: float, margin_px: float, max_view_angle: float) -> float:
@@ -56,24 +56,25 @@ class Alignment:
 
 
 @jit
-def _trusted_window_sums(s, x, y, position, normal, binormal, viewpoints, outer_radius, gate, end_s, least_cosine,
-                         away_from_cuts, window, windows):
+def _trusted_window_sums(s, x, y, position, normal, binormal, viewpoints, outer_radius, gate, start_s, end_s,
+                         least_cosine, away_from_cuts, window, windows):
     """The trusted wall points and, per window of s, the normal equations of their offset model.
 
-    Trusted: within `gate` of the wall, 0 < s < end_s, away from the cuts, and facing their camera (the cosine
+    Trusted: within `gate` of the wall, start_s < s < end_s, away from the cuts, and facing their camera (the cosine
     between the point's outward direction about the axis and the direction to its viewpoint above
     `least_cosine`). Returns the trusted points' window, cos and sin of their angle about the axis and
     radial offset (compact, in point order), and per window the 3x3 matrix and right-hand side of
-    offset = cx cos + cy sin + level summed over them, and their count.
+    offset = cx cos + cy sin + level summed over them, their count and the sum of their s.
     """
     count = s.shape[0]
     index, cos_a, sin_a, residual = np.empty(count, np.intp), np.empty(count), np.empty(count), np.empty(count)
     matrix, rhs, counts = np.zeros((windows, 3, 3)), np.zeros((windows, 3)), np.zeros(windows, np.intp)
+    s_sum = np.zeros(windows)
     kept = 0
     for i in range(count):
         radius = np.sqrt(x[i] * x[i] + y[i] * y[i])
         offset = radius - outer_radius
-        if not (abs(offset) < gate and 0.0 < s[i] < end_s and away_from_cuts[i]):
+        if not (abs(offset) < gate and start_s < s[i] < end_s and away_from_cuts[i]):
             continue
         v0 = viewpoints[i, 0] - position[i, 0]
         v1 = viewpoints[i, 1] - position[i, 1]
@@ -90,9 +91,10 @@ def _trusted_window_sums(s, x, y, position, normal, binormal, viewpoints, outer_
             for column in range(3):
                 matrix[k, row, column] += terms[row] * terms[column]
         counts[k] += 1
+        s_sum[k] += s[i]
         index[kept], cos_a[kept], sin_a[kept], residual[kept] = k, terms[0], terms[1], offset
         kept += 1
-    return index[:kept], cos_a[:kept], sin_a[:kept], residual[:kept], matrix, rhs, counts
+    return index[:kept], cos_a[:kept], sin_a[:kept], residual[:kept], matrix, rhs, counts, s_sum
 
 
 def smoothed_shifts(matrix: np.ndarray, rhs: np.ndarray, smoothing: float) -> np.ndarray:
@@ -129,9 +131,11 @@ def align_to_trusted_wall(centerline: Centerline, coords: TubeCoordinates, frame
     away_from_cuts = ~inside_intervals(coords.s, cut_intervals(geometry, centerline, cut_margin_px * footprint))
     position, _, normal, binormal = frames
     # per window the normal equations of offset = cx cos + cy sin + level
-    index, cos_a, sin_a, residual, matrix, rhs, counts = _trusted_window_sums(
+    # the base (on its post) and the end are depth edges too: trusted points keep the same margin from them
+    margin = silhouette_margin_px * footprint
+    index, cos_a, sin_a, residual, matrix, rhs, counts, s_sum = _trusted_window_sums(
         coords.s, coords.x, coords.y, position, normal, binormal, np.ascontiguousarray(viewpoints, dtype=float),
-        geometry.outer_radius, gate, end_s, facing_cosine(geometry.outer_radius, footprint, silhouette_margin_px,
+        geometry.outer_radius, gate, margin, end_s - margin, facing_cosine(geometry.outer_radius, footprint, silhouette_margin_px,
                                                           max_view_angle), away_from_cuts, window, windows)
     count = len(index)
     if count < minimum_points:
@@ -145,10 +149,10 @@ def align_to_trusted_wall(centerline: Centerline, coords: TubeCoordinates, frame
         return Alignment(centerline, 0.0, 0.0, float("nan"), count)
     shifts = np.zeros((windows, 2))
     shifts[solvable] = smoothed_shifts(matrix[solvable], rhs[solvable], smoothing)
-    centres = (np.arange(windows) + 0.5) * window
+    centres = s_sum / np.maximum(counts, 1)  # where each window's trusted points lie on average
     # windows without enough trusted points take their neighbours' shift; the base stays clamped
-    known_s = np.concatenate([[0.0], centres[solvable]])
-    node_shift = np.stack([np.interp(centerline.s, known_s, np.concatenate([[0.0], shifts[solvable, k]]))
+    known_s = np.concatenate([[0.0], centres[solvable], [max(end_s, centres[solvable][-1])]])
+    node_shift = np.stack([np.interp(centerline.s, known_s, np.concatenate([[0.0], shifts[solvable, k], [0.0]]))
                            for k in range(2)], axis=1)
     moved = centerline.points + node_shift[:, :1] * centerline.normals + node_shift[:, 1:] * centerline.binormals
     binormal_hint = centerline.binormals[0]
