@@ -133,10 +133,10 @@ def align_to_trusted_wall(centerline: Centerline, coords: TubeCoordinates, frame
     # per window the normal equations of offset = cx cos + cy sin + level
     # the base (on its post) and the end are depth edges too: trusted points keep the same margin from them
     margin = silhouette_margin_px * footprint
+    least_cosine = facing_cosine(geometry.outer_radius, footprint, silhouette_margin_px, max_view_angle)
     index, cos_a, sin_a, residual, matrix, rhs, counts, s_sum = _trusted_window_sums(
         coords.s, coords.x, coords.y, position, normal, binormal, np.ascontiguousarray(viewpoints, dtype=float),
-        geometry.outer_radius, gate, margin, end_s - margin, facing_cosine(geometry.outer_radius, footprint, silhouette_margin_px,
-                                                          max_view_angle), away_from_cuts, window, windows)
+        geometry.outer_radius, gate, margin, end_s - margin, least_cosine, away_from_cuts, window, windows)
     count = len(index)
     if count < minimum_points:
         return Alignment(centerline, 0.0, 0.0, float("nan"), count)
