@@ -479,16 +479,11 @@ def _slab_directions_kernel(slab, x, y, weight, slabs):
 
 def _smooth_update(nodes: np.ndarray, tangents: np.ndarray, targets: np.ndarray, information: np.ndarray,
                    anchor: np.ndarray, smoothing_steps: float) -> np.ndarray:
-    """Positions minimising sum (P - target)^T W (P - target) + lam |third differences|^2 + anchor term.
+    """Positions minimising sum (P - target)^T W (P - target) + lam |second differences|^2 + anchor term.
 
     nodes: current positions (M, 3); the data say nothing along the tangent, so each node is held at its
     place along its tangent (else the smoothness prior would let the curve stretch freely) and weakly
-    everywhere. information: (M, 3, 3) data weights. lam = smoothing_steps^6 sets the cut-off length.
-
-    The prior penalises the change of curvature, not curvature: a robot bent by its notches is an arc over a
-    few notches, and a prior on second differences pulls every arc towards its chord, most where data hold it
-    from one side only - at the free end, which it swung 0.1-0.15 mm out of the bend on a 60-90 deg robot
-    (the tip's lateral error). A third-difference prior leaves a constant curvature unpenalised.
+    everywhere. information: (M, 3, 3) data weights. lam = smoothing_steps^4 sets the cut-off length.
     """
     bands, rhs = _smoothing_system_kernel(nodes, tangents, targets, information, np.asarray(anchor, dtype=float),
                                           smoothing_steps)
@@ -497,11 +492,11 @@ def _smooth_update(nodes: np.ndarray, tangents: np.ndarray, targets: np.ndarray,
 
 @jit
 def _smoothing_system_kernel(nodes, tangents, targets, information, anchor, smoothing_steps):
-    """_smooth_update's normal equations, in LAPACK's upper band storage (12, 3M) and their right-hand side.
+    """_smooth_update's normal equations, in LAPACK's upper band storage (9, 3M) and their right-hand side.
 
-    The system couples a node with itself (3x3 block) and, through the third differences, with the next three:
-    symmetric, positive definite and banded (11 above the diagonal in x, y, z order per node):
-    bands[11 - offset, column] = system[column - offset, column]. No dense matrix, no matrix product (which
+    The system couples a node with itself (3x3 block) and, through the second differences, with the next two:
+    symmetric, positive definite and banded (8 above the diagonal in x, y, z order per node):
+    bands[8 - offset, column] = system[column - offset, column]. No dense matrix, no matrix product (which
     would wake BLAS threads for nothing).
     """
     count = nodes.shape[0]
@@ -509,9 +504,9 @@ def _smoothing_system_kernel(nodes, tangents, targets, information, anchor, smoo
     observed = traces[traces > 0]
     typical = median(observed) if observed.size else 1.0
     weak = 1e-4 * typical
-    lam = typical * smoothing_steps**6
+    lam = typical * smoothing_steps**4
     clamp = 1e3 * typical  # the base is clamped at the configured pose
-    bands, rhs = np.zeros((12, 3 * count)), np.zeros(3 * count)
+    bands, rhs = np.zeros((9, 3 * count)), np.zeros(3 * count)
     for m in range(count):
         for row in range(3):
             for column in range(3):
@@ -522,17 +517,17 @@ def _smoothing_system_kernel(nodes, tangents, targets, information, anchor, smoo
                     block = information[m, row, column] + along
                     if column == row:
                         block += weak + (clamp if m == 0 else 0.0)
-                    bands[11 - (column - row), 3 * m + column] = block
+                    bands[8 - (column - row), 3 * m + column] = block
             rhs[3 * m + row] += weak * nodes[m, row] + (clamp * anchor[row] if m == 0 else 0.0)
-    if count >= 4:
-        # third difference of nodes i .. i+3 with coefficients (-1, 3, -3, 1): lam * D^T D, per axis
-        coefficients = (-1.0, 3.0, -3.0, 1.0)
-        for first in range(4):
-            for second in range(first, 4):
+    if count >= 3:
+        # second difference of nodes i, i+1, i+2 with coefficients (1, -2, 1): lam * D^T D, per axis
+        coefficients = (1.0, -2.0, 1.0)
+        for first in range(3):
+            for second in range(first, 3):
                 value = lam * coefficients[first] * coefficients[second]
-                for i in range(count - 3):
+                for i in range(count - 2):
                     for axis in range(3):  # node pair (i + first, i + second)
-                        bands[11 - 3 * (second - first), 3 * (i + second) + axis] += value
+                        bands[8 - 3 * (second - first), 3 * (i + second) + axis] += value
     return bands, rhs
 
 
