@@ -1,15 +1,25 @@
 """Alignment: the reference tube moved onto the wall points that stereo depth measures without bias.
 
 The centreline fit uses every wall point, and some of them are biased in a way that does not cancel
-around the tube: pixels within a couple of pixels of a depth edge (the tube's silhouettes, and every edge a
-notch makes) are dropped or mixed with what lies behind, and there are more such edges on the notch side,
-so the fitted axis drifts towards the notches (0.05-0.2 mm on a bent robot, more with a larger pixel
-footprint). Points that face their camera (view angle below `max_view_angle`) on spines away from the cuts
-(the expected notches grown by a margin of pixels) carry no such bias. Along the robot, in windows of a
-notch pitch, the shift of the reference tube (of the known radius, at the wall's measured level) that
-best fits those points is solved by least squares (the offset model c_x cos(phi) + c_y sin(phi) + level);
-the shifts, smoothed along s, move the centreline. The mean shift towards the notch side is the
-centreline's bias the fit had, reported by the result.
+around the tube. A stereo matcher gives each pixel the mean depth of its window over the surface it lies on:
+within half a window of the tube's silhouette the window is cut by the edge and the pixel is pulled towards
+the nearer rows (the silhouette bulges outward), and beside a notch the rows the cut leaves open are missing
+from the window while the backbone's rows are not (the face is flattened unevenly); pixels next to an edge
+with a valid background behind are mixed with it and filtered away, those whose background the matcher's
+left-right check invalidates keep their bulge. None of that is symmetric about the view once a notch is near,
+so the fitted axis drifts towards the notches: 0.07-0.2 mm, more with a larger pixel footprint.
+
+Trusted are the wall points that face their camera, `silhouette_margin_px` pixel footprints or more inside the
+tube's silhouette in its image (a view angle a with r (1 - sin a) above the margin, never beyond
+`max_view_angle`), on spines away from the cuts (the expected notches grown by `cut_margin_px`) and as far from
+the base and the tube's end (depth edges too). The criterion is in pixels, so it follows the footprint: on a
+rig twice as far the facing zone narrows to what the matcher leaves unbiased. Along the robot, in windows of a
+notch pitch, the shift of the reference tube (of the known radius, at the wall's level per window) that best
+fits those points is solved by least squares (offset = c_x cos(phi) + c_y sin(phi) + level), all windows
+jointly with a penalty on the difference of consecutive shifts (a window's few facing points place it to a
+tenth of a millimetre only); the shifts, interpolated along s and tapered to none at the tube's end, move the
+centreline. The pipeline runs it a few times, each selecting the facing points about the axis the last one
+moved. The fit's lean towards the notch side (minus the mean shift) is reported as its bias.
 """
 
 from __future__ import annotations
@@ -49,8 +59,8 @@ def facing_cosine(outer_radius: float, footprint: float, margin_px: float, max_v
 @dataclass(frozen=True)
 class Alignment:
     centerline: Centerline
-    bias_notch_side: float   # m, mean shift removed, towards the notch side (+) (the fit's bias)
-    bias_binormal: float     # m, the same across the bending plane
+    bias_notch_side: float   # m, the fit's lean towards the notch side (+): minus the mean shift applied
+    bias_binormal: float     # m, the same across the bending plane (along normal x tangent)
     residual: float          # m, RMS radial residual of the trusted points after the alignment
     trusted: int             # points the alignment rests on
 
@@ -163,4 +173,4 @@ def align_to_trusted_wall(centerline: Centerline, coords: TubeCoordinates, frame
     fitted = shifts[index, 0] * cos_a + shifts[index, 1] * sin_a
     level = median(residual - fitted)
     rms = float(np.sqrt(np.mean((residual - fitted - level) ** 2)))
-    return Alignment(aligned, float(bias[0]), float(bias[1]), rms, count)
+    return Alignment(aligned, -float(bias[0]), -float(bias[1]), rms, count)
