@@ -240,6 +240,30 @@ def test_alignment_ignores_a_silhouette_bulge_on_the_notch_side():
     assert np.abs(moved[:, :2]).max() < 0.01e-3
 
 
+def test_alignment_passes_add_up_to_the_whole_lean():
+    """The bulging tube, its centreline given 0.15 mm towards the notch side of the true axis. Passes that
+    project the points onto the moved axis and select again keep it on the axis, and the lean they report is
+    the sum of their shifts (not the last pass's, which is near zero)."""
+    length, lean = 30e-3, 0.15e-3
+    geometry = TubeGeometry(notch_count=8, notch_pitch=3e-3)
+    points = wall_points(length, rng=np.random.default_rng(8))
+    angle = np.arctan2(points[:, 1], points[:, 0])
+    bulged = (points[:, 0] > 0) & (np.abs(np.abs(angle) - math.pi / 2) > math.radians(40.0))
+    points[bulged, :2] *= (1 + 0.2e-3 / R_O)
+    given = straight_centerline(length)
+    given = Centerline.from_points(given.points + [lean, 0.0, 0.0], np.array([0.0, 1.0, 0.0]), 0.1e-3)
+    coords, frames = given.project_with_frames(points)
+    viewpoints = np.where(points[:, 1:2] < 0, [[0.0, -0.09, 0.015]], [[0.0, 0.09, 0.015]])
+    result = align_to_trusted_wall(given, coords, frames, viewpoints, geometry, 0.8e-3, FOOTPRINT, length, xyz=points,
+                                   passes=3)
+    middle = (result.centerline.s > 3e-3) & (result.centerline.s < 27e-3)
+    error = np.abs(result.centerline.points[middle, 0]).max()
+    print(f"\ncentreline given {lean * 1e3:.2f} mm off: {error * 1e3:.3f} mm off after three passes; lean reported "
+          f"{result.bias_notch_side * 1e3:+.3f} mm")
+    assert error < 0.03e-3
+    assert result.bias_notch_side == pytest.approx(lean, abs=0.01e-3)
+
+
 def test_quality_says_what_is_doubtful():
     notches = []
     s = np.linspace(0.0, 50e-3, 5000)

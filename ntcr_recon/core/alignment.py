@@ -27,6 +27,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg
 
 from ntcr_recon.core.centerline import Centerline, TubeCoordinates, unit_direction
 from ntcr_recon.core.comb import cut_intervals, inside_intervals
@@ -70,8 +71,8 @@ def _trusted_window_sums(s, x, y, position, normal, binormal, viewpoints, outer_
                          least_cosine, away_from_cuts, window, windows):
     """The trusted wall points and, per window of s, the normal equations of their offset model.
 
-    Trusted: within `gate` of the wall, start_s < s < end_s, away from the cuts, and facing their camera (the cosine
-    between the point's outward direction about the axis and the direction to its viewpoint above
+    Trusted: within `gate` of the wall, start_s < s < end_s, away from the cuts, and facing their camera (the
+    cosine between the point's outward direction about the axis and the direction to its viewpoint above
     `least_cosine`). Returns the trusted points' window, cos and sin of their angle about the axis and
     radial offset (compact, in point order), and per window the 3x3 matrix and right-hand side of
     offset = cx cos + cy sin + level summed over them, their count and the sum of their s.
@@ -107,46 +108,81 @@ def _trusted_window_sums(s, x, y, position, normal, binormal, viewpoints, outer_
     return index[:kept], cos_a[:kept], sin_a[:kept], residual[:kept], matrix, rhs, counts, s_sum
 
 
+@jit
+def _smoothed_shifts_bands(matrix, weight):
+    """smoothed_shifts' system in LAPACK's upper band storage (4, 3W): bands[3 - offset, column] =
+    system[column - offset, column] (a window's 3x3 block, and its shifts tied to the next window's)."""
+    count = matrix.shape[0]
+    bands = np.zeros((4, 3 * count))
+    for k in range(count):
+        for row in range(3):
+            for column in range(row, 3):
+                bands[3 - (column - row), 3 * k + column] = matrix[k, row, column]
+        bands[3, 3 * k + 2] += 1e-12 * (matrix[k, 0, 0] + matrix[k, 1, 1] + matrix[k, 2, 2])
+    for k in range(count - 1):  # first differences of consecutive windows' shifts (cx, cy), per axis
+        for axis in range(2):
+            bands[3, 3 * k + axis] += weight
+            bands[3, 3 * (k + 1) + axis] += weight
+            bands[0, 3 * (k + 1) + axis] -= weight
+    return bands
+
+
 def smoothed_shifts(matrix: np.ndarray, rhs: np.ndarray, smoothing: float) -> np.ndarray:
     """The windows' shifts (W, 2) solved jointly: each window's normal equations of offset = cx cos + cy sin +
     level (matrix (W, 3, 3), rhs (W, 3), the level free per window) plus smoothing x (typical information of a
     window's shift) x the squared difference of consecutive windows' shifts. A window's few facing points
     place its shift only to a tenth of a millimetre; the robot's axis does not jump from one notch to the
     next, so its neighbours share the estimate (smoothing 0: each window alone)."""
-    count = len(matrix)
-    system = np.zeros((3 * count, 3 * count))
-    for k in range(count):
-        system[3 * k:3 * k + 3, 3 * k:3 * k + 3] = matrix[k]
-    typical = float(np.median(matrix[:, 0, 0] + matrix[:, 1, 1])) / 2 if count else 0.0
-    weight = smoothing * typical
-    for k in range(count - 1):
-        for axis in range(2):
-            a, b = 3 * k + axis, 3 * (k + 1) + axis
-            system[a, a] += weight
-            system[b, b] += weight
-            system[a, b] -= weight
-            system[b, a] -= weight
-    solution = np.linalg.solve(system + 1e-12 * np.eye(3 * count), rhs.reshape(-1))
-    return solution.reshape(count, 3)[:, :2]
+    if not len(matrix):
+        return np.zeros((0, 2))
+    typical = float(median(matrix[:, 0, 0] + matrix[:, 1, 1])) / 2
+    bands = _smoothed_shifts_bands(np.ascontiguousarray(matrix, dtype=float), smoothing * typical)
+    solution = scipy.linalg.solveh_banded(bands, np.ascontiguousarray(rhs, dtype=float).reshape(-1))
+    return solution.reshape(-1, 3)[:, :2]
 
 
 def align_to_trusted_wall(centerline: Centerline, coords: TubeCoordinates, frames: tuple, viewpoints: np.ndarray,
                           geometry: TubeGeometry, gate: float, footprint: float, end_s: float,
                           max_view_angle: float = np.radians(45.0), cut_margin_px: float = 1.0,
                           silhouette_margin_px: float = SILHOUETTE_MARGIN_PX, smoothing: float = SHIFT_SMOOTHING,
-                          minimum_points: int = 30) -> Alignment:
-    """Shift the centreline onto the trusted wall points (see the module docstring); end_s: the tube's end."""
-    window = geometry.notch_pitch
-    windows = max(int(np.ceil(end_s / window)), 1)
-    away_from_cuts = ~inside_intervals(coords.s, cut_intervals(geometry, centerline, cut_margin_px * footprint))
-    position, _, normal, binormal = frames
-    # per window the normal equations of offset = cx cos + cy sin + level
+                          minimum_points: int = 30, xyz: np.ndarray | None = None, passes: int = 1) -> Alignment:
+    """Shift the centreline onto the trusted wall points (see the module docstring); end_s: the tube's end.
+
+    passes > 1 (with the points' base-frame positions xyz): which points face their camera depends on where
+    the axis is, so each further pass projects the points onto the moved centreline, lays its comb of cuts,
+    and selects and solves again; bias and shifts add up over the passes.
+    """
+    cut_margin = cut_margin_px * footprint
+    away_from_cuts = ~inside_intervals(coords.s, cut_intervals(geometry, centerline, cut_margin))
+    viewpoints = np.ascontiguousarray(viewpoints, dtype=float)
     # the base (on its post) and the end are depth edges too: trusted points keep the same margin from them
     margin = silhouette_margin_px * footprint
     least_cosine = facing_cosine(geometry.outer_radius, footprint, silhouette_margin_px, max_view_angle)
+    bias = np.zeros(2)
+    result = Alignment(centerline, 0.0, 0.0, float("nan"), 0)
+    for done in range(max(passes, 1)):
+        if done:  # the moved axis: its points' coordinates, and its comb (the cuts move with its bends)
+            coords, frames = centerline.project_with_frames(xyz, coords.s)
+            away_from_cuts = ~inside_intervals(coords.s, cut_intervals(geometry, centerline, cut_margin))
+        result = _align_once(centerline, coords, frames, viewpoints, away_from_cuts, geometry, gate, margin, end_s,
+                             least_cosine, smoothing, minimum_points)
+        bias += (result.bias_notch_side, result.bias_binormal)
+        if result.centerline is centerline or xyz is None:
+            break
+        centerline = result.centerline
+    return Alignment(result.centerline, float(bias[0]), float(bias[1]), result.residual, result.trusted)
+
+
+def _align_once(centerline: Centerline, coords: TubeCoordinates, frames: tuple, viewpoints: np.ndarray,
+                away_from_cuts: np.ndarray, geometry: TubeGeometry, gate: float, margin: float,
+                end_s: float, least_cosine: float, smoothing: float, minimum_points: int) -> Alignment:
+    """One pass of align_to_trusted_wall: select, solve the windows' shifts, move the centreline."""
+    window = geometry.notch_pitch
+    windows = max(int(np.ceil(end_s / window)), 1)
+    position, _, normal, binormal = frames
     index, cos_a, sin_a, residual, matrix, rhs, counts, s_sum = _trusted_window_sums(
-        coords.s, coords.x, coords.y, position, normal, binormal, np.ascontiguousarray(viewpoints, dtype=float),
-        geometry.outer_radius, gate, margin, end_s - margin, least_cosine, away_from_cuts, window, windows)
+        coords.s, coords.x, coords.y, position, normal, binormal, viewpoints, geometry.outer_radius, gate, margin,
+        end_s - margin, least_cosine, away_from_cuts, window, windows)
     count = len(index)
     if count < minimum_points:
         return Alignment(centerline, 0.0, 0.0, float("nan"), count)
@@ -169,7 +205,7 @@ def align_to_trusted_wall(centerline: Centerline, coords: TubeCoordinates, frame
     step = float(centerline.s[1] - centerline.s[0])
     aligned = Centerline.from_points(moved, binormal_hint, step)
     weights = counts[solvable].astype(float)
-    bias = np.average(shifts[solvable], axis=0, weights=weights)
+    bias = weights @ shifts[solvable] / weights.sum()
     fitted = shifts[index, 0] * cos_a + shifts[index, 1] * sin_a
     level = median(residual - fitted)
     rms = float(np.sqrt(np.mean((residual - fitted - level) ** 2)))

@@ -45,7 +45,7 @@ ROLL_TO_REFRAME = np.radians(6.0)
 
 
 # Alignment passes: each selects the trusted points about the axis the previous one moved.
-ALIGNMENT_ITERATIONS = 3
+ALIGNMENT_PASSES = 3
 
 # A tube whose end tangent turns at least this far towards a camera (from across its view) points at it.
 CAP_PLANE_ANGLE = np.radians(45.0)
@@ -157,15 +157,11 @@ class Reconstructor:
         alignment = None
         if viewpoints is not None:
             end = tube_end(coords, geometry.outer_radius, settings.gate, footprint, max_s=geometry.reach)
-            # which points face their camera depends on where the axis is: select again about the moved axis
-            bias = np.zeros(2)
-            for _ in range(ALIGNMENT_ITERATIONS):
-                alignment = align_to_trusted_wall(centerline, coords, frames, viewpoints, geometry, settings.gate,
-                                                  footprint, end)
-                bias += (alignment.bias_notch_side, alignment.bias_binormal)
-                centerline = alignment.centerline
-                coords, frames = centerline.project_with_frames(cloud.xyz, coords.s)
-            alignment = replace(alignment, bias_notch_side=float(bias[0]), bias_binormal=float(bias[1]))
+            # which points face their camera depends on where the axis is: selected again about the moved axis
+            alignment = align_to_trusted_wall(centerline, coords, frames, viewpoints, geometry, settings.gate,
+                                              footprint, end, xyz=cloud.xyz, passes=ALIGNMENT_PASSES)
+            centerline = alignment.centerline
+            coords, frames = centerline.project_with_frames(cloud.xyz, coords.s)
         # each point as its camera saw it: along its viewing ray onto the wall (core.relocation)
         rays = None if viewpoints is None else along_rays(coords, frames, viewpoints, geometry.outer_radius,
                                                           settings.gate)
