@@ -64,6 +64,7 @@ class Alignment:
     bias_binormal: float     # m, the same across the bending plane (along normal x tangent)
     residual: float          # m, RMS radial residual of the trusted points after the alignment
     trusted: int             # points the alignment rests on
+    arc_lengths: np.ndarray | None = None  # the points' s on the curve the last pass started from (passes > 1)
 
 
 @jit
@@ -170,7 +171,7 @@ def align_to_trusted_wall(centerline: Centerline, coords: TubeCoordinates, frame
         if result.centerline is centerline or xyz is None:
             break
         centerline = result.centerline
-    return Alignment(result.centerline, float(bias[0]), float(bias[1]), result.residual, result.trusted)
+    return Alignment(result.centerline, float(bias[0]), float(bias[1]), result.residual, result.trusted, coords.s)
 
 
 def _align_once(centerline: Centerline, coords: TubeCoordinates, frames: tuple, viewpoints: np.ndarray,

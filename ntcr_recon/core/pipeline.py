@@ -161,7 +161,7 @@ class Reconstructor:
             alignment = align_to_trusted_wall(centerline, coords, frames, viewpoints, geometry, settings.gate,
                                               footprint, end, xyz=cloud.xyz, passes=ALIGNMENT_PASSES)
             centerline = alignment.centerline
-            coords, frames = centerline.project_with_frames(cloud.xyz, coords.s)
+            coords, frames = centerline.project_with_frames(cloud.xyz, alignment.arc_lengths)
         # each point as its camera saw it: along its viewing ray onto the wall (core.relocation)
         rays = None if viewpoints is None else along_rays(coords, frames, viewpoints, geometry.outer_radius,
                                                           settings.gate)
