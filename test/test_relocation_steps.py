@@ -162,11 +162,106 @@ def test_alignment_moves_the_reference_onto_the_facing_wall_and_reports_the_shif
     viewpoints = np.where(points[:, 1:2] < 0, [[0.0, -0.09, 0.015]], [[0.0, 0.09, 0.015]])
     result = align_to_trusted_wall(centerline, coords, frames, viewpoints, geometry, 0.8e-3, FOOTPRINT, length)
     moved = result.centerline.points[(result.centerline.s > 5e-3) & (result.centerline.s < 25e-3)]
-    print(f"\nalignment: bias {result.bias_notch_side * 1e3:.3f} mm measured (true {shift * 1e3:.1f}), "
-          f"axis now at x = {moved[:, 0].mean() * 1e3:.3f} mm, residual {result.residual * 1e3:.3f} mm")
-    assert abs(result.bias_notch_side - shift) < 0.01e-3
+    print(f"\nalignment: bias {result.bias_notch_side * 1e3:+.3f} mm measured (true {-shift * 1e3:+.1f}: the given "
+          f"axis lies away from the notch side), axis now at x = {moved[:, 0].mean() * 1e3:.3f} mm, residual "
+          f"{result.residual * 1e3:.3f} mm")
+    assert abs(result.bias_notch_side + shift) < 0.01e-3
     assert np.abs(moved[:, 0] - shift).max() < 0.02e-3
     assert abs(result.bias_binormal) < 0.01e-3
+
+
+def test_trusted_points_lie_pixels_inside_the_silhouette():
+    """The facing zone is set in pixels: 4 footprints inside the silhouette of a 1.75 mm tube is 32.9 deg of view
+    angle at 0.2 mm a pixel, 24.2 deg at 0.258 mm, never wider than the cap, and empty for a tube 4 px wide."""
+    from ntcr_recon.core.alignment import facing_cosine
+
+    cap = math.radians(45.0)
+    for footprint, expected in ((0.2e-3, 32.9), (0.258e-3, 24.2)):
+        angle = math.degrees(math.acos(facing_cosine(R_O, footprint, 4.0, cap)))
+        print(f"\nfacing zone at {footprint * 1e3:.3f} mm a pixel: view angle below {angle:.1f} deg")
+        # a point at that view angle lies 4 footprints inside the silhouette: r (1 - sin a) = 4 footprints
+        assert R_O * (1 - math.sin(math.radians(angle))) == pytest.approx(4 * footprint, rel=1e-9)
+        assert angle == pytest.approx(expected, abs=0.1)
+    assert math.degrees(math.acos(facing_cosine(R_O, 0.05e-3, 4.0, cap))) == pytest.approx(45.0)
+    assert facing_cosine(R_O, 1e-3, 4.0, cap) == pytest.approx(1.0)  # nothing faces: no point is trusted
+
+
+def test_smoothed_shifts_share_noise_between_windows_and_keep_a_common_shift():
+    """Windows each see a noisy copy of one shift: solved alone they scatter, solved jointly they agree, and a
+    shift every window sees is kept whole (the smoothness prior only penalises differences)."""
+    from ntcr_recon.core.alignment import smoothed_shifts
+
+    rng = np.random.default_rng(11)
+    windows, true_shift = 12, np.array([0.08e-3, -0.03e-3])
+    matrices, rhs = [], []
+    for _ in range(windows):
+        phi = np.concatenate([rng.uniform(-2.1, -1.0, 30), rng.uniform(1.0, 2.1, 30)])  # two facing arcs
+        terms = np.stack([np.cos(phi), np.sin(phi), np.ones_like(phi)], axis=1)
+        offset = terms[:, :2] @ true_shift - 0.1e-3 + rng.normal(0.0, 0.05e-3, len(phi))
+        matrices.append(terms.T @ terms)
+        rhs.append(terms.T @ offset)
+    matrices, rhs = np.array(matrices), np.array(rhs)
+    alone = smoothed_shifts(matrices, rhs, 0.0)
+    jointly = smoothed_shifts(matrices, rhs, 1.0)
+    independent = np.array([np.linalg.solve(m, r)[:2] for m, r in zip(matrices, rhs, strict=True)])
+    assert np.allclose(alone, independent, atol=1e-9)
+    scatter_alone, scatter_jointly = np.std(alone[:, 0]), np.std(jointly[:, 0])
+    print(f"\nshift towards the notches, scatter over windows: {scatter_alone * 1e3:.3f} mm alone, "
+          f"{scatter_jointly * 1e3:.3f} mm jointly; mean {jointly[:, 0].mean() * 1e3:.3f} mm (true 0.080)")
+    assert scatter_jointly < 0.6 * scatter_alone
+    assert abs(jointly[:, 0].mean() - true_shift[0]) < 0.02e-3
+    exact = np.array([m @ np.array([*true_shift, -0.1e-3]) for m in matrices])
+    assert np.allclose(smoothed_shifts(matrices, exact, 5.0), true_shift, atol=1e-9)
+
+
+def test_alignment_ignores_a_silhouette_bulge_on_the_notch_side():
+    """A straight tube on its true axis whose wall points within 50 deg of each camera's silhouette on the notch
+    side bulge 0.2 mm outward (a matcher's window pulling edge pixels towards the nearer rows, on the side where
+    no flying pixels replace them). Trusting every point within 45 deg of the view would read that as a shift
+    towards the notches; 4 pixels inside the silhouette the alignment leaves the axis where it is."""
+    length = 30e-3
+    geometry = TubeGeometry(notch_count=8, notch_pitch=3e-3)
+    points = wall_points(length, rng=np.random.default_rng(7))
+    angle = np.arctan2(points[:, 1], points[:, 0])
+    view = np.abs(np.abs(angle) - math.pi / 2)     # view angle of a camera on the +-y axis
+    bulged = (points[:, 0] > 0) & (view > math.radians(40.0))
+    points[bulged, :2] *= (1 + 0.2e-3 / R_O)
+    centerline = straight_centerline(length)
+    coords, frames = centerline.project_with_frames(points)
+    viewpoints = np.where(points[:, 1:2] < 0, [[0.0, -0.09, 0.015]], [[0.0, 0.09, 0.015]])
+    wide = align_to_trusted_wall(centerline, coords, frames, viewpoints, geometry, 0.8e-3, FOOTPRINT, length,
+                                 silhouette_margin_px=0.0)
+    result = align_to_trusted_wall(centerline, coords, frames, viewpoints, geometry, 0.8e-3, FOOTPRINT, length)
+    print(f"\nbulge on the notch side: fit lean read {wide.bias_notch_side * 1e3:+.3f} mm within 45 deg, "
+          f"{result.bias_notch_side * 1e3:+.3f} mm 4 px inside the silhouette")
+    assert wide.bias_notch_side < -0.02e-3  # the axis would move towards the bulge: the fit read as leaning away
+    assert abs(result.bias_notch_side) < 0.005e-3
+    moved = result.centerline.points[(result.centerline.s > 3e-3) & (result.centerline.s < 27e-3)]
+    assert np.abs(moved[:, :2]).max() < 0.01e-3
+
+
+def test_alignment_passes_add_up_to_the_whole_lean():
+    """The bulging tube, its centreline given 0.15 mm towards the notch side of the true axis. Passes that
+    project the points onto the moved axis and select again keep it on the axis, and the lean they report is
+    the sum of their shifts (not the last pass's, which is near zero)."""
+    length, lean = 30e-3, 0.15e-3
+    geometry = TubeGeometry(notch_count=8, notch_pitch=3e-3)
+    points = wall_points(length, rng=np.random.default_rng(8))
+    angle = np.arctan2(points[:, 1], points[:, 0])
+    bulged = (points[:, 0] > 0) & (np.abs(np.abs(angle) - math.pi / 2) > math.radians(40.0))
+    points[bulged, :2] *= (1 + 0.2e-3 / R_O)
+    given = straight_centerline(length)
+    given = Centerline.from_points(given.points + [lean, 0.0, 0.0], np.array([0.0, 1.0, 0.0]), 0.1e-3)
+    coords, frames = given.project_with_frames(points)
+    viewpoints = np.where(points[:, 1:2] < 0, [[0.0, -0.09, 0.015]], [[0.0, 0.09, 0.015]])
+    result = align_to_trusted_wall(given, coords, frames, viewpoints, geometry, 0.8e-3, FOOTPRINT, length, xyz=points,
+                                   passes=3)
+    middle = (result.centerline.s > 3e-3) & (result.centerline.s < 27e-3)
+    error = np.abs(result.centerline.points[middle, 0]).max()
+    print(f"\ncentreline given {lean * 1e3:.2f} mm off: {error * 1e3:.3f} mm off after three passes; lean reported "
+          f"{result.bias_notch_side * 1e3:+.3f} mm")
+    assert error < 0.03e-3
+    assert result.bias_notch_side == pytest.approx(lean, abs=0.01e-3)
 
 
 def test_quality_says_what_is_doubtful():

@@ -1,15 +1,25 @@
 """Alignment: the reference tube moved onto the wall points that stereo depth measures without bias.
 
 The centreline fit uses every wall point, and some of them are biased in a way that does not cancel
-around the tube: pixels within a couple of pixels of a depth edge (the tube's silhouettes, and every edge a
-notch makes) are dropped or mixed with what lies behind, and there are more such edges on the notch side,
-so the fitted axis drifts towards the notches (0.05-0.2 mm on a bent robot, more with a larger pixel
-footprint). Points that face their camera (view angle below `max_view_angle`) on spines away from the cuts
-(the expected notches grown by a margin of pixels) carry no such bias. Along the robot, in windows of a
-notch pitch, the shift of the reference tube (of the known radius, at the wall's measured level) that
-best fits those points is solved by least squares (the offset model c_x cos(phi) + c_y sin(phi) + level);
-the shifts, smoothed along s, move the centreline. The mean shift towards the notch side is the
-centreline's bias the fit had, reported by the result.
+around the tube. A stereo matcher gives each pixel the mean depth of its window over the surface it lies on:
+within half a window of the tube's silhouette the window is cut by the edge and the pixel is pulled towards
+the nearer rows (the silhouette bulges outward), and beside a notch the rows the cut leaves open are missing
+from the window while the backbone's rows are not (the face is flattened unevenly); pixels next to an edge
+with a valid background behind are mixed with it and filtered away, those whose background the matcher's
+left-right check invalidates keep their bulge. None of that is symmetric about the view once a notch is near,
+so the fitted axis drifts towards the notches: 0.07-0.2 mm, more with a larger pixel footprint.
+
+Trusted are the wall points that face their camera, `silhouette_margin_px` pixel footprints or more inside the
+tube's silhouette in its image (a view angle a with r (1 - sin a) above the margin, never beyond
+`max_view_angle`), on spines away from the cuts (the expected notches grown by `cut_margin_px`) and as far from
+the base and the tube's end (depth edges too). The criterion is in pixels, so it follows the footprint: on a
+rig twice as far the facing zone narrows to what the matcher leaves unbiased. Along the robot, in windows of a
+notch pitch, the shift of the reference tube (of the known radius, at the wall's level per window) that best
+fits those points is solved by least squares (offset = c_x cos(phi) + c_y sin(phi) + level), all windows
+jointly with a penalty on the difference of consecutive shifts (a window's few facing points place it to a
+tenth of a millimetre only); the shifts, interpolated along s and tapered to none at the tube's end, move the
+centreline. The pipeline runs it a few times, each selecting the facing points about the axis the last one
+moved. The fit's lean towards the notch side (minus the mean shift) is reported as its bias.
 """
 
 from __future__ import annotations
@@ -17,6 +27,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg
 
 from ntcr_recon.core.centerline import Centerline, TubeCoordinates, unit_direction
 from ntcr_recon.core.comb import cut_intervals, inside_intervals
@@ -27,35 +38,55 @@ from ntcr_recon.core.wall import median
 # Mean resultant length of a window's point directions about the axis above which it is seen from one side.
 MAX_ONE_SIDEDNESS = 0.6
 
+# Trusted points lie at least this many pixels inside the tube's silhouette in their camera's image: a stereo
+# matcher's window (7-11 px on a D405) reaches half its width across a depth edge, and every pixel within that
+# reach of the silhouette - or of the rows a notch leaves open beside it - has its depth pulled towards the
+# nearer rows of its window (the silhouette bulges outward, the rows next to a notch fall inward), a bias that
+# is not symmetric about the view once a notch is near.
+SILHOUETTE_MARGIN_PX = 4.0
+
+# Weight of the difference of two consecutive windows' shifts, in a window's typical information.
+SHIFT_SMOOTHING = 0.3
+
+
+def facing_cosine(outer_radius: float, footprint: float, margin_px: float, max_view_angle: float) -> float:
+    """The least cosine of the view angle (between a wall point's outward direction and the direction to its
+    camera) of a point lying `margin_px` pixel footprints or more inside the tube's silhouette, never above
+    `max_view_angle`: a point at view angle a lies r (1 - sin a) inside the silhouette, across the view."""
+    sine = min(max(1.0 - margin_px * footprint / outer_radius, 0.0), np.sin(max_view_angle))
+    return float(np.sqrt(1.0 - sine * sine))
+
 
 @dataclass(frozen=True)
 class Alignment:
     centerline: Centerline
-    bias_notch_side: float   # m, mean shift removed, towards the notch side (+) (the fit's bias)
-    bias_binormal: float     # m, the same across the bending plane
+    bias_notch_side: float   # m, the fit's lean towards the notch side (+): minus the mean shift applied
+    bias_binormal: float     # m, the same across the bending plane (along normal x tangent)
     residual: float          # m, RMS radial residual of the trusted points after the alignment
     trusted: int             # points the alignment rests on
+    arc_lengths: np.ndarray | None = None  # the points' s on the curve the last pass started from (passes > 1)
 
 
 @jit
-def _trusted_window_sums(s, x, y, position, normal, binormal, viewpoints, outer_radius, gate, end_s, least_cosine,
-                         away_from_cuts, window, windows):
+def _trusted_window_sums(s, x, y, position, normal, binormal, viewpoints, outer_radius, gate, start_s, end_s,
+                         least_cosine, away_from_cuts, window, windows):
     """The trusted wall points and, per window of s, the normal equations of their offset model.
 
-    Trusted: within `gate` of the wall, 0 < s < end_s, away from the cuts, and facing their camera (the cosine
-    between the point's outward direction about the axis and the direction to its viewpoint above
+    Trusted: within `gate` of the wall, start_s < s < end_s, away from the cuts, and facing their camera (the
+    cosine between the point's outward direction about the axis and the direction to its viewpoint above
     `least_cosine`). Returns the trusted points' window, cos and sin of their angle about the axis and
     radial offset (compact, in point order), and per window the 3x3 matrix and right-hand side of
-    offset = cx cos + cy sin + level summed over them, and their count.
+    offset = cx cos + cy sin + level summed over them, their count and the sum of their s.
     """
     count = s.shape[0]
     index, cos_a, sin_a, residual = np.empty(count, np.intp), np.empty(count), np.empty(count), np.empty(count)
     matrix, rhs, counts = np.zeros((windows, 3, 3)), np.zeros((windows, 3)), np.zeros(windows, np.intp)
+    s_sum = np.zeros(windows)
     kept = 0
     for i in range(count):
         radius = np.sqrt(x[i] * x[i] + y[i] * y[i])
         offset = radius - outer_radius
-        if not (abs(offset) < gate and 0.0 < s[i] < end_s and away_from_cuts[i]):
+        if not (abs(offset) < gate and start_s < s[i] < end_s and away_from_cuts[i]):
             continue
         v0 = viewpoints[i, 0] - position[i, 0]
         v1 = viewpoints[i, 1] - position[i, 1]
@@ -72,24 +103,87 @@ def _trusted_window_sums(s, x, y, position, normal, binormal, viewpoints, outer_
             for column in range(3):
                 matrix[k, row, column] += terms[row] * terms[column]
         counts[k] += 1
+        s_sum[k] += s[i]
         index[kept], cos_a[kept], sin_a[kept], residual[kept] = k, terms[0], terms[1], offset
         kept += 1
-    return index[:kept], cos_a[:kept], sin_a[:kept], residual[:kept], matrix, rhs, counts
+    return index[:kept], cos_a[:kept], sin_a[:kept], residual[:kept], matrix, rhs, counts, s_sum
+
+
+@jit
+def _smoothed_shifts_bands(matrix, weight):
+    """smoothed_shifts' system in LAPACK's upper band storage (4, 3W): bands[3 - offset, column] =
+    system[column - offset, column] (a window's 3x3 block, and its shifts tied to the next window's)."""
+    count = matrix.shape[0]
+    bands = np.zeros((4, 3 * count))
+    for k in range(count):
+        for row in range(3):
+            for column in range(row, 3):
+                bands[3 - (column - row), 3 * k + column] = matrix[k, row, column]
+        bands[3, 3 * k + 2] += 1e-12 * (matrix[k, 0, 0] + matrix[k, 1, 1] + matrix[k, 2, 2])
+    for k in range(count - 1):  # first differences of consecutive windows' shifts (cx, cy), per axis
+        for axis in range(2):
+            bands[3, 3 * k + axis] += weight
+            bands[3, 3 * (k + 1) + axis] += weight
+            bands[0, 3 * (k + 1) + axis] -= weight
+    return bands
+
+
+def smoothed_shifts(matrix: np.ndarray, rhs: np.ndarray, smoothing: float) -> np.ndarray:
+    """The windows' shifts (W, 2) solved jointly: each window's normal equations of offset = cx cos + cy sin +
+    level (matrix (W, 3, 3), rhs (W, 3), the level free per window) plus smoothing x (typical information of a
+    window's shift) x the squared difference of consecutive windows' shifts. A window's few facing points
+    place its shift only to a tenth of a millimetre; the robot's axis does not jump from one notch to the
+    next, so its neighbours share the estimate (smoothing 0: each window alone)."""
+    if not len(matrix):
+        return np.zeros((0, 2))
+    typical = float(median(matrix[:, 0, 0] + matrix[:, 1, 1])) / 2
+    bands = _smoothed_shifts_bands(np.ascontiguousarray(matrix, dtype=float), smoothing * typical)
+    solution = scipy.linalg.solveh_banded(bands, np.ascontiguousarray(rhs, dtype=float).reshape(-1))
+    return solution.reshape(-1, 3)[:, :2]
 
 
 def align_to_trusted_wall(centerline: Centerline, coords: TubeCoordinates, frames: tuple, viewpoints: np.ndarray,
                           geometry: TubeGeometry, gate: float, footprint: float, end_s: float,
                           max_view_angle: float = np.radians(45.0), cut_margin_px: float = 1.0,
-                          minimum_points: int = 30) -> Alignment:
-    """Shift the centreline onto the trusted wall points (see the module docstring); end_s: the tube's end."""
+                          silhouette_margin_px: float = SILHOUETTE_MARGIN_PX, smoothing: float = SHIFT_SMOOTHING,
+                          minimum_points: int = 30, xyz: np.ndarray | None = None, passes: int = 1) -> Alignment:
+    """Shift the centreline onto the trusted wall points (see the module docstring); end_s: the tube's end.
+
+    passes > 1 (with the points' base-frame positions xyz): which points face their camera depends on where
+    the axis is, so each further pass projects the points onto the moved centreline, lays its comb of cuts,
+    and selects and solves again; bias and shifts add up over the passes.
+    """
+    cut_margin = cut_margin_px * footprint
+    away_from_cuts = ~inside_intervals(coords.s, cut_intervals(geometry, centerline, cut_margin))
+    viewpoints = np.ascontiguousarray(viewpoints, dtype=float)
+    # the base (on its post) and the end are depth edges too: trusted points keep the same margin from them
+    margin = silhouette_margin_px * footprint
+    least_cosine = facing_cosine(geometry.outer_radius, footprint, silhouette_margin_px, max_view_angle)
+    bias = np.zeros(2)
+    result = Alignment(centerline, 0.0, 0.0, float("nan"), 0)
+    for done in range(max(passes, 1)):
+        if done:  # the moved axis: its points' coordinates, and its comb (the cuts move with its bends)
+            coords, frames = centerline.project_with_frames(xyz, coords.s)
+            away_from_cuts = ~inside_intervals(coords.s, cut_intervals(geometry, centerline, cut_margin))
+        result = _align_once(centerline, coords, frames, viewpoints, away_from_cuts, geometry, gate, margin, end_s,
+                             least_cosine, smoothing, minimum_points)
+        bias += (result.bias_notch_side, result.bias_binormal)
+        if result.centerline is centerline or xyz is None:
+            break
+        centerline = result.centerline
+    return Alignment(result.centerline, float(bias[0]), float(bias[1]), result.residual, result.trusted, coords.s)
+
+
+def _align_once(centerline: Centerline, coords: TubeCoordinates, frames: tuple, viewpoints: np.ndarray,
+                away_from_cuts: np.ndarray, geometry: TubeGeometry, gate: float, margin: float,
+                end_s: float, least_cosine: float, smoothing: float, minimum_points: int) -> Alignment:
+    """One pass of align_to_trusted_wall: select, solve the windows' shifts, move the centreline."""
     window = geometry.notch_pitch
     windows = max(int(np.ceil(end_s / window)), 1)
-    away_from_cuts = ~inside_intervals(coords.s, cut_intervals(geometry, centerline, cut_margin_px * footprint))
     position, _, normal, binormal = frames
-    # per window the normal equations of offset = cx cos + cy sin + level
-    index, cos_a, sin_a, residual, matrix, rhs, counts = _trusted_window_sums(
-        coords.s, coords.x, coords.y, position, normal, binormal, np.ascontiguousarray(viewpoints, dtype=float),
-        geometry.outer_radius, gate, end_s, np.cos(max_view_angle), away_from_cuts, window, windows)
+    index, cos_a, sin_a, residual, matrix, rhs, counts, s_sum = _trusted_window_sums(
+        coords.s, coords.x, coords.y, position, normal, binormal, viewpoints, geometry.outer_radius, gate, margin,
+        end_s - margin, least_cosine, away_from_cuts, window, windows)
     count = len(index)
     if count < minimum_points:
         return Alignment(centerline, 0.0, 0.0, float("nan"), count)
@@ -101,20 +195,19 @@ def align_to_trusted_wall(centerline: Centerline, coords: TubeCoordinates, frame
     if not np.any(solvable):
         return Alignment(centerline, 0.0, 0.0, float("nan"), count)
     shifts = np.zeros((windows, 2))
-    solution = np.linalg.solve(matrix[solvable] + 1e-12 * np.eye(3), rhs[solvable][..., None])[..., 0]
-    shifts[solvable] = solution[:, :2]
-    centres = (np.arange(windows) + 0.5) * window
+    shifts[solvable] = smoothed_shifts(matrix[solvable], rhs[solvable], smoothing)
+    centres = s_sum / np.maximum(counts, 1)  # where each window's trusted points lie on average
     # windows without enough trusted points take their neighbours' shift; the base stays clamped
-    known_s = np.concatenate([[0.0], centres[solvable]])
-    node_shift = np.stack([np.interp(centerline.s, known_s, np.concatenate([[0.0], shifts[solvable, k]]))
+    known_s = np.concatenate([[0.0], centres[solvable], [max(end_s, centres[solvable][-1])]])
+    node_shift = np.stack([np.interp(centerline.s, known_s, np.concatenate([[0.0], shifts[solvable, k], [0.0]]))
                            for k in range(2)], axis=1)
     moved = centerline.points + node_shift[:, :1] * centerline.normals + node_shift[:, 1:] * centerline.binormals
     binormal_hint = centerline.binormals[0]
     step = float(centerline.s[1] - centerline.s[0])
     aligned = Centerline.from_points(moved, binormal_hint, step)
     weights = counts[solvable].astype(float)
-    bias = np.average(shifts[solvable], axis=0, weights=weights)
+    bias = weights @ shifts[solvable] / weights.sum()
     fitted = shifts[index, 0] * cos_a + shifts[index, 1] * sin_a
     level = median(residual - fitted)
     rms = float(np.sqrt(np.mean((residual - fitted - level) ** 2)))
-    return Alignment(aligned, float(bias[0]), float(bias[1]), rms, count)
+    return Alignment(aligned, -float(bias[0]), -float(bias[1]), rms, count)

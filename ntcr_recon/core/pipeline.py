@@ -55,6 +55,9 @@ from ntcr_recon.core.wall import surface_band
 ROLL_TO_REFRAME = np.radians(6.0)
 
 
+# Alignment passes: each selects the trusted points about the axis the previous one moved.
+ALIGNMENT_PASSES = 3
+
 # A tube whose end tangent turns at least this far towards a camera (from across its view) points at it.
 CAP_PLANE_ANGLE = np.radians(45.0)
 
@@ -198,10 +201,11 @@ class Reconstructor:
         alignment = None
         if viewpoints is not None:
             end = tube_end(coords, geometry.outer_radius, settings.gate, footprint, max_s=geometry.reach)
+            # which points face their camera depends on where the axis is: selected again about the moved axis
             alignment = align_to_trusted_wall(centerline, coords, frames, viewpoints, geometry, settings.gate,
-                                              footprint, end)
+                                              footprint, end, xyz=cloud.xyz, passes=ALIGNMENT_PASSES)
             centerline = alignment.centerline
-            coords, frames = centerline.project_with_frames(cloud.xyz, coords.s)
+            coords, frames = centerline.project_with_frames(cloud.xyz, alignment.arc_lengths)
         # each point as its camera saw it: along its viewing ray onto the wall (core.relocation)
         rays = None if viewpoints is None else along_rays(coords, frames, viewpoints, geometry.outer_radius,
                                                           settings.gate)
