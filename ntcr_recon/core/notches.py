@@ -110,7 +110,7 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
     placed = centres[None, :] + shifts[:, None]
     score = mean_over(placed - half_width, placed + half_width).sum(axis=1)
     shift = float(shifts[int(np.argmax(score))])
-    gaps, signals, indices = [], [], []
+    gaps, indices = [], []
     for k, centre in enumerate(centres + shift):
         if centre - half_width <= 0 or centre + half_width >= tip_s:
             continue
@@ -121,16 +121,28 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
             found = _run_around(grid, depression, centre, geometry.notch_pitch / 2)
         if found is None or not _plausible(found, geometry, footprint, min_width_fraction):
             continue
-        start, end = found
-        # the signal: a slot seen through leaves the window empty; one seen obliquely fills it with its
-        # floor and faces, inside the wall's radius
-        middle = slice(np.searchsorted(grid, start, "left"), np.searchsorted(grid, end, "right"))
-        see_through = anything[middle].mean() < 0.5 * plateau[middle].mean() if middle.stop > middle.start else True
-        signal = "coverage" if see_through else "depression"
-        gaps.append((start, end))
-        signals.append(signal)
+        gaps.append(found)
         indices.append(k)
+    # the signal: a slot seen through leaves the window empty; one seen obliquely fills it with its floor and
+    # faces, inside the wall's radius (all notches' cells at once: one call, not two means per notch)
+    signals = ["coverage" if see_through else "depression" for see_through in _seen_through(grid, anything, plateau,
+                                                                                              gaps)]
     return _measure(gaps, indices, signals, centerline, geometry, centres + shift, tip_s)
+
+
+def _seen_through(grid: np.ndarray, anything: np.ndarray, plateau: np.ndarray, gaps: list[tuple[float, float]]
+                  ) -> np.ndarray:
+    """Per gap, whether the window's points over its cells hold under half the plateau (an empty cell range
+    counts as seen through)."""
+    if not gaps:
+        return np.zeros(0, bool)
+    first = np.searchsorted(grid, [start for start, _ in gaps], side="left")
+    stop = np.searchsorted(grid, [end for _, end in gaps], side="right")
+    # reduceat sums each [first, stop) when given them interleaved (a sentinel cell lets stop reach the end)
+    bounds = np.stack([first, np.maximum(stop, first + 1)], axis=1).ravel()
+    held = np.add.reduceat(np.append(anything, 0.0), bounds)[::2]
+    level = np.add.reduceat(np.append(plateau, 0.0), bounds)[::2]
+    return (stop <= first) | (held < 0.5 * level)
 
 
 def _plausible(gap: tuple[float, float], geometry: TubeGeometry, footprint: float, min_width_fraction: float) -> bool:
@@ -198,16 +210,14 @@ def _measure(gaps: list[tuple[float, float]], indices: list[int], signals: list[
     position = centerline.frames_at(ends)[0]
     chords = position[len(spine_starts):] - position[:len(spine_starts)]
     chords /= np.maximum(np.linalg.norm(chords, axis=1, keepdims=True), 1e-15)
-    normals = centerline.frames_at(np.array([(a + b) / 2 for a, b in gaps]))[2]
-    notches = []
-    for (start, end), index, signal, normal in zip(gaps, indices, signals, normals, strict=True):
-        before, after = chords[index], chords[index + 1]
-        bend = float(np.arccos(min(max(before @ after, -1.0), 1.0)))  # (np.clip costs more on a scalar)
-        bend *= 1.0 if (after - before) @ normal >= 0 else -1.0   # positive towards the notch side
-        width = (end - start) - bend * r_o  # s_n (1 - kappa r_o) with kappa s_n = theta
-        notches.append(Notch(index, float((start + end) / 2), float(start), float(end), float(max(width, 0.0)),
-                             bend, signal))
-    return notches
+    start, end = np.array(gaps).T
+    normals = centerline.frames_at((start + end) / 2)[2]
+    before, after = chords[indices], chords[np.array(indices) + 1]
+    bends = np.arccos(np.clip(np.einsum("ij,ij->i", before, after), -1.0, 1.0))
+    bends *= np.where(np.einsum("ij,ij->i", after - before, normals) >= 0, 1.0, -1.0)  # + towards the notch side
+    widths = np.maximum((end - start) - bends * r_o, 0.0)  # s_n (1 - kappa r_o) with kappa s_n = theta
+    return [Notch(index, float((a + b) / 2), float(a), float(b), float(width), float(bend), signal)
+            for index, signal, a, b, width, bend in zip(indices, signals, start, end, widths, bends, strict=True)]
 
 
 def measure_notch_side(observed: TubeCoordinates, notches: list[Notch], geometry: TubeGeometry, centerline: Centerline,
