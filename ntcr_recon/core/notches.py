@@ -253,7 +253,7 @@ def measure_notch_side(observed: TubeCoordinates, notches: list[Notch], geometry
     centres = -np.pi + (np.arange(sectors) + 0.5) * width
     # every candidate side at once: (candidates, sectors) open-window masks over the seen sectors
     sides = np.arange(-search, search + 1e-9, np.radians(1.0))
-    distance = np.abs(np.angle(np.exp(1j * (centres[None, :] - sides[:, None]))))
+    distance = np.abs(_wrapped(centres[None, :] - sides[:, None]))
     inside = seen[None, :] & (distance < geometry.gap_half_angle)
     outside = seen[None, :] & ~(distance < geometry.gap_half_angle)
     count_in, count_out = inside.sum(axis=1), outside.sum(axis=1)
@@ -291,12 +291,17 @@ def _window_edges(ratio: np.ndarray, seen: np.ndarray, centres: np.ndarray, widt
     found = []
     for sign in (1, -1):  # the edge at side + half_angle (wall beyond it at larger angles), at side - half_angle
         edge = side + sign * half_angle
-        nearest = int(np.argmin(np.abs(np.angle(np.exp(1j * (centres - edge))))))
+        nearest = int(np.argmin(np.abs(_wrapped(centres - edge))))
         for step in (0, -1, 1, -2):
             open_, walled = (nearest + sign * step) % sectors, (nearest + sign * (step + 1)) % sectors
             if usable[open_] and usable[walled] and share[open_] < 0.5 <= share[walled]:
                 boundary = centres[open_] + sign * width / 2
                 located = boundary - sign * share[open_] * width + sign * (1.0 - share[walled]) * width
-                found.append(float(np.angle(np.exp(1j * (located - sign * half_angle)))))
+                found.append(float(_wrapped(located - sign * half_angle)))
                 break
     return found if len(found) == 2 else []
+
+
+def _wrapped(angle):
+    """Angles wrapped into [-pi, pi) (a fifth of the cost of np.angle(np.exp(1j * angle)))."""
+    return (angle + np.pi) % (2 * np.pi) - np.pi
