@@ -197,7 +197,8 @@ def _align_once(centerline: Centerline, coords: TubeCoordinates, frames: tuple, 
     shifts = np.zeros((windows, 2))
     shifts[solvable] = smoothed_shifts(matrix[solvable], rhs[solvable], smoothing)
     centres = s_sum / np.maximum(counts, 1)  # where each window's trusted points lie on average
-    # windows without enough trusted points take their neighbours' shift; the base stays clamped
+    # windows without enough trusted points take their neighbours' shift; the base stays clamped, and beyond the
+    # last window the shift tapers to none at the tube's end (the data there say nothing of a shift)
     known_s = np.concatenate([[0.0], centres[solvable], [max(end_s, centres[solvable][-1])]])
     node_shift = np.stack([np.interp(centerline.s, known_s, np.concatenate([[0.0], shifts[solvable, k], [0.0]]))
                            for k in range(2)], axis=1)
