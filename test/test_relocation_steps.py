@@ -413,6 +413,17 @@ def test_median_is_numpys_median(count):
     assert math.isnan(median(np.zeros(0)))
 
 
+@pytest.mark.parametrize("count", [1, 2, 7, 100, 5401])
+def test_quantile_is_numpys_quantile(count):
+    from ntcr_recon.core.wall import quantile
+
+    rng = np.random.default_rng(count)
+    for values in (rng.normal(size=count), np.round(rng.normal(size=count), 1), np.full(count, 0.25)):
+        for q in (0.0, 0.25, 0.5, 0.75, 0.98, 1.0):
+            assert quantile(values, q) == np.quantile(values, q), (count, q)
+    assert math.isnan(quantile(np.zeros(0), 0.5)) and math.isnan(quantile(np.array([1.0, np.nan]), 0.5))
+
+
 def test_compiled_steps_keep_the_edges_of_the_numpy_code_they_replaced():
     """The kernels check no index and unify types: their wrappers refuse or handle what numpy did."""
     from ntcr_recon.core.centerline import fixed_radius_circle_fit

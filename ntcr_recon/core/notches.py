@@ -26,7 +26,7 @@ from ntcr_recon.core.comb import cut_intervals, expected_centres, inside_interva
 from ntcr_recon.core.compiled import jit
 from ntcr_recon.core.geometry import TubeGeometry
 from ntcr_recon.core.profile import coverage_profile
-from ntcr_recon.core.wall import robust_spread, surface_band
+from ntcr_recon.core.wall import median, robust_spread, surface_band
 
 
 @dataclass(frozen=True)
@@ -286,7 +286,7 @@ def _window_edges(ratio: np.ndarray, seen: np.ndarray, centres: np.ndarray, widt
     usable = seen & np.roll(seen, 1) & np.roll(seen, -1)
     if not np.any(usable & outside):
         return []
-    level = float(np.median(ratio[usable & outside]))
+    level = float(median(ratio[usable & outside]))
     share = np.clip(ratio / max(level, 1e-12), 0.0, 1.0)
     found = []
     for sign in (1, -1):  # the edge at side + half_angle (wall beyond it at larger angles), at side - half_angle

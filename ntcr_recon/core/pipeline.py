@@ -48,7 +48,7 @@ from ntcr_recon.core.tip import (
     rim_tip,
     tube_end,
 )
-from ntcr_recon.core.wall import surface_band
+from ntcr_recon.core.wall import median, surface_band
 
 # A measured notch side further than this from the configured one turns the tube frame (smaller: within
 # what the measurement scatters, and the open window is wide enough for it).
@@ -382,7 +382,7 @@ def _calibrate_rims(notches: list[Notch], geometry) -> list[Notch]:
     observed = [by_index[i + 1].start_s - by_index[i].end_s for i in sorted(by_index) if i + 1 in by_index]
     if len(observed) < 3:
         return notches
-    erosion = float(np.median(spine - np.array(observed))) / 2.0
+    erosion = float(median(spine - np.array(observed, dtype=float))) / 2.0
     return [Notch(n.index, n.center_s, n.start_s + erosion, n.end_s - erosion, max(n.width - 2 * erosion, 0.0),
                   n.bend, n.signal) for n in notches]
 

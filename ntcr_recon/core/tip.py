@@ -27,7 +27,7 @@ import numpy as np
 
 from ntcr_recon.core.compiled import jit
 from ntcr_recon.core.profile import coverage_profile
-from ntcr_recon.core.wall import median, surface_band
+from ntcr_recon.core.wall import median, quantile, surface_band
 
 if TYPE_CHECKING:  # centerline.py imports this module
     from ntcr_recon.core.centerline import Centerline, TubeCoordinates
@@ -272,7 +272,7 @@ def half_density_end(s: np.ndarray, coarse: float, cell: float, kernel: float, b
     plateau_zone = grid < coarse - 3.0 * cell
     if not np.any(plateau_zone):
         return None
-    half = 0.5 * float(np.percentile(density[plateau_zone], 75))
+    half = 0.5 * float(quantile(density[plateau_zone], 0.75))
     above = np.flatnonzero(density >= half)
     if half <= 0 or above.size == 0 or above[-1] + 1 >= len(grid):
         return None

@@ -57,6 +57,24 @@ def median(values):
 
 
 @jit
+def quantile(values, q):
+    """np.quantile(values, q) (its default, linear interpolation, to the bit: the same virtual index and the
+    same two-sided interpolation), by selection on a copy; NaN for no values or any NaN among them."""
+    count = values.shape[0]
+    if count == 0 or np.isnan(values).any():
+        return np.nan
+    scratch = values.copy()
+    index = (count - 1) * q
+    below = min(max(int(np.floor(index)), 0), count - 1)
+    above = min(below + 1, count - 1)
+    low = _select(scratch, below)
+    high = scratch[below + 1:].min() if above > below else low  # the selection left the larger ones above
+    gamma = index - below
+    difference = high - low
+    return high - difference * (1.0 - gamma) if gamma >= 0.5 else low + difference * gamma
+
+
+@jit
 def _median_absolute_deviation(values, centre):
     """Median of |values - centre|."""
     return median(np.abs(values - centre))
