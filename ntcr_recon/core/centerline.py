@@ -479,7 +479,8 @@ def _slab_directions_kernel(slab, x, y, weight, slabs):
 
 def _smooth_update(nodes: np.ndarray, tangents: np.ndarray, targets: np.ndarray, information: np.ndarray,
                    anchor: np.ndarray, smoothing_steps: float) -> np.ndarray:
-    """Positions minimising sum (P - target)^T W (P - target) + lam |second differences|^2 + anchor term.
+    """Positions minimising sum (P - target)^T W (P - target) + lam |second differences|^2 + anchor term;
+    within a smoothing length of the free end, third differences (lam smoothing_steps^2) instead of second.
 
     nodes: current positions (M, 3); the data say nothing along the tangent, so each node is held at its
     place along its tangent (else the smoothness prior would let the curve stretch freely) and weakly
@@ -492,11 +493,11 @@ def _smooth_update(nodes: np.ndarray, tangents: np.ndarray, targets: np.ndarray,
 
 @jit
 def _smoothing_system_kernel(nodes, tangents, targets, information, anchor, smoothing_steps):
-    """_smooth_update's normal equations, in LAPACK's upper band storage (9, 3M) and their right-hand side.
+    """_smooth_update's normal equations, in LAPACK's upper band storage (12, 3M) and their right-hand side.
 
-    The system couples a node with itself (3x3 block) and, through the second differences, with the next two:
-    symmetric, positive definite and banded (8 above the diagonal in x, y, z order per node):
-    bands[8 - offset, column] = system[column - offset, column]. No dense matrix, no matrix product (which
+    The system couples a node with itself (3x3 block) and, through the second and third differences, with the
+    next three: symmetric, positive definite and banded (11 above the diagonal in x, y, z order per node):
+    bands[11 - offset, column] = system[column - offset, column]. No dense matrix, no matrix product (which
     would wake BLAS threads for nothing).
     """
     count = nodes.shape[0]
@@ -506,7 +507,7 @@ def _smoothing_system_kernel(nodes, tangents, targets, information, anchor, smoo
     weak = 1e-4 * typical
     lam = typical * smoothing_steps**4
     clamp = 1e3 * typical  # the base is clamped at the configured pose
-    bands, rhs = np.zeros((9, 3 * count)), np.zeros(3 * count)
+    bands, rhs = np.zeros((12, 3 * count)), np.zeros(3 * count)
     for m in range(count):
         for row in range(3):
             for column in range(3):
@@ -517,17 +518,28 @@ def _smoothing_system_kernel(nodes, tangents, targets, information, anchor, smoo
                     block = information[m, row, column] + along
                     if column == row:
                         block += weak + (clamp if m == 0 else 0.0)
-                    bands[8 - (column - row), 3 * m + column] = block
+                    bands[11 - (column - row), 3 * m + column] = block
             rhs[3 * m + row] += weak * nodes[m, row] + (clamp * anchor[row] if m == 0 else 0.0)
+    end_nodes = int(np.ceil(smoothing_steps)) if count >= 4 else 0  # within a smoothing length of the free end
     if count >= 3:
         # second difference of nodes i, i+1, i+2 with coefficients (1, -2, 1): lam * D^T D, per axis
         coefficients = (1.0, -2.0, 1.0)
         for first in range(3):
             for second in range(first, 3):
                 value = lam * coefficients[first] * coefficients[second]
-                for i in range(count - 2):
+                for i in range(max(count - 2 - end_nodes, 0)):
                     for axis in range(3):  # node pair (i + first, i + second)
-                        bands[8 - 3 * (second - first), 3 * (i + second) + axis] += value
+                        bands[11 - 3 * (second - first), 3 * (i + second) + axis] += value
+        # near the free end a second difference pulls the arc straight (a natural end has no curvature): there
+        # the change of curvature is penalised instead, which a constant bend does not pay
+        third = (-1.0, 3.0, -3.0, 1.0)
+        lam3 = lam * smoothing_steps**2  # the same cut-off length for a difference one order higher
+        for first in range(4):
+            for second in range(first, 4):
+                value = lam3 * third[first] * third[second]
+                for i in range(max(count - 3 - end_nodes, 0), count - 3):
+                    for axis in range(3):
+                        bands[11 - 3 * (second - first), 3 * (i + second) + axis] += value
     return bands, rhs
 
 
