@@ -252,7 +252,7 @@ def test_image_window_neighbours_are_the_nearest_of_the_window_in_order():
     camera = np.array([0] * 9 + [1], np.int8)
     xyz = np.column_stack([pixel[:, 0] * 1e-4, pixel[:, 1] * 1e-4, np.zeros(10)])
     xyz[9] = xyz[4] + 1e-6                                  # close to the centre, but seen by camera 1
-    distances, index = _image_window_neighbours(xyz, camera, pixel, 6, 1)
+    distances, index = _image_window_neighbours(xyz, camera, pixel, 6, 1, 2)
     centre = 4
     assert index[centre].tolist() == [4, 1, 3, 5, 7, 0]
     np.testing.assert_allclose(distances[centre], [0.0, 1e-4, 1e-4, 1e-4, 1e-4, np.sqrt(2) * 1e-4], rtol=1e-6)

@@ -34,5 +34,9 @@ def cache_dir() -> str:
 # Read when each kernel is decorated (its cache is located then): set before any kernel module is imported,
 # which importing this module first guarantees. Not put in os.environ, which child processes would inherit.
 numba.config.CACHE_DIR = cache_dir()
+# The filter's kernels split their points over threads (parallel=True, numba's default threading layer: OpenMP
+# here). OpenMP's idle threads spin by default, taking a core from the graph's other processes: asleep instead
+# (numba's workqueue layer, which sleeps too, cost more per call than the threads saved).
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 jit = functools.partial(numba.njit, cache=True, nogil=True, error_model="numpy")

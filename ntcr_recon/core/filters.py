@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -265,29 +266,31 @@ def _tangent_coordinates(relative, normal, scale, a, b, h):
         h[n] = x * normal[0] + y * normal[1] + z * normal[2]
 
 
-@jit
-def _moving_least_squares(xyz, index, weights, scale, order, minimum):
+@jit(parallel=True)
+def _moving_least_squares(xyz, index, weights, scale, order, minimum, chunks):
     """Eq. 6 for every point: moved along its local normal onto the weighted least-squares plane through its
     neighbours' centroid (order 1) or onto their quadric h(a, b) at its own (a, b) = (0, 0), i.e. by c0
     (order 2); left where it is with fewer than `minimum` weighted neighbours. index, weights: (N, k) rows of
     neighbours and their Eq. 6 weights; scale (N,): the unit of the quadric's tangent coordinates."""
     count, k = index.shape
     smoothed = xyz.copy()
-    relative = np.empty((k, 3))
-    a, b, h = np.empty(k), np.empty(k), np.empty(k)
-    mean = np.empty(3)
-    normal_matrix, rhs = np.empty((6, 6)), np.empty(6)
-    for point in range(count):
-        if _neighbour_offsets(xyz, point, index[point], weights[point], relative) < minimum:
-            continue
-        normal = _weighted_normal(relative, weights[point], mean)
-        if order == 1:
-            height = mean[0] * normal[0] + mean[1] * normal[1] + mean[2] * normal[2]
-        else:
-            _tangent_coordinates(relative, normal, scale[point], a, b, h)
-            height = _quadric_height(a, b, h, weights[point], normal_matrix, rhs)
-        for d in range(3):
-            smoothed[point, d] += height * normal[d]
+    size = (count + chunks - 1) // chunks  # a block of points per thread, each with its own scratch space
+    for chunk in numba.prange(chunks):
+        relative = np.empty((k, 3))
+        a, b, h = np.empty(k), np.empty(k), np.empty(k)
+        mean = np.empty(3)
+        normal_matrix, rhs = np.empty((6, 6)), np.empty(6)
+        for point in range(chunk * size, min(count, (chunk + 1) * size)):
+            if _neighbour_offsets(xyz, point, index[point], weights[point], relative) < minimum:
+                continue
+            normal = _weighted_normal(relative, weights[point], mean)
+            if order == 1:
+                height = mean[0] * normal[0] + mean[1] * normal[1] + mean[2] * normal[2]
+            else:
+                _tangent_coordinates(relative, normal, scale[point], a, b, h)
+                height = _quadric_height(a, b, h, weights[point], normal_matrix, rhs)
+            for d in range(3):
+                smoothed[point, d] += height * normal[d]
     return smoothed
 
 
@@ -315,7 +318,7 @@ def mls_smooth(xyz: np.ndarray, k: int, order: int = 2, radius: float = 0.0,
                                          float(radius))
     weights = np.exp(exponents, out=exponents)
     return _moving_least_squares(np.ascontiguousarray(xyz, dtype=np.float64), index, weights, scale, order,
-                                 minimum)
+                                 minimum, numba.get_num_threads())
 
 
 def voxel_downsample(cloud: Cloud, size: float) -> Cloud:
@@ -331,8 +334,8 @@ def voxel_downsample(cloud: Cloud, size: float) -> Cloud:
     return picked.with_points(centroids / counts[:, None])
 
 
-@jit
-def _image_window_neighbours(xyz, camera, pixel, k, half):
+@jit(parallel=True)
+def _image_window_neighbours(xyz, camera, pixel, k, half, chunks):
     """The k nearest of each point among the points of its (2 half + 1)^2 pixel window in the same camera,
     itself included, nearest first: (distances (N, k), indices (N, k)); inf and -1 where the window holds
     fewer. Squared distances in float32 (positions rounded to float32 first), ties going to the lower index,
@@ -350,32 +353,34 @@ def _image_window_neighbours(xyz, camera, pixel, k, half):
     # a window's candidates as keys (the float32 distance's bits, which order non-negative floats, above the
     # index): distinct, so a candidate's rank is the count of smaller keys; this branch-free count takes half
     # the time of an insertion sort
-    distances = np.empty((2 * half + 1) ** 2, dtype=np.float32)
-    keys = np.empty((2 * half + 1) ** 2, dtype=np.int64)
-    distance_bits = distances.view(np.int32)
-    for point in range(count):
-        u, v = pixel[point, 0] - u0, pixel[point, 1] - v0
-        found = 0
-        for row in range(v - half, v + half + 1):
-            for column in range(u - half, u + half + 1):
-                candidate = grid[camera[point], row, column]
-                if candidate >= 0:
-                    distance = np.float32(0.0)
-                    for d in range(3):
-                        difference = position[candidate, d] - position[point, d]
-                        distance += difference * difference
-                    distances[found] = distance
-                    keys[found] = candidate
-                    found += 1
-        for n in range(found):
-            keys[n] |= np.int64(distance_bits[n]) << 32
-        for n in range(found):
-            rank = 0
-            for m in range(found):
-                rank += keys[m] < keys[n]
-            if rank < k:
-                nearest[point, rank] = np.sqrt(np.float64(distances[n]))
-                index[point, rank] = keys[n] & 0xFFFFFFFF
+    size = (count + chunks - 1) // chunks  # a block of points per thread, each with its own scratch space
+    for chunk in numba.prange(chunks):
+        distances = np.empty((2 * half + 1) ** 2, dtype=np.float32)
+        keys = np.empty((2 * half + 1) ** 2, dtype=np.int64)
+        distance_bits = distances.view(np.int32)
+        for point in range(chunk * size, min(count, (chunk + 1) * size)):
+            u, v = pixel[point, 0] - u0, pixel[point, 1] - v0
+            found = 0
+            for row in range(v - half, v + half + 1):
+                for column in range(u - half, u + half + 1):
+                    candidate = grid[camera[point], row, column]
+                    if candidate >= 0:
+                        distance = np.float32(0.0)
+                        for d in range(3):
+                            difference = position[candidate, d] - position[point, d]
+                            distance += difference * difference
+                        distances[found] = distance
+                        keys[found] = candidate
+                        found += 1
+            for n in range(found):
+                keys[n] |= np.int64(distance_bits[n]) << 32
+            for n in range(found):
+                rank = 0
+                for m in range(found):
+                    rank += keys[m] < keys[n]
+                if rank < k:
+                    nearest[point, rank] = np.sqrt(np.float64(distances[n]))
+                    index[point, rank] = keys[n] & 0xFFFFFFFF
     return nearest, index
 
 
@@ -391,7 +396,7 @@ def nearest_neighbours(cloud: Cloud, k: int) -> tuple[np.ndarray, np.ndarray]:
         distances, index = cKDTree(cloud.xyz).query(cloud.xyz, k=min(k, count), workers=-1)
         return distances.reshape(count, -1), index.reshape(count, -1)
     half = max(int(np.ceil((np.sqrt(k + 1.0) - 1.0) / 2.0)), 1)   # the smallest window with k neighbours
-    return _image_window_neighbours(cloud.xyz, cloud.camera, cloud.pixel, k, half)
+    return _image_window_neighbours(cloud.xyz, cloud.camera, cloud.pixel, k, half, numba.get_num_threads())
 
 
 @jit
