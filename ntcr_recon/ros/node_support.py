@@ -15,6 +15,7 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
+import numba
 import rclpy
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.exceptions import ParameterException
@@ -168,6 +169,9 @@ def run_nodes(node_factories: Sequence[Callable[[], Node]], args: list[str] | No
     Ctrl-C / SIGTERM only ask the loop to stop after the callback under way (rclpy's own handler raised
     KeyboardInterrupt inside it, which the EventsExecutor reports as a FATAL traceback, and shut the context
     down under a take); then the nodes are destroyed and rclpy shut down in order."""
+    # one thread per node's kernels: the graph already runs a process per stage on every core there is (the
+    # offline pipeline splits the filter's kernels over the cores instead; core/compiled.py)
+    numba.set_num_threads(1)
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     context = rclpy.get_default_context()
     stop = threading.Event()
