@@ -27,7 +27,7 @@ import numpy as np
 
 from ntcr_recon.core.compiled import jit
 from ntcr_recon.core.profile import coverage_profile
-from ntcr_recon.core.wall import median, quantile, surface_band
+from ntcr_recon.core.wall import median, quantile, robust_spread, surface_band
 
 if TYPE_CHECKING:  # centerline.py imports this module
     from ntcr_recon.core.centerline import Centerline, TubeCoordinates
@@ -219,7 +219,7 @@ def edge_band(depth: np.ndarray, unit: float, sigmas: float = EDGE_NOISE_SIGMAS,
     residual = (q[:, 2:] - predictions[0, :, 2:])[three]
     residual = residual[np.abs(residual) < 0.05 * float(np.median(q[valid]))]
     centre = float(np.median(residual)) if residual.size else 0.0
-    sigma = 1.4826 * float(np.median(np.abs(residual - centre))) / np.sqrt(6.0) if residual.size else 0.0
+    sigma = robust_spread(residual, centre) / np.sqrt(6.0)
     # clean: within `sigmas` of that noise of the surface's continuation (as a point within its wall band:
     # a mixed pixel's own error, not the prediction's, decides), and the worst rounding of the quadratic's
     # prediction, (3 + 3 + 1 + 1) half depth units
@@ -283,7 +283,7 @@ def half_density_end(s: np.ndarray, coarse: float, cell: float, kernel: float, b
 
 def rim_tip(coords: TubeCoordinates, camera: np.ndarray, origins: np.ndarray, centerline: Centerline,
             coarse: float, radius: float, gate: float, cell: float, kernel: float, bands: np.ndarray,
-            spine: np.ndarray, reach: float, least: int = 50) -> tuple[float, float] | None:
+            spine: np.ndarray, reach: float, least: int = 50) -> tuple[float, float, float] | None:
     """The tip from each camera's rim: its half-density end plus the matcher's erosion there.
 
     bands: per camera index, the band `edge_band` measured, as an angle (px / focal length; NaN: not measured).
