@@ -41,9 +41,19 @@ class Notch:
                               # obliquely: its floor and faces inside the wall's radius)
 
 
+def spine_wall(observed: TubeCoordinates, centerline: Centerline, geometry: TubeGeometry, gate: float,
+               footprint: float) -> tuple[np.ndarray, float, float]:
+    """The points on spines (away from the comb's cuts grown by two footprints) and the outer wall's level and
+    spread measured on them (wall.surface_band), as detect_notches and measure_notch_side take it (`wall`)."""
+    spine = ~inside_intervals(observed.s, cut_intervals(geometry, centerline, 2.0 * footprint))
+    level, spread = surface_band(observed.radius - geometry.outer_radius, gate, spine)
+    return spine, level, spread
+
+
 def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: TubeGeometry, gate: float,
                    footprint: float, kernel_px: float, min_width_fraction: float, tip_s: float,
-                   observed: TubeCoordinates | None = None) -> list[Notch]:
+                   observed: TubeCoordinates | None = None,
+                   wall: tuple[np.ndarray, float, float] | None = None) -> list[Notch]:
     """The robot's comb of notches matched to the evidence along s; each notch refined where the comb puts it.
 
     Evidence, per cell of s, within the angular window where a notch opens the outer surface:
@@ -58,6 +68,7 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
     evidence above one half around its comb position, its edges where the evidence crosses one half (for
     coverage that is the half-plateau level: each depth pixel stands for a cell of one footprint).
 
+    wall: spine_wall(observed) when the caller has it already.
     observed: the points' coordinates as measured, when `coords` are those points moved (e.g. along their
     viewing rays onto the wall): which points lie on the outer wall is judged by where they were seen, as a
     cut face seen through a notch would otherwise be moved onto the wall inside the notch and fill it.
@@ -70,11 +81,10 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
     seen = coords if observed is None else observed
     offset = seen.radius - r_o
     centres = expected_centres(geometry, centerline)
-    spine = ~inside_intervals(seen.s, cut_intervals(geometry, centerline, 2.0 * footprint))
+    spine, level, _ = spine_wall(seen, centerline, geometry, gate, footprint) if wall is None else wall
     near = np.abs(offset) < gate
     if np.count_nonzero(near) < 10:
         return []
-    level, _ = surface_band(offset, gate, spine)
     # the band of the wall: its own spread on spines (robust), at least half a footprint, within the gate
     spine_near = near & spine if np.count_nonzero(near & spine) >= 10 else near
     band = min(gate, max(3.0 * robust_spread(offset[spine_near], level), footprint / 2))
@@ -221,25 +231,26 @@ def _measure(gaps: list[tuple[float, float]], indices: list[int], signals: list[
 
 
 def measure_notch_side(observed: TubeCoordinates, notches: list[Notch], geometry: TubeGeometry, centerline: Centerline,
-                       gate: float, footprint: float, search: float = np.radians(45.0)) -> float | None:
+                       gate: float, footprint: float, search: float = np.radians(45.0),
+                       wall: tuple[np.ndarray, float, float] | None = None) -> float | None:
     """How far (rad) the notches open from the frame's x axis (the configured side), measured on the data.
 
     Inside the found notches the outer wall is missing over |angle - side| < gap_half_angle; spines keep it
     all round. Per sector of angle, the wall points' density inside the notches relative to that on the
     spines (what the cameras can see cancels in the ratio) is matched to that window, slid over +-`search`
     (to a sector), then placed within a sector by its two edges where both are seen (_window_edges).
-    None when fewer than two notches were found or less than two thirds of the ring is seen.
+    None when fewer than two notches were found or less than two thirds of the ring is seen. wall:
+    spine_wall(observed) when the caller has it already.
     """
     if len(notches) < 2:
         return None
     offset = observed.radius - geometry.outer_radius
-    spine = ~inside_intervals(observed.s, cut_intervals(geometry, centerline, 2.0 * footprint))
-    level, spread = surface_band(offset, gate, spine)
-    wall = np.abs(offset - level) <= spread
+    spine, level, spread = spine_wall(observed, centerline, geometry, gate, footprint) if wall is None else wall
+    on_wall = np.abs(offset - level) <= spread
     intervals = np.array([[n.start_s + footprint, n.end_s - footprint] for n in notches])
     intervals = intervals[intervals[:, 1] > intervals[:, 0]]
-    in_notch = wall & inside_intervals(observed.s, intervals)
-    on_spine = wall & spine & (observed.s > notches[0].start_s) & (observed.s < notches[-1].end_s)
+    in_notch = on_wall & inside_intervals(observed.s, intervals)
+    on_spine = on_wall & spine & (observed.s > notches[0].start_s) & (observed.s < notches[-1].end_s)
     sectors = 36
     width = 2 * np.pi / sectors
     index = ((observed.angle + np.pi) / width).astype(np.intp) % sectors

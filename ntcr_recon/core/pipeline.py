@@ -35,7 +35,7 @@ from ntcr_recon.core.config import RigConfig
 from ntcr_recon.core.filters import filter_cloud
 from ntcr_recon.core.fusion import FramePair, fuse
 from ntcr_recon.core.icp import icp, mesh_reference, posed_reference, relocate_onto_reference
-from ntcr_recon.core.notches import Notch, detect_notches, measure_notch_side
+from ntcr_recon.core.notches import Notch, detect_notches, measure_notch_side, spine_wall
 from ntcr_recon.core.quality import assess, depth_step
 from ntcr_recon.core.relocation import RelocatedPoints, along_rays, relocate_points
 from ntcr_recon.core.tip import (
@@ -139,17 +139,14 @@ class Reconstructor:
         """The depth step each camera's data show, measured once per camera (for the self-check); and its
         latest depth image while its edge band is not yet measured (for the tip: `_edge_band`)."""
         for name, frame in pair.frames.items():
-            if name in self._depth_steps or frame.depth is None or name not in self.config.cameras:
+            if frame.depth is None or name not in self.config.cameras:
                 continue
             unit = frame.depth_unit if frame.depth_unit is not None else self.config.cameras[name].depth_unit
-            self._depth_steps[name] = depth_step(frame.depth, unit)
-        for name, frame in pair.frames.items():
-            if name in self._edge_bands or frame.depth is None or frame.intrinsics is None:
-                continue
-            if name not in self.config.cameras or self._edge_attempts.get(name, 0) >= EDGE_BAND_ATTEMPTS:
-                continue
-            unit = frame.depth_unit if frame.depth_unit is not None else self.config.cameras[name].depth_unit
-            self._edge_images[name] = (frame.depth, unit, frame.intrinsics.fx)
+            if name not in self._depth_steps:
+                self._depth_steps[name] = depth_step(frame.depth, unit)
+            if (name not in self._edge_bands and frame.intrinsics is not None
+                    and self._edge_attempts.get(name, 0) < EDGE_BAND_ATTEMPTS):
+                self._edge_images[name] = (frame.depth, unit, frame.intrinsics.fx)
 
     def _edge_band(self, name: str) -> float:
         """The camera's edge band as an angle (rad), NaN while no depth image of it showed one."""
@@ -214,13 +211,16 @@ class Reconstructor:
         tip_s = tube_end(measured, geometry.outer_radius, settings.gate, footprint, max_s=geometry.reach,
                          centerline=centerline, viewpoints=self._camera_origins if seen_by is not None else None)
         # 4. notches: the robot's comb matched to the evidence, edges refined locally (core.notches)
+        # the spines and the wall band on them, where the notches are found and their side is measured (the
+        # turned frame below has the same s and radii: the same spines and band)
+        wall = spine_wall(coords, centerline, geometry, settings.gate, footprint)
         found = detect_notches(measured, centerline, geometry, settings.gate, footprint, options.notch_kernel_px,
-                               options.min_notch_width_fraction, tip_s, observed=coords)
+                               options.min_notch_width_fraction, tip_s, observed=coords, wall=wall)
         # the robot's roll in its clamp is never exact: the side the notches open to, measured; where it is
         # off the configured one the tube frame turns to it and the notches are found again in that frame
         notch_side = geometry.notch_side
         for _ in range(2):  # the second pass measures in the turned frame (the window fits better there)
-            roll = measure_notch_side(coords, found, geometry, centerline, settings.gate, footprint)
+            roll = measure_notch_side(coords, found, geometry, centerline, settings.gate, footprint, wall=wall)
             if roll is None:
                 break
             if abs(roll) <= ROLL_TO_REFRAME:
@@ -231,7 +231,7 @@ class Reconstructor:
             turned_measured = turned[1] if turned_rays is None else turned_rays[0]
             again = detect_notches(turned_measured, turned[0], geometry, settings.gate, footprint,
                                    options.notch_kernel_px, options.min_notch_width_fraction, tip_s,
-                                   observed=turned[1])
+                                   observed=turned[1], wall=wall)
             if len(again) < len(found):
                 break  # the turned frame explains the data worse: the measurement was not to be trusted
             notch_side += roll
