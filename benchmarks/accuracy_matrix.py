@@ -66,6 +66,8 @@ ROWS = [
     # it does not (cam_a sees nothing of the distal part there: the result must say so)
     Row("bend90_toward_cam_a", ("--bend-deg", "90", "--notch-side", "facing", "--camera-distance", "0.110")),
     Row("bend90_toward_cam_a_90mm", ("--bend-deg", "90", "--notch-side", "facing")),
+    # a camera looking into the slots from 110 mm: the spines are narrower than its matcher's window
+    Row("side-90_bend30_cameras110", ("--bend-deg", "30", "--notch-side", "-90", "--camera-distance", "0.110")),
     Row("cameras75", ("--bend-deg", "45", "--camera-distance", "0.075")),
     Row("cameras110", ("--bend-deg", "45", "--camera-distance", "0.110")),
     Row("cameras_asymmetric", ("--bend-deg", "45", "--camera-distances", "0.080,0.105")),

@@ -16,7 +16,7 @@ from ntcr_recon.core.config import RelocationConfig
 from ntcr_recon.core.geometry import TubeGeometry
 from ntcr_recon.core.kinematics import TubeShape
 from ntcr_recon.core.notches import detect_notches
-from ntcr_recon.core.quality import assess, camera_coverage, depth_step
+from ntcr_recon.core.quality import assess, camera_coverage, depth_step, notched_thinning
 from ntcr_recon.core.tip import tube_end, visible_sectors
 
 GEOMETRY = TubeGeometry()   # 3.5 mm, 16 notches, straight along base +z, notches towards +x
@@ -320,6 +320,39 @@ def test_quality_tells_a_tube_cut_short_by_the_crop_box_from_one_that_ends_insid
     assert "short of the robot's length" in on_face and "crop box's face z = 0.0 mm" in on_face
     inside = warnings_for([0.0, 0.0, 0.03])
     assert "short of the robot's length" in inside and "crop box" not in inside
+
+
+def test_quality_measures_a_wall_that_reads_deeper_between_the_notches_than_on_the_plain_tube():
+    """Spines averaged with the slot floors behind them read deep; the plain tube beyond the notches does not.
+    The figure does not depend on the pooled level's common part (where the axis was put), and above half a
+    footprint it is a warning."""
+    rng = np.random.default_rng(3)
+    s = rng.uniform(0.0, 50e-3, 20000)
+    cuts = np.array([(c - GEOMETRY.notch_width / 2, c + GEOMETRY.notch_width / 2) for c in GEOMETRY.notch_centers_s])
+    between = (s > cuts[0, 0]) & (s < cuts[-1, 1])
+    noise = rng.normal(0.0, 0.02e-3, len(s))
+
+    def thinning(deep, common=0.0):
+        offset = common - 0.1e-3 - np.where(between, deep, 0.0) + noise
+        return notched_thinning(offset, s, cuts, 50e-3, gate=0.6e-3, margin=2 * FOOTPRINT)
+
+    assert thinning(0.3e-3) == pytest.approx(0.3e-3, abs=0.02e-3)
+    assert thinning(0.3e-3, common=0.1e-3) == pytest.approx(0.3e-3, abs=0.02e-3)
+    assert abs(thinning(0.0)) < 0.02e-3
+    assert notched_thinning(np.zeros(len(s)), s, cuts[:0], 50e-3, 0.6e-3, FOOTPRINT) is None
+
+    def warnings_for(deep):
+        quality, warnings = assess(
+            geometry=GEOMETRY, camera_names=("cam_a",), notches=[], notch_signals={}, coords_s=s,
+            camera=np.zeros(len(s), np.int8), tip_s=50e-3, total_bend=0.0, footprint=FOOTPRINT,
+            wall_residual=0.0, notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0,
+            depth_steps={}, notched_thinning=thinning(deep))
+        return quality, " ".join(warnings)
+
+    quality, text = warnings_for(0.3e-3)
+    assert quality["notched_thinning_mm"] == pytest.approx(0.3, abs=0.02)
+    assert "reads 0.30 mm deeper than the plain tube" in text and "may lean up to 0.30 mm" in text
+    assert "deeper than the plain tube" not in warnings_for(0.2 * FOOTPRINT)[1]
 
 
 def test_depth_step_is_read_from_the_data():

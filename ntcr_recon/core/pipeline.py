@@ -30,13 +30,13 @@ import numpy as np
 from ntcr_recon.core.alignment import align_to_trusted_wall
 from ntcr_recon.core.centerline import Centerline, TubeCoordinates, estimate_centerline, settings_for
 from ntcr_recon.core.cloud import Cloud
-from ntcr_recon.core.comb import inside_intervals
+from ntcr_recon.core.comb import cut_intervals, inside_intervals
 from ntcr_recon.core.config import RigConfig
 from ntcr_recon.core.filters import filter_cloud
 from ntcr_recon.core.fusion import FramePair, fuse
 from ntcr_recon.core.icp import icp, mesh_reference, posed_reference, relocate_onto_reference
 from ntcr_recon.core.notches import Notch, detect_notches, measure_notch_side, spine_wall
-from ntcr_recon.core.quality import assess, depth_step
+from ntcr_recon.core.quality import assess, depth_step, notched_thinning
 from ntcr_recon.core.relocation import RelocatedPoints, along_rays, relocate_points
 from ntcr_recon.core.tip import (
     EDGE_BAND_ATTEMPTS,
@@ -290,7 +290,9 @@ class Reconstructor:
             bias_notch_side=0.0 if alignment is None else alignment.bias_notch_side,
             bias_binormal=0.0 if alignment is None else alignment.bias_binormal, depth_steps=dict(self._depth_steps),
             tip_erosion=tip_s - eroded_end, tip_uncertainty=tip_uncertainty, tip_position=tip,
-            crop_box=self.config.crop_box())
+            crop_box=self.config.crop_box(),
+            notched_thinning=notched_thinning(offset, coords.s, cut_intervals(geometry, centerline, 0.0), tip_s,
+                                              settings.gate, 2 * footprint))
         quality = {**quality, "tip_refinement": refinement,
                    "edge_band_mrad": {name: band * 1e3 for name, band in self._edge_bands.items()}}
         self._prior = fitted

@@ -5,7 +5,8 @@ and by which signal, the share of the robot's length each camera saw (and a dist
 camera alone), the wall fit's residual, the measured notch side against the configured one, the centreline
 bias the alignment removed, the tip against the robot's known length, the pixel footprint against the
 tube, the depth quantisation seen in the frames, each notch's width against the width its measured bend
-implies, and how far the tip's position rests on the rim erosion given back. Every figure is in the unit
+implies, how far the tip's position rests on the rim erosion given back, and how much deeper the wall reads
+between the notches than on the plain tube (a lean no fit can see). Every figure is in the unit
 its key names; the warnings are sentences a user can act on. relocation_node puts them on /diagnostics,
 the CLI prints them.
 """
@@ -15,6 +16,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
+from ntcr_recon.core.comb import inside_intervals
+from ntcr_recon.core.wall import surface_band
 
 # Thresholds, relative to the robot and the camera so that no robot is special.
 ONE_CAMERA_RUN_DIAMETERS = 1.0     # a distal stretch longer than this many diameters seen by one camera: warn
@@ -49,16 +53,45 @@ def camera_coverage(s: np.ndarray, camera: np.ndarray | None, camera_names: tupl
     return share, alone
 
 
+def notched_thinning(offset: np.ndarray, s: np.ndarray, cuts: np.ndarray, tip_s: float, gate: float,
+                     margin: float) -> float | None:
+    """How much deeper (m, + thinner) the outer wall reads between the notches than on the plain tube beyond
+    them: the wall level (wall.surface_band) of the spines in the notched section less that of the plain
+    stretches before the first and after the last cut. offset: the points' radial offsets from the outer wall;
+    cuts: (K, 2) the notches' [start, end] along s; margin: kept from every cut, the base and the tip.
+    None where either part has too few points to tell.
+
+    A stereo matcher gives each pixel its window's mean depth: on a spine narrower than the window, seen by a
+    camera that looks into the slots, the window reaches the slot floors behind it, and the spine reads deep.
+    Pooled over opposed cameras the level does not depend on where the axis is put between them, so this
+    measures what no fit can: a deficit carried by one camera moves the axis away from it by up to as much.
+    """
+    if len(cuts) == 0:
+        return None
+    first, last = float(np.min(cuts[:, 0])) - margin, float(np.max(cuts[:, 1])) + margin
+    inside = (s > margin) & (s < tip_s - margin)
+    grown = np.column_stack([cuts[:, 0] - margin, cuts[:, 1] + margin])
+    notched = inside & (s > first) & (s < last) & ~inside_intervals(s, grown)
+    plain = inside & ((s < first) | (s > last))
+    if np.count_nonzero(notched) < 8 or np.count_nonzero(plain) < 8:
+        return None
+    notched_level, _ = surface_band(offset, gate, notched)
+    plain_level, _ = surface_band(offset, gate, plain)
+    return plain_level - notched_level
+
+
 def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_signals: dict[int, str],
            coords_s: np.ndarray, camera: np.ndarray | None, tip_s: float, total_bend: float, footprint: float,
            wall_residual: float, notch_side: float, configured_side: float, bias_notch_side: float,
            bias_binormal: float, depth_steps: dict[str, float], tip_erosion: float = 0.0,
            tip_uncertainty: float | None = None, tip_position: np.ndarray | None = None,
-           crop_box: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[dict, list[str]]:
+           crop_box: tuple[np.ndarray, np.ndarray] | None = None,
+           notched_thinning: float | None = None) -> tuple[dict, list[str]]:
     """The `quality` document and the warnings (see the module docstring). tip_uncertainty: how well the tip's
     refinement placed it along the tube, when it measured the erosion it gave back (else the erosion itself
     counts as uncertain, and half a footprint). tip_position, crop_box: where the tip is and the box the points
-    were cropped to (base frame), to tell a tube cut off by the box."""
+    were cropped to (base frame), to tell a tube cut off by the box. notched_thinning: `notched_thinning`'s
+    figure, when it could be measured."""
     warnings: list[str] = []
     r_o, diameter = geometry.outer_radius, geometry.outer_diameter
     found = sorted(n.index for n in notches)
@@ -120,6 +153,10 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
     if abs(bias_notch_side) > BIAS_WARN_FOOTPRINTS * footprint:
         warnings.append(f"stereo edges pulled the centreline {bias_notch_side * 1e3:+.2f} mm towards the notch "
                         "side (corrected); residual bias may remain")
+    if notched_thinning is not None and notched_thinning > BIAS_WARN_FOOTPRINTS * footprint:
+        warnings.append(f"the wall between the notches reads {notched_thinning * 1e3:.2f} mm deeper than the plain "
+                        "tube (a camera looking into the slots averages its spines with the slot floors): the "
+                        f"centreline there may lean up to {notched_thinning * 1e3:.2f} mm away from that camera")
     quality = {
         "notches_found": len(found), "notches_expected": geometry.notch_count, "notches_missing": missing,
         "notches_by_signal": by_signal,
@@ -133,6 +170,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
         "notch_width_vs_bend_mm": {str(i): d * 1e3 for i, d in sorted(off_model.items())},
         "pixel_footprint_mm": footprint * 1e3,
         "depth_step_mm": {k: v * 1e3 for k, v in depth_steps.items()},
+        "notched_thinning_mm": None if notched_thinning is None else notched_thinning * 1e3,
     }
     return quality, warnings
 
