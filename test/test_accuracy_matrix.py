@@ -36,7 +36,7 @@ def test_a_camera_looking_into_the_notches_from_afar_says_the_centreline_may_lea
     figures = accuracy_matrix.run_row(ROWS["side-90_bend30_cameras110"], frames=2)
     print("\n" + accuracy_matrix.format_row(figures) + "\n" + "\n".join(figures["warnings"]))
     assert "centerline" in figures["misses"], "this row was expected to miss; if it no longer does, assert it meets"
-    assert any("deeper than the plain tube" in warning for warning in figures["warnings"])
+    assert any("cam_a looks into the notches' slots" in warning for warning in figures["warnings"])
 
 
 def test_a_rig_file_rolled_20_degrees_off_reports_the_side_the_notches_open_to():

@@ -16,7 +16,13 @@ from ntcr_recon.core.config import RelocationConfig
 from ntcr_recon.core.geometry import TubeGeometry
 from ntcr_recon.core.kinematics import TubeShape
 from ntcr_recon.core.notches import detect_notches
-from ntcr_recon.core.quality import assess, camera_coverage, depth_step, notched_thinning
+from ntcr_recon.core.quality import (
+    assess,
+    camera_coverage,
+    cameras_looking_into_slots,
+    depth_step,
+    notched_thinning,
+)
 from ntcr_recon.core.tip import tube_end, visible_sectors
 
 GEOMETRY = TubeGeometry()   # 3.5 mm, 16 notches, straight along base +z, notches towards +x
@@ -341,18 +347,39 @@ def test_quality_measures_a_wall_that_reads_deeper_between_the_notches_than_on_t
     assert abs(thinning(0.0)) < 0.02e-3
     assert notched_thinning(np.zeros(len(s)), s, cuts[:0], 50e-3, 0.6e-3, FOOTPRINT) is None
 
-    def warnings_for(deep):
+    def warnings_for(deep, looking=("cam_a",)):
         quality, warnings = assess(
-            geometry=GEOMETRY, camera_names=("cam_a",), notches=[], notch_signals={}, coords_s=s,
+            geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=[], notch_signals={}, coords_s=s,
             camera=np.zeros(len(s), np.int8), tip_s=50e-3, total_bend=0.0, footprint=FOOTPRINT,
             wall_residual=0.0, notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0,
-            depth_steps={}, notched_thinning=thinning(deep))
+            depth_steps={}, notched_thinning=thinning(deep), looking_into_slots=looking)
         return quality, " ".join(warnings)
 
     quality, text = warnings_for(0.3e-3)
     assert quality["notched_thinning_mm"] == pytest.approx(0.3, abs=0.02)
-    assert "reads 0.30 mm deeper than the plain tube" in text and "may lean up to 0.30 mm" in text
-    assert "deeper than the plain tube" not in warnings_for(0.2 * FOOTPRINT)[1]
+    assert quality["cameras_looking_into_slots"] == ["cam_a"]
+    assert "cam_a looks into the notches' slots" in text and "reads 0.30 mm deeper than the plain tube" in text
+    assert "may lean up to 0.60 mm away from cam_a" in text
+    # shared by cameras that see the slots edge-on (through them), a thinner wall between the notches does not
+    # move the axis; and a deficit a quarter of a footprint below the floor stays quiet
+    assert "slots" not in warnings_for(0.3e-3, looking=())[1]
+    assert "slots" not in warnings_for(0.2 * FOOTPRINT)[1]
+
+
+def test_a_camera_looks_into_the_slots_when_its_line_of_sight_through_them_meets_their_floor():
+    """Default robot: the cut reaches d = 0.7 mm past the axis, so a line of sight within
+    atan(sqrt(r^2 - d^2) / (r + d)) = 33 deg of the notch side (+x here) meets a slot's floor."""
+    assert math.degrees(GEOMETRY.slot_floor_view_angle) == pytest.approx(33.2, abs=0.1)
+    centerline = straight_centerline(50e-3)
+
+    def looking(*angles_deg):
+        origins = [[0.09 * math.cos(math.radians(a)), 0.09 * math.sin(math.radians(a)), 0.025] for a in angles_deg]
+        return cameras_looking_into_slots(centerline, GEOMETRY, np.array(origins),
+                                          tuple(f"cam{a}" for a in angles_deg))
+
+    assert looking(-90, 90) == []            # the notches open between the cameras: seen through, edge-on
+    assert looking(0, 180) == ["cam0"]       # facing cam0: it sees the floors, cam180 the backbone
+    assert looking(30, 45, -30) == ["cam30", "cam-30"]
 
 
 def test_depth_step_is_read_from_the_data():

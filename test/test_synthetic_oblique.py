@@ -53,3 +53,21 @@ def test_a_tube_pointing_at_a_camera_is_followed_or_the_result_says_what_it_lost
     if tip > 0.5e-3:  # a tip this far off is never silent
         assert "the tip is uncertain" in text or "alone" in text
     assert relocation.quality["length_seen_share"]["cam_a"] > 0.5
+
+
+def test_a_camera_looking_into_the_slots_from_afar_never_leans_the_centreline_silently():
+    """Notches facing cam_a at 110 mm, a 7 px matching window: the spines facing cam_a are narrower than the window,
+    which averages them with the slot floors behind. The centreline leans away from cam_a; above the floor, the
+    result must say so and name the camera."""
+    from synthetic_views import make_config, render_pair
+
+    from ntcr_recon.core.kinematics import TubeShape
+
+    config = make_config({"notch_side": float(np.radians(-90.0))}, distance=0.11)
+    shape = TubeShape.from_bend_angle(config.robot, 0.0)
+    relocation, errors, rmse, tip = _figures(config, shape, render_pair(shape, config, seed=3, blur_px=7))
+    print(f"\nfacing cam_a at 110 mm: centreline {rmse * 1e3:.3f} mm, thinning "
+          f"{relocation.quality['notched_thinning_mm']:.3f} mm; warnings: {list(relocation.warnings)}")
+    assert relocation.quality["cameras_looking_into_slots"] == ["cam_a"]
+    if rmse > 0.08e-3:
+        assert any("cam_a looks into the notches' slots" in warning for warning in relocation.warnings)

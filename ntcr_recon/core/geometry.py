@@ -168,6 +168,15 @@ class TubeGeometry:
         """Half the angle about the axis over which a notch is open on the outer surface: acos(-d / r_o)."""
         return math.acos(-self.chord_offset / self.outer_radius)
 
+    @property
+    def slot_floor_view_angle(self) -> float:
+        """The largest angle about the axis between a line of sight and the notch side at which the line through
+        the middle of a slot (from its opening's apex) meets the slot's floor - the backbone's cut face at the
+        chord d beyond the axis - rather than passing out through the other side: atan(sqrt(r_o^2 - d^2) / (r_o + d)).
+        A camera looking at the notches from within this angle sees the floors behind the spines."""
+        r, d = self.outer_radius, self.chord_offset
+        return math.atan2(math.sqrt(max(r * r - d * d, 0.0)), r + d)
+
     @cached_property
     def base_rotation(self) -> np.ndarray:
         """Rotation of the robot base pose (its +z = the robot's axis) in the base frame (computed once: every

@@ -36,7 +36,7 @@ from ntcr_recon.core.filters import filter_cloud
 from ntcr_recon.core.fusion import FramePair, fuse
 from ntcr_recon.core.icp import icp, mesh_reference, posed_reference, relocate_onto_reference
 from ntcr_recon.core.notches import Notch, detect_notches, measure_notch_side, spine_wall
-from ntcr_recon.core.quality import assess, depth_step, notched_thinning
+from ntcr_recon.core.quality import assess, cameras_looking_into_slots, depth_step, notched_thinning
 from ntcr_recon.core.relocation import RelocatedPoints, along_rays, relocate_points
 from ntcr_recon.core.tip import (
     EDGE_BAND_ATTEMPTS,
@@ -292,7 +292,9 @@ class Reconstructor:
             tip_erosion=tip_s - eroded_end, tip_uncertainty=tip_uncertainty, tip_position=tip,
             crop_box=self.config.crop_box(),
             notched_thinning=notched_thinning(offset, coords.s, cut_intervals(geometry, centerline, 0.0), tip_s,
-                                              settings.gate, 2 * footprint))
+                                              settings.gate, 2 * footprint),
+            looking_into_slots=tuple(cameras_looking_into_slots(centerline, geometry, self._camera_origins,
+                                                                self.config.camera_names)))
         quality = {**quality, "tip_refinement": refinement,
                    "edge_band_mrad": {name: band * 1e3 for name, band in self._edge_bands.items()}}
         self._prior = fitted

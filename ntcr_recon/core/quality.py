@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from ntcr_recon.core.comb import inside_intervals
+from ntcr_recon.core.comb import expected_centres, inside_intervals
 from ntcr_recon.core.wall import surface_band
 
 # Thresholds, relative to the robot and the camera so that no robot is special.
@@ -80,18 +80,35 @@ def notched_thinning(offset: np.ndarray, s: np.ndarray, cuts: np.ndarray, tip_s:
     return plain_level - notched_level
 
 
+def cameras_looking_into_slots(centerline, geometry, camera_origins: np.ndarray,
+                               camera_names: tuple[str, ...]) -> list[str]:
+    """The cameras that look into the notches' slots: the angle about the axis between the direction to the
+    camera and the notch side (the centreline's normal), median over the notches, within
+    geometry.slot_floor_view_angle - their line of sight through a slot meets its floor."""
+    centres = np.clip(expected_centres(geometry, centerline), 0.0, centerline.length)
+    position, _, normal, binormal = centerline.frames_at(centres)
+    looking = []
+    for name, origin in zip(camera_names, np.asarray(camera_origins, float), strict=True):
+        towards = origin - position
+        angle = np.arctan2(np.einsum("ij,ij->i", towards, binormal), np.einsum("ij,ij->i", towards, normal))
+        if float(np.median(np.abs(angle))) < geometry.slot_floor_view_angle:
+            looking.append(name)
+    return looking
+
+
 def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_signals: dict[int, str],
            coords_s: np.ndarray, camera: np.ndarray | None, tip_s: float, total_bend: float, footprint: float,
            wall_residual: float, notch_side: float, configured_side: float, bias_notch_side: float,
            bias_binormal: float, depth_steps: dict[str, float], tip_erosion: float = 0.0,
            tip_uncertainty: float | None = None, tip_position: np.ndarray | None = None,
            crop_box: tuple[np.ndarray, np.ndarray] | None = None,
-           notched_thinning: float | None = None) -> tuple[dict, list[str]]:
+           notched_thinning: float | None = None, looking_into_slots: tuple[str, ...] = ()
+           ) -> tuple[dict, list[str]]:
     """The `quality` document and the warnings (see the module docstring). tip_uncertainty: how well the tip's
     refinement placed it along the tube, when it measured the erosion it gave back (else the erosion itself
     counts as uncertain, and half a footprint). tip_position, crop_box: where the tip is and the box the points
     were cropped to (base frame), to tell a tube cut off by the box. notched_thinning: `notched_thinning`'s
-    figure, when it could be measured."""
+    figure, when it could be measured; looking_into_slots: `cameras_looking_into_slots`."""
     warnings: list[str] = []
     r_o, diameter = geometry.outer_radius, geometry.outer_diameter
     found = sorted(n.index for n in notches)
@@ -153,10 +170,14 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
     if abs(bias_notch_side) > BIAS_WARN_FOOTPRINTS * footprint:
         warnings.append(f"stereo edges pulled the centreline {bias_notch_side * 1e3:+.2f} mm towards the notch "
                         "side (corrected); residual bias may remain")
-    if notched_thinning is not None and notched_thinning > BIAS_WARN_FOOTPRINTS * footprint:
-        warnings.append(f"the wall between the notches reads {notched_thinning * 1e3:.2f} mm deeper than the plain "
-                        "tube (a camera looking into the slots averages its spines with the slot floors): the "
-                        f"centreline there may lean up to {notched_thinning * 1e3:.2f} mm away from that camera")
+    # pooled over two cameras, a deficit one of them carries alone reads half: the lean may reach twice it
+    lean = 2.0 * notched_thinning if notched_thinning is not None and looking_into_slots else 0.0
+    if lean > BIAS_WARN_FOOTPRINTS * footprint:
+        names = " and ".join(looking_into_slots)
+        warnings.append(f"{names} looks into the notches' slots, and the wall between them reads "
+                        f"{notched_thinning * 1e3:.2f} mm deeper than the plain tube (its matcher averages the spines "
+                        f"with the slot floors): the centreline there may lean up to {lean * 1e3:.2f} mm away from "
+                        f"{names}")
     quality = {
         "notches_found": len(found), "notches_expected": geometry.notch_count, "notches_missing": missing,
         "notches_by_signal": by_signal,
@@ -171,6 +192,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
         "pixel_footprint_mm": footprint * 1e3,
         "depth_step_mm": {k: v * 1e3 for k, v in depth_steps.items()},
         "notched_thinning_mm": None if notched_thinning is None else notched_thinning * 1e3,
+        "cameras_looking_into_slots": list(looking_into_slots),
     }
     return quality, warnings
 
