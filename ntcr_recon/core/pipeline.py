@@ -239,7 +239,7 @@ class Reconstructor:
             frames = (frames[0], frames[1], *_rolled_axes(frames[2], frames[3], roll))
         notches, signals = found, {n.index: n.signal for n in found}
         # 5. tip, refined: the rim the stereo matcher erodes at depth edges given back
-        eroded_end, refinement, tip_uncertainty = tip_s, "coarse end (no camera seen)", None
+        eroded_end, refinement, tip_uncertainty, from_cap = tip_s, "coarse end (no camera seen)", None, False
         # where a camera looks onto the end cap - wider in its image than 4 pixels, more than a matcher's
         # silhouette band - the end is that face (measured), not a rim the matcher erodes
         cap_seen = seen_by is not None and cap_faces_a_camera(centerline, tip_s, self._camera_origins,
@@ -248,7 +248,8 @@ class Reconstructor:
             # the tube points at a camera: its thinly seen wall cannot place the end, the cap's own points can
             cap = end_cap_plane(measured, geometry.inner_radius, geometry.outer_radius, tip_s,
                                 geometry.outer_diameter, footprint)
-            tip_s = tip_s if cap is None else cap
+            if cap is not None:  # the matcher's smear of the cap's points bounds how well it placed it
+                tip_s, tip_uncertainty, from_cap = cap[0], max(cap[1], footprint / 2), True
             eroded_end, refinement = tip_s, "end cap" if cap is not None else "coarse end (no end cap found)"
         elif seen_by is not None:
             # each camera's end where its wall points thin to half, plus the band its matcher spoils at depth
@@ -294,7 +295,8 @@ class Reconstructor:
             notched_thinning=notched_thinning(offset, coords.s, cut_intervals(geometry, centerline, 0.0), tip_s,
                                               settings.gate, 2 * footprint),
             looking_into_slots=tuple(cameras_looking_into_slots(centerline, geometry, self._camera_origins,
-                                                                self.config.camera_names)))
+                                                                self.config.camera_names)),
+            tip_from_cap=from_cap)
         quality = {**quality, "tip_refinement": refinement,
                    "edge_band_mrad": {name: band * 1e3 for name, band in self._edge_bands.items()}}
         self._prior = fitted

@@ -102,13 +102,14 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
            bias_binormal: float, depth_steps: dict[str, float], tip_erosion: float = 0.0,
            tip_uncertainty: float | None = None, tip_position: np.ndarray | None = None,
            crop_box: tuple[np.ndarray, np.ndarray] | None = None,
-           notched_thinning: float | None = None, looking_into_slots: tuple[str, ...] = ()
-           ) -> tuple[dict, list[str]]:
+           notched_thinning: float | None = None, looking_into_slots: tuple[str, ...] = (),
+           tip_from_cap: bool = False) -> tuple[dict, list[str]]:
     """The `quality` document and the warnings (see the module docstring). tip_uncertainty: how well the tip's
     refinement placed it along the tube, when it measured the erosion it gave back (else the erosion itself
     counts as uncertain, and half a footprint). tip_position, crop_box: where the tip is and the box the points
     were cropped to (base frame), to tell a tube cut off by the box. notched_thinning: `notched_thinning`'s
-    figure, when it could be measured; looking_into_slots: `cameras_looking_into_slots`."""
+    figure, when it could be measured; looking_into_slots: `cameras_looking_into_slots`; tip_from_cap: the tip is
+    the end cap's plane (tip.end_cap_plane), tip_uncertainty the smear of its points."""
     warnings: list[str] = []
     r_o, diameter = geometry.outer_radius, geometry.outer_diameter
     found = sorted(n.index for n in notches)
@@ -132,7 +133,11 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
     # refinement measured it
     measured = tip_uncertainty is not None
     tip_uncertainty = tip_uncertainty if measured else abs(tip_erosion) + footprint / 2
-    if tip_uncertainty > TIP_FLOOR:
+    if tip_uncertainty > TIP_FLOOR and tip_from_cap:
+        warnings.append(f"the tip is the end cap's plane, whose points the stereo matcher smeared over "
+                        f"{tip_uncertainty * 1e3:.2f} mm towards the bore behind its ring: its position is uncertain "
+                        "by about that much along the tube")
+    elif tip_uncertainty > TIP_FLOOR:
         how = ", as the edge band measured in the depth images" if measured else ""
         warnings.append(f"the tip rests on a stereo-eroded rim ({tip_erosion * 1e3:.2f} mm given back{how}): "
                         f"its position is uncertain by about {tip_uncertainty * 1e3:.2f} mm along the tube")

@@ -24,6 +24,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
+from scipy.ndimage import gaussian_filter1d
 
 from ntcr_recon.core.compiled import jit
 from ntcr_recon.core.profile import coverage_profile
@@ -164,11 +165,17 @@ def cap_faces_a_camera(centerline: Centerline, tip_s: float, viewpoints: np.ndar
 
 
 def end_cap_plane(coords: TubeCoordinates, inner_radius: float, outer_radius: float, coarse_end: float,
-                  reach: float, cell: float) -> float | None:
-    """Arc length of the end cap where a camera looks onto it: the cap is a disc of the tube's cross-section,
-    so its points pile up at one s (a peak of the points' density along s within the annulus), while the wall
-    near a tube pointing at the camera is seen thinly and flying pixels trail behind the cap. None when no
-    such peak stands out within `reach` of the coarse end."""
+                  reach: float, cell: float) -> tuple[float, float] | None:
+    """Arc length of the end cap where a camera looks onto it, and how far its points smear away from it.
+
+    The cap is a disc of the tube's cross-section, so its points pile up at one s (a peak of the points'
+    density along s within the annulus), while the wall near a tube pointing at the camera is seen thinly and
+    flying pixels trail behind the cap. A stereo matcher's window over the cap's ring reaches the bore behind
+    it and only ever pulls the ring's depth away from the camera: the cap lies on the near (camera) side of the
+    peak, where the points' density falls to half of it (on a cap the matcher resolves, about a kernel width of
+    cell / 8 past the cap). The smear - that plane less the peak points' median - tells how much the matcher
+    mixed in. None when no such peak stands out within `reach` of the coarse end.
+    """
     near = (np.abs(coords.s - coarse_end) < reach) & (coords.radius > 0.5 * inner_radius)
     near &= coords.radius < outer_radius + cell
     if np.count_nonzero(near) < 20:
@@ -180,7 +187,20 @@ def end_cap_plane(coords: TubeCoordinates, inner_radius: float, outer_radius: fl
     if counts[peak] < max(10, 4.0 * float(np.median(counts))):
         return None
     in_peak = (s >= edges[max(peak - 1, 0)]) & (s < edges[min(peak + 2, len(edges) - 1)])
-    return float(np.median(s[in_peak]))
+    kernel = cell / 8.0
+    fine = np.arange(edges[max(peak - 4, 0)], edges[min(peak + 5, len(edges) - 1)] + kernel, kernel / 2)
+    density = gaussian_filter1d(np.histogram(s, bins=fine)[0].astype(float), 2.0)
+    centres = (fine[:-1] + fine[1:]) / 2
+    top = int(np.argmax(density))
+    beyond = np.flatnonzero(density[top:] < density[top] / 2)
+    if not len(beyond):
+        plane = float(centres[-1])
+    else:  # linear between the last sample above half the peak and the first below
+        after = top + int(beyond[0])
+        high, low = density[after - 1], density[after]
+        share = (high - density[top] / 2) / max(high - low, 1e-12)
+        plane = float(centres[after - 1] + share * (centres[after] - centres[after - 1]))
+    return plane, plane - float(np.median(s[in_peak]))
 
 
 def edge_band(depth: np.ndarray, unit: float, sigmas: float = EDGE_NOISE_SIGMAS,
