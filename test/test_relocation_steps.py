@@ -187,6 +187,30 @@ def test_alignment_moves_the_reference_onto_the_facing_wall_and_reports_the_shif
     assert abs(result.bias_binormal) < 0.01e-3
 
 
+def test_alignment_keeps_the_axis_between_cameras_at_different_distances():
+    """Cameras at 80 and 105 mm see a tube on its true axis, each its wall flattened by the matcher in
+    proportion to its pixel footprint squared (0.1 mm at 80 mm, 0.172 mm at 105 mm). One level common to both
+    reads the difference as a shift of the axis towards the nearer camera (36 um); the level scaled by each
+    camera's distance squared leaves the axis where it is."""
+    length = 30e-3
+    geometry = TubeGeometry(notch_count=8, notch_pitch=3e-3)
+    points = wall_points(length, rng=np.random.default_rng(5))
+    near, far = 0.080, 0.105
+    viewpoints = np.where(points[:, 1:2] < 0, [[0.0, -near, 0.015]], [[0.0, far, 0.015]])
+    flattening = 0.1e-3 * np.einsum("ij,ij->i", viewpoints - points, viewpoints - points) / near**2
+    points[:, :2] *= (1 - flattening / R_O)[:, None]
+    centerline = straight_centerline(length)
+    coords, frames = centerline.project_with_frames(points)
+    result = align_to_trusted_wall(centerline, coords, frames, viewpoints, geometry, 0.8e-3, FOOTPRINT, length)
+    moved = result.centerline.points[(result.centerline.s > 3e-3) & (result.centerline.s < 27e-3)]
+    common = (0.1e-3 * ((far / near) ** 2 - 1)) / 2  # what one common level would read as a shift
+    print(f"\ncameras at 80 and 105 mm: axis moved by at most {np.abs(moved[:, :2]).max() * 1e6:.1f} um (one level "
+          f"for both: {common * 1e6:.0f} um towards the nearer camera); binormal lean "
+          f"{result.bias_binormal * 1e6:+.1f} um")
+    assert np.abs(moved[:, :2]).max() < 0.01e-3
+    assert abs(result.bias_binormal) < 0.005e-3
+
+
 def test_trusted_points_lie_pixels_inside_the_silhouette():
     """The facing zone is set in pixels: 4 footprints inside the silhouette of a 1.75 mm tube is 32.9 deg of view
     angle at 0.2 mm a pixel, 24.2 deg at 0.258 mm, never wider than the cap, and empty for a tube 4 px wide."""
