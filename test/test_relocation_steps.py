@@ -165,6 +165,16 @@ def test_rim_calibration_gives_back_the_cut_faces_the_cameras_see():
     assert error < 1e-6
     assert max(abs(n.start_s - a) for n, a in zip(calibrated, starts, strict=True)) < 1e-6
     assert error_alone > 0.03e-3
+    # faces a camera sees almost edge-on to the gap (the tube pointing at it): the tangent grows without bound,
+    # but no face hides more than the whole gap, so no edge moves by more than a notch width
+    pointing = np.array([[0.0, 0.0, geometry.length + 0.05], [0.0, -0.11, middle]])
+    assert face_view_tangent(centerline, ends[-1:], pointing[:1], -1.0)[0] == 0.0  # the end face turns away
+    assert face_view_tangent(centerline, starts[-1:], pointing[:1], 1.0)[0] > 1e3
+    turned = calibrate_rims(observed, geometry, centerline, pointing)
+    moved = max(max(abs(n.start_s - o.start_s), abs(n.end_s - o.end_s)) for n, o in zip(turned, observed,
+                                                                                      strict=True))
+    print(f"a camera on the robot's axis: no edge moved by more than {moved * 1e3:.3f} mm")
+    assert moved <= geometry.notch_width
 
 
 def test_centreline_of_a_known_arc():
