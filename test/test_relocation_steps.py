@@ -141,6 +141,48 @@ def test_one_notch_is_found_where_the_comb_puts_it_by_the_signal_that_shows_it(d
     assert abs(notches[0].width - geometry.notch_width) < FOOTPRINT
 
 
+def test_rim_calibration_gives_back_the_cut_faces_the_cameras_see():
+    """A straight robot seen by two cameras 110 mm away across its middle: every edge eroded by 0.05 mm, and each
+    cut face turned towards the cameras covers the gap beside its rim by 0.6 mm x tan(view angle from its plane)
+    (0.14 mm at the end notches). The spines' known length gives back both: the widths come out exact, where one
+    erosion for every edge leaves the end notches 0.08 mm off (too narrow: their seen face's cover is read as
+    erosion spread over both edges)."""
+    from ntcr_recon.core.notches import Notch, calibrate_rims, face_view_tangent
+
+    geometry = TubeGeometry()
+    centerline = straight_centerline(geometry.length + 1e-3)
+    middle = geometry.length / 2
+    cameras = np.array([[0.0, -0.11, middle], [0.0, 0.11, middle]])
+    starts = geometry.notch_centers_s - geometry.notch_width / 2
+    ends = starts + geometry.notch_width
+    erosion, reach = 0.05e-3, 0.6e-3
+    start_v = face_view_tangent(centerline, starts, cameras, 1.0)
+    end_v = face_view_tangent(centerline, ends, cameras, -1.0)
+    assert start_v[0] > 0 and start_v[-1] == 0 and end_v[0] == 0 and end_v[-1] > 0  # each end sees one face
+    observed = [Notch(i, (a + b) / 2, a - erosion + reach * va, b + erosion - reach * vb,
+                      b - a + 2 * erosion - reach * (va + vb), 0.0)
+                for i, (a, b, va, vb) in enumerate(zip(starts, ends, start_v, end_v, strict=True))]
+    calibrated = calibrate_rims(observed, geometry, centerline, cameras)
+    alone = calibrate_rims(observed, geometry)
+    error = max(abs(n.width - geometry.notch_width) for n in calibrated)
+    error_alone = max(abs(n.width - geometry.notch_width) for n in alone)
+    print(f"\nrim calibration: widths within {error * 1e6:.1f} um (one erosion for all edges: "
+          f"{error_alone * 1e6:.0f} um)")
+    assert error < 1e-6
+    assert max(abs(n.start_s - a) for n, a in zip(calibrated, starts, strict=True)) < 1e-6
+    assert error_alone > 0.03e-3
+    # faces a camera sees almost edge-on to the gap (the tube pointing at it): the tangent grows without bound,
+    # but no face hides more than the whole gap, so no edge moves by more than a notch width
+    pointing = np.array([[0.0, 0.0, geometry.length + 0.05], [0.0, -0.11, middle]])
+    assert face_view_tangent(centerline, ends[-1:], pointing[:1], -1.0)[0] == 0.0  # the end face turns away
+    assert face_view_tangent(centerline, starts[-1:], pointing[:1], 1.0)[0] > 1e3
+    turned = calibrate_rims(observed, geometry, centerline, pointing)
+    moved = max(max(abs(n.start_s - o.start_s), abs(n.end_s - o.end_s)) for n, o in zip(turned, observed,
+                                                                                      strict=True))
+    print(f"a camera on the robot's axis: no edge moved by more than {moved * 1e3:.3f} mm")
+    assert moved <= geometry.notch_width
+
+
 def test_centreline_of_a_known_arc():
     shape = TubeShape.from_bend_angle(GEOMETRY, math.radians(60))
     sample = shape.sample_surface_parts(0.1e-3)
@@ -191,6 +233,30 @@ def test_alignment_moves_the_reference_onto_the_facing_wall_and_reports_the_shif
     assert abs(result.bias_notch_side + shift) < 0.01e-3
     assert np.abs(moved[:, 0] - shift).max() < 0.02e-3
     assert abs(result.bias_binormal) < 0.01e-3
+
+
+def test_alignment_keeps_the_axis_between_cameras_at_different_distances():
+    """Cameras 80 and 105 mm across from a tube on its true axis, each seeing its wall flattened by the matcher
+    in proportion to its pixel footprint squared, i.e. to its squared distance (0.1 mm for the near one, 0.17 mm
+    for the far one). One level common to both reads the difference as a shift of the axis towards the nearer
+    camera (36 um); the level scaled by each camera's squared distance leaves the axis where it is."""
+    length = 30e-3
+    geometry = TubeGeometry(notch_count=8, notch_pitch=3e-3)
+    points = wall_points(length, rng=np.random.default_rng(5))
+    near, far = 0.080, 0.105
+    viewpoints = np.where(points[:, 1:2] < 0, [[0.0, -near, 0.015]], [[0.0, far, 0.015]])
+    flattening = 0.1e-3 * np.einsum("ij,ij->i", viewpoints, viewpoints) / near**2  # the base is at the origin
+    points[:, :2] *= (1 - flattening / R_O)[:, None]
+    centerline = straight_centerline(length)
+    coords, frames = centerline.project_with_frames(points)
+    result = align_to_trusted_wall(centerline, coords, frames, viewpoints, geometry, 0.8e-3, FOOTPRINT, length)
+    moved = result.centerline.points[(result.centerline.s > 3e-3) & (result.centerline.s < 27e-3)]
+    common = (flattening.max() - flattening.min()) / 2  # what one common level would read as a shift
+    print(f"\ncameras at 80 and 105 mm: axis moved by at most {np.abs(moved[:, :2]).max() * 1e6:.1f} um (one level "
+          f"for both: {common * 1e6:.0f} um towards the nearer camera); binormal lean "
+          f"{result.bias_binormal * 1e6:+.1f} um")
+    assert np.abs(moved[:, :2]).max() < 0.01e-3
+    assert abs(result.bias_binormal) < 0.005e-3
 
 
 def test_trusted_points_lie_pixels_inside_the_silhouette():

@@ -15,11 +15,13 @@ tube's silhouette in its image (a view angle a with r (1 - sin a) above the marg
 the base and the tube's end (depth edges too). The criterion is in pixels, so it follows the footprint: on a
 rig twice as far the facing zone narrows to what the matcher leaves unbiased. Along the robot, in windows of a
 notch pitch, the shift of the reference tube (of the known radius, at the wall's level per window) that best
-fits those points is solved by least squares (offset = c_x cos(phi) + c_y sin(phi) + level), all windows
-jointly with a penalty on the difference of consecutive shifts (a window's few facing points place it to a
-tenth of a millimetre only); the shifts, interpolated along s and tapered to none at the tube's end, move the
-centreline. The pipeline runs it a few times, each selecting the facing points about the axis the last one
-moved. The fit's lean towards the notch side (minus the mean shift) is reported as its bias.
+fits those points is solved by least squares (offset = c_x cos(phi) + c_y sin(phi) + level, the level scaled
+per point by its camera's squared distance from the robot's base: cameras at different distances see the wall
+flattened differently), all windows jointly with a penalty on the difference of consecutive shifts (a window's
+few facing points place it to a tenth of a millimetre only); the shifts, interpolated along s and tapered to
+none at the tube's end, move the centreline. The pipeline runs it a few times, each selecting the facing points
+about the axis the last one moved. The fit's lean towards the notch side (minus the mean shift) is reported as
+its bias.
 """
 
 from __future__ import annotations
@@ -68,21 +70,32 @@ class Alignment:
 
 
 @jit
-def _trusted_window_sums(s, x, y, position, normal, binormal, viewpoints, outer_radius, gate, start_s, end_s,
-                         least_cosine, away_from_cuts, window, windows):
+def _trusted_window_sums(s, x, y, position, normal, binormal, viewpoints, base, outer_radius, gate, start_s,
+                         end_s, least_cosine, away_from_cuts, window, windows):
     """The trusted wall points and, per window of s, the normal equations of their offset model.
 
     Trusted: within `gate` of the wall, start_s < s < end_s, away from the cuts, and facing their camera (the
     cosine between the point's outward direction about the axis and the direction to its viewpoint above
     `least_cosine`). Returns the trusted points' window, cos and sin of their angle about the axis and
     radial offset (compact, in point order), and per window the 3x3 matrix and right-hand side of
-    offset = cx cos + cy sin + level summed over them, their count and the sum of their s.
+    offset = cx cos + cy sin + level d^2 summed over them (d: the distance of the point's camera from the robot's
+    base), their count and the sum of their s, and the mean d^2 of the trusted points.
+
+    The level per camera scales with d^2: a stereo matcher gives a pixel the mean depth of its window, a fixed
+    number of pixels, and on a convex wall of radius R the mean over a patch of width a lies about a^2 / (24 R)
+    behind the wall, a growing with the pixel footprint, i.e. with the camera's distance. Two cameras at
+    different distances see the wall at different levels; one level common to both would be read as a shift of
+    the axis towards the nearer one. The distance is the rig's (camera to base), not each point's: where the
+    robot's pose alone brings it nearer one camera, other biases than the flattening (a notch side facing that
+    camera) dominate the level, and scaling them with the pose's distances moved the axis (a tube pointing at a
+    camera, test_synthetic_oblique). On a rig whose cameras stand as far from the base: one level.
     """
     count = s.shape[0]
     index, cos_a, sin_a, residual = np.empty(count, np.intp), np.empty(count), np.empty(count), np.empty(count)
     matrix, rhs, counts = np.zeros((windows, 3, 3)), np.zeros((windows, 3)), np.zeros(windows, np.intp)
     s_sum = np.zeros(windows)
     kept = 0
+    distance2_sum = 0.0
     for i in range(count):
         radius = np.sqrt(x[i] * x[i] + y[i] * y[i])
         offset = radius - outer_radius
@@ -97,16 +110,31 @@ def _trusted_window_sums(s, x, y, position, normal, binormal, viewpoints, outer_
             continue
         k = min(int(s[i] / window), windows - 1)
         cos_angle, sin_angle = unit_direction(x[i], y[i])
-        terms = (cos_angle, sin_angle, 1.0)
+        b0, b1, b2 = viewpoints[i, 0] - base[0], viewpoints[i, 1] - base[1], viewpoints[i, 2] - base[2]
+        distance2 = b0 * b0 + b1 * b1 + b2 * b2
+        terms = (cos_angle, sin_angle, distance2)
         for row in range(3):
             rhs[k, row] += terms[row] * offset
             for column in range(3):
                 matrix[k, row, column] += terms[row] * terms[column]
         counts[k] += 1
         s_sum[k] += s[i]
+        distance2_sum += distance2
         index[kept], cos_a[kept], sin_a[kept], residual[kept] = k, terms[0], terms[1], offset
         kept += 1
-    return index[:kept], cos_a[:kept], sin_a[:kept], residual[:kept], matrix, rhs, counts, s_sum
+    return (index[:kept], cos_a[:kept], sin_a[:kept], residual[:kept], matrix, rhs, counts, s_sum,
+            distance2_sum / max(kept, 1))
+
+
+def normalise_level(matrix: np.ndarray, rhs: np.ndarray, distance2_mean: float) -> None:
+    """Rescale the normal equations of offset = cx cos + cy sin + level d^2 (d: the distance of the point's
+    camera from the robot's base) in place to level (d^2 / distance2_mean), a regressor about 1: the same
+    solution for the shifts, a level in metres and a system conditioned as the one-level model's."""
+    if distance2_mean > 0:
+        matrix[:, 2, :2] /= distance2_mean
+        matrix[:, :2, 2] /= distance2_mean
+        matrix[:, 2, 2] /= distance2_mean * distance2_mean
+        rhs[:, 2] /= distance2_mean
 
 
 @jit
@@ -181,15 +209,16 @@ def _align_once(centerline: Centerline, coords: TubeCoordinates, frames: tuple, 
     window = geometry.notch_pitch
     windows = max(int(np.ceil(end_s / window)), 1)
     position, _, normal, binormal = frames
-    index, cos_a, sin_a, residual, matrix, rhs, counts, s_sum = _trusted_window_sums(
-        coords.s, coords.x, coords.y, position, normal, binormal, viewpoints, geometry.outer_radius, gate, margin,
-        end_s - margin, least_cosine, away_from_cuts, window, windows)
+    index, cos_a, sin_a, residual, matrix, rhs, counts, s_sum, distance2_mean = _trusted_window_sums(
+        coords.s, coords.x, coords.y, position, normal, binormal, viewpoints, centerline.points[0],
+        geometry.outer_radius, gate, margin, end_s - margin, least_cosine, away_from_cuts, window, windows)
+    normalise_level(matrix, rhs, distance2_mean)
     count = len(index)
     if count < minimum_points:
         return Alignment(centerline, 0.0, 0.0, float("nan"), count)
     # a window seen from one side only cannot tell a shift towards the camera from the wall's level
     # (the offset model is then degenerate): it needs points spread around the axis
-    resultant = np.hypot(matrix[:, 0, 2], matrix[:, 1, 2]) / np.maximum(counts, 1)
+    resultant = np.hypot(np.bincount(index, cos_a, windows), np.bincount(index, sin_a, windows)) / np.maximum(counts, 1)
     solvable = (counts >= minimum_points // 3) & (resultant < MAX_ONE_SIDEDNESS)
     solvable &= np.abs(np.linalg.det(matrix)) > 1e-9 * np.maximum(counts, 1) ** 3
     if not np.any(solvable):

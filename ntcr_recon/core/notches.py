@@ -316,3 +316,60 @@ def _window_edges(ratio: np.ndarray, seen: np.ndarray, centres: np.ndarray, widt
 def _wrapped(angle):
     """Angles wrapped into [-pi, pi) (a fifth of the cost of np.angle(np.exp(1j * angle)))."""
     return (angle + np.pi) % (2 * np.pi) - np.pi
+
+
+def face_view_tangent(centerline: Centerline, s: np.ndarray, camera_origins: np.ndarray, facing: float) -> np.ndarray:
+    """Per cut face at arc lengths s (outward normal `facing` x the tangent: +1 a notch's start face, -1 its end
+    face), how much of it the cameras see beside its rim: the mean over the cameras of the tangent of the angle
+    between the view and the face's plane where the face turns towards the camera, 0 where it turns away."""
+    position, tangent, _, _ = centerline.frames_at(np.asarray(s, dtype=float))
+    view = camera_origins[None, :, :] - position[:, None, :]
+    cosine = facing * np.einsum("nj,ncj->nc", tangent, view) / np.linalg.norm(view, axis=2)
+    cosine = np.clip(cosine, 0.0, 1.0 - 1e-9)
+    return np.mean(cosine / np.sqrt(1.0 - cosine * cosine), axis=1)
+
+
+def calibrate_rims(notches: list[Notch], geometry: TubeGeometry, centerline: Centerline | None = None,
+                   camera_origins: np.ndarray | None = None) -> list[Notch]:
+    """Correct the notch edges for what the stereo matcher does to rims at depth edges.
+
+    A matcher erodes (or, where it averages across a shallow gap, extends) the rim on both sides of every
+    notch by about the same amount e. A cut face turned towards a camera is seen beside its rim, inside the
+    wall's radius, and the matcher's window averages its first rows with the wall ahead: the rim moves over
+    the face by k tan(view angle from the face's plane) (`face_view_tangent`), k the depth of face the window
+    reaches (0 to the tube's diameter; the tangent no more than width / diameter, where a face as deep as the
+    tube hides the whole gap); a face turned away is not seen. The spines between notches are rigid,
+    of the robot's nominal length pitch - width whatever the bend, so each spine between consecutive detected
+    notches reads nominal - 2 e + k (v_end + v_start) (v: its two faces' view tangents); e and k are solved by
+    least squares over the spines (e alone, the median over the spines, when their faces are all seen alike or
+    no camera is known), and every edge moves back by e - k v. (A robot whose spines are all shorter than its
+    drawing says would have that read as erosion.)
+    """
+    by_index = {n.index: n for n in notches}
+    spine = geometry.notch_pitch - geometry.notch_width
+    pairs = [(by_index[i], by_index[i + 1]) for i in sorted(by_index) if i + 1 in by_index]
+    if len(pairs) < 3:
+        return notches
+    shortfall = np.array([spine - (after.start_s - before.end_s) for before, after in pairs])
+    start_seen, end_seen = np.zeros(len(notches)), np.zeros(len(notches))
+    if centerline is not None and camera_origins is not None and len(camera_origins):
+        # a face as deep as the tube hides the whole gap once tan > width / diameter: no more can be hidden
+        most = geometry.notch_width / geometry.outer_diameter
+        start_seen = np.minimum(face_view_tangent(centerline, np.array([n.start_s for n in notches]),
+                                                  camera_origins, 1.0), most)
+        end_seen = np.minimum(face_view_tangent(centerline, np.array([n.end_s for n in notches]), camera_origins,
+                                                -1.0), most)
+    row = {n.index: i for i, n in enumerate(notches)}
+    seen = np.array([end_seen[row[before.index]] + start_seen[row[after.index]] for before, after in pairs])
+    reach = 0.0
+    design = np.stack([np.full(len(pairs), 2.0), -seen], axis=1)
+    # both unknowns only where the spines' faces are seen differently (else k cannot be told from e)
+    if np.linalg.matrix_rank(design, tol=1e-3 * np.linalg.norm(design[:, 0])) == 2:
+        reach = float(np.clip(np.linalg.lstsq(design, shortfall, rcond=None)[0][1], 0.0, geometry.outer_diameter))
+    erosion = float(median(shortfall + reach * seen)) / 2.0  # e with k held, robust as the median
+    calibrated = []
+    for n, start_v, end_v in zip(notches, start_seen, end_seen, strict=True):
+        start_move, end_move = erosion - reach * start_v, erosion - reach * end_v
+        calibrated.append(Notch(n.index, n.center_s, n.start_s + start_move, n.end_s - end_move,
+                                max(n.width - start_move - end_move, 0.0), n.bend, n.signal))
+    return calibrated

@@ -35,7 +35,7 @@ from ntcr_recon.core.config import RigConfig
 from ntcr_recon.core.filters import filter_cloud
 from ntcr_recon.core.fusion import FramePair, fuse
 from ntcr_recon.core.icp import icp, mesh_reference, posed_reference, relocate_onto_reference
-from ntcr_recon.core.notches import Notch, detect_notches, measure_notch_side, spine_wall
+from ntcr_recon.core.notches import Notch, calibrate_rims, detect_notches, measure_notch_side, spine_wall
 from ntcr_recon.core.quality import assess, cameras_looking_into_slots, depth_step, notched_thinning
 from ntcr_recon.core.relocation import RelocatedPoints, along_rays, relocate_points
 from ntcr_recon.core.tip import (
@@ -48,7 +48,7 @@ from ntcr_recon.core.tip import (
     rim_tip,
     tube_end,
 )
-from ntcr_recon.core.wall import median, surface_band
+from ntcr_recon.core.wall import surface_band
 
 # A measured notch side further than this from the configured one turns the tube frame (smaller: within
 # what the measurement scatters, and the open window is wide enough for it).
@@ -270,7 +270,8 @@ class Reconstructor:
                                           [(n.start_s, n.end_s) for n in notches], footprint)
             else:
                 refinement = "coarse end (the end turns towards a camera; no edge band measured)"
-        notches = _calibrate_rims(notches, geometry)
+        # the rims the matcher moves (over the cut faces the cameras see), against the spines' known length
+        notches = calibrate_rims(notches, geometry, centerline, None if seen_by is None else self._camera_origins)
         # 6. relocation: every point within the gate onto the reference surface (core.relocation)
         tip = centerline.frames_at(np.array([tip_s]))[0][0]
         if options.method == "icp":  # the paper's KD-tree + ICP onto a reference (core.icp)
@@ -372,25 +373,6 @@ class Reconstructor:
         relocation = self.relocate(filtered)
         mesh = self.mesh(relocation) if with_mesh else None
         return FrameResult(fused, filtered, relocation, mesh, dict(self.timings_ms))
-
-
-def _calibrate_rims(notches: list[Notch], geometry) -> list[Notch]:
-    """Correct the notch edges for what the stereo matcher does to rims at depth edges.
-
-    A matcher erodes (or, where it averages across a shallow gap, extends) the rim on both sides of every
-    notch by about the same amount e. The spines between notches are rigid, of the robot's nominal length
-    pitch - width whatever the bend, so e = (nominal - observed spine length) / 2, the median over the
-    spines between consecutive detected notches; every edge moves back by e. (A robot whose spines are all
-    shorter than its drawing says would have that read as erosion.)
-    """
-    by_index = {n.index: n for n in notches}
-    spine = geometry.notch_pitch - geometry.notch_width
-    observed = [by_index[i + 1].start_s - by_index[i].end_s for i in sorted(by_index) if i + 1 in by_index]
-    if len(observed) < 3:
-        return notches
-    erosion = float(median(spine - np.array(observed, dtype=float))) / 2.0
-    return [Notch(n.index, n.center_s, n.start_s + erosion, n.end_s - erosion, max(n.width - 2 * erosion, 0.0),
-                  n.bend, n.signal) for n in notches]
 
 
 def _rolled_axes(normal: np.ndarray, binormal: np.ndarray, angle: float) -> tuple[np.ndarray, np.ndarray]:
