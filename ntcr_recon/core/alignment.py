@@ -18,10 +18,10 @@ notch pitch, the shift of the reference tube (of the known radius, at the wall's
 fits those points is solved by least squares (offset = c_x cos(phi) + c_y sin(phi) + level, the level scaled
 per point by its camera's squared distance from the robot's base: cameras at different distances see the wall
 flattened differently), all windows jointly with a penalty on the difference of consecutive shifts (a window's
-few facing points place it to a tenth of a millimetre only); the shifts, interpolated along s and tapered to
-none at the tube's end, move the centreline. The pipeline runs it a few times, each selecting the facing points
-about the axis the last one moved. The fit's lean towards the notch side (minus the mean shift) is reported as
-its bias.
+few facing points place it to a tenth of a millimetre only); the shifts, interpolated along s and held beyond
+the last window (the free end follows its data as the rest of the fit does, and leans as the wall before it
+measured), move the centreline. The pipeline runs it a few times, each selecting the facing points about the
+axis the last one moved. The fit's lean towards the notch side (minus the mean shift) is reported as its bias.
 """
 
 from __future__ import annotations
@@ -227,9 +227,9 @@ def _align_once(centerline: Centerline, coords: TubeCoordinates, frames: tuple, 
     shifts[solvable] = smoothed_shifts(matrix[solvable], rhs[solvable], smoothing)
     centres = s_sum / np.maximum(counts, 1)  # where each window's trusted points lie on average
     # windows without enough trusted points take their neighbours' shift; the base stays clamped, and beyond the
-    # last window the shift tapers to none at the tube's end (the data there say nothing of a shift)
-    known_s = np.concatenate([[0.0], centres[solvable], [max(end_s, centres[solvable][-1])]])
-    node_shift = np.stack([np.interp(centerline.s, known_s, np.concatenate([[0.0], shifts[solvable, k], [0.0]]))
+    # last window its shift holds to the tube's end (the end's wall is fitted as the rest: it leans alike)
+    known_s = np.concatenate([[0.0], centres[solvable]])
+    node_shift = np.stack([np.interp(centerline.s, known_s, np.concatenate([[0.0], shifts[solvable, k]]))
                            for k in range(2)], axis=1)
     moved = centerline.points + node_shift[:, :1] * centerline.normals + node_shift[:, 1:] * centerline.binormals
     binormal_hint = centerline.binormals[0]

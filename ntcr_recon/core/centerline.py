@@ -9,8 +9,9 @@ The estimate alternates, until the centreline moves less than a tolerance:
 2. a Gauss-Newton step of the point-to-reference objective (Eq. 10 with the reference tube swept along the
    centreline): per slab of arc length, the fixed-radius circle residual |p - c| - r_o, robustly weighted
    (points deep inside the tube are cut faces or bore, points far outside are outliers);
-3. all slab updates solved jointly with a second-difference smoothness prior along s (a smoothing length
-   relative to the outer radius) and the base anchored at the configured base position;
+3. all slab updates solved jointly with a smoothness prior along s (a smoothing length relative to the outer
+   radius) on the second differences' departure from the steady bend the curve holds (solved with it), and
+   the base anchored at the configured base position;
 4. the curve re-parametrised by arc length.
 
 A cold start marches from the base along the base axis, fitting one slab at a time; a warm start (the
@@ -478,27 +479,36 @@ def _slab_directions_kernel(slab, x, y, weight, slabs):
 
 
 def _smooth_update(nodes: np.ndarray, tangents: np.ndarray, targets: np.ndarray, information: np.ndarray,
-                   anchor: np.ndarray, smoothing_steps: float) -> np.ndarray:
-    """Positions minimising sum (P - target)^T W (P - target) + lam |second differences|^2 + anchor term;
-    within a smoothing length of the free end, third differences (lam smoothing_steps^2) instead of second.
+                   anchor: np.ndarray, smoothing_steps: float, bend_axes: np.ndarray, bend_steps: float
+                   ) -> np.ndarray:
+    """Positions P minimising sum (P - target)^T W (P - target) + lam |second differences of P - bend|^2
+    + lam bend_steps^2 |first differences of the bend|^2 + anchor term, jointly with the bend.
 
+    The bend is the curvature the curve holds (per node, on its normal and binormal: bend_axes (M, 2, 3)), a
+    field free to follow what varies slower than `bend_steps` nodes: only departures of the curvature from it
+    pay the smoothness prior. A prior on the curvature itself holds no bend at a free end (a natural end)
+    and swings the end of a bent robot out of its bend; this one treats a steady bend the same at the end
+    as within, and still smooths what changes within a smoothing length.
     nodes: current positions (M, 3); the data say nothing along the tangent, so each node is held at its
     place along its tangent (else the smoothness prior would let the curve stretch freely) and weakly
     everywhere. information: (M, 3, 3) data weights. lam = smoothing_steps^4 sets the cut-off length.
     """
     bands, rhs = _smoothing_system_kernel(nodes, tangents, targets, information, np.asarray(anchor, dtype=float),
-                                          smoothing_steps)
-    return scipy.linalg.solveh_banded(bands, rhs).reshape(len(nodes), 3)
+                                          smoothing_steps, np.ascontiguousarray(bend_axes, dtype=float),
+                                          bend_steps)
+    solution = scipy.linalg.solveh_banded(bands, rhs).reshape(len(nodes), 5)
+    return solution[:, :3]
 
 
 @jit
-def _smoothing_system_kernel(nodes, tangents, targets, information, anchor, smoothing_steps):
-    """_smooth_update's normal equations, in LAPACK's upper band storage (12, 3M) and their right-hand side.
+def _smoothing_system_kernel(nodes, tangents, targets, information, anchor, smoothing_steps, bend_axes,
+                             bend_steps):
+    """_smooth_update's normal equations, in LAPACK's upper band storage (11, 5M) and their right-hand side.
 
-    The system couples a node with itself (3x3 block) and, through the second and third differences, with the
-    next three: symmetric, positive definite and banded (11 above the diagonal in x, y, z order per node):
-    bands[11 - offset, column] = system[column - offset, column]. No dense matrix, no matrix product (which
-    would wake BLAS threads for nothing).
+    Unknowns per node m: its position (5m .. 5m + 2) and its bend on its two axes (5m + 3, 5m + 4). A second
+    difference of nodes i, i+1, i+2 less the bend of i+1 couples unknowns at most 10 apart: symmetric,
+    positive definite and banded: bands[10 - offset, column] = system[column - offset, column]. No dense
+    matrix, no matrix product (which would wake BLAS threads for nothing).
     """
     count = nodes.shape[0]
     traces = information[:, 0, 0] + information[:, 1, 1] + information[:, 2, 2]
@@ -506,40 +516,49 @@ def _smoothing_system_kernel(nodes, tangents, targets, information, anchor, smoo
     typical = median(observed) if observed.size else 1.0
     weak = 1e-4 * typical
     lam = typical * smoothing_steps**4
+    steady = lam * bend_steps**2  # the bend's own smoothness: its cut-off bend_steps nodes
     clamp = 1e3 * typical  # the base is clamped at the configured pose
-    bands, rhs = np.zeros((12, 3 * count)), np.zeros(3 * count)
+    bands, rhs = np.zeros((11, 5 * count)), np.zeros(5 * count)
     for m in range(count):
         for row in range(3):
             for column in range(3):
                 along = typical * (tangents[m, row] * tangents[m, column])
-                rhs[3 * m + row] += information[m, row, column] * targets[m, column]
-                rhs[3 * m + row] += along * nodes[m, column]
+                rhs[5 * m + row] += information[m, row, column] * targets[m, column]
+                rhs[5 * m + row] += along * nodes[m, column]
                 if column >= row:
                     block = information[m, row, column] + along
                     if column == row:
                         block += weak + (clamp if m == 0 else 0.0)
-                    bands[11 - (column - row), 3 * m + column] = block
-            rhs[3 * m + row] += weak * nodes[m, row] + (clamp * anchor[row] if m == 0 else 0.0)
-    end_nodes = int(np.ceil(smoothing_steps)) if count >= 4 else 0  # within a smoothing length of the free end
-    if count >= 3:
-        # second difference of nodes i, i+1, i+2 with coefficients (1, -2, 1): lam * D^T D, per axis
-        coefficients = (1.0, -2.0, 1.0)
+                    bands[10 - (column - row), 5 * m + column] = block
+            rhs[5 * m + row] += weak * nodes[m, row] + (clamp * anchor[row] if m == 0 else 0.0)
+        for k in range(2):
+            bands[10, 5 * m + 3 + k] += 1e-9 * lam  # a bend no difference reaches stays nought
+    # lam |P_i - 2 P_{i+1} + P_{i+2} - bend_{i+1}|^2
+    coefficients = (1.0, -2.0, 1.0)
+    for i in range(count - 2):
+        middle = i + 1
         for first in range(3):
             for second in range(first, 3):
                 value = lam * coefficients[first] * coefficients[second]
-                for i in range(max(count - 2 - end_nodes, 0)):
-                    for axis in range(3):  # node pair (i + first, i + second)
-                        bands[11 - 3 * (second - first), 3 * (i + second) + axis] += value
-        # near the free end a second difference pulls the arc straight (a natural end has no curvature): there
-        # the change of curvature is penalised instead, which a constant bend does not pay
-        third = (-1.0, 3.0, -3.0, 1.0)
-        lam3 = lam * smoothing_steps**2  # the same cut-off length for a difference one order higher
-        for first in range(4):
-            for second in range(first, 4):
-                value = lam3 * third[first] * third[second]
-                for i in range(max(count - 3 - end_nodes, 0), count - 3):
-                    for axis in range(3):
-                        bands[11 - 3 * (second - first), 3 * (i + second) + axis] += value
+                for axis in range(3):  # position pair (i + first, i + second), per axis
+                    bands[10 - 5 * (second - first), 5 * (i + second) + axis] += value
+        for k in range(2):
+            bends_column = 5 * middle + 3 + k
+            bands[10, bends_column] += lam
+            for node in range(3):
+                for axis in range(3):  # position against bend: -lam coefficient (bend axis k's component)
+                    value = -lam * coefficients[node] * bend_axes[middle, k, axis]
+                    position_column = 5 * (i + node) + axis
+                    if position_column < bends_column:
+                        bands[10 - (bends_column - position_column), bends_column] += value
+                    else:
+                        bands[10 - (position_column - bends_column), position_column] += value
+    # steady |bend_{m+1} - bend_m|^2 over the bends the second differences use (nodes 1 .. M - 2)
+    for m in range(1, count - 2):
+        for k in range(2):
+            bands[10, 5 * m + 3 + k] += steady
+            bands[10, 5 * (m + 1) + 3 + k] += steady
+            bands[5, 5 * (m + 1) + 3 + k] -= steady
     return bands, rhs
 
 
@@ -613,6 +632,8 @@ def estimate_centerline(xyz: np.ndarray, geometry: TubeGeometry, settings: Cente
     else:
         centerline = prior
     smoothing_steps = settings.smoothing_length / step
+    # the robot bends at its notches: its steady bend is what holds over two notch pitches
+    bend_steps = 2.0 * geometry.notch_pitch / step
     iterations = 0
     coordinates, frames = None, None
     for iterations in range(1, settings.max_iterations + 1):  # noqa: B007 - reported to the caller
@@ -645,7 +666,8 @@ def estimate_centerline(xyz: np.ndarray, geometry: TubeGeometry, settings: Cente
         # less, by 1 - |mean direction of their points about the axis|^2, and the smoothness prior bridges.
         balance = 1.0 - (resultant / np.maximum(counts, 1e-12)) ** 2
         information *= balance[:, None, None]
-        updated = _smooth_update(position, tangent, targets, information, base, smoothing_steps)
+        updated = _smooth_update(position, tangent, targets, information, base, smoothing_steps,
+                                 np.stack([normal, binormal], axis=1), bend_steps)
         previous = centerline
         centerline = Centerline.from_points(updated, binormal_hint, step)
         # the change of the curve's shape, not of its parametrisation: distance of the new samples from
