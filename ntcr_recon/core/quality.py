@@ -18,7 +18,7 @@ import math
 import numpy as np
 
 from ntcr_recon.core.comb import expected_centres, inside_intervals
-from ntcr_recon.core.wall import surface_band
+from ntcr_recon.core.wall import median, surface_band
 
 # Thresholds, relative to the robot and the camera so that no robot is special.
 ONE_CAMERA_RUN_DIAMETERS = 1.0     # a distal stretch longer than this many diameters seen by one camera: warn
@@ -91,7 +91,7 @@ def cameras_looking_into_slots(centerline, geometry, camera_origins: np.ndarray,
     for name, origin in zip(camera_names, np.asarray(camera_origins, float), strict=True):
         towards = origin - position
         angle = np.arctan2(np.einsum("ij,ij->i", towards, binormal), np.einsum("ij,ij->i", towards, normal))
-        if float(np.median(np.abs(angle))) < geometry.slot_floor_view_angle:
+        if median(np.abs(angle)) < geometry.slot_floor_view_angle:
             looking.append(name)
     return looking
 
