@@ -169,8 +169,13 @@ def test_the_tip_is_placed_with_the_edge_band_camera_node_measured(reference, re
         expected = by_offset[(stamp - first) % loop_span, tuple(int(c) for c in np.unique(cloud.camera))]
         assert expected.quality["tip_refinement"].startswith("half-density end + edge band")
         got = np.array([tips[stamp].x, tips[stamp].y, tips[stamp].z])
-        print(f"tip {np.linalg.norm(got - expected.tip) * 1e6:.2f} um from the core's")
-        assert np.linalg.norm(got - expected.tip) < 5e-6
+        # the end is where a density profile sampled every eighth of a pixel footprint crosses half its plateau:
+        # the float32 rounding on the wire can move a point into the neighbouring sample, and the crossing by
+        # up to a sample (the notches' centres above: the same)
+        sample = expected.quality["pixel_footprint_mm"] * 1e-3 / 8
+        print(f"tip {np.linalg.norm(got - expected.tip) * 1e6:.2f} um from the core's (a profile sample: "
+              f"{sample * 1e6:.0f} um)")
+        assert np.linalg.norm(got - expected.tip) < sample
         compared += 1
     assert compared == OUTPUTS
 
