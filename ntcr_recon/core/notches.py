@@ -101,7 +101,7 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
     span = max(int(round(geometry.notch_pitch / cell)), 3)
     plateau = percentile_filter(density, 75, size=2 * span + 1, mode="nearest")
     coverage_gap = np.clip(1.0 - density / np.maximum(plateau, 1e-12), 0.0, 1.0)
-    rim_gaps = _rim_gaps(coords, seen, on_outer, depressed, r_o, level, band, plateau, tip_s, cell, kernel)
+    rim_gaps = _rim_gaps(coords, seen, density, depressed, r_o, level, band, plateau, tip_s, cell, kernel)
     _, deep = coverage_profile(coords.s[depressed], 0.0, tip_s, cell, kernel)
     _, anything = coverage_profile(coords.s[in_window & (np.abs(offset) < gate + r_o - geometry.inner_radius)],
                                    0.0, tip_s, cell, kernel)
@@ -144,7 +144,7 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
     return _measure(gaps, indices, signals, centerline, geometry, centres + shift, tip_s)
 
 
-def _rim_gaps(coords: TubeCoordinates, seen: TubeCoordinates, on_outer: np.ndarray, depressed: np.ndarray,
+def _rim_gaps(coords: TubeCoordinates, seen: TubeCoordinates, density: np.ndarray, depressed: np.ndarray,
               r_o: float, level: float, band: float, plateau: np.ndarray, tip_s: float, cell: float, kernel: float
               ) -> tuple[np.ndarray, np.ndarray] | None:
     """Coverage gaps that count the rims the matcher mixed with what lies behind them, one per rim side.
@@ -156,7 +156,8 @@ def _rim_gaps(coords: TubeCoordinates, seen: TubeCoordinates, on_outer: np.ndarr
     that side cannot be on that rim's face (turned away from that camera): it is the rim. Points of a face
     that camera sees move the same way but land inside the gap, short of the far rim. So the far rim of each
     notch (its end for points that rose, its start for those that fell) is measured with those points as wall.
-    None when the points were not moved (no viewing rays). Returns (gap for end rims, gap for start rims).
+    None when the points were not moved (no viewing rays). density: the wall points' coverage profile.
+    Returns (gap for end rims, gap for start rims).
     """
     if coords is seen:
         return None
@@ -164,8 +165,9 @@ def _rim_gaps(coords: TubeCoordinates, seen: TubeCoordinates, on_outer: np.ndarr
     rise = coords.s - seen.s
     gaps = []
     for towards in (landed & (rise > 0), landed & (rise < 0)):
-        _, recovered = coverage_profile(coords.s[on_outer | towards], 0.0, tip_s, cell, kernel)
-        gaps.append(np.clip(1.0 - recovered / np.maximum(plateau, 1e-12), 0.0, 1.0))
+        # the profile is linear in the points: the wall's own density plus that of the rims given back
+        _, recovered = coverage_profile(coords.s[towards], 0.0, tip_s, cell, kernel)
+        gaps.append(np.clip(1.0 - (density + recovered) / np.maximum(plateau, 1e-12), 0.0, 1.0))
     return gaps[0], gaps[1]
 
 
