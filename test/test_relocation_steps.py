@@ -141,6 +141,54 @@ def test_one_notch_is_found_where_the_comb_puts_it_by_the_signal_that_shows_it(d
     assert abs(notches[0].width - geometry.notch_width) < FOOTPRINT
 
 
+def test_a_rim_the_matcher_mixed_with_the_floor_behind_it_is_measured_where_its_rays_put_it():
+    """A see-through notch seen from a camera 16 mm further along the tube (looking down 10 degrees onto it): its
+    end face is turned away, so the first 0.3 mm of wall past its end rim is a depth edge the matcher mixes with
+    the floor behind (seen 0.4 mm deeper along the viewing rays), while its start face, turned towards the
+    camera, is seen beside its rim down to 1 mm deep. Judged where they were seen, the mixed rim pixels widen
+    the notch by 0.3 mm; moved along their rays they land on the wall past the end rim and give it back, and the
+    face's points, which land inside the gap short of the end rim, leave the start where it is."""
+    from ntcr_recon.core.centerline import TubeCoordinates
+
+    geometry = TubeGeometry(notch_count=16)
+    start = geometry.notch_centers_s[5] - geometry.notch_width / 2
+    end = start + geometry.notch_width
+    camera = np.array([90e-3, 0.0, start + 16e-3])
+    points = wall_points(geometry.length, spacing=FOOTPRINT / 2)
+    phi = np.arctan2(points[:, 1], points[:, 0])
+    in_window = np.abs(phi) < geometry.gap_half_angle
+    points = points[~(in_window & (points[:, 2] > start) & (points[:, 2] < end))]
+    phi = np.arctan2(points[:, 1], points[:, 0])
+    mixed = (np.abs(phi) < geometry.gap_half_angle) & (points[:, 2] > end) & (points[:, 2] < end + 0.3e-3)
+    rays = points - camera
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    seen_points = points + np.where(mixed[:, None], 0.4e-3 * rays, 0.0)
+    # the start face (the normal plane at `start`), seen down to 1 mm inside the wall
+    depth, angle = (a.ravel() for a in np.meshgrid(np.arange(0.05e-3, 1.0e-3, FOOTPRINT / 2),
+                                                   np.arange(-1.0, 1.0, FOOTPRINT / 2 / R_O), indexing="ij"))
+    face = np.stack([(R_O - depth) * np.cos(angle), (R_O - depth) * np.sin(angle), np.full_like(depth, start)], 1)
+    face_rays = face - camera
+    face_rays /= np.linalg.norm(face_rays, axis=1, keepdims=True)
+    # where the face's rays cross the wall's radius (towards the camera): inside the gap
+    a = face_rays[:, 0] ** 2 + face_rays[:, 1] ** 2
+    b = face[:, 0] * face_rays[:, 0] + face[:, 1] * face_rays[:, 1]
+    c = face[:, 0] ** 2 + face[:, 1] ** 2 - R_O ** 2
+    face_on_wall = face + (-(b + np.sqrt(b * b - a * c)) / a)[:, None] * face_rays
+    centerline = straight_centerline(geometry.length + 2e-3)
+    seen = centerline.project(np.concatenate([seen_points, face]))
+    moved = centerline.project(np.concatenate([points, face_on_wall]))
+    assert np.all(moved.s[len(points):] > start) and np.all(moved.s[len(points):] < start + 0.3e-3)
+    arguments = (centerline, geometry, 0.8e-3, FOOTPRINT, 0.5, 0.25, geometry.length - 0.1e-3)
+    as_seen = detect_notches(seen, *arguments)
+    on_rays = detect_notches(TubeCoordinates(moved.s, moved.x, moved.y), *arguments, observed=seen)
+    print(f"\nmixed end rim: as seen {as_seen[0].start_s * 1e3:.3f}..{as_seen[0].end_s * 1e3:.3f}, on rays "
+          f"{on_rays[0].start_s * 1e3:.3f}..{on_rays[0].end_s * 1e3:.3f} mm (true {start * 1e3:.3f}..{end * 1e3:.3f})")
+    assert [n.index for n in as_seen] == [n.index for n in on_rays] == [5]
+    assert as_seen[0].end_s - end > 0.2e-3  # the mixed rim pixels read as gap
+    assert abs(on_rays[0].end_s - end) < FOOTPRINT / 2
+    assert abs(on_rays[0].start_s - as_seen[0].start_s) < FOOTPRINT / 20  # the start rim: as before
+
+
 def test_rim_calibration_gives_back_the_cut_faces_the_cameras_see():
     """A straight robot seen by two cameras 110 mm away across its middle: every edge eroded by 0.05 mm, and each
     cut face turned towards the cameras covers the gap beside its rim by 0.6 mm x tan(view angle from its plane)

@@ -66,7 +66,8 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
     The comb (count and pitch from the configuration, bent by the centreline: comb.expected_centres) is
     slid along s as one matched filter to where the evidence agrees best; each notch is then the run of
     evidence above one half around its comb position, its edges where the evidence crosses one half (for
-    coverage that is the half-plateau level: each depth pixel stands for a cell of one footprint).
+    coverage that is the half-plateau level: each depth pixel stands for a cell of one footprint). A rim the
+    matcher mixed with the floor behind it is measured where its viewing rays put it (_rim_gaps).
 
     wall: spine_wall(observed) when the caller has it already.
     observed: the points' coordinates as measured, when `coords` are those points moved (e.g. along their
@@ -100,6 +101,7 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
     span = max(int(round(geometry.notch_pitch / cell)), 3)
     plateau = percentile_filter(density, 75, size=2 * span + 1, mode="nearest")
     coverage_gap = np.clip(1.0 - density / np.maximum(plateau, 1e-12), 0.0, 1.0)
+    rim_gaps = _rim_gaps(coords, seen, density, depressed, r_o, level, band, plateau, tip_s, cell, kernel)
     _, deep = coverage_profile(coords.s[depressed], 0.0, tip_s, cell, kernel)
     _, anything = coverage_profile(coords.s[in_window & (np.abs(offset) < gate + r_o - geometry.inner_radius)],
                                    0.0, tip_s, cell, kernel)
@@ -127,6 +129,8 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
         # wall coverage measures the edges (exact at half the plateau); where it shows no gap, the share of
         # depressed points does
         found = _run_around(grid, coverage_gap, centre, geometry.notch_pitch / 2)
+        if found is not None and rim_gaps is not None:
+            found = _with_mixed_rims(found, grid, rim_gaps, geometry, footprint, min_width_fraction)
         if found is None or not _plausible(found, geometry, footprint, min_width_fraction):
             found = _run_around(grid, depression, centre, geometry.notch_pitch / 2)
         if found is None or not _plausible(found, geometry, footprint, min_width_fraction):
@@ -138,6 +142,49 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
     signals = ["coverage" if see_through else "depression" for see_through in _seen_through(grid, anything, plateau,
                                                                                               gaps)]
     return _measure(gaps, indices, signals, centerline, geometry, centres + shift, tip_s)
+
+
+def _rim_gaps(coords: TubeCoordinates, seen: TubeCoordinates, density: np.ndarray, depressed: np.ndarray,
+              r_o: float, level: float, band: float, plateau: np.ndarray, tip_s: float, cell: float, kernel: float
+              ) -> tuple[np.ndarray, np.ndarray] | None:
+    """Coverage gaps that count the rims the matcher mixed with what lies behind them, one per rim side.
+
+    A rim whose cut face is turned away from a camera is a depth edge to it: the matcher's window mixes the
+    rim's first pixels with the floor seen past it, so they read inside the wall's radius, yet on their viewing
+    rays they still lie on the wall. Moved along its ray onto the wall, a point inside the wall's radius goes
+    towards its camera along s (rise = moved s - seen s); one that lands on the wall past a notch's rim on
+    that side cannot be on that rim's face (turned away from that camera): it is the rim. Points of a face
+    that camera sees move the same way but land inside the gap, short of the far rim. So the far rim of each
+    notch (its end for points that rose, its start for those that fell) is measured with those points as wall.
+    None when the points were not moved (no viewing rays). density: the wall points' coverage profile.
+    Returns (gap for end rims, gap for start rims).
+    """
+    if coords is seen:
+        return None
+    landed = depressed & (np.abs(coords.radius - r_o - level) < band)
+    rise = coords.s - seen.s
+    gaps = []
+    for towards in (landed & (rise > 0), landed & (rise < 0)):
+        # the profile is linear in the points: the wall's own density plus that of the rims given back
+        _, recovered = coverage_profile(coords.s[towards], 0.0, tip_s, cell, kernel)
+        gaps.append(np.clip(1.0 - (density + recovered) / np.maximum(plateau, 1e-12), 0.0, 1.0))
+    return gaps[0], gaps[1]
+
+
+def _with_mixed_rims(found: tuple[float, float], grid: np.ndarray, rim_gaps: tuple[np.ndarray, np.ndarray],
+                     geometry: TubeGeometry, footprint: float, min_width_fraction: float) -> tuple[float, float]:
+    """The gap `found` with its end taken where the end rims' gap puts it and its start where the start rims'
+    gap does (_rim_gaps), each only when that gap still holds a run around the notch's centre; else as found."""
+    centre, reach = (found[0] + found[1]) / 2, (found[1] - found[0]) / 2
+    start, end = found
+    for_end = _run_around(grid, rim_gaps[0], centre, reach)
+    for_start = _run_around(grid, rim_gaps[1], centre, reach)
+    if for_end is not None:
+        end = min(end, for_end[1])
+    if for_start is not None:
+        start = max(start, for_start[0])
+    candidate = (start, end)
+    return candidate if _plausible(candidate, geometry, footprint, min_width_fraction) else found
 
 
 def _seen_through(grid: np.ndarray, anything: np.ndarray, plateau: np.ndarray, gaps: list[tuple[float, float]]
