@@ -202,6 +202,14 @@ def align_to_trusted_wall(centerline: Centerline, coords: TubeCoordinates, frame
     return Alignment(result.centerline, float(bias[0]), float(bias[1]), result.residual, result.trusted, coords.s)
 
 
+def _determinants(matrix: np.ndarray) -> np.ndarray:
+    """Determinants of (W, 3, 3) matrices by the rule of Sarrus (np.linalg.det's batched LU costs 25 us here)."""
+    m = matrix
+    return (m[:, 0, 0] * (m[:, 1, 1] * m[:, 2, 2] - m[:, 1, 2] * m[:, 2, 1])
+            - m[:, 0, 1] * (m[:, 1, 0] * m[:, 2, 2] - m[:, 1, 2] * m[:, 2, 0])
+            + m[:, 0, 2] * (m[:, 1, 0] * m[:, 2, 1] - m[:, 1, 1] * m[:, 2, 0]))
+
+
 def _align_once(centerline: Centerline, coords: TubeCoordinates, frames: tuple, viewpoints: np.ndarray,
                 away_from_cuts: np.ndarray, geometry: TubeGeometry, gate: float, margin: float,
                 end_s: float, least_cosine: float, smoothing: float, minimum_points: int) -> Alignment:
@@ -220,7 +228,7 @@ def _align_once(centerline: Centerline, coords: TubeCoordinates, frames: tuple, 
     # (the offset model is then degenerate): it needs points spread around the axis
     resultant = np.hypot(np.bincount(index, cos_a, windows), np.bincount(index, sin_a, windows)) / np.maximum(counts, 1)
     solvable = (counts >= minimum_points // 3) & (resultant < MAX_ONE_SIDEDNESS)
-    solvable &= np.abs(np.linalg.det(matrix)) > 1e-9 * np.maximum(counts, 1) ** 3
+    solvable &= np.abs(_determinants(matrix)) > 1e-9 * np.maximum(counts, 1) ** 3
     if not np.any(solvable):
         return Alignment(centerline, 0.0, 0.0, float("nan"), count)
     shifts = np.zeros((windows, 2))

@@ -294,7 +294,7 @@ class Reconstructor:
             tip_erosion=tip_s - eroded_end, tip_uncertainty=tip_uncertainty, tip_position=tip,
             crop_box=self.config.crop_box(),
             notched_thinning=notched_thinning(offset, coords.s, cut_intervals(geometry, centerline, 0.0), tip_s,
-                                              settings.gate, 2 * footprint),
+                                              settings.gate, 2 * footprint, spine=wall[0]),
             looking_into_slots=tuple(cameras_looking_into_slots(centerline, geometry, self._camera_origins,
                                                                 self.config.camera_names)),
             tip_from_cap=from_cap)

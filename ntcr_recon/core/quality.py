@@ -54,12 +54,13 @@ def camera_coverage(s: np.ndarray, camera: np.ndarray | None, camera_names: tupl
 
 
 def notched_thinning(offset: np.ndarray, s: np.ndarray, cuts: np.ndarray, tip_s: float, gate: float,
-                     margin: float) -> float | None:
+                     margin: float, spine: np.ndarray | None = None) -> float | None:
     """How much deeper (m, + thinner) the outer wall reads between the notches than on the plain tube beyond
     them: the wall level (wall.surface_band) of the spines in the notched section less that of the plain
     stretches before the first and after the last cut. offset: the points' radial offsets from the outer wall;
-    cuts: (K, 2) the notches' [start, end] along s; margin: kept from every cut, the base and the tip.
-    None where either part has too few points to tell.
+    cuts: (K, 2) the notches' [start, end] along s; margin: kept from every cut, the base and the tip; spine:
+    the points outside the cuts grown by margin, when the caller has them (notches.spine_wall). None where
+    either part has too few points to tell.
 
     A stereo matcher gives each pixel its window's mean depth: on a spine narrower than the window, seen by a
     camera that looks into the slots, the window reaches the slot floors behind it, and the spine reads deep.
@@ -70,8 +71,9 @@ def notched_thinning(offset: np.ndarray, s: np.ndarray, cuts: np.ndarray, tip_s:
         return None
     first, last = float(np.min(cuts[:, 0])) - margin, float(np.max(cuts[:, 1])) + margin
     inside = (s > margin) & (s < tip_s - margin)
-    grown = np.column_stack([cuts[:, 0] - margin, cuts[:, 1] + margin])
-    notched = inside & (s > first) & (s < last) & ~inside_intervals(s, grown)
+    if spine is None:
+        spine = ~inside_intervals(s, np.column_stack([cuts[:, 0] - margin, cuts[:, 1] + margin]))
+    notched = inside & (s > first) & (s < last) & spine
     plain = inside & ((s < first) | (s > last))
     if np.count_nonzero(notched) < 8 or np.count_nonzero(plain) < 8:
         return None
