@@ -421,7 +421,7 @@ def calibrate_rims(notches: list[Notch], geometry: TubeGeometry, centerline: Cen
         reach = float(min(max(solved_k, 0.0), geometry.outer_diameter))
     erosion = float(median(shortfall + reach * seen)) / 2.0  # e with k held, robust as the median
     calibrated = []
-    for n, start_v, end_v in zip(notches, start_seen, end_seen, strict=True):
+    for n, start_v, end_v in zip(notches, start_seen.tolist(), end_seen.tolist(), strict=True):  # (plain floats)
         start_move, end_move = erosion - reach * start_v, erosion - reach * end_v
         calibrated.append(Notch(n.index, n.center_s, n.start_s + start_move, n.end_s - end_move,
                                 max(n.width - start_move - end_move, 0.0), n.bend, n.signal))
