@@ -60,3 +60,36 @@ def test_notch_side_is_not_claimed_when_no_notch_edge_is_seen():
     measured = measure_notch_side(coords, notches, GEOMETRY, centerline, 0.8e-3, FOOTPRINT)
     print(f"\nonly +-20 deg about each camera seen: {measured}")
     assert measured is None
+
+
+@pytest.mark.parametrize("rolls_deg, kept", [((20.0, 1.0), False), ((29.0, 9.0), True)])
+def test_a_side_that_does_not_settle_in_the_turned_frame_keeps_the_configured_one(monkeypatch, rolls_deg, kept):
+    """Turned to a measured side, the notches should open there: the measurement in the turned frame then
+    stays within ROLL_TO_REFRAME and the side reported is the sum. One that moves on again is no measurement:
+    the configured side is kept, and the result says why. (The measurement is replaced by the given rolls, so
+    only the pipeline's handling of it is under test; on the sample bag bend45, whose notches open at 0 deg.)"""
+    from pathlib import Path
+
+    import tiny_rig
+
+    import ntcr_recon.core.pipeline as pipeline
+    from ntcr_recon.core.config import load_rig_config
+
+    bag = Path(__file__).resolve().parents[1] / "bags" / "bend45"
+    config = load_rig_config(bag / "rig.yaml")
+    pair = tiny_rig.bag_frame_pairs(bag, config)[0]
+    rolls = iter(math.radians(r) for r in rolls_deg)
+    monkeypatch.setattr(pipeline, "measure_notch_side", lambda *args, **kwargs: next(rolls, None))
+    relocation = pipeline.Reconstructor(config).process(pair).relocation
+    side = relocation.quality["notch_side_deg"]
+    print(f"\nrolls measured {rolls_deg} deg: side reported {side:.1f} deg; warnings {list(relocation.warnings)}")
+    text = " ".join(relocation.warnings)
+    if kept:
+        assert side == pytest.approx(0.0, abs=1e-9)
+        assert relocation.quality["notch_side_unsettled_deg"] == pytest.approx(list(rolls_deg))
+        assert "measured +29 deg from the configured robot.notch_side, then +9 deg more" in text
+        assert "rolled in its clamp" not in text
+    else:
+        assert side == pytest.approx(sum(rolls_deg))
+        assert relocation.quality["notch_side_unsettled_deg"] is None
+        assert "+21 deg from the configured robot.notch_side" in text

@@ -218,13 +218,20 @@ class Reconstructor:
                                options.min_notch_width_fraction, tip_s, observed=coords, wall=wall)
         # the robot's roll in its clamp is never exact: the side the notches open to, measured; where it is
         # off the configured one the tube frame turns to it and the notches are found again in that frame
-        notch_side = geometry.notch_side
-        for _ in range(2):  # the second pass measures in the turned frame (the window fits better there)
+        notch_side, unsettled = geometry.notch_side, None
+        configured = centerline, coords, rays, measured, found, frames
+        for turn in range(2):  # the second pass measures in the turned frame (the window fits better there)
             roll = measure_notch_side(coords, found, geometry, centerline, settings.gate, footprint, wall=wall)
             if roll is None:
                 break
             if abs(roll) <= ROLL_TO_REFRAME:
                 notch_side += roll  # reported as measured; too small a turn to find the notches again for
+                break
+            if turn:  # turned to the side measured, the notches should open there: a measurement that does
+                # not settle is no measurement, and the configured frame is kept
+                unsettled = (notch_side - geometry.notch_side, roll)
+                notch_side = geometry.notch_side
+                centerline, coords, rays, measured, found, frames = configured
                 break
             turned = centerline.rolled(roll), coords.rolled(roll)
             turned_rays = None if rays is None else (rays[0].rolled(roll), rays[1])
@@ -297,7 +304,7 @@ class Reconstructor:
                                               settings.gate, 2 * footprint, spine=wall[0]),
             looking_into_slots=tuple(cameras_looking_into_slots(centerline, geometry, self._camera_origins,
                                                                 self.config.camera_names)),
-            tip_from_cap=from_cap)
+            tip_from_cap=from_cap, side_unsettled=unsettled)
         quality = {**quality, "tip_refinement": refinement,
                    "edge_band_mrad": {name: band * 1e3 for name, band in self._edge_bands.items()}}
         self._prior = fitted

@@ -105,13 +105,16 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
            tip_uncertainty: float | None = None, tip_position: np.ndarray | None = None,
            crop_box: tuple[np.ndarray, np.ndarray] | None = None,
            notched_thinning: float | None = None, looking_into_slots: tuple[str, ...] = (),
-           tip_from_cap: bool = False) -> tuple[dict, list[str]]:
+           tip_from_cap: bool = False, side_unsettled: tuple[float, float] | None = None
+           ) -> tuple[dict, list[str]]:
     """The `quality` document and the warnings (see the module docstring). tip_uncertainty: how well the tip's
     refinement placed it along the tube, when it measured the erosion it gave back (else the erosion itself
     counts as uncertain, and half a footprint). tip_position, crop_box: where the tip is and the box the points
     were cropped to (base frame), to tell a tube cut off by the box. notched_thinning: `notched_thinning`'s
     figure, when it could be measured; looking_into_slots: `cameras_looking_into_slots`; tip_from_cap: the tip is
-    the end cap's plane (tip.end_cap_plane), tip_uncertainty the smear of its points."""
+    the end cap's plane (tip.end_cap_plane), tip_uncertainty the smear of its points; side_unsettled: the notch
+    side measured off the configured one, then off again in the frame turned to it (rad), when the configured
+    one was kept for it."""
     warnings: list[str] = []
     r_o, diameter = geometry.outer_radius, geometry.outer_diameter
     found = sorted(n.index for n in notches)
@@ -166,6 +169,11 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
                             "may go on outside the box")
         warnings.append(warning)
     side_off = math.degrees(math.remainder(notch_side - configured_side, 2 * math.pi))
+    if side_unsettled is not None:
+        first, then = (math.degrees(angle) for angle in side_unsettled)
+        warnings.append(f"the notches' side measured {first:+.0f} deg from the configured robot.notch_side, then "
+                        f"{then:+.0f} deg more in the frame turned to it: no consistent measurement, the configured "
+                        "side is kept (check the robot's roll in its clamp)")
     if abs(side_off) > SIDE_OFF_DEG:
         warnings.append(f"the notches open {side_off:+.0f} deg from the configured robot.notch_side: the robot "
                         "is rolled in its clamp (measured side used)")
@@ -192,6 +200,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
         "length_seen_share": share, "distal_one_camera_mm": {k: v * 1e3 for k, v in alone.items()},
         "fit_residual_mm": wall_residual * 1e3,
         "notch_side_deg": math.degrees(notch_side), "notch_side_configured_deg": math.degrees(configured_side),
+        "notch_side_unsettled_deg": None if side_unsettled is None else [math.degrees(a) for a in side_unsettled],
         "centerline_bias_mm": {"notch_side": bias_notch_side * 1e3, "binormal": bias_binormal * 1e3},
         "tip_s_mm": tip_s * 1e3, "expected_length_mm": expected_length * 1e3,
         "tip_uncertainty_mm": tip_uncertainty * 1e3,
