@@ -289,8 +289,8 @@ def test_alignment_moves_the_reference_onto_the_facing_wall_and_reports_the_shif
     result = align_to_trusted_wall(centerline, coords, frames, viewpoints, geometry, 0.8e-3, FOOTPRINT, length)
     moved = result.centerline.points[(result.centerline.s > 5e-3) & (result.centerline.s < 25e-3)]
     print(f"\nalignment: bias {result.bias_notch_side * 1e3:+.3f} mm measured (true {-shift * 1e3:+.1f}: the given "
-          f"axis lies away from the notch side), axis now at x = {moved[:, 0].mean() * 1e3:.3f} mm, residual "
-          f"{result.residual * 1e3:.3f} mm")
+          f"axis lies away from the notch side), axis now at x = {moved[:, 0].mean() * 1e3:.3f} mm, on "
+          f"{result.trusted} trusted points")
     assert abs(result.bias_notch_side + shift) < 0.01e-3
     assert np.abs(moved[:, 0] - shift).max() < 0.02e-3
     assert abs(result.bias_binormal) < 0.01e-3

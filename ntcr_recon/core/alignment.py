@@ -64,7 +64,6 @@ class Alignment:
     centerline: Centerline
     bias_notch_side: float   # m, the fit's lean towards the notch side (+): minus the mean shift applied
     bias_binormal: float     # m, the same across the bending plane (along normal x tangent)
-    residual: float          # m, RMS radial residual of the trusted points after the alignment
     trusted: int             # points the alignment rests on
     arc_lengths: np.ndarray | None = None  # the points' s on the curve the last pass started from (passes > 1)
 
@@ -76,10 +75,10 @@ def _trusted_window_sums(s, x, y, position, normal, binormal, viewpoints, base, 
 
     Trusted: within `gate` of the wall, start_s < s < end_s, away from the cuts, and facing their camera (the
     cosine between the point's outward direction about the axis and the direction to its viewpoint above
-    `least_cosine`). Returns the trusted points' window, cos and sin of their angle about the axis and
-    radial offset (compact, in point order), and per window the 3x3 matrix and right-hand side of
-    offset = cx cos + cy sin + level d^2 summed over them (d: the distance of the point's camera from the robot's
-    base), their count and the sum of their s, and the mean d^2 of the trusted points.
+    `least_cosine`). Returns per window the 3x3 matrix and right-hand side of offset = cx cos + cy sin +
+    level d^2 summed over them (d: the distance of the point's camera from the robot's base), their count, the
+    sum of their s and that of their unit directions (cos, sin) about the axis; and the mean d^2 of the trusted
+    points.
 
     The level per camera scales with d^2: a stereo matcher gives a pixel the mean depth of its window, a fixed
     number of pixels, and on a convex wall of radius R the mean over a patch of width a lies about a^2 / (24 R)
@@ -91,9 +90,8 @@ def _trusted_window_sums(s, x, y, position, normal, binormal, viewpoints, base, 
     camera, test_synthetic_oblique). On a rig whose cameras stand as far from the base: one level.
     """
     count = s.shape[0]
-    index, cos_a, sin_a, residual = np.empty(count, np.intp), np.empty(count), np.empty(count), np.empty(count)
     matrix, rhs, counts = np.zeros((windows, 3, 3)), np.zeros((windows, 3)), np.zeros(windows, np.intp)
-    s_sum = np.zeros(windows)
+    s_sum, direction_sum = np.zeros(windows), np.zeros((windows, 2))
     kept = 0
     distance2_sum = 0.0
     for i in range(count):
@@ -119,11 +117,11 @@ def _trusted_window_sums(s, x, y, position, normal, binormal, viewpoints, base, 
                 matrix[k, row, column] += terms[row] * terms[column]
         counts[k] += 1
         s_sum[k] += s[i]
+        direction_sum[k, 0] += cos_angle
+        direction_sum[k, 1] += sin_angle
         distance2_sum += distance2
-        index[kept], cos_a[kept], sin_a[kept], residual[kept] = k, terms[0], terms[1], offset
         kept += 1
-    return (index[:kept], cos_a[:kept], sin_a[:kept], residual[:kept], matrix, rhs, counts, s_sum,
-            distance2_sum / max(kept, 1))
+    return matrix, rhs, counts, s_sum, direction_sum, distance2_sum / max(kept, 1)
 
 
 def normalise_level(matrix: np.ndarray, rhs: np.ndarray, distance2_mean: float) -> None:
@@ -188,7 +186,7 @@ def align_to_trusted_wall(centerline: Centerline, coords: TubeCoordinates, frame
     margin = silhouette_margin_px * footprint
     least_cosine = facing_cosine(geometry.outer_radius, footprint, silhouette_margin_px, max_view_angle)
     bias = np.zeros(2)
-    result = Alignment(centerline, 0.0, 0.0, float("nan"), 0)
+    result = Alignment(centerline, 0.0, 0.0, 0)
     for done in range(max(passes, 1)):
         if done:  # the moved axis: its points' coordinates, and its comb (the cuts move with its bends)
             coords, frames = centerline.project_with_frames(xyz, coords.s)
@@ -199,7 +197,7 @@ def align_to_trusted_wall(centerline: Centerline, coords: TubeCoordinates, frame
         if result.centerline is centerline or xyz is None:
             break
         centerline = result.centerline
-    return Alignment(result.centerline, float(bias[0]), float(bias[1]), result.residual, result.trusted, coords.s)
+    return Alignment(result.centerline, float(bias[0]), float(bias[1]), result.trusted, coords.s)
 
 
 def _determinants(matrix: np.ndarray) -> np.ndarray:
@@ -217,20 +215,20 @@ def _align_once(centerline: Centerline, coords: TubeCoordinates, frames: tuple, 
     window = geometry.notch_pitch
     windows = max(int(np.ceil(end_s / window)), 1)
     position, _, normal, binormal = frames
-    index, cos_a, sin_a, residual, matrix, rhs, counts, s_sum, distance2_mean = _trusted_window_sums(
+    matrix, rhs, counts, s_sum, direction_sum, distance2_mean = _trusted_window_sums(
         coords.s, coords.x, coords.y, position, normal, binormal, viewpoints, centerline.points[0],
         geometry.outer_radius, gate, margin, end_s - margin, least_cosine, away_from_cuts, window, windows)
     normalise_level(matrix, rhs, distance2_mean)
-    count = len(index)
+    count = int(counts.sum())
     if count < minimum_points:
-        return Alignment(centerline, 0.0, 0.0, float("nan"), count)
+        return Alignment(centerline, 0.0, 0.0, count)
     # a window seen from one side only cannot tell a shift towards the camera from the wall's level
     # (the offset model is then degenerate): it needs points spread around the axis
-    resultant = np.hypot(np.bincount(index, cos_a, windows), np.bincount(index, sin_a, windows)) / np.maximum(counts, 1)
+    resultant = np.hypot(direction_sum[:, 0], direction_sum[:, 1]) / np.maximum(counts, 1)
     solvable = (counts >= minimum_points // 3) & (resultant < MAX_ONE_SIDEDNESS)
     solvable &= np.abs(_determinants(matrix)) > 1e-9 * np.maximum(counts, 1) ** 3
     if not np.any(solvable):
-        return Alignment(centerline, 0.0, 0.0, float("nan"), count)
+        return Alignment(centerline, 0.0, 0.0, count)
     shifts = np.zeros((windows, 2))
     shifts[solvable] = smoothed_shifts(matrix[solvable], rhs[solvable], smoothing)
     centres = s_sum / np.maximum(counts, 1)  # where each window's trusted points lie on average
@@ -245,7 +243,4 @@ def _align_once(centerline: Centerline, coords: TubeCoordinates, frames: tuple, 
     aligned = Centerline.from_points(moved, binormal_hint, step)
     weights = counts[solvable].astype(float)
     bias = weights @ shifts[solvable] / weights.sum()
-    fitted = shifts[index, 0] * cos_a + shifts[index, 1] * sin_a
-    level = median(residual - fitted)
-    rms = float(np.sqrt(np.mean((residual - fitted - level) ** 2)))
-    return Alignment(aligned, -float(bias[0]), -float(bias[1]), rms, count)
+    return Alignment(aligned, -float(bias[0]), -float(bias[1]), count)

@@ -365,12 +365,15 @@ def _wrapped(angle):
     return (angle + np.pi) % (2 * np.pi) - np.pi
 
 
-def face_view_tangent(centerline: Centerline, s: np.ndarray, camera_origins: np.ndarray, facing: float) -> np.ndarray:
+def face_view_tangent(centerline: Centerline, s: np.ndarray, camera_origins: np.ndarray,
+                      facing: float | np.ndarray) -> np.ndarray:
     """Per cut face at arc lengths s (outward normal `facing` x the tangent: +1 a notch's start face, -1 its end
-    face), how much of it the cameras see beside its rim: the mean over the cameras of the tangent of the angle
-    between the view and the face's plane where the face turns towards the camera, 0 where it turns away."""
+    face; one for all, or one per face), how much of it the cameras see beside its rim: the mean over the cameras
+    of the tangent of the angle between the view and the face's plane where the face turns towards the camera,
+    0 where it turns away."""
     position, tangent, _, _ = centerline.frames_at(np.asarray(s, dtype=float))
     view = camera_origins[None, :, :] - position[:, None, :]
+    facing = np.asarray(facing, dtype=float)[..., None]
     cosine = facing * np.einsum("nj,ncj->nc", tangent, view) / np.linalg.norm(view, axis=2)
     cosine = np.clip(cosine, 0.0, 1.0 - 1e-9)
     return np.mean(cosine / np.sqrt(1.0 - cosine * cosine), axis=1)
@@ -402,10 +405,11 @@ def calibrate_rims(notches: list[Notch], geometry: TubeGeometry, centerline: Cen
     if centerline is not None and camera_origins is not None and len(camera_origins):
         # a face as deep as the tube hides the whole gap once tan > width / diameter: no more can be hidden
         most = geometry.notch_width / geometry.outer_diameter
-        start_seen = np.minimum(face_view_tangent(centerline, np.array([n.start_s for n in notches]),
-                                                  camera_origins, 1.0), most)
-        end_seen = np.minimum(face_view_tangent(centerline, np.array([n.end_s for n in notches]), camera_origins,
-                                                -1.0), most)
+        # start faces look up the tube, end faces down it: both in one pass over the centreline's frames
+        faces = np.array([n.start_s for n in notches] + [n.end_s for n in notches])
+        facing = np.repeat([1.0, -1.0], len(notches))
+        start_seen, end_seen = np.split(np.minimum(face_view_tangent(centerline, faces, camera_origins, facing),
+                                                   most), 2)
     row = {n.index: i for i, n in enumerate(notches)}
     seen = np.array([end_seen[row[before.index]] + start_seen[row[after.index]] for before, after in pairs])
     reach = 0.0
