@@ -39,6 +39,17 @@ def test_a_camera_looking_into_the_notches_from_afar_says_the_centreline_may_lea
     assert any("cam_a looks into the notches' slots" in warning for warning in figures["warnings"])
 
 
+def test_a_centreline_off_its_floor_says_how_uncertain_it_is():
+    """Cameras 110 mm away: stereo beside the notches moves the wall each camera sees, the centreline misses its
+    floor, and the result's own uncertainty (the cameras' spread across their views, the wall's deficit between
+    the notches) says so - at least as large as the error it made."""
+    figures = accuracy_matrix.run_row(ROWS["cameras110"], frames=2)
+    print("\n" + accuracy_matrix.format_row(figures) + "\n" + "\n".join(figures["warnings"]))
+    assert "centerline" in figures["misses"], "this row was expected to miss; if it no longer does, pick another"
+    stated = [w for w in figures["warnings"] if w.startswith("the centreline is uncertain by about")]
+    assert stated and float(stated[0].split("about ")[1].split(" mm")[0]) * 1e-3 >= figures["centerline"]
+
+
 def test_a_rig_file_rolled_20_degrees_off_reports_the_side_the_notches_open_to():
     """The robot's roll in its clamp is never exact: with the rig file's notch_side 20 deg off, every notch is
     still found and the side reported is the true one (0 deg) to a few degrees."""

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from ntcr_recon.core.alignment import align_to_trusted_wall
+from ntcr_recon.core.alignment import align_to_trusted_wall, cross_view_spread
 from ntcr_recon.core.centerline import Centerline, estimate_centerline, settings_for
 from ntcr_recon.core.comb import cut_intervals, expected_centres, inside_intervals
 from ntcr_recon.core.config import RelocationConfig
@@ -20,6 +20,7 @@ from ntcr_recon.core.quality import (
     assess,
     camera_coverage,
     cameras_looking_into_slots,
+    centerline_uncertainty,
     depth_step,
     notched_thinning,
 )
@@ -323,6 +324,36 @@ def test_alignment_keeps_the_axis_between_cameras_at_different_distances():
     assert abs(result.bias_binormal) < 0.005e-3
 
 
+def test_cross_view_spread_is_how_far_each_camera_alone_puts_the_axis_across_its_view():
+    """Opposed cameras at -y and +y see a straight tube on its axis: they agree (spread under 5 um). Then cam_a's
+    wall is moved 0.1 mm across its view (+x), as a matcher's window reaching the slots on one side of its view
+    moves it: cam_a alone puts the axis 0.1 mm off, cam_b on it, an RMS over the cameras of 0.1 / sqrt(2) mm;
+    moved along its view (-y, a level) it places the axis no differently across."""
+    length = 30e-3
+    geometry = TubeGeometry(notch_count=8, notch_pitch=3e-3)
+    points = wall_points(length, rng=np.random.default_rng(4))
+    camera = (points[:, 1] > 0).astype(np.intp)
+    viewpoints = np.array([[0.0, -0.09, 0.015], [0.0, 0.09, 0.015]])[camera]
+    centerline = straight_centerline(length)
+
+    def spread(moved_by):
+        moved = points + np.where(camera[:, None] == 0, moved_by, 0.0)
+        coords, frames = centerline.project_with_frames(moved)
+        return cross_view_spread(centerline, coords, frames, viewpoints, camera, 2, geometry, 0.8e-3, FOOTPRINT,
+                                 length)
+
+    agreed, across, along = spread([0.0, 0.0, 0.0]), spread([0.1e-3, 0.0, 0.0]), spread([0.0, -0.1e-3, 0.0])
+    print(f"\ncameras agree: {agreed * 1e6:.1f} um; cam_a's wall 0.1 mm across its view: {across * 1e6:.1f} um "
+          f"(expected {0.1e3 / math.sqrt(2):.1f}); along it: {along * 1e6:.1f} um")
+    assert agreed < 10e-6 and along < 10e-6
+    assert across == pytest.approx(0.1e-3 / math.sqrt(2), rel=0.1)
+    # too few trusted points in every window (the tube seen only edge-on): nothing to tell
+    edge_on = np.abs(points[:, 0]) > 0.99 * R_O
+    coords, frames = centerline.project_with_frames(points[edge_on])
+    assert cross_view_spread(centerline, coords, frames, viewpoints[edge_on], camera[edge_on], 2, geometry, 0.8e-3,
+                             FOOTPRINT, length) is None
+
+
 def test_trusted_points_lie_pixels_inside_the_silhouette():
     """The facing zone is set in pixels: 4 footprints inside the silhouette of a 1.75 mm tube is 32.9 deg of view
     angle at 0.2 mm a pixel, 24.2 deg at 0.258 mm, never wider than the cap, and empty for a tube 4 px wide."""
@@ -501,6 +532,36 @@ def test_quality_measures_a_wall_that_reads_deeper_between_the_notches_than_on_t
     # move the axis; and a deficit a quarter of a footprint below the floor stays quiet
     assert "slots" not in warnings_for(0.3e-3, looking=())[1]
     assert "slots" not in warnings_for(0.2 * FOOTPRINT)[1]
+
+
+def test_quality_gives_the_centreline_an_uncertainty_and_warns_above_its_floor():
+    """The cameras' spread across their views and the lean along them (the wall's deficit between the notches,
+    twice it for a camera looking into the slots) add in quadrature: 0.06 and 0.08 mm make 0.1 mm, over the
+    0.08 mm floor, a warning; 0.03 and 0.04 mm make 0.05 mm, quiet."""
+    assert centerline_uncertainty(0.06e-3, 0.08e-3) == pytest.approx(0.1e-3)
+    assert centerline_uncertainty(None, 0.05e-3) == pytest.approx(0.05e-3)
+    assert centerline_uncertainty(None, None) is None
+
+    def assessed(spread, thinning, looking=()):
+        return assess(geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=[], notch_signals={},
+                      coords_s=np.linspace(0.0, 50e-3, 1000), camera=np.zeros(1000, np.int8), tip_s=50e-3,
+                      total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.0, notch_side=0.0, configured_side=0.0,
+                      bias_notch_side=0.1e-3, bias_binormal=0.0, depth_steps={}, notched_thinning=thinning,
+                      looking_into_slots=looking, cross_view_spread=spread)
+
+    quality, warnings = assessed(0.06e-3, 0.08e-3)
+    print("\n" + "\n".join(warnings))
+    assert quality["centerline_uncertainty_mm"] == pytest.approx(0.1)
+    assert quality["centerline_cross_view_mm"] == pytest.approx(0.06)
+    assert any("the centreline is uncertain by about 0.10 mm" in warning and "0.06 mm apart" in warning
+               for warning in warnings)
+    quiet_quality, quiet = assessed(0.03e-3, 0.04e-3)
+    assert quiet_quality["centerline_uncertainty_mm"] == pytest.approx(0.05)
+    assert not any("centreline" in warning for warning in quiet)
+    # looking into the slots, the deficit may lean the axis by twice it: 0.03 and 2 x 0.04 mm make 0.085 mm
+    looking_quality, looking = assessed(0.03e-3, 0.04e-3, looking=("cam_a",))
+    assert looking_quality["centerline_uncertainty_mm"] == pytest.approx(math.hypot(0.03, 0.08))
+    assert any("the centreline is uncertain by about 0.09 mm" in warning for warning in looking)
 
 
 def test_a_camera_looks_into_the_slots_when_its_line_of_sight_through_them_meets_their_floor():

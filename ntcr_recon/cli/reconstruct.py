@@ -70,10 +70,16 @@ def main(args: argparse.Namespace) -> int:
         print(f"ntcr-recon reconstruct: {quality['notches_found']} of {quality['notches_expected']} notches "
               f"(by signal: {quality['notches_by_signal']}), notch side {quality['notch_side_deg']:.1f} deg "
               f"(configured {quality['notch_side_configured_deg']:.1f}), centreline bias towards the notch side "
-              f"{quality['centerline_bias_mm']['notch_side']:+.3f} mm (removed)", file=sys.stderr)
+              f"{quality['centerline_bias_mm']['notch_side']:+.3f} mm (removed), centreline uncertain by "
+              f"{_millimetres(quality.get('centerline_uncertainty_mm'))}, tip by "
+              f"{_millimetres(quality.get('tip_uncertainty_mm'))}", file=sys.stderr)
     for warning in result["warnings"]:
         print(f"ntcr-recon reconstruct: warning: {warning}", file=sys.stderr)
     return 0
+
+
+def _millimetres(value: float | None) -> str:
+    return "(not measured)" if value is None else f"{value:.2f} mm"
 
 
 class ReconstructCommandError(Exception):

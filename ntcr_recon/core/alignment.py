@@ -69,6 +69,27 @@ class Alignment:
 
 
 @jit
+def _facing_point(i, s, x, y, position, normal, binormal, viewpoints, outer_radius, gate, start_s, end_s,
+                  least_cosine, away_from_cuts):
+    """Point i's radial offset from the wall, its direction (cos, sin) about the axis and the sine of its view
+    angle (signed, about the tangent) when it is trusted (see _trusted_window_sums), else offset nan."""
+    radius = np.sqrt(x[i] * x[i] + y[i] * y[i])
+    offset = radius - outer_radius
+    if not (abs(offset) < gate and start_s < s[i] < end_s and away_from_cuts[i]):
+        return np.nan, 0.0, 0.0, 0.0
+    v0 = viewpoints[i, 0] - position[i, 0]
+    v1 = viewpoints[i, 1] - position[i, 1]
+    v2 = viewpoints[i, 2] - position[i, 2]
+    vx = v0 * normal[i, 0] + v1 * normal[i, 1] + v2 * normal[i, 2]
+    vy = v0 * binormal[i, 0] + v1 * binormal[i, 1] + v2 * binormal[i, 2]
+    view = max(radius * np.sqrt(vx * vx + vy * vy), 1e-15)
+    if not (x[i] * vx + y[i] * vy) / view > least_cosine:
+        return np.nan, 0.0, 0.0, 0.0
+    cos_angle, sin_angle = unit_direction(x[i], y[i])
+    return offset, cos_angle, sin_angle, (x[i] * vy - y[i] * vx) / view
+
+
+@jit
 def _trusted_window_sums(s, x, y, position, normal, binormal, viewpoints, base, outer_radius, gate, start_s,
                          end_s, least_cosine, away_from_cuts, window, windows):
     """The trusted wall points and, per window of s, the normal equations of their offset model.
@@ -95,19 +116,12 @@ def _trusted_window_sums(s, x, y, position, normal, binormal, viewpoints, base, 
     kept = 0
     distance2_sum = 0.0
     for i in range(count):
-        radius = np.sqrt(x[i] * x[i] + y[i] * y[i])
-        offset = radius - outer_radius
-        if not (abs(offset) < gate and start_s < s[i] < end_s and away_from_cuts[i]):
-            continue
-        v0 = viewpoints[i, 0] - position[i, 0]
-        v1 = viewpoints[i, 1] - position[i, 1]
-        v2 = viewpoints[i, 2] - position[i, 2]
-        vx = v0 * normal[i, 0] + v1 * normal[i, 1] + v2 * normal[i, 2]
-        vy = v0 * binormal[i, 0] + v1 * binormal[i, 1] + v2 * binormal[i, 2]
-        if not (x[i] * vx + y[i] * vy) / max(radius * np.sqrt(vx * vx + vy * vy), 1e-15) > least_cosine:
+        offset, cos_angle, sin_angle, _ = _facing_point(i, s, x, y, position, normal, binormal, viewpoints,
+                                                         outer_radius, gate, start_s, end_s, least_cosine,
+                                                         away_from_cuts)
+        if np.isnan(offset):
             continue
         k = min(int(s[i] / window), windows - 1)
-        cos_angle, sin_angle = unit_direction(x[i], y[i])
         b0, b1, b2 = viewpoints[i, 0] - base[0], viewpoints[i, 1] - base[1], viewpoints[i, 2] - base[2]
         distance2 = b0 * b0 + b1 * b1 + b2 * b2
         terms = (cos_angle, sin_angle, distance2)
@@ -122,6 +136,27 @@ def _trusted_window_sums(s, x, y, position, normal, binormal, viewpoints, base, 
         distance2_sum += distance2
         kept += 1
     return matrix, rhs, counts, s_sum, direction_sum, distance2_sum / max(kept, 1)
+
+
+@jit
+def _cross_view_sums(s, x, y, position, normal, binormal, viewpoints, camera, cameras, outer_radius, gate, start_s,
+                     end_s, least_cosine, away_from_cuts, window, windows):
+    """Per window of s and camera, over its trusted points (see _trusted_window_sums): their count and the sums
+    of sin(a), sin(a)^2, offset and sin(a) offset, a the point's view angle about the tangent."""
+    sums = np.zeros((windows, cameras, 5))
+    for i in range(s.shape[0]):
+        offset, _, _, sine = _facing_point(i, s, x, y, position, normal, binormal, viewpoints, outer_radius, gate,
+                                           start_s, end_s, least_cosine, away_from_cuts)
+        if np.isnan(offset):
+            continue
+        k = min(int(s[i] / window), windows - 1)
+        c = camera[i]
+        sums[k, c, 0] += 1.0
+        sums[k, c, 1] += sine
+        sums[k, c, 2] += sine * sine
+        sums[k, c, 3] += offset
+        sums[k, c, 4] += sine * offset
+    return sums
 
 
 def normalise_level(matrix: np.ndarray, rhs: np.ndarray, distance2_mean: float) -> None:
@@ -182,9 +217,7 @@ def align_to_trusted_wall(centerline: Centerline, coords: TubeCoordinates, frame
     cut_margin = cut_margin_px * footprint
     away_from_cuts = ~inside_intervals(coords.s, cut_intervals(geometry, centerline, cut_margin))
     viewpoints = np.ascontiguousarray(viewpoints, dtype=float)
-    # the base (on its post) and the end are depth edges too: trusted points keep the same margin from them
-    margin = silhouette_margin_px * footprint
-    least_cosine = facing_cosine(geometry.outer_radius, footprint, silhouette_margin_px, max_view_angle)
+    margin, least_cosine = _trust_limits(geometry, footprint, silhouette_margin_px, max_view_angle)
     bias = np.zeros(2)
     result = Alignment(centerline, 0.0, 0.0, 0)
     for done in range(max(passes, 1)):
@@ -198,6 +231,47 @@ def align_to_trusted_wall(centerline: Centerline, coords: TubeCoordinates, frame
             break
         centerline = result.centerline
     return Alignment(result.centerline, float(bias[0]), float(bias[1]), result.trusted, coords.s)
+
+
+def _trust_limits(geometry: TubeGeometry, footprint: float, silhouette_margin_px: float,
+                  max_view_angle: float) -> tuple[float, float]:
+    """The margin trusted points keep from the base and the end (depth edges too, as the silhouette) and the
+    least cosine of their view angle."""
+    return (silhouette_margin_px * footprint,
+            facing_cosine(geometry.outer_radius, footprint, silhouette_margin_px, max_view_angle))
+
+
+def cross_view_spread(centerline: Centerline, coords: TubeCoordinates, frames: tuple, viewpoints: np.ndarray,
+                      camera: np.ndarray, cameras: int, geometry: TubeGeometry, gate: float, footprint: float,
+                      end_s: float, max_view_angle: float = np.radians(45.0), cut_margin_px: float = 1.0,
+                      silhouette_margin_px: float = SILHOUETTE_MARGIN_PX, minimum_points: int = 10,
+                      min_sine_spread: float = 0.05) -> float | None:
+    """How far each camera alone puts the axis across its line of sight from the centreline given (m, RMS over
+    windows of a notch pitch and cameras); None when no window holds enough trusted points of any camera.
+
+    Across its line of sight a camera places the axis by itself: a shift b that way raises the wall it sees on
+    one side of its view and lowers it on the other, offset = b sin(a) + level (a: the view angle, the shift
+    along the line of sight and the level alike near a = 0). Each camera's b on the trusted points of each
+    window, about the aligned centreline, is what it disagrees with the fit: stereo depth beside the notches is
+    not symmetric about a view (a matcher's window reaches the slots on one side), two cameras then pull the
+    axis apart, and the fused axis is known no better than their spread.
+    """
+    window = geometry.notch_pitch
+    windows = max(int(np.ceil(end_s / window)), 1)
+    away_from_cuts = ~inside_intervals(coords.s, cut_intervals(geometry, centerline, cut_margin_px * footprint))
+    margin, least_cosine = _trust_limits(geometry, footprint, silhouette_margin_px, max_view_angle)
+    position, _, normal, binormal = frames
+    sums = _cross_view_sums(coords.s, coords.x, coords.y, position, normal, binormal,
+                            np.ascontiguousarray(viewpoints, dtype=float), np.ascontiguousarray(camera, np.intp),
+                            cameras, geometry.outer_radius, gate, margin, end_s - margin, least_cosine,
+                            away_from_cuts, window, windows)
+    count, sine, sine2, offset, sine_offset = np.moveaxis(sums, 2, 0)
+    spread = count * sine2 - sine * sine  # count^2 x the variance of sin(a)
+    solvable = (count >= minimum_points) & (spread > (min_sine_spread * count) ** 2)
+    if not np.any(solvable):
+        return None
+    slope = (count * sine_offset - sine * offset)[solvable] / spread[solvable]
+    return float(np.sqrt(np.mean(slope ** 2)))
 
 
 def _determinants(matrix: np.ndarray) -> np.ndarray:

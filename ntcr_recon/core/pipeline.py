@@ -27,7 +27,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ntcr_recon.core.alignment import align_to_trusted_wall
+from ntcr_recon.core.alignment import align_to_trusted_wall, cross_view_spread
 from ntcr_recon.core.centerline import Centerline, TubeCoordinates, estimate_centerline, settings_for
 from ntcr_recon.core.cloud import Cloud
 from ntcr_recon.core.comb import cut_intervals, inside_intervals
@@ -60,6 +60,9 @@ ALIGNMENT_PASSES = 3
 
 # A tube whose end tangent turns at least this far towards a camera (from across its view) points at it.
 CAP_PLANE_ANGLE = np.radians(45.0)
+
+# The band a stereo matcher spoils at a depth edge, where no depth image measured it: half a D405's 7 px window.
+UNMEASURED_EDGE_BAND_PX = 3.5
 
 
 class ReconstructionError(RuntimeError):
@@ -195,7 +198,7 @@ class Reconstructor:
         # would shift the curve once more, and results would depend on what came before)
         fitted = centerline
         # 2. alignment: the reference tube shifted onto the wall points stereo measures without bias
-        alignment = None
+        alignment, spread = None, None
         if viewpoints is not None:
             end = tube_end(coords, geometry.outer_radius, settings.gate, footprint, max_s=geometry.reach)
             # which points face their camera depends on where the axis is: selected again about the moved axis
@@ -203,6 +206,9 @@ class Reconstructor:
                                               footprint, end, xyz=cloud.xyz, passes=ALIGNMENT_PASSES)
             centerline = alignment.centerline
             coords, frames = centerline.project_with_frames(cloud.xyz, alignment.arc_lengths)
+            # what each camera alone says about the axis across its view: the fused axis is known no better
+            spread = cross_view_spread(centerline, coords, frames, viewpoints, seen_by, len(self._camera_origins),
+                                       geometry, settings.gate, footprint, end)
         # each point as its camera saw it: along its viewing ray onto the wall (core.relocation)
         rays = None if viewpoints is None else along_rays(coords, frames, viewpoints, geometry.outer_radius,
                                                           settings.gate)
@@ -277,6 +283,8 @@ class Reconstructor:
                                           [(n.start_s, n.end_s) for n in notches], footprint)
             else:
                 refinement = "coarse end (the end turns towards a camera; no edge band measured)"
+        if refinement.startswith("coarse end") and tip_uncertainty is None:
+            tip_uncertainty = self._unrefined_tip_uncertainty(centerline, tip_s, footprint)
         # the rims the matcher moves (over the cut faces the cameras see), against the spines' known length
         notches = calibrate_rims(notches, geometry, centerline, None if seen_by is None else self._camera_origins)
         # 6. relocation: every point within the gate onto the reference surface (core.relocation)
@@ -304,7 +312,7 @@ class Reconstructor:
                                               settings.gate, 2 * footprint, spine=wall[0]),
             looking_into_slots=tuple(cameras_looking_into_slots(centerline, geometry, self._camera_origins,
                                                                 self.config.camera_names)),
-            tip_from_cap=from_cap, side_unsettled=unsettled)
+            tip_from_cap=from_cap, side_unsettled=unsettled, cross_view_spread=spread)
         quality = {**quality, "tip_refinement": refinement,
                    "edge_band_mrad": {name: band * 1e3 for name, band in self._edge_bands.items()}}
         self._prior = fitted
@@ -312,6 +320,16 @@ class Reconstructor:
         self._timed("relocate", start)
         return RelocationResult(_cut(centerline, tip_s), tip, notches, relocated, moved.normals, moved.rejected, coords,
                           iterations, moved.part, moved.coordinates, quality, tuple(warnings), notch_side)
+
+    def _unrefined_tip_uncertainty(self, centerline: Centerline, tip_s: float, footprint: float) -> float:
+        """How well a tip left at the coarse end is known along the tube: half a pixel for the end, and the band
+        the stereo matcher spoils at depth edges, not given back (the widest band measured, at the tip's distance
+        from its camera; none measured, UNMEASURED_EDGE_BAND_PX)."""
+        tip = centerline.frames_at(np.array([tip_s]))[0][0]
+        bands = [self._edge_band(name) * float(np.linalg.norm(origin - tip))
+                 for name, origin in zip(self.config.camera_names, self._camera_origins, strict=True)]
+        measured = [band for band in bands if np.isfinite(band)]
+        return footprint / 2 + (max(measured) if measured else UNMEASURED_EDGE_BAND_PX * footprint)
 
     def _relocate_by_icp(self, cloud: Cloud, centerline: Centerline, notches: list[Notch], tip_s: float,
                          tip: np.ndarray, gate: float, footprint: float) -> tuple[RelocatedPoints, np.ndarray]:

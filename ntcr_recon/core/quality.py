@@ -26,10 +26,11 @@ SIDE_OFF_DEG = 10.0                # measured notch side this far from the confi
 TIP_SHORT_DIAMETERS = 0.5          # tip this many diameters short of (or past) the robot's length: warn
 FOOTPRINT_RADIUS_FRACTION = 1 / 7  # pixel footprint above this fraction of r_o: too few pixels across
 QUANTISATION_RADIUS_FRACTION = 1 / 8   # depth step above this fraction of r_o: the tube's roundness is lost
-BIAS_WARN_FOOTPRINTS = 0.5         # centreline stereo bias above this many footprints: warn
+BIAS_WARN_FOOTPRINTS = 0.5         # a lean into the slots above this many footprints: warn
 WIDTH_CHECK_FRACTION = 0.1         # a notch whose width is off what its bend implies by this share of h: warn
 # The project's floors (issue 9): a figure whose uncertainty exceeds its floor is worth a warning.
 TIP_FLOOR = 0.15e-3
+CENTERLINE_FLOOR = 0.08e-3
 
 
 def camera_coverage(s: np.ndarray, camera: np.ndarray | None, camera_names: tuple[str, ...], tip_s: float,
@@ -105,8 +106,8 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
            tip_uncertainty: float | None = None, tip_position: np.ndarray | None = None,
            crop_box: tuple[np.ndarray, np.ndarray] | None = None,
            notched_thinning: float | None = None, looking_into_slots: tuple[str, ...] = (),
-           tip_from_cap: bool = False, side_unsettled: tuple[float, float] | None = None
-           ) -> tuple[dict, list[str]]:
+           tip_from_cap: bool = False, side_unsettled: tuple[float, float] | None = None,
+           cross_view_spread: float | None = None) -> tuple[dict, list[str]]:
     """The `quality` document and the warnings (see the module docstring). tip_uncertainty: how well the tip's
     refinement placed it along the tube, when it measured the erosion it gave back (else the erosion itself
     counts as uncertain, and half a footprint). tip_position, crop_box: where the tip is and the box the points
@@ -182,11 +183,17 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
                         f"{diameter / footprint:.0f} px across: expect errors above 0.1 mm (move the cameras "
                         "closer)")
     warnings += [w for name, step in depth_steps.items() if (w := depth_quantisation_warning(name, step, geometry))]
-    if abs(bias_notch_side) > BIAS_WARN_FOOTPRINTS * footprint:
-        warnings.append(f"stereo edges pulled the centreline {bias_notch_side * 1e3:+.2f} mm towards the notch "
-                        "side (corrected); residual bias may remain")
     # pooled over two cameras, a deficit one of them carries alone reads half: the lean may reach twice it
     lean = 2.0 * notched_thinning if notched_thinning is not None and looking_into_slots else 0.0
+    # the centreline's two blind spots, across the cameras' views and along them (see centerline_uncertainty)
+    along_views = lean if looking_into_slots else notched_thinning
+    uncertainty = centerline_uncertainty(cross_view_spread, along_views)
+    if uncertainty is not None and uncertainty > CENTERLINE_FLOOR:
+        warnings.append(f"the centreline is uncertain by about {uncertainty * 1e3:.2f} mm: stereo matching beside "
+                        f"the notches moves the wall it sees (the cameras place the axis "
+                        f"{(cross_view_spread or 0.0) * 1e3:.2f} mm apart across their views, and the wall between "
+                        f"the notches reads {(notched_thinning or 0.0) * 1e3:+.2f} mm deeper than the plain tube); "
+                        f"{abs(bias_notch_side) * 1e3:.2f} mm of lean towards the notch side was removed")
     if lean > BIAS_WARN_FOOTPRINTS * footprint:
         names = " and ".join(looking_into_slots)
         warnings.append(f"{names} looks into the notches' slots, and the wall between them reads "
@@ -209,8 +216,25 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
         "depth_step_mm": {k: v * 1e3 for k, v in depth_steps.items()},
         "notched_thinning_mm": None if notched_thinning is None else notched_thinning * 1e3,
         "cameras_looking_into_slots": list(looking_into_slots),
+        "centerline_cross_view_mm": None if cross_view_spread is None else cross_view_spread * 1e3,
+        "centerline_uncertainty_mm": None if uncertainty is None else uncertainty * 1e3,
     }
     return quality, warnings
+
+
+def centerline_uncertainty(cross_view_spread: float | None, along_views: float | None) -> float | None:
+    """How far the centreline may be off (m), from what the data show of stereo's bias beside the notches;
+    None when neither could be measured.
+
+    Across a camera's line of sight each camera places the axis by itself: their spread about the fused axis
+    (alignment.cross_view_spread) is how well the fused one is known that way. Along the lines of sight the
+    cameras' levels decide, and a matcher whose window averages the spines with the slots reads the wall between
+    the notches deeper than the plain tube (notched_thinning), a deficit no fit can place: along_views, the lean
+    it may cause. The two are orthogonal: added in quadrature.
+    """
+    if cross_view_spread is None and along_views is None:
+        return None
+    return float(np.hypot(cross_view_spread or 0.0, along_views or 0.0))
 
 
 def _nearest_box_face(point: np.ndarray, box: tuple[np.ndarray, np.ndarray]) -> tuple[int, float, float]:
