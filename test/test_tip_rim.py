@@ -132,6 +132,35 @@ def test_tip_of_a_tube_whose_rim_lost_a_known_band_in_each_camera():
                    np.array([bands[0], np.nan]), spine, 6e-3) is None
 
 
+def test_a_camera_whose_wall_stops_at_the_last_notch_is_not_heard_on_the_tip():
+    """The short ring beyond the last notch, eroded by the matcher from both its edges, is lost to the camera
+    facing the notch side: its wall stops where the last cut begins, 1.5 mm before the end. The other camera saw
+    the end; the tip is its (a mean of both was 0.75 mm short). A camera alone with such a wall is still heard."""
+    length, last_notch_s = 30e-3, 29e-3
+    rng = np.random.default_rng(6)
+    s = np.linspace(0.0, length + 5e-3, 351)
+    centerline = Centerline.from_points(np.stack([np.zeros_like(s), np.zeros_like(s), s], axis=1),
+                                        np.array([0.0, 1.0, 0.0]), 0.1e-3)
+    origins = np.array([[0.0, -0.09, 0.0], [0.0, 0.09, 0.0]])
+    band = 0.3e-3
+    a, b = _seen_wall(length - band, -1.0, rng), _seen_wall(length - 1.5e-3, 1.0, rng)
+    coords = centerline.project(np.concatenate([a, b]))
+    camera = np.concatenate([np.zeros(len(a), np.int8), np.ones(len(b), np.int8)])
+    spine = np.ones(len(camera), bool)
+    bands = np.full(2, band / 0.09)
+
+    def tip(keep=slice(None)):
+        return rim_tip(type(coords)(coords.s[keep], coords.x[keep], coords.y[keep]),
+                       camera[keep], origins, centerline, length - 0.3e-3, R_O, 0.8e-3, FOOTPRINT, 2 * FOOTPRINT,
+                       bands, spine[keep], 6e-3, last_notch_s=last_notch_s)[1]
+
+    both = tip()
+    print(f"\ntip {(both - length) * 1e3:+.3f} mm from the end")
+    assert both == pytest.approx(length, abs=FOOTPRINT / 2)
+    alone = tip(camera == 1)
+    assert alone == pytest.approx(length - 1.5e-3 + band, abs=FOOTPRINT / 2)
+
+
 @pytest.mark.parametrize("bend_deg, notch_side_deg, noise_at_90mm", [(30.0, 0.0, 2e-5), (40.0, 90.0, 2e-5),
                                                                     (30.0, 0.0, 1.7e-4)])
 def test_tip_on_the_test_renderer_with_a_backdrop(bend_deg, notch_side_deg, noise_at_90mm):

@@ -30,7 +30,7 @@ import numpy as np
 from ntcr_recon.core.alignment import align_to_trusted_wall, cross_view_spread
 from ntcr_recon.core.centerline import Centerline, TubeCoordinates, estimate_centerline, settings_for
 from ntcr_recon.core.cloud import Cloud
-from ntcr_recon.core.comb import cut_intervals, inside_intervals
+from ntcr_recon.core.comb import cut_intervals, expected_centres, inside_intervals
 from ntcr_recon.core.config import RigConfig
 from ntcr_recon.core.filters import filter_cloud
 from ntcr_recon.core.fusion import FramePair, fuse
@@ -272,7 +272,8 @@ class Reconstructor:
             bands = np.array([self._edge_band(name) for name in self.config.camera_names])
             rim = rim_tip(coords, seen_by, self._camera_origins, centerline, tip_s, geometry.outer_radius,
                           settings.gate, footprint, options.notch_kernel_px * footprint, bands,
-                          ~inside_intervals(coords.s, intervals), 2 * geometry.notch_pitch)
+                          ~inside_intervals(coords.s, intervals), 2 * geometry.notch_pitch,
+                          last_notch_s=float(np.max(expected_centres(geometry, centerline))))
             if rim is not None:
                 eroded_end, tip_s, tip_uncertainty = rim
                 refinement = "half-density end + edge band measured in the depth images"

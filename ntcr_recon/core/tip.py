@@ -303,7 +303,8 @@ def half_density_end(s: np.ndarray, coarse: float, cell: float, kernel: float, b
 
 def rim_tip(coords: TubeCoordinates, camera: np.ndarray, origins: np.ndarray, centerline: Centerline,
             coarse: float, radius: float, gate: float, cell: float, kernel: float, bands: np.ndarray,
-            spine: np.ndarray, reach: float, least: int = 50) -> tuple[float, float, float] | None:
+            spine: np.ndarray, reach: float, least: int = 50, last_notch_s: float = -np.inf
+            ) -> tuple[float, float, float] | None:
     """The tip from each camera's rim: its half-density end plus the matcher's erosion there.
 
     bands: per camera index, the band `edge_band` measured, as an angle (px / focal length; NaN: not measured).
@@ -313,14 +314,17 @@ def rim_tip(coords: TubeCoordinates, camera: np.ndarray, origins: np.ndarray, ce
     along s). Returns (the measured ends' mean, the tip, how well the tip is known along s), or None when a
     camera seeing the end has no band or none sees enough of it. The uncertainty: half a pixel for the end
     (a pixel's phase), and half a pixel for the band where one was spoiled (read as whole pixels, halved), each
-    along s (a pixel footprint `cell` over the view angle's sine).
+    along s (a pixel footprint `cell` over the view angle's sine). last_notch_s: the centre of the robot's last
+    notch; a camera whose wall ends before it saw the cut's edge, not the tube's end (a camera facing the notch
+    side loses the short ring beyond the last notch to the matcher's erosion from both its edges), and is not
+    heard while another camera saw past it.
     """
     offset = coords.radius - radius
     level, spread = surface_band(offset, gate, spine)
     wall = (np.abs(offset - level) <= max(spread, cell / 2)) & (coords.s > coarse - reach)
     wall &= coords.s < coarse + 2 * radius
     position, tangent, _, _ = centerline.frames_at(np.array([coarse]))
-    ends, tips, weights, uncertainties = [], [], [], []
+    ends, tips, weights, uncertainties, past_last_notch = [], [], [], [], []
     for index in np.unique(camera[wall]):
         mine = wall & (camera == index)
         if np.count_nonzero(mine) < least:
@@ -338,6 +342,10 @@ def rim_tip(coords: TubeCoordinates, camera: np.ndarray, origins: np.ndarray, ce
         weights.append(max(1.0 - cos_view * cos_view, 1e-6))
         pixels = 0.5 + (0.5 if bands[index] > 0 else 0.0)
         uncertainties.append(pixels * cell / np.sqrt(weights[-1]))
+        past_last_notch.append(end >= last_notch_s)
+    if any(past_last_notch):  # the cameras that saw the tube's end, not the last cut's edge
+        ends, tips, weights, uncertainties = ([value for value, past in zip(values, past_last_notch, strict=True)
+                                               if past] for values in (ends, tips, weights, uncertainties))
     if not ends:
         return None
     return (float(np.average(ends, weights=weights)), float(np.average(tips, weights=weights)),
