@@ -557,7 +557,13 @@ def test_quality_gives_the_centreline_an_uncertainty_and_warns_above_its_floor()
                for warning in warnings)
     quiet_quality, quiet = assessed(0.03e-3, 0.04e-3)
     assert quiet_quality["centerline_uncertainty_mm"] == pytest.approx(0.05)
-    assert not any("centreline" in warning for warning in quiet)
+    assert not any(warning.startswith("the centreline is uncertain") for warning in quiet)
+    # the tip sits on the centreline: half a footprint along the tube is within the tip's floor, but not with
+    # 0.22 mm across it
+    assert not any(warning.startswith("the tip") for warning in warnings)
+    _, far_off = assessed(0.2e-3, 0.08e-3)
+    assert any(warning.startswith("the tip") and "and by 0.22 mm across it (the centreline's)" in warning
+               for warning in far_off)
     # looking into the slots, the deficit may lean the axis by twice it: 0.03 and 2 x 0.04 mm make 0.085 mm
     looking_quality, looking = assessed(0.03e-3, 0.04e-3, looking=("cam_a",))
     assert looking_quality["centerline_uncertainty_mm"] == pytest.approx(math.hypot(0.03, 0.08))

@@ -139,20 +139,27 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
     # refinement measured it
     measured = tip_uncertainty is not None
     tip_uncertainty = tip_uncertainty if measured else abs(tip_erosion) + footprint / 2
-    if tip_uncertainty > TIP_FLOOR and tip_from_cap:
+    # pooled over two cameras, a deficit one of them carries alone reads half: the lean may reach twice it
+    lean = 2.0 * notched_thinning if notched_thinning is not None and looking_into_slots else 0.0
+    # the centreline's two blind spots, across the cameras' views and along them (see centerline_uncertainty)
+    along_views = lean if looking_into_slots else notched_thinning
+    uncertainty = centerline_uncertainty(cross_view_spread, along_views)
+    # the tip sits on the centreline: across the tube it is known as well as the centreline is
+    across = f", and by {uncertainty * 1e3:.2f} mm across it (the centreline's)" if uncertainty else ""
+    if math.hypot(tip_uncertainty, uncertainty or 0.0) > TIP_FLOOR and tip_from_cap:
         warnings.append(f"the tip is the end cap's plane, whose points the stereo matcher smeared over "
                         f"{tip_uncertainty * 1e3:.2f} mm towards the bore behind its ring: its position is uncertain "
-                        "by about that much along the tube")
-    elif tip_uncertainty > TIP_FLOOR:
+                        f"by about that much along the tube{across}")
+    elif math.hypot(tip_uncertainty, uncertainty or 0.0) > TIP_FLOOR:
         how = ", as the edge band measured in the depth images" if measured else ""
         warnings.append(f"the tip rests on a stereo-eroded rim ({tip_erosion * 1e3:.2f} mm given back{how}): "
-                        f"its position is uncertain by about {tip_uncertainty * 1e3:.2f} mm along the tube")
+                        f"its position is uncertain by about {tip_uncertainty * 1e3:.2f} mm along the tube{across}")
     cell = max(footprint, r_o / 8)
     share, alone = camera_coverage(coords_s, camera, camera_names, tip_s, cell)
     for name, length in alone.items():
         if length > ONE_CAMERA_RUN_DIAMETERS * diameter:
             warnings.append(f"the distal {length * 1e3:.0f} mm is seen by {name} alone: the tube's far side "
-                            "there is inferred, not measured")
+                            "there is inferred, not measured, and the centreline there rests on one side")
     for name, fraction in share.items():
         if fraction < 0.5:
             warnings.append(f"{name} saw only {fraction:.0%} of the robot's length")
@@ -183,11 +190,6 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
                         f"{diameter / footprint:.0f} px across: expect errors above 0.1 mm (move the cameras "
                         "closer)")
     warnings += [w for name, step in depth_steps.items() if (w := depth_quantisation_warning(name, step, geometry))]
-    # pooled over two cameras, a deficit one of them carries alone reads half: the lean may reach twice it
-    lean = 2.0 * notched_thinning if notched_thinning is not None and looking_into_slots else 0.0
-    # the centreline's two blind spots, across the cameras' views and along them (see centerline_uncertainty)
-    along_views = lean if looking_into_slots else notched_thinning
-    uncertainty = centerline_uncertainty(cross_view_spread, along_views)
     if uncertainty is not None and uncertainty > CENTERLINE_FLOOR:
         warnings.append(f"the centreline is uncertain by about {uncertainty * 1e3:.2f} mm: stereo matching beside "
                         f"the notches moves the wall it sees (the cameras place the axis "
