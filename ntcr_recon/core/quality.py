@@ -3,12 +3,12 @@
 `assess` looks only at the data and the configuration (never at ground truth): notches found of expected
 and by which signal, the share of the robot's length each camera saw (and a distal stretch seen by one
 camera alone), the wall fit's residual, the measured notch side against the configured one, the centreline
-bias the alignment removed, the tip against the robot's known length, the pixel footprint against the
-tube, the depth quantisation seen in the frames, each notch's width against the width its measured bend
-implies, how far the tip's position rests on the rim erosion given back, and how much deeper the wall reads
-between the notches than on the plain tube (a lean no fit can see). Every figure is in the unit
-its key names; the warnings are sentences a user can act on. relocation_node puts them on /diagnostics,
-the CLI prints them.
+bias the alignment removed and how uncertain the centreline still is, the tip against the robot's known
+length, the pixel footprint against the tube, the depth quantisation seen in the frames, each notch's width
+against the width its measured bend implies, how far the tip's position rests on the rim erosion given back,
+and how much deeper the wall reads between the notches than on the plain tube (a lean no fit can see). Every
+figure is in the unit its key names; the warnings are sentences a user can act on. relocation_node puts them
+on /diagnostics, the CLI prints them.
 """
 
 from __future__ import annotations
