@@ -69,37 +69,18 @@ class Alignment:
 
 
 @jit
-def _facing_point(i, s, x, y, position, normal, binormal, viewpoints, outer_radius, gate, start_s, end_s,
-                  least_cosine, away_from_cuts):
-    """Point i's radial offset from the wall, its direction (cos, sin) about the axis and the sine of its view
-    angle (signed, about the tangent) when it is trusted (see _trusted_window_sums), else offset nan."""
-    radius = np.sqrt(x[i] * x[i] + y[i] * y[i])
-    offset = radius - outer_radius
-    if not (abs(offset) < gate and start_s < s[i] < end_s and away_from_cuts[i]):
-        return np.nan, 0.0, 0.0, 0.0
-    v0 = viewpoints[i, 0] - position[i, 0]
-    v1 = viewpoints[i, 1] - position[i, 1]
-    v2 = viewpoints[i, 2] - position[i, 2]
-    vx = v0 * normal[i, 0] + v1 * normal[i, 1] + v2 * normal[i, 2]
-    vy = v0 * binormal[i, 0] + v1 * binormal[i, 1] + v2 * binormal[i, 2]
-    view = max(radius * np.sqrt(vx * vx + vy * vy), 1e-15)
-    if not (x[i] * vx + y[i] * vy) / view > least_cosine:
-        return np.nan, 0.0, 0.0, 0.0
-    cos_angle, sin_angle = unit_direction(x[i], y[i])
-    return offset, cos_angle, sin_angle, (x[i] * vy - y[i] * vx) / view
-
-
-@jit
-def _trusted_window_sums(s, x, y, position, normal, binormal, viewpoints, base, outer_radius, gate, start_s,
-                         end_s, least_cosine, away_from_cuts, window, windows):
+def _trusted_window_sums(s, x, y, position, normal, binormal, viewpoints, camera, cameras, base, outer_radius, gate,
+                         start_s, end_s, least_cosine, away_from_cuts, window, windows):
     """The trusted wall points and, per window of s, the normal equations of their offset model.
 
     Trusted: within `gate` of the wall, start_s < s < end_s, away from the cuts, and facing their camera (the
     cosine between the point's outward direction about the axis and the direction to its viewpoint above
     `least_cosine`). Returns per window the 3x3 matrix and right-hand side of offset = cx cos + cy sin +
     level d^2 summed over them (d: the distance of the point's camera from the robot's base), their count, the
-    sum of their s and that of their unit directions (cos, sin) about the axis; and the mean d^2 of the trusted
-    points.
+    sum of their s and that of their unit directions (cos, sin) about the axis; the mean d^2 of the trusted
+    points; and per window and camera (camera: each point's index, below `cameras`) the count and the sums of
+    sin(a), sin(a)^2, offset and sin(a) offset over its trusted points, a the view angle about the tangent (see
+    cross_view_spread).
 
     The level per camera scales with d^2: a stereo matcher gives a pixel the mean depth of its window, a fixed
     number of pixels, and on a convex wall of radius R the mean over a patch of width a lies about a^2 / (24 R)
@@ -113,15 +94,31 @@ def _trusted_window_sums(s, x, y, position, normal, binormal, viewpoints, base, 
     count = s.shape[0]
     matrix, rhs, counts = np.zeros((windows, 3, 3)), np.zeros((windows, 3)), np.zeros(windows, np.intp)
     s_sum, direction_sum = np.zeros(windows), np.zeros((windows, 2))
+    cross_view = np.zeros((windows, cameras, 5))
     kept = 0
     distance2_sum = 0.0
     for i in range(count):
-        offset, cos_angle, sin_angle, _ = _facing_point(i, s, x, y, position, normal, binormal, viewpoints,
-                                                         outer_radius, gate, start_s, end_s, least_cosine,
-                                                         away_from_cuts)
-        if np.isnan(offset):
+        radius = np.sqrt(x[i] * x[i] + y[i] * y[i])
+        offset = radius - outer_radius
+        if not (abs(offset) < gate and start_s < s[i] < end_s and away_from_cuts[i]):
+            continue
+        v0 = viewpoints[i, 0] - position[i, 0]
+        v1 = viewpoints[i, 1] - position[i, 1]
+        v2 = viewpoints[i, 2] - position[i, 2]
+        vx = v0 * normal[i, 0] + v1 * normal[i, 1] + v2 * normal[i, 2]
+        vy = v0 * binormal[i, 0] + v1 * binormal[i, 1] + v2 * binormal[i, 2]
+        view = max(radius * np.sqrt(vx * vx + vy * vy), 1e-15)
+        if not (x[i] * vx + y[i] * vy) / view > least_cosine:
             continue
         k = min(int(s[i] / window), windows - 1)
+        cos_angle, sin_angle = unit_direction(x[i], y[i])
+        sine = (x[i] * vy - y[i] * vx) / view  # of the view angle, about the tangent
+        c = camera[i]
+        cross_view[k, c, 0] += 1.0
+        cross_view[k, c, 1] += sine
+        cross_view[k, c, 2] += sine * sine
+        cross_view[k, c, 3] += offset
+        cross_view[k, c, 4] += sine * offset
         b0, b1, b2 = viewpoints[i, 0] - base[0], viewpoints[i, 1] - base[1], viewpoints[i, 2] - base[2]
         distance2 = b0 * b0 + b1 * b1 + b2 * b2
         terms = (cos_angle, sin_angle, distance2)
@@ -135,28 +132,7 @@ def _trusted_window_sums(s, x, y, position, normal, binormal, viewpoints, base, 
         direction_sum[k, 1] += sin_angle
         distance2_sum += distance2
         kept += 1
-    return matrix, rhs, counts, s_sum, direction_sum, distance2_sum / max(kept, 1)
-
-
-@jit
-def _cross_view_sums(s, x, y, position, normal, binormal, viewpoints, camera, cameras, outer_radius, gate, start_s,
-                     end_s, least_cosine, away_from_cuts, window, windows):
-    """Per window of s and camera, over its trusted points (see _trusted_window_sums): their count and the sums
-    of sin(a), sin(a)^2, offset and sin(a) offset, a the point's view angle about the tangent."""
-    sums = np.zeros((windows, cameras, 5))
-    for i in range(s.shape[0]):
-        offset, _, _, sine = _facing_point(i, s, x, y, position, normal, binormal, viewpoints, outer_radius, gate,
-                                           start_s, end_s, least_cosine, away_from_cuts)
-        if np.isnan(offset):
-            continue
-        k = min(int(s[i] / window), windows - 1)
-        c = camera[i]
-        sums[k, c, 0] += 1.0
-        sums[k, c, 1] += sine
-        sums[k, c, 2] += sine * sine
-        sums[k, c, 3] += offset
-        sums[k, c, 4] += sine * offset
-    return sums
+    return matrix, rhs, counts, s_sum, direction_sum, distance2_sum / max(kept, 1), cross_view
 
 
 def normalise_level(matrix: np.ndarray, rhs: np.ndarray, distance2_mean: float) -> None:
@@ -261,10 +237,10 @@ def cross_view_spread(centerline: Centerline, coords: TubeCoordinates, frames: t
     away_from_cuts = ~inside_intervals(coords.s, cut_intervals(geometry, centerline, cut_margin_px * footprint))
     margin, least_cosine = _trust_limits(geometry, footprint, silhouette_margin_px, max_view_angle)
     position, _, normal, binormal = frames
-    sums = _cross_view_sums(coords.s, coords.x, coords.y, position, normal, binormal,
-                            np.ascontiguousarray(viewpoints, dtype=float), np.ascontiguousarray(camera, np.intp),
-                            cameras, geometry.outer_radius, gate, margin, end_s - margin, least_cosine,
-                            away_from_cuts, window, windows)
+    sums = _trusted_window_sums(coords.s, coords.x, coords.y, position, normal, binormal,
+                                np.ascontiguousarray(viewpoints, dtype=float), np.ascontiguousarray(camera, np.intp),
+                                cameras, centerline.points[0], geometry.outer_radius, gate, margin, end_s - margin,
+                                least_cosine, away_from_cuts, window, windows)[-1]
     count, sine, sine2, offset, sine_offset = np.moveaxis(sums, 2, 0)
     spread = count * sine2 - sine * sine  # count^2 x the variance of sin(a)
     solvable = (count >= minimum_points) & (spread > (min_sine_spread * count) ** 2)
@@ -289,9 +265,10 @@ def _align_once(centerline: Centerline, coords: TubeCoordinates, frames: tuple, 
     window = geometry.notch_pitch
     windows = max(int(np.ceil(end_s / window)), 1)
     position, _, normal, binormal = frames
-    matrix, rhs, counts, s_sum, direction_sum, distance2_mean = _trusted_window_sums(
-        coords.s, coords.x, coords.y, position, normal, binormal, viewpoints, centerline.points[0],
-        geometry.outer_radius, gate, margin, end_s - margin, least_cosine, away_from_cuts, window, windows)
+    matrix, rhs, counts, s_sum, direction_sum, distance2_mean, _ = _trusted_window_sums(
+        coords.s, coords.x, coords.y, position, normal, binormal, viewpoints, np.zeros(len(coords.s), np.intp), 1,
+        centerline.points[0], geometry.outer_radius, gate, margin, end_s - margin, least_cosine, away_from_cuts,
+        window, windows)
     normalise_level(matrix, rhs, distance2_mean)
     count = int(counts.sum())
     if count < minimum_points:
