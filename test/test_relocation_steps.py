@@ -540,6 +540,7 @@ def test_quality_gives_the_centreline_an_uncertainty_and_warns_above_its_floor()
     0.08 mm floor, a warning; 0.03 and 0.04 mm make 0.05 mm, quiet."""
     assert centerline_uncertainty(0.06e-3, 0.08e-3) == pytest.approx(0.1e-3)
     assert centerline_uncertainty(None, 0.05e-3) == pytest.approx(0.05e-3)
+    assert centerline_uncertainty(0.06e-3, 0.04e-3, ("cam_a",)) == pytest.approx(0.1e-3)
     assert centerline_uncertainty(None, None) is None
 
     def assessed(spread, thinning, looking=()):

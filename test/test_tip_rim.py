@@ -14,7 +14,9 @@ from synthetic_views import posed_scene, render_pair
 
 from ntcr_recon.core.centerline import Centerline
 from ntcr_recon.core.pipeline import Reconstructor
-from ntcr_recon.core.tip import edge_band, half_density_end, rim_erosion, rim_tip
+from ntcr_recon.core.geometry import TubeGeometry
+from ntcr_recon.core.quality import assess
+from ntcr_recon.core.tip import edge_band, half_density_end, rim_erosion, rim_tip, with_known_length
 
 UNIT = 1e-4
 R_O = 1.75e-3
@@ -159,6 +161,38 @@ def test_a_camera_whose_wall_stops_at_the_last_notch_is_not_heard_on_the_tip():
     assert both == pytest.approx(length, abs=FOOTPRINT / 2)
     alone = tip(camera == 1)
     assert alone == pytest.approx(length - 1.5e-3 + band, abs=FOOTPRINT / 2)
+
+
+def test_the_tip_weighs_the_end_seen_against_the_robots_known_length():
+    """The end seen 0.2 mm past the robot's length, known to 0.2 and 0.1 mm: the tip lies between them, by their
+    inverse variances (30.04 mm), known better than either (0.089 mm). 1 mm short, 4.5 combined uncertainties
+    off: they disagree, the end seen stands and the result says so; with no tolerance the length is not used."""
+    agreed = with_known_length(30.2e-3, 0.2e-3, 30.0e-3, 0.1e-3)
+    assert agreed.length_weighed
+    assert agreed.s == pytest.approx(30.04e-3) and agreed.uncertainty == pytest.approx(1 / math.sqrt(125) * 1e-3)
+    assert agreed.seen_s == 30.2e-3 and agreed.disagreement == pytest.approx(-0.2 / math.hypot(0.2, 0.1))
+    apart = with_known_length(29.0e-3, 0.2e-3, 30.0e-3, 0.1e-3)
+    assert not apart.length_weighed and apart.s == 29.0e-3 and apart.uncertainty == 0.2e-3
+    assert apart.disagreement == pytest.approx(1.0 / math.hypot(0.2, 0.1))
+    unknown = with_known_length(29.9e-3, 0.2e-3, 30.0e-3, None)
+    assert not unknown.length_weighed and unknown.s == 29.9e-3
+
+    geometry = TubeGeometry()  # 53 mm straight
+
+    def warnings_for(along):
+        return assess(geometry=geometry, camera_names=("cam_a", "cam_b"), notches=[], notch_signals={},
+                      coords_s=np.linspace(0.0, along.s, 100), camera=np.arange(100) % 2, tip_s=along.s,
+                      total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.0, notch_side=0.0, configured_side=0.0,
+                      bias_notch_side=0.0, bias_binormal=0.0, depth_steps={}, tip_uncertainty=along.seen_uncertainty,
+                      tip_along=along)
+
+    quality, warnings = warnings_for(with_known_length(52.0e-3, 0.2e-3, geometry.length, 0.1e-3))
+    print("\n" + "\n".join(warnings))
+    assert any(w.startswith("the end seen lies 1.00 mm short of the robot's length") for w in warnings)
+    assert quality["tip_seen_s_mm"] == pytest.approx(52.0) and not quality["tip_length_weighed"]
+    quality, warnings = warnings_for(with_known_length(53.1e-3, 0.12e-3, geometry.length, 0.1e-3))
+    assert quality["tip_length_weighed"] and quality["tip_s_mm"] == pytest.approx(53.041, abs=1e-3)
+    assert not any("the end seen" in w or w.startswith("the tip") for w in warnings)
 
 
 @pytest.mark.parametrize("bend_deg, notch_side_deg, noise_at_90mm", [(30.0, 0.0, 2e-5), (40.0, 90.0, 2e-5),

@@ -61,6 +61,11 @@ class TubeGeometry:
                                      maximum=MAX_ROBOT_LENGTH, exclusive_maximum=True)
     distal_length: float = setting(1.5e-3, "last notch's distal edge to the tip", unit="m", minimum=0.0,
                                    maximum=MAX_ROBOT_LENGTH, exclusive_maximum=True)
+    length_tolerance: float | None = setting(
+        0.1e-3, "how well the robot's length from its base is known (the tube's cut, its seating in the clamp): the "
+        "tip is put between the end the cameras see and that length, each weighed by its uncertainty; null = not "
+        "known, the tip is where the end is seen", unit="m", minimum=0.0, maximum=MAX_ROBOT_LENGTH,
+        exclusive_minimum=True)
     base_position: tuple[float, float, float] = setting(
         (0.0, 0.0, 0.0), "position of the robot's base in the base frame (x, y, z)", unit="m", minimum=-10.0,
         maximum=10.0)
@@ -133,6 +138,11 @@ class TubeGeometry:
         """Undeformed length, base to tip."""
         return (self.proximal_length + (self.notch_count - 1) * self.notch_pitch + self.notch_width
                 + self.distal_length)
+
+    def bent_length(self, total_bend: float) -> float:
+        """The centreline's length, base to tip, bent by total_bend (rad): each notch closes about the backbone's
+        neutral axis, which keeps its length while the axis, ybar off it, shortens by ybar x the bend."""
+        return self.length - self.neutral_axis_offset * abs(total_bend)
 
     @property
     def reach(self) -> float:

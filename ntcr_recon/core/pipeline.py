@@ -36,7 +36,13 @@ from ntcr_recon.core.filters import filter_cloud
 from ntcr_recon.core.fusion import FramePair, fuse
 from ntcr_recon.core.icp import icp, mesh_reference, posed_reference, relocate_onto_reference
 from ntcr_recon.core.notches import Notch, calibrate_rims, detect_notches, measure_notch_side, spine_wall
-from ntcr_recon.core.quality import assess, cameras_looking_into_slots, depth_step, notched_thinning
+from ntcr_recon.core.quality import (
+    assess,
+    cameras_looking_into_slots,
+    centerline_uncertainty,
+    depth_step,
+    notched_thinning,
+)
 from ntcr_recon.core.relocation import RelocatedPoints, along_rays, relocate_points
 from ntcr_recon.core.tip import (
     EDGE_BAND_ATTEMPTS,
@@ -47,6 +53,7 @@ from ntcr_recon.core.tip import (
     give_back_erosion,
     rim_tip,
     tube_end,
+    with_known_length,
 )
 from ntcr_recon.core.wall import surface_band
 
@@ -286,6 +293,22 @@ class Reconstructor:
                 refinement = "coarse end (the end turns towards a camera; no edge band measured)"
         if refinement.startswith("coarse end") and tip_uncertainty is None:
             tip_uncertainty = self._unrefined_tip_uncertainty(centerline, tip_s, footprint)
+        # how far the centreline may be off: what stereo beside the notches does to the wall (core.quality)
+        thinning = notched_thinning(coords.radius - geometry.outer_radius, coords.s,
+                                    cut_intervals(geometry, centerline, 0.0), tip_s, settings.gate, 2 * footprint,
+                                    spine=wall[0])
+        looking = tuple(cameras_looking_into_slots(centerline, geometry, self._camera_origins,
+                                                   self.config.camera_names))
+        centreline_off = centerline_uncertainty(spread, thinning, looking) or 0.0
+        # the robot's own length, at the bend measured, is a measurement of the tip too (core.tip); the bend is
+        # known as well as the centreline's turn over a notch pitch
+        total_bend = float(centerline.bend_angle(0.0, tip_s))
+        length_known = None if geometry.length_tolerance is None else float(np.hypot(
+            geometry.length_tolerance, geometry.neutral_axis_offset * centreline_off / geometry.notch_pitch))
+        along = with_known_length(tip_s, tip_uncertainty if tip_uncertainty is not None
+                                  else abs(tip_s - eroded_end) + footprint / 2,
+                                  geometry.bent_length(total_bend), length_known)
+        tip_erosion, tip_s = tip_s - eroded_end, along.s
         # the rims the matcher moves (over the cut faces the cameras see), against the spines' known length
         notches = calibrate_rims(notches, geometry, centerline, None if seen_by is None else self._camera_origins)
         # 6. relocation: every point within the gate onto the reference surface (core.relocation)
@@ -302,18 +325,15 @@ class Reconstructor:
         wall_residual = float(np.sqrt(np.mean((offset[near_wall] - level) ** 2))) if np.any(near_wall) else 0.0
         quality, warnings = assess(
             geometry=geometry, camera_names=self.config.camera_names, notches=notches, notch_signals=signals,
-            coords_s=measured.s, camera=seen_by, tip_s=tip_s, total_bend=float(centerline.bend_angle(0.0, tip_s)),
+            coords_s=measured.s, camera=seen_by, tip_s=tip_s, total_bend=total_bend,
             footprint=footprint, wall_residual=wall_residual, notch_side=notch_side,
             configured_side=geometry.notch_side,
             bias_notch_side=0.0 if alignment is None else alignment.bias_notch_side,
             bias_binormal=0.0 if alignment is None else alignment.bias_binormal, depth_steps=dict(self._depth_steps),
-            tip_erosion=tip_s - eroded_end, tip_uncertainty=tip_uncertainty, tip_position=tip,
+            tip_erosion=tip_erosion, tip_uncertainty=tip_uncertainty, tip_position=tip, tip_along=along,
             crop_box=self.config.crop_box(),
-            notched_thinning=notched_thinning(offset, coords.s, cut_intervals(geometry, centerline, 0.0), tip_s,
-                                              settings.gate, 2 * footprint, spine=wall[0]),
-            looking_into_slots=tuple(cameras_looking_into_slots(centerline, geometry, self._camera_origins,
-                                                                self.config.camera_names)),
-            tip_from_cap=from_cap, side_unsettled=unsettled, cross_view_spread=spread)
+            notched_thinning=thinning, looking_into_slots=looking, tip_from_cap=from_cap, side_unsettled=unsettled,
+            cross_view_spread=spread)
         quality = {**quality, "tip_refinement": refinement,
                    "edge_band_mrad": {name: band * 1e3 for name, band in self._edge_bands.items()}}
         self._prior = fitted

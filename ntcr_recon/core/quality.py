@@ -18,6 +18,7 @@ import math
 import numpy as np
 
 from ntcr_recon.core.comb import expected_centres, inside_intervals
+from ntcr_recon.core.tip import LENGTH_AGREEMENT_SIGMAS
 from ntcr_recon.core.wall import median, surface_band
 
 # Thresholds, relative to the robot and the camera so that no robot is special.
@@ -107,7 +108,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
            crop_box: tuple[np.ndarray, np.ndarray] | None = None,
            notched_thinning: float | None = None, looking_into_slots: tuple[str, ...] = (),
            tip_from_cap: bool = False, side_unsettled: tuple[float, float] | None = None,
-           cross_view_spread: float | None = None) -> tuple[dict, list[str]]:
+           cross_view_spread: float | None = None, tip_along=None) -> tuple[dict, list[str]]:
     """The `quality` document and the warnings (see the module docstring). tip_uncertainty: how well the tip's
     refinement placed it along the tube, when it measured the erosion it gave back (else the erosion itself
     counts as uncertain, and half a footprint). tip_position, crop_box: where the tip is and the box the points
@@ -115,7 +116,8 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
     figure, when it could be measured; looking_into_slots: `cameras_looking_into_slots`; tip_from_cap: the tip is
     the end cap's plane (tip.end_cap_plane), tip_uncertainty the smear of its points; side_unsettled: the notch
     side measured off the configured one, then off again in the frame turned to it (rad), when the configured
-    one was kept for it."""
+    one was kept for it. tip_along: the tip between the end seen and the robot's length (tip.TipAlongTube);
+    its uncertainty is the tip's then, and the end seen is what is judged against the robot's length."""
     warnings: list[str] = []
     r_o, diameter = geometry.outer_radius, geometry.outer_diameter
     found = sorted(n.index for n in notches)
@@ -139,21 +141,24 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
     # refinement measured it
     measured = tip_uncertainty is not None
     tip_uncertainty = tip_uncertainty if measured else abs(tip_erosion) + footprint / 2
+    seen_end, weighed = tip_s, ""
+    if tip_along is not None:
+        seen_end, tip_uncertainty = tip_along.seen_s, tip_along.uncertainty
+        weighed = " (the robot's known length weighed in)" if tip_along.length_weighed else ""
     # pooled over two cameras, a deficit one of them carries alone reads half: the lean may reach twice it
     lean = 2.0 * notched_thinning if notched_thinning is not None and looking_into_slots else 0.0
-    # the centreline's two blind spots, across the cameras' views and along them (see centerline_uncertainty)
-    along_views = lean if looking_into_slots else notched_thinning
-    uncertainty = centerline_uncertainty(cross_view_spread, along_views)
+    uncertainty = centerline_uncertainty(cross_view_spread, notched_thinning, looking_into_slots)
     # the tip sits on the centreline: across the tube it is known as well as the centreline is
     across = f", and by {uncertainty * 1e3:.2f} mm across it (the centreline's)" if uncertainty else ""
     if math.hypot(tip_uncertainty, uncertainty or 0.0) > TIP_FLOOR and tip_from_cap:
         warnings.append(f"the tip is the end cap's plane, whose points the stereo matcher smeared over "
                         f"{tip_uncertainty * 1e3:.2f} mm towards the bore behind its ring: its position is uncertain "
-                        f"by about that much along the tube{across}")
+                        f"by about {tip_uncertainty * 1e3:.2f} mm along the tube{weighed}{across}")
     elif math.hypot(tip_uncertainty, uncertainty or 0.0) > TIP_FLOOR:
         how = ", as the edge band measured in the depth images" if measured else ""
         warnings.append(f"the tip rests on a stereo-eroded rim ({tip_erosion * 1e3:.2f} mm given back{how}): "
-                        f"its position is uncertain by about {tip_uncertainty * 1e3:.2f} mm along the tube{across}")
+                        f"its position is uncertain by about {tip_uncertainty * 1e3:.2f} mm along the tube{weighed}"
+                        f"{across}")
     cell = max(footprint, r_o / 8)
     share, alone = camera_coverage(coords_s, camera, camera_names, tip_s, cell)
     for name, length in alone.items():
@@ -164,8 +169,15 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
         if fraction < 0.5:
             warnings.append(f"{name} saw only {fraction:.0%} of the robot's length")
     # bending shortens the centreline by ybar * theta: what the tip should read with the measured bend
-    expected_length = geometry.length - geometry.neutral_axis_offset * abs(total_bend)
-    short = expected_length - tip_s
+    expected_length = geometry.bent_length(total_bend)
+    short = expected_length - seen_end
+    if tip_along is not None and not tip_along.length_weighed and tip_along.tolerance is not None and (
+            abs(short) <= TIP_SHORT_DIAMETERS * diameter and abs(tip_along.disagreement) > LENGTH_AGREEMENT_SIGMAS):
+        warnings.append(f"the end seen lies {abs(short) * 1e3:.2f} mm {'short of' if short > 0 else 'past'} the "
+                        f"robot's length at this bend ({expected_length * 1e3:.2f} mm), more than both are known to "
+                        f"({tip_along.seen_uncertainty * 1e3:.2f} and {tip_along.tolerance * 1e3:.2f} mm, "
+                        "robot.length_tolerance with the bend's): the tip is where the end was seen; check the robot's "
+                        "notch layout, its base position along it and robot.length_tolerance")
     if abs(short) > TIP_SHORT_DIAMETERS * diameter:
         where = "short of" if short > 0 else "past"
         warning = (f"the tube ends {abs(short) * 1e3:.1f} mm {where} the robot's length "
@@ -211,7 +223,8 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
         "notch_side_deg": math.degrees(notch_side), "notch_side_configured_deg": math.degrees(configured_side),
         "notch_side_unsettled_deg": None if side_unsettled is None else [math.degrees(a) for a in side_unsettled],
         "centerline_bias_mm": {"notch_side": bias_notch_side * 1e3, "binormal": bias_binormal * 1e3},
-        "tip_s_mm": tip_s * 1e3, "expected_length_mm": expected_length * 1e3,
+        "tip_s_mm": tip_s * 1e3, "tip_seen_s_mm": seen_end * 1e3, "expected_length_mm": expected_length * 1e3,
+        "tip_length_weighed": bool(tip_along is not None and tip_along.length_weighed),
         "tip_uncertainty_mm": tip_uncertainty * 1e3,
         "notch_width_vs_bend_mm": {str(i): d * 1e3 for i, d in sorted(off_model.items())},
         "pixel_footprint_mm": footprint * 1e3,
@@ -224,19 +237,22 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
     return quality, warnings
 
 
-def centerline_uncertainty(cross_view_spread: float | None, along_views: float | None) -> float | None:
+def centerline_uncertainty(cross_view_spread: float | None, notched_thinning: float | None,
+                           looking_into_slots: tuple[str, ...] = ()) -> float | None:
     """How far the centreline may be off (m), from what the data show of stereo's bias beside the notches;
     None when neither could be measured.
 
     Across a camera's line of sight each camera places the axis by itself: their spread about the fused axis
     (alignment.cross_view_spread) is how well the fused one is known that way. Along the lines of sight the
     cameras' levels decide, and a matcher whose window averages the spines with the slots reads the wall between
-    the notches deeper than the plain tube (notched_thinning), a deficit no fit can place: along_views, the lean
-    it may cause. The two are orthogonal: added in quadrature.
+    the notches deeper than the plain tube (notched_thinning), a deficit no fit can place: a lean of about as
+    much, twice it when a camera looks into the slots (carried by that camera alone, it reads half pooled). The
+    two are orthogonal: added in quadrature.
     """
-    if cross_view_spread is None and along_views is None:
+    if cross_view_spread is None and notched_thinning is None:
         return None
-    return float(np.hypot(cross_view_spread or 0.0, along_views or 0.0))
+    along_views = (2.0 if looking_into_slots else 1.0) * (notched_thinning or 0.0)
+    return float(np.hypot(cross_view_spread or 0.0, along_views))
 
 
 def _nearest_box_face(point: np.ndarray, box: tuple[np.ndarray, np.ndarray]) -> tuple[int, float, float]:

@@ -17,10 +17,18 @@ what it takes off each camera's end along s follows from the end's outline in th
 (`rim_erosion`). Without depth images (a node that receives clouds only) the erosion measured on each
 camera's silhouettes of plain tube is given back instead (`silhouette_erosion`), which reads less than the
 tip loses (a silhouette's mixed pixels move along the wall, not off it).
+
+The robot's own length is a measurement of the tip too: the reference the cloud is relocated onto is the
+configured robot, its centreline as long as the notch layout makes it, shortened by the bend
+(`TubeGeometry.bent_length`). `with_known_length` puts the tip between the end seen and that length, each
+weighed by its uncertainty, where the two agree within their uncertainties; where they do not, the end seen
+stands (a tube cut short by the view is not stretched, a mis-configured length does not move the tip) and the
+result says so.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -33,6 +41,8 @@ from ntcr_recon.core.wall import median, quantile, robust_spread, surface_band
 if TYPE_CHECKING:  # centerline.py imports this module
     from ntcr_recon.core.centerline import Centerline, TubeCoordinates
 
+# The end seen and the robot's length agree when they lie within this many of their combined uncertainties.
+LENGTH_AGREEMENT_SIGMAS = 3.0
 GRAZING = np.radians(80.0)  # a surface turned further than this from a camera gives it (almost) no depth
 MIN_SECTORS_WHEN_UNSEEN = 3  # of the ring's sectors, holding wall points where no sector faces a camera
 # A depth edge whose far side lies at least this factor further than its near side is an edge against a
@@ -350,3 +360,38 @@ def rim_tip(coords: TubeCoordinates, camera: np.ndarray, origins: np.ndarray, ce
         return None
     return (float(np.average(ends, weights=weights)), float(np.average(tips, weights=weights)),
             float(np.average(uncertainties, weights=weights)))
+
+
+@dataclass(frozen=True)
+class TipAlongTube:
+    """Where the tip lies along the centreline (m of arc length) and how well it is known, from the end the
+    cameras saw and the robot's known length."""
+
+    s: float
+    uncertainty: float
+    seen_s: float               # the end as the cameras saw it (refined)
+    seen_uncertainty: float
+    expected_s: float           # the robot's length at its bend
+    tolerance: float | None     # how well that length is known (None: not known)
+    length_weighed: bool = False  # the robot's length was weighed in (the two agreed)
+
+    @property
+    def disagreement(self) -> float:
+        """The robot's length less the end seen (m; + the end seen short of it), in combined uncertainties."""
+        if self.tolerance is None:
+            return 0.0
+        return (self.expected_s - self.seen_s) / float(np.hypot(self.seen_uncertainty, self.tolerance))
+
+
+def with_known_length(seen_s: float, seen_uncertainty: float, expected_s: float,
+                      tolerance: float | None) -> TipAlongTube:
+    """The tip along the tube: the end seen and the robot's length at its bend (`expected_s`, known to
+    `tolerance`) weighed by their inverse variances, where they agree within LENGTH_AGREEMENT_SIGMAS of their
+    combined uncertainty; else (or with no tolerance) the end seen."""
+    seen = TipAlongTube(seen_s, seen_uncertainty, seen_s, seen_uncertainty, expected_s, tolerance)
+    if tolerance is None or abs(seen.disagreement) > LENGTH_AGREEMENT_SIGMAS or seen_uncertainty <= 0.0:
+        return seen
+    weight_seen, weight_length = 1.0 / seen_uncertainty**2, 1.0 / tolerance**2
+    s = (weight_seen * seen_s + weight_length * expected_s) / (weight_seen + weight_length)
+    return TipAlongTube(float(s), float(1.0 / np.sqrt(weight_seen + weight_length)), seen_s, seen_uncertainty,
+                        expected_s, tolerance, length_weighed=True)
