@@ -13,8 +13,8 @@ import pytest
 from synthetic_views import posed_scene, render_pair
 
 from ntcr_recon.core.centerline import Centerline
-from ntcr_recon.core.pipeline import Reconstructor
 from ntcr_recon.core.geometry import TubeGeometry
+from ntcr_recon.core.pipeline import Reconstructor
 from ntcr_recon.core.quality import assess
 from ntcr_recon.core.tip import edge_band, half_density_end, rim_erosion, rim_tip, with_known_length
 
