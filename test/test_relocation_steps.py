@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from ntcr_recon.core.alignment import align_to_trusted_wall, cross_view_spread
+from ntcr_recon.core.alignment import align_to_trusted_wall, cross_view_spread, level_by_backbone
 from ntcr_recon.core.centerline import Centerline, estimate_centerline, settings_for
 from ntcr_recon.core.comb import cut_intervals, expected_centres, inside_intervals
 from ntcr_recon.core.config import RelocationConfig
@@ -354,6 +354,38 @@ def test_cross_view_spread_is_how_far_each_camera_alone_puts_the_axis_across_its
                              FOOTPRINT, length) is None
 
 
+def test_the_camera_facing_the_backbone_levels_the_axis_between_the_notches():
+    """Notches open to +x; cam_a looks at them from +x and reads the wall between them 0.3 mm deep (its matcher
+    reaches into the slots), cam_b faces the backbone from -x and reads it as on the plain tube. An axis put
+    0.15 mm towards cam_b there (the two cameras' difference split between them, as a common level does) is moved
+    back by cam_b's level on the plain stretches; seen side-on by both cameras, nothing is moved."""
+    length = GEOMETRY.length
+    points = wall_points(length, rng=np.random.default_rng(7))
+    first, last = GEOMETRY.proximal_length, length - GEOMETRY.distal_length
+    between = (points[:, 2] > first) & (points[:, 2] < last)
+    s = np.linspace(0.0, length, int(length / 0.1e-3) + 1)
+    lean = -0.15e-3 * np.clip(np.minimum(s - first, last - s) / 1e-3, 0.0, 1.0)
+    given = Centerline.from_points(np.stack([lean, np.zeros_like(s), s], axis=1), np.array([0.0, 1.0, 0.0]), 0.1e-3)
+
+    def levelled(origins):
+        camera = (np.einsum("ij,cj->ic", points[:, :2], origins[:, :2]).argmax(axis=1)).astype(np.intp)
+        seen = points.copy()
+        deep = between & (camera == 0)  # cam_a: the notch side's
+        seen[deep, :2] *= (1 - 0.3e-3 / R_O)
+        coords, frames = given.project_with_frames(seen)
+        return level_by_backbone(given, coords, frames, origins[camera], camera, origins, GEOMETRY, 0.8e-3,
+                                 FOOTPRINT, length)
+
+    moved, rms = levelled(np.array([[0.09, 0.0, 0.025], [-0.09, 0.0, 0.025]]))
+    middle = moved.points[(moved.s > 15e-3) & (moved.s < 40e-3)]
+    print(f"\naxis between the notches now at x = {middle[:, 0].min() * 1e3:+.3f} .. {middle[:, 0].max() * 1e3:+.3f} "
+          f"mm (given -0.150), moved by {rms * 1e3:.3f} mm RMS")
+    assert np.abs(middle[:, 0]).max() < 0.02e-3 and np.abs(middle[:, 1]).max() < 0.01e-3
+    assert rms == pytest.approx(0.15e-3, abs=0.02e-3)
+    side_on, none = levelled(np.array([[0.0, 0.09, 0.025], [0.0, -0.09, 0.025]]))
+    assert side_on is given and none == 0.0
+
+
 def test_trusted_points_lie_pixels_inside_the_silhouette():
     """The facing zone is set in pixels: 4 footprints inside the silhouette of a 1.75 mm tube is 32.9 deg of view
     angle at 0.2 mm a pixel, 24.2 deg at 0.258 mm, never wider than the cap, and empty for a tube 4 px wide."""
@@ -559,12 +591,11 @@ def test_quality_gives_the_centreline_an_uncertainty_and_warns_above_its_floor()
     quiet_quality, quiet = assessed(0.03e-3, 0.04e-3)
     assert quiet_quality["centerline_uncertainty_mm"] == pytest.approx(0.05)
     assert not any(warning.startswith("the centreline is uncertain") for warning in quiet)
-    # the tip sits on the centreline: half a footprint along the tube is within the tip's floor, but not with
-    # 0.22 mm across it
-    assert not any(warning.startswith("the tip") for warning in warnings)
-    _, far_off = assessed(0.2e-3, 0.08e-3)
-    assert any(warning.startswith("the tip") and "and by 0.22 mm across it (the centreline's)" in warning
-               for warning in far_off)
+    # the tip sits on the centreline's free end, sqrt(3) x its uncertainty across: with half a footprint along
+    # the tube, 0.05 mm of centreline keep the tip within its floor, 0.1 mm do not
+    assert not any(warning.startswith("the tip") for warning in quiet)
+    assert any(warning.startswith("the tip") and "and by 0.17 mm across it (the centreline's, at its free end)"
+               in warning for warning in warnings)
     # looking into the slots, the deficit may lean the axis by twice it: 0.03 and 2 x 0.04 mm make 0.085 mm
     looking_quality, looking = assessed(0.03e-3, 0.04e-3, looking=("cam_a",))
     assert looking_quality["centerline_uncertainty_mm"] == pytest.approx(math.hypot(0.03, 0.08))

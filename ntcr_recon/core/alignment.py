@@ -79,8 +79,8 @@ def _trusted_window_sums(s, x, y, position, normal, binormal, viewpoints, camera
     level d^2 summed over them (d: the distance of the point's camera from the robot's base), their count, the
     sum of their s and that of their unit directions (cos, sin) about the axis; the mean d^2 of the trusted
     points; and per window and camera (camera: each point's index, below `cameras`) the count and the sums of
-    sin(a), sin(a)^2, offset and sin(a) offset over its trusted points, a the view angle about the tangent (see
-    cross_view_spread).
+    sin(a), sin(a)^2, offset, sin(a) offset, cos(a), cos(a)^2 and cos(a) offset over its trusted points, a the
+    view angle about the tangent (see cross_view_spread, level_by_backbone).
 
     The level per camera scales with d^2: a stereo matcher gives a pixel the mean depth of its window, a fixed
     number of pixels, and on a convex wall of radius R the mean over a patch of width a lies about a^2 / (24 R)
@@ -94,7 +94,7 @@ def _trusted_window_sums(s, x, y, position, normal, binormal, viewpoints, camera
     count = s.shape[0]
     matrix, rhs, counts = np.zeros((windows, 3, 3)), np.zeros((windows, 3)), np.zeros(windows, np.intp)
     s_sum, direction_sum = np.zeros(windows), np.zeros((windows, 2))
-    cross_view = np.zeros((windows, cameras, 5))
+    cross_view = np.zeros((windows, cameras, 8))
     kept = 0
     distance2_sum = 0.0
     for i in range(count):
@@ -108,7 +108,8 @@ def _trusted_window_sums(s, x, y, position, normal, binormal, viewpoints, camera
         vx = v0 * normal[i, 0] + v1 * normal[i, 1] + v2 * normal[i, 2]
         vy = v0 * binormal[i, 0] + v1 * binormal[i, 1] + v2 * binormal[i, 2]
         view = max(radius * np.sqrt(vx * vx + vy * vy), 1e-15)
-        if not (x[i] * vx + y[i] * vy) / view > least_cosine:
+        cosine = (x[i] * vx + y[i] * vy) / view  # of the view angle
+        if not cosine > least_cosine:
             continue
         k = min(int(s[i] / window), windows - 1)
         cos_angle, sin_angle = unit_direction(x[i], y[i])
@@ -119,6 +120,9 @@ def _trusted_window_sums(s, x, y, position, normal, binormal, viewpoints, camera
         cross_view[k, c, 2] += sine * sine
         cross_view[k, c, 3] += offset
         cross_view[k, c, 4] += sine * offset
+        cross_view[k, c, 5] += cosine
+        cross_view[k, c, 6] += cosine * cosine
+        cross_view[k, c, 7] += cosine * offset
         b0, b1, b2 = viewpoints[i, 0] - base[0], viewpoints[i, 1] - base[1], viewpoints[i, 2] - base[2]
         distance2 = b0 * b0 + b1 * b1 + b2 * b2
         terms = (cos_angle, sin_angle, distance2)
@@ -241,7 +245,7 @@ def cross_view_spread(centerline: Centerline, coords: TubeCoordinates, frames: t
                                 np.ascontiguousarray(viewpoints, dtype=float), np.ascontiguousarray(camera, np.intp),
                                 cameras, centerline.points[0], geometry.outer_radius, gate, margin, end_s - margin,
                                 least_cosine, away_from_cuts, window, windows)[-1]
-    count, sine, sine2, offset, sine_offset = np.moveaxis(sums, 2, 0)
+    count, sine, sine2, offset, sine_offset = np.moveaxis(sums[:, :, :5], 2, 0)
     spread = count * sine2 - sine * sine  # count^2 x the variance of sin(a)
     solvable = (count >= minimum_points) & (spread > (min_sine_spread * count) ** 2)
     if not np.any(solvable):
@@ -295,3 +299,74 @@ def _align_once(centerline: Centerline, coords: TubeCoordinates, frames: tuple, 
     weights = counts[solvable].astype(float)
     bias = weights @ shifts[solvable] / weights.sum()
     return Alignment(aligned, -float(bias[0]), -float(bias[1]), count)
+
+
+def level_by_backbone(centerline: Centerline, coords: TubeCoordinates, frames: tuple, viewpoints: np.ndarray,
+                      camera: np.ndarray, origins: np.ndarray, geometry: TubeGeometry, gate: float, footprint: float,
+                      end_s: float, max_view_angle: float = np.radians(45.0), cut_margin_px: float = 1.0,
+                      silhouette_margin_px: float = SILHOUETTE_MARGIN_PX,
+                      minimum_points: int = 10) -> tuple[Centerline, float]:
+    """The axis moved along the lines of sight of the cameras that face the backbone, so that the wall each of
+    them sees between the notches lies at the level it sees on the plain tube; and the RMS of that move (m).
+
+    A camera that sees the notch side reads the wall between the notches deeper than the plain tube (its
+    matcher's window reaches into the slots: 0.3 mm at 100 mm), one that faces the backbone - the uncut wall
+    opposite the notches, beyond the gap's half-angle from the notch side - hardly does. The alignment's common
+    level splits the two cameras' difference between them and moves the axis away from the notch side's camera
+    by half the deficit; the backbone's camera, whose level on the plain stretches (before the first cut and
+    after the last) is measured, places it along its line of sight instead. Windows of a notch pitch, trusted
+    points as the alignment's; the move, interpolated along s from none at the base, holds beyond the last
+    window. Unchanged (and 0) where no camera faces the backbone or none saw the plain tube.
+    """
+    window = geometry.notch_pitch
+    windows = max(int(np.ceil(end_s / window)), 1)
+    cut_margin = cut_margin_px * footprint
+    cuts = cut_intervals(geometry, centerline, cut_margin)
+    away_from_cuts = ~inside_intervals(coords.s, cuts)
+    margin, least_cosine = _trust_limits(geometry, footprint, silhouette_margin_px, max_view_angle)
+    position, _, normal, binormal = frames
+    viewpoints = np.ascontiguousarray(viewpoints, dtype=float)
+    camera = np.ascontiguousarray(camera, np.intp)
+    cameras = len(origins)
+
+    def sums(selected, width, count):
+        return _trusted_window_sums(coords.s, coords.x, coords.y, position, normal, binormal, viewpoints, camera,
+                                    cameras, centerline.points[0], geometry.outer_radius, gate, margin,
+                                    end_s - margin, least_cosine, selected, width, count)[-1]
+
+    plain = away_from_cuts & ((coords.s < cuts[0, 0]) | (coords.s > cuts[-1, 1]))
+    plain_sums = sums(plain, max(end_s, window), 1)[0]
+    per_window = sums(away_from_cuts, window, windows)
+    centres = (np.arange(windows) + 0.5) * window
+    notched = (centres > cuts[0, 0]) & (centres < cuts[-1, 1])
+    at, _, window_normal, window_binormal = centerline.frames_at(centres)
+    shifts = np.zeros((windows, 3))
+    for k in np.flatnonzero(notched):
+        system, rhs = np.zeros((2, 2)), np.zeros(2)
+        for c in range(cameras):
+            if plain_sums[c, 0] < minimum_points or per_window[k, c, 0] < minimum_points:
+                continue
+            view = origins[c] - at[k]
+            along = np.array([view @ window_normal[k], view @ window_binormal[k]])
+            if abs(np.arctan2(along[1], along[0])) <= geometry.gap_half_angle:
+                continue  # it sees the notch side's gaps: its level there is not the plain tube's
+            direction = along / np.linalg.norm(along)
+            # reading deeper than on the plain tube: the axis lies too near this camera, by the shift that
+            # lowers each point's offset by shift x cos(its view angle) (least squares about the plain level)
+            cosine, cosine2, cosine_offset = per_window[k, c, 5:]
+            plain_level = plain_sums[c, 3] / plain_sums[c, 0]
+            nearer = (plain_level * cosine - cosine_offset) / cosine2
+            system += np.outer(direction, direction)
+            rhs -= nearer * direction
+        if np.any(system):
+            move = np.linalg.pinv(system) @ rhs
+            shifts[k] = move[0] * window_normal[k] + move[1] * window_binormal[k]
+    known = np.flatnonzero(np.any(shifts != 0.0, axis=1))
+    if not len(known):
+        return centerline, 0.0
+    known_s = np.concatenate([[0.0], centres[known]])
+    node_shift = np.stack([np.interp(centerline.s, known_s, np.concatenate([[0.0], shifts[known, axis]]))
+                           for axis in range(3)], axis=1)
+    step = float(centerline.s[1] - centerline.s[0])
+    moved = Centerline.from_points(centerline.points + node_shift, centerline.binormals[0], step)
+    return moved, float(np.sqrt(np.mean(np.einsum("ij,ij->i", shifts[known], shifts[known]))))

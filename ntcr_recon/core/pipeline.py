@@ -27,7 +27,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ntcr_recon.core.alignment import align_to_trusted_wall, cross_view_spread
+from ntcr_recon.core.alignment import align_to_trusted_wall, cross_view_spread, level_by_backbone
 from ntcr_recon.core.centerline import Centerline, TubeCoordinates, estimate_centerline, settings_for
 from ntcr_recon.core.cloud import Cloud
 from ntcr_recon.core.comb import cut_intervals, expected_centres, inside_intervals
@@ -205,7 +205,7 @@ class Reconstructor:
         # would shift the curve once more, and results would depend on what came before)
         fitted = centerline
         # 2. alignment: the reference tube shifted onto the wall points stereo measures without bias
-        alignment, spread = None, None
+        alignment, spread, backbone_shift = None, None, None
         if viewpoints is not None:
             end = tube_end(coords, geometry.outer_radius, settings.gate, footprint, max_s=geometry.reach)
             # which points face their camera depends on where the axis is: selected again about the moved axis
@@ -213,6 +213,12 @@ class Reconstructor:
                                               footprint, end, xyz=cloud.xyz, passes=ALIGNMENT_PASSES)
             centerline = alignment.centerline
             coords, frames = centerline.project_with_frames(cloud.xyz, alignment.arc_lengths)
+            # the cameras facing the backbone place the axis along their views by the plain tube's level
+            leveled, backbone_shift = level_by_backbone(centerline, coords, frames, viewpoints, seen_by,
+                                                        self._camera_origins, geometry, settings.gate, footprint, end)
+            if leveled is not centerline:
+                centerline = leveled
+                coords, frames = centerline.project_with_frames(cloud.xyz, coords.s)
             # what each camera alone says about the axis across its view: the fused axis is known no better
             spread = cross_view_spread(centerline, coords, frames, viewpoints, seen_by, len(self._camera_origins),
                                        geometry, settings.gate, footprint, end)
@@ -335,6 +341,7 @@ class Reconstructor:
             notched_thinning=thinning, looking_into_slots=looking, tip_from_cap=from_cap, side_unsettled=unsettled,
             cross_view_spread=spread)
         quality = {**quality, "tip_refinement": refinement,
+                   "centerline_backbone_shift_mm": None if backbone_shift is None else backbone_shift * 1e3,
                    "edge_band_mrad": {name: band * 1e3 for name, band in self._edge_bands.items()}}
         self._prior = fitted
         self._update_roi(relocated)

@@ -32,6 +32,8 @@ WIDTH_CHECK_FRACTION = 0.1         # a notch whose width is off what its bend im
 # The project's floors (issue 9): a figure whose uncertainty exceeds its floor is worth a warning.
 TIP_FLOOR = 0.15e-3
 CENTERLINE_FLOOR = 0.08e-3
+# An error growing linearly from the clamped base to the free end is sqrt(3) times its RMS over the length there.
+FREE_END_FACTOR = math.sqrt(3.0)
 
 
 def camera_coverage(s: np.ndarray, camera: np.ndarray | None, camera_names: tuple[str, ...], tip_s: float,
@@ -148,13 +150,14 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
     # pooled over two cameras, a deficit one of them carries alone reads half: the lean may reach twice it
     lean = 2.0 * notched_thinning if notched_thinning is not None and looking_into_slots else 0.0
     uncertainty = centerline_uncertainty(cross_view_spread, notched_thinning, looking_into_slots)
-    # the tip sits on the centreline: across the tube it is known as well as the centreline is
-    across = f", and by {uncertainty * 1e3:.2f} mm across it (the centreline's)" if uncertainty else ""
-    if math.hypot(tip_uncertainty, uncertainty or 0.0) > TIP_FLOOR and tip_from_cap:
+    # the tip sits on the centreline's free end, where an error growing along the tube is sqrt(3) its RMS
+    tip_across = FREE_END_FACTOR * (uncertainty or 0.0)
+    across = f", and by {tip_across * 1e3:.2f} mm across it (the centreline's, at its free end)" if tip_across else ""
+    if math.hypot(tip_uncertainty, tip_across) > TIP_FLOOR and tip_from_cap:
         warnings.append(f"the tip is the end cap's plane, whose points the stereo matcher smeared over "
                         f"{tip_uncertainty * 1e3:.2f} mm towards the bore behind its ring: its position is uncertain "
                         f"by about {tip_uncertainty * 1e3:.2f} mm along the tube{weighed}{across}")
-    elif math.hypot(tip_uncertainty, uncertainty or 0.0) > TIP_FLOOR:
+    elif math.hypot(tip_uncertainty, tip_across) > TIP_FLOOR:
         how = ", as the edge band measured in the depth images" if measured else ""
         warnings.append(f"the tip rests on a stereo-eroded rim ({tip_erosion * 1e3:.2f} mm given back{how}): "
                         f"its position is uncertain by about {tip_uncertainty * 1e3:.2f} mm along the tube{weighed}"
