@@ -30,13 +30,16 @@ def test_a_row_that_misses_says_so():
     assert any("quantised in 1 mm steps" in warning for warning in figures["warnings"])
 
 
-def test_a_camera_looking_into_the_notches_from_afar_says_the_centreline_may_lean():
-    """From 110 mm the spines facing cam_a are narrower than its matcher's window, which averages them with
-    the slot floors: the centreline leans away from cam_a, and the result must say so."""
+def test_a_camera_looking_into_the_notches_from_afar_is_overruled_by_the_one_facing_the_backbone():
+    """From 110 mm the spines facing cam_a are narrower than its matcher's window, which averages them with the
+    slot floors: cam_a reads the wall between the notches deep, and says so; cam_b, facing the backbone, places
+    the axis along its line of sight by its own level on the plain tube, and the centreline meets its floor
+    (0.26 mm off when the two cameras' levels were split between them)."""
     figures = accuracy_matrix.run_row(ROWS["side-90_bend30_cameras110"], frames=2)
     print("\n" + accuracy_matrix.format_row(figures) + "\n" + "\n".join(figures["warnings"]))
-    assert "centerline" in figures["misses"], "this row was expected to miss; if it no longer does, assert it meets"
-    assert any("cam_a looks into the notches' slots" in warning for warning in figures["warnings"])
+    assert any("cam_a looks into the notches' slots" in warning and "a camera facing the backbone placed the axis"
+               in warning for warning in figures["warnings"])
+    assert figures["centerline"] <= accuracy_matrix.FLOORS["centerline"]
 
 
 def test_a_centreline_off_its_floor_says_how_uncertain_it_is():

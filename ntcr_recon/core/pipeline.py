@@ -305,7 +305,7 @@ class Reconstructor:
                                     spine=wall[0])
         looking = tuple(cameras_looking_into_slots(centerline, geometry, self._camera_origins,
                                                    self.config.camera_names))
-        centreline_off = centerline_uncertainty(spread, thinning, looking) or 0.0
+        centreline_off = centerline_uncertainty(spread, thinning, looking, bool(backbone_shift)) or 0.0
         # the robot's own length, at the bend measured, is a measurement of the tip too (core.tip); the bend is
         # known as well as the centreline's turn over a notch pitch
         total_bend = float(centerline.bend_angle(0.0, tip_s))
@@ -339,7 +339,7 @@ class Reconstructor:
             tip_erosion=tip_erosion, tip_uncertainty=tip_uncertainty, tip_position=tip, tip_along=along,
             crop_box=self.config.crop_box(),
             notched_thinning=thinning, looking_into_slots=looking, tip_from_cap=from_cap, side_unsettled=unsettled,
-            cross_view_spread=spread)
+            cross_view_spread=spread, backbone_shift=backbone_shift)
         quality = {**quality, "tip_refinement": refinement,
                    "centerline_backbone_shift_mm": None if backbone_shift is None else backbone_shift * 1e3,
                    "edge_band_mrad": {name: band * 1e3 for name, band in self._edge_bands.items()}}

@@ -110,7 +110,8 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
            crop_box: tuple[np.ndarray, np.ndarray] | None = None,
            notched_thinning: float | None = None, looking_into_slots: tuple[str, ...] = (),
            tip_from_cap: bool = False, side_unsettled: tuple[float, float] | None = None,
-           cross_view_spread: float | None = None, tip_along=None) -> tuple[dict, list[str]]:
+           cross_view_spread: float | None = None, tip_along=None,
+           backbone_shift: float | None = None) -> tuple[dict, list[str]]:
     """The `quality` document and the warnings (see the module docstring). tip_uncertainty: how well the tip's
     refinement placed it along the tube, when it measured the erosion it gave back (else the erosion itself
     counts as uncertain, and half a footprint). tip_position, crop_box: where the tip is and the box the points
@@ -119,7 +120,9 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
     the end cap's plane (tip.end_cap_plane), tip_uncertainty the smear of its points; side_unsettled: the notch
     side measured off the configured one, then off again in the frame turned to it (rad), when the configured
     one was kept for it. tip_along: the tip between the end seen and the robot's length (tip.TipAlongTube);
-    its uncertainty is the tip's then, and the end seen is what is judged against the robot's length."""
+    its uncertainty is the tip's then, and the end seen is what is judged against the robot's length.
+    backbone_shift: how far alignment.level_by_backbone moved the axis (m; None or 0: no camera faced the
+    backbone), which then places it along the views, not the slots' lean."""
     warnings: list[str] = []
     r_o, diameter = geometry.outer_radius, geometry.outer_diameter
     found = sorted(n.index for n in notches)
@@ -149,7 +152,8 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
         weighed = " (the robot's known length weighed in)" if tip_along.length_weighed else ""
     # pooled over two cameras, a deficit one of them carries alone reads half: the lean may reach twice it
     lean = 2.0 * notched_thinning if notched_thinning is not None and looking_into_slots else 0.0
-    uncertainty = centerline_uncertainty(cross_view_spread, notched_thinning, looking_into_slots)
+    levelled = bool(backbone_shift)
+    uncertainty = centerline_uncertainty(cross_view_spread, notched_thinning, looking_into_slots, levelled)
     # the tip sits on the centreline's free end, where an error growing along the tube is sqrt(3) its RMS
     tip_across = FREE_END_FACTOR * (uncertainty or 0.0)
     across = f", and by {tip_across * 1e3:.2f} mm across it (the centreline's, at its free end)" if tip_across else ""
@@ -213,10 +217,12 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
                         f"{abs(bias_notch_side) * 1e3:.2f} mm of lean towards the notch side was removed")
     if lean > BIAS_WARN_FOOTPRINTS * footprint:
         names = " and ".join(looking_into_slots)
+        consequence = (f"a camera facing the backbone placed the axis along its line of sight instead, by its level on "
+                       f"the plain tube ({backbone_shift * 1e3:.2f} mm moved)" if levelled else
+                       f"the centreline there may lean up to {lean * 1e3:.2f} mm away from {names}")
         warnings.append(f"{names} looks into the notches' slots, and the wall between them reads "
                         f"{notched_thinning * 1e3:.2f} mm deeper than the plain tube (its matcher averages the spines "
-                        f"with the slot floors): the centreline there may lean up to {lean * 1e3:.2f} mm away from "
-                        f"{names}")
+                        f"with the slot floors): {consequence}")
     quality = {
         "notches_found": len(found), "notches_expected": geometry.notch_count, "notches_missing": missing,
         "notches_by_signal": by_signal,
@@ -241,7 +247,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
 
 
 def centerline_uncertainty(cross_view_spread: float | None, notched_thinning: float | None,
-                           looking_into_slots: tuple[str, ...] = ()) -> float | None:
+                           looking_into_slots: tuple[str, ...] = (), levelled: bool = False) -> float | None:
     """How far the centreline may be off (m), from what the data show of stereo's bias beside the notches;
     None when neither could be measured.
 
@@ -249,12 +255,13 @@ def centerline_uncertainty(cross_view_spread: float | None, notched_thinning: fl
     (alignment.cross_view_spread) is how well the fused one is known that way. Along the lines of sight the
     cameras' levels decide, and a matcher whose window averages the spines with the slots reads the wall between
     the notches deeper than the plain tube (notched_thinning), a deficit no fit can place: a lean of about as
-    much, twice it when a camera looks into the slots (carried by that camera alone, it reads half pooled). The
-    two are orthogonal: added in quadrature.
+    much, twice it when a camera looks into the slots (carried by that camera alone, it reads half pooled) unless
+    a camera facing the backbone placed the axis along the views (levelled). The two are orthogonal: added in
+    quadrature.
     """
     if cross_view_spread is None and notched_thinning is None:
         return None
-    along_views = (2.0 if looking_into_slots else 1.0) * (notched_thinning or 0.0)
+    along_views = (2.0 if looking_into_slots and not levelled else 1.0) * (notched_thinning or 0.0)
     return float(np.hypot(cross_view_spread or 0.0, along_views))
 
 
