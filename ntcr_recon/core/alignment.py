@@ -221,6 +221,20 @@ def _trust_limits(geometry: TubeGeometry, footprint: float, silhouette_margin_px
             facing_cosine(geometry.outer_radius, footprint, silhouette_margin_px, max_view_angle))
 
 
+def _camera_window_sums(centerline: Centerline, coords: TubeCoordinates, frames: tuple, viewpoints: np.ndarray,
+                        camera: np.ndarray, cameras: int, geometry: TubeGeometry, gate: float, footprint: float,
+                        end_s: float, silhouette_margin_px: float, max_view_angle: float, selected: np.ndarray,
+                        window: float) -> np.ndarray:
+    """_trusted_window_sums' per window and camera sums (W, C, 8) over the trusted points among `selected`, in
+    windows of `window` up to end_s."""
+    margin, least_cosine = _trust_limits(geometry, footprint, silhouette_margin_px, max_view_angle)
+    position, _, normal, binormal = frames
+    return _trusted_window_sums(coords.s, coords.x, coords.y, position, normal, binormal,
+                                np.ascontiguousarray(viewpoints, dtype=float), np.ascontiguousarray(camera, np.intp),
+                                cameras, centerline.points[0], geometry.outer_radius, gate, margin, end_s - margin,
+                                least_cosine, selected, window, max(int(np.ceil(end_s / window)), 1))[-1]
+
+
 def cross_view_spread(centerline: Centerline, coords: TubeCoordinates, frames: tuple, viewpoints: np.ndarray,
                       camera: np.ndarray, cameras: int, geometry: TubeGeometry, gate: float, footprint: float,
                       end_s: float, max_view_angle: float = np.radians(45.0), cut_margin_px: float = 1.0,
@@ -237,14 +251,9 @@ def cross_view_spread(centerline: Centerline, coords: TubeCoordinates, frames: t
     axis apart, and the fused axis is known no better than their spread.
     """
     window = geometry.notch_pitch
-    windows = max(int(np.ceil(end_s / window)), 1)
     away_from_cuts = ~inside_intervals(coords.s, cut_intervals(geometry, centerline, cut_margin_px * footprint))
-    margin, least_cosine = _trust_limits(geometry, footprint, silhouette_margin_px, max_view_angle)
-    position, _, normal, binormal = frames
-    sums = _trusted_window_sums(coords.s, coords.x, coords.y, position, normal, binormal,
-                                np.ascontiguousarray(viewpoints, dtype=float), np.ascontiguousarray(camera, np.intp),
-                                cameras, centerline.points[0], geometry.outer_radius, gate, margin, end_s - margin,
-                                least_cosine, away_from_cuts, window, windows)[-1]
+    sums = _camera_window_sums(centerline, coords, frames, viewpoints, camera, cameras, geometry, gate, footprint,
+                               end_s, silhouette_margin_px, max_view_angle, away_from_cuts, window)
     count, sine, sine2, offset, sine_offset = np.moveaxis(sums[:, :, :5], 2, 0)
     spread = count * sine2 - sine * sine  # count^2 x the variance of sin(a)
     solvable = (count >= minimum_points) & (spread > (min_sine_spread * count) ** 2)
@@ -319,24 +328,18 @@ def level_by_backbone(centerline: Centerline, coords: TubeCoordinates, frames: t
     window. Unchanged (and 0) where no camera faces the backbone or none saw the plain tube.
     """
     window = geometry.notch_pitch
-    windows = max(int(np.ceil(end_s / window)), 1)
-    cut_margin = cut_margin_px * footprint
-    cuts = cut_intervals(geometry, centerline, cut_margin)
+    cuts = cut_intervals(geometry, centerline, cut_margin_px * footprint)
     away_from_cuts = ~inside_intervals(coords.s, cuts)
-    margin, least_cosine = _trust_limits(geometry, footprint, silhouette_margin_px, max_view_angle)
-    position, _, normal, binormal = frames
-    viewpoints = np.ascontiguousarray(viewpoints, dtype=float)
-    camera = np.ascontiguousarray(camera, np.intp)
     cameras = len(origins)
 
-    def sums(selected, width, count):
-        return _trusted_window_sums(coords.s, coords.x, coords.y, position, normal, binormal, viewpoints, camera,
-                                    cameras, centerline.points[0], geometry.outer_radius, gate, margin,
-                                    end_s - margin, least_cosine, selected, width, count)[-1]
+    def sums(selected, width):
+        return _camera_window_sums(centerline, coords, frames, viewpoints, camera, cameras, geometry, gate,
+                                   footprint, end_s, silhouette_margin_px, max_view_angle, selected, width)
 
     plain = away_from_cuts & ((coords.s < cuts[0, 0]) | (coords.s > cuts[-1, 1]))
-    plain_sums = sums(plain, max(end_s, window), 1)[0]
-    per_window = sums(away_from_cuts, window, windows)
+    plain_sums = sums(plain, max(end_s, window))[0]
+    per_window = sums(away_from_cuts, window)
+    windows = len(per_window)
     centres = (np.arange(windows) + 0.5) * window
     notched = (centres > cuts[0, 0]) & (centres < cuts[-1, 1])
     at, _, window_normal, window_binormal = centerline.frames_at(centres)

@@ -157,11 +157,12 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
     # the tip sits on the centreline's free end, where an error growing along the tube is sqrt(3) its RMS
     tip_across = FREE_END_FACTOR * (uncertainty or 0.0)
     across = f", and by {tip_across * 1e3:.2f} mm across it (the centreline's, at its free end)" if tip_across else ""
-    if math.hypot(tip_uncertainty, tip_across) > TIP_FLOOR and tip_from_cap:
+    tip_total = math.hypot(tip_uncertainty, tip_across)
+    if tip_total > TIP_FLOOR and tip_from_cap:
         warnings.append(f"the tip is the end cap's plane, whose points the stereo matcher smeared over "
                         f"{tip_uncertainty * 1e3:.2f} mm towards the bore behind its ring: its position is uncertain "
                         f"by about {tip_uncertainty * 1e3:.2f} mm along the tube{weighed}{across}")
-    elif math.hypot(tip_uncertainty, tip_across) > TIP_FLOOR:
+    elif tip_total > TIP_FLOOR:
         how = ", as the edge band measured in the depth images" if measured else ""
         warnings.append(f"the tip rests on a stereo-eroded rim ({tip_erosion * 1e3:.2f} mm given back{how}): "
                         f"its position is uncertain by about {tip_uncertainty * 1e3:.2f} mm along the tube{weighed}"
