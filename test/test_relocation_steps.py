@@ -9,6 +9,7 @@ import math
 import numpy as np
 import pytest
 
+from ntcr_recon.core import alignment
 from ntcr_recon.core.alignment import align_to_trusted_wall, cross_view_spread, level_by_backbone
 from ntcr_recon.core.centerline import Centerline, estimate_centerline, settings_for
 from ntcr_recon.core.comb import cut_intervals, expected_centres, inside_intervals
@@ -340,7 +341,7 @@ def test_cross_view_spread_is_how_far_each_camera_alone_puts_the_axis_across_its
         moved = points + np.where(camera[:, None] == 0, moved_by, 0.0)
         coords, frames = centerline.project_with_frames(moved)
         return cross_view_spread(centerline, coords, frames, viewpoints, camera, 2, geometry, 0.8e-3, FOOTPRINT,
-                                 length)
+                                 length).spread
 
     agreed, across, along = spread([0.0, 0.0, 0.0]), spread([0.1e-3, 0.0, 0.0]), spread([0.0, -0.1e-3, 0.0])
     print(f"\ncameras agree: {agreed * 1e6:.1f} um; cam_a's wall 0.1 mm across its view: {across * 1e6:.1f} um "
@@ -350,8 +351,38 @@ def test_cross_view_spread_is_how_far_each_camera_alone_puts_the_axis_across_its
     # too few trusted points in every window (the tube seen only edge-on): nothing to tell
     edge_on = np.abs(points[:, 0]) > 0.99 * R_O
     coords, frames = centerline.project_with_frames(points[edge_on])
-    assert cross_view_spread(centerline, coords, frames, viewpoints[edge_on], camera[edge_on], 2, geometry, 0.8e-3,
-                             FOOTPRINT, length) is None
+    seen_edge_on = cross_view_spread(centerline, coords, frames, viewpoints[edge_on], camera[edge_on], 2, geometry,
+                                     0.8e-3, FOOTPRINT, length)
+    assert seen_edge_on.spread is None
+    margin = alignment.SILHOUETTE_MARGIN_PX * FOOTPRINT
+    assert len(seen_edge_on.unsupported) == 1
+    assert seen_edge_on.unsupported[0] == pytest.approx((margin, length - margin))
+
+
+def test_a_stretch_where_no_camera_sees_its_wall_facing_it_is_reported_unsupported():
+    """Past s = 21 mm of a 30 mm tube, both cameras see only its wall edge-on (as where a matcher spoils every pixel
+    whose window meets the background): the windows there hold no trusted point, and the stretch from 21 mm to the
+    end's margin is reported; a 3 mm window (one notch pitch) thinned alone is bridged, not reported."""
+    length = 30e-3
+    geometry = TubeGeometry(notch_count=8, notch_pitch=3e-3)
+    points = wall_points(length, rng=np.random.default_rng(4))
+    camera = (points[:, 1] > 0).astype(np.intp)
+    viewpoints = np.array([[0.0, -0.09, 0.015], [0.0, 0.09, 0.015]])[camera]
+    centerline = straight_centerline(length)
+    margin = alignment.SILHOUETTE_MARGIN_PX * FOOTPRINT
+
+    def unsupported(kept):
+        coords, frames = centerline.project_with_frames(points[kept])
+        return cross_view_spread(centerline, coords, frames, viewpoints[kept], camera[kept], 2, geometry, 0.8e-3,
+                                 FOOTPRINT, length).unsupported
+
+    edge_on = np.abs(points[:, 0]) > 0.99 * R_O
+    distal = unsupported(edge_on | (points[:, 2] < 21e-3))
+    one_window = unsupported(edge_on | (points[:, 2] < 12e-3) | (points[:, 2] >= 15e-3))
+    print(f"\nunsupported: distal {np.round(np.array(distal) * 1e3, 2).tolist()} mm, one window "
+          f"{np.round(np.array(one_window) * 1e3, 2).tolist()} mm")
+    assert len(distal) == 1 and distal[0] == pytest.approx((21e-3, length - margin))
+    assert one_window == ()
 
 
 def test_the_camera_facing_the_backbone_levels_the_axis_between_the_notches():

@@ -235,13 +235,22 @@ def _camera_window_sums(centerline: Centerline, coords: TubeCoordinates, frames:
                                 least_cosine, selected, window, max(int(np.ceil(end_s / window)), 1))[-1]
 
 
+@dataclass(frozen=True)
+class CrossView:
+    """What each camera's trusted wall says about the fused axis (cross_view_spread)."""
+    spread: float | None  # m, RMS over windows and cameras of each camera's own axis across its view; None: none
+    unsupported: tuple[tuple[float, float], ...] = ()  # s intervals (m) of two windows or more where no camera
+                                                         # holds enough trusted wall points to place the axis
+
+
 def cross_view_spread(centerline: Centerline, coords: TubeCoordinates, frames: tuple, viewpoints: np.ndarray,
                       camera: np.ndarray, cameras: int, geometry: TubeGeometry, gate: float, footprint: float,
                       end_s: float, max_view_angle: float = np.radians(45.0), cut_margin_px: float = 1.0,
                       silhouette_margin_px: float = SILHOUETTE_MARGIN_PX, minimum_points: int = 10,
-                      min_sine_spread: float = 0.05) -> float | None:
+                      min_sine_spread: float = 0.05) -> CrossView:
     """How far each camera alone puts the axis across its line of sight from the centreline given (m, RMS over
-    windows of a notch pitch and cameras); None when no window holds enough trusted points of any camera.
+    windows of a notch pitch and cameras; None when no window holds enough trusted points of any camera), and
+    where no camera holds enough trusted points to place the axis at all.
 
     Across its line of sight a camera places the axis by itself: a shift b that way raises the wall it sees on
     one side of its view and lowers it on the other, offset = b sin(a) + level (a: the view angle, the shift
@@ -249,18 +258,45 @@ def cross_view_spread(centerline: Centerline, coords: TubeCoordinates, frames: t
     window, about the aligned centreline, is what it disagrees with the fit: stereo depth beside the notches is
     not symmetric about a view (a matcher's window reaches the slots on one side), two cameras then pull the
     axis apart, and the fused axis is known no better than their spread.
+
+    Where no camera sees trusted wall (facing it, on the tube's radius) over two windows or more, the centreline
+    there followed whatever points lay near it - flying pixels a matcher mixed with the background, a wall seen
+    edge-on - and nothing measured how far off it is: those stretches are `unsupported` (a window counts in
+    proportion to its part between the base's and the end's margins; one under half inside is not judged).
     """
     window = geometry.notch_pitch
     away_from_cuts = ~inside_intervals(coords.s, cut_intervals(geometry, centerline, cut_margin_px * footprint))
     sums = _camera_window_sums(centerline, coords, frames, viewpoints, camera, cameras, geometry, gate, footprint,
                                end_s, silhouette_margin_px, max_view_angle, away_from_cuts, window)
     count, sine, sine2, offset, sine_offset = np.moveaxis(sums[:, :, :5], 2, 0)
+    unsupported = _unsupported(count.max(axis=1), window, silhouette_margin_px * footprint, end_s, minimum_points)
     spread = count * sine2 - sine * sine  # count^2 x the variance of sin(a)
     solvable = (count >= minimum_points) & (spread > (min_sine_spread * count) ** 2)
     if not np.any(solvable):
-        return None
+        return CrossView(None, unsupported)
     slope = (count * sine_offset - sine * offset)[solvable] / spread[solvable]
-    return float(np.sqrt(np.mean(slope ** 2)))
+    return CrossView(float(np.sqrt(np.mean(slope ** 2))), unsupported)
+
+
+def _unsupported(best_count: np.ndarray, window: float, margin: float, end_s: float, minimum_points: int
+                 ) -> tuple[tuple[float, float], ...]:
+    """Runs of two windows or more whose best camera holds under `minimum_points` trusted points (scaled by the
+    window's share inside [margin, end_s - margin]; windows under half inside are not judged), as s intervals
+    clipped to that range."""
+    starts = np.arange(len(best_count)) * window
+    inside = np.clip(np.minimum(starts + window, end_s - margin) - np.maximum(starts, margin), 0.0, window) / window
+    short = (inside >= 0.5) & (best_count < minimum_points * inside)
+    runs, k = [], 0
+    while k < len(short):
+        if not short[k]:
+            k += 1
+            continue
+        first = k
+        while k < len(short) and short[k]:
+            k += 1
+        if k - first >= 2:
+            runs.append((float(max(starts[first], margin)), float(min(starts[k - 1] + window, end_s - margin))))
+    return tuple(runs)
 
 
 def _determinants(matrix: np.ndarray) -> np.ndarray:

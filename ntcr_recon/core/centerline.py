@@ -579,22 +579,28 @@ def _march(xyz: np.ndarray, geometry: TubeGeometry, settings: CenterlineSettings
         along = np.einsum("ij,j->i", offset, tangent)  # not `@`: a BLAS product would wake its threads
         lateral = offset - along[:, None] * tangent
         near = (np.abs(along) <= step / 2) & (np.einsum("ij,ij->i", lateral, lateral) <= reach**2)
-        if np.count_nonzero(near) < 8:
-            # a stretch without data (the base hidden by its clamp, an occlusion): carry on straight for up
-            # to the proximal length (straight by construction) or a few steps
+        centre = None
+        if np.count_nonzero(near) >= 8:
+            e2 = binormal - (binormal @ tangent) * tangent
+            e2 /= np.linalg.norm(e2)
+            e1 = np.cross(e2, tangent)
+            local = lateral[near]
+            centre, _ = fixed_radius_circle_fit(np.zeros(len(local), dtype=np.intp),
+                                                np.einsum("ij,j->i", local, e1), np.einsum("ij,j->i", local, e2), 1,
+                                                r_o, settings.gate, iterations=8)
+            # a few points on one side let a circle of the radius sit anywhere on their far side: an axis
+            # more than a radius off the straight prediction in one step is no tube the robot can bend to
+            if np.hypot(centre[0, 0], centre[0, 1]) > r_o:
+                centre = None
+        if centre is None:
+            # a stretch without data enough to place the axis (the base hidden by its clamp, an occlusion):
+            # carry on straight for up to the proximal length (straight by construction) or a few steps
             misses += 1
             if misses > allowed_misses:
                 break
             nodes.append(predicted)
             continue
         misses = 0
-        e2 = binormal - (binormal @ tangent) * tangent
-        e2 /= np.linalg.norm(e2)
-        e1 = np.cross(e2, tangent)
-        local = lateral[near]
-        centre, _ = fixed_radius_circle_fit(np.zeros(len(local), dtype=np.intp), np.einsum("ij,j->i", local, e1),
-                                            np.einsum("ij,j->i", local, e2), 1, r_o,
-                                            settings.gate, iterations=8)
         node = predicted + centre[0, 0] * e1 + centre[0, 1] * e2
         direction = node - nodes[max(len(nodes) - 2, 0)]
         tangent = direction / np.linalg.norm(direction)

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ntcr_recon.core.alignment import align_to_trusted_wall, cross_view_spread, level_by_backbone
+from ntcr_recon.core.alignment import CrossView, align_to_trusted_wall, cross_view_spread, level_by_backbone
 from ntcr_recon.core.centerline import Centerline, TubeCoordinates, estimate_centerline, settings_for
 from ntcr_recon.core.cloud import Cloud
 from ntcr_recon.core.comb import cut_intervals, expected_centres, inside_intervals
@@ -205,7 +205,7 @@ class Reconstructor:
         # would shift the curve once more, and results would depend on what came before)
         fitted = centerline
         # 2. alignment: the reference tube shifted onto the wall points stereo measures without bias
-        alignment, spread, backbone_shift = None, None, None
+        alignment, cross_view, backbone_shift = None, CrossView(None), None
         if viewpoints is not None:
             end = tube_end(coords, geometry.outer_radius, settings.gate, footprint, max_s=geometry.reach)
             # which points face their camera depends on where the axis is: selected again about the moved axis
@@ -220,7 +220,7 @@ class Reconstructor:
                 centerline = leveled
                 coords, frames = centerline.project_with_frames(cloud.xyz, coords.s)
             # what each camera alone says about the axis across its view: the fused axis is known no better
-            spread = cross_view_spread(centerline, coords, frames, viewpoints, seen_by, len(self._camera_origins),
+            cross_view = cross_view_spread(centerline, coords, frames, viewpoints, seen_by, len(self._camera_origins),
                                        geometry, settings.gate, footprint, end)
         # each point as its camera saw it: along its viewing ray onto the wall (core.relocation)
         rays = None if viewpoints is None else along_rays(coords, frames, viewpoints, geometry.outer_radius,
@@ -305,7 +305,7 @@ class Reconstructor:
                                     spine=wall[0])
         looking = tuple(cameras_looking_into_slots(centerline, geometry, self._camera_origins,
                                                    self.config.camera_names))
-        centreline_off = centerline_uncertainty(spread, thinning, looking, bool(backbone_shift)) or 0.0
+        centreline_off = centerline_uncertainty(cross_view.spread, thinning, looking, bool(backbone_shift)) or 0.0
         # the robot's own length, at the bend measured, is a measurement of the tip too (core.tip); the bend is
         # known as well as the centreline's turn over a notch pitch
         total_bend = float(centerline.bend_angle(0.0, tip_s))
@@ -339,7 +339,7 @@ class Reconstructor:
             tip_erosion=tip_erosion, tip_uncertainty=tip_uncertainty, tip_position=tip, tip_along=along,
             crop_box=self.config.crop_box(),
             notched_thinning=thinning, looking_into_slots=looking, tip_from_cap=from_cap, side_unsettled=unsettled,
-            cross_view_spread=spread, backbone_shift=backbone_shift)
+            cross_view_spread=cross_view.spread, unsupported=cross_view.unsupported, backbone_shift=backbone_shift)
         quality = {**quality, "tip_refinement": refinement,
                    "centerline_backbone_shift_mm": None if backbone_shift is None else backbone_shift * 1e3,
                    "edge_band_mrad": {name: band * 1e3 for name, band in self._edge_bands.items()}}

@@ -111,7 +111,8 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
            notched_thinning: float | None = None, looking_into_slots: tuple[str, ...] = (),
            tip_from_cap: bool = False, side_unsettled: tuple[float, float] | None = None,
            cross_view_spread: float | None = None, tip_along=None,
-           backbone_shift: float | None = None) -> tuple[dict, list[str]]:
+           backbone_shift: float | None = None,
+           unsupported: tuple[tuple[float, float], ...] = ()) -> tuple[dict, list[str]]:
     """The `quality` document and the warnings (see the module docstring). tip_uncertainty: how well the tip's
     refinement placed it along the tube, when it measured the erosion it gave back (else the erosion itself
     counts as uncertain, and half a footprint). tip_position, crop_box: where the tip is and the box the points
@@ -122,7 +123,8 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
     one was kept for it. tip_along: the tip between the end seen and the robot's length (tip.TipAlongTube);
     its uncertainty is the tip's then, and the end seen is what is judged against the robot's length.
     backbone_shift: how far alignment.level_by_backbone moved the axis (m; None or 0: no camera faced the
-    backbone), which then places it along the views, not the slots' lean."""
+    backbone), which then places it along the views, not the slots' lean. unsupported: the stretches of s
+    where no camera saw trusted wall (alignment.CrossView), where no uncertainty was measured."""
     warnings: list[str] = []
     r_o, diameter = geometry.outer_radius, geometry.outer_diameter
     found = sorted(n.index for n in notches)
@@ -216,6 +218,12 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
                         f"{(cross_view_spread or 0.0) * 1e3:.2f} mm apart across their views, and the wall between "
                         f"the notches reads {(notched_thinning or 0.0) * 1e3:+.2f} mm deeper than the plain tube); "
                         f"{abs(bias_notch_side) * 1e3:.2f} mm of lean towards the notch side was removed")
+    if unsupported:
+        listed = ", ".join(f"{start * 1e3:.0f}-{end * 1e3:.0f}" for start, end in unsupported)
+        to_tip = " (and the tip with it)" if unsupported[-1][1] >= tip_s - geometry.notch_pitch else ""
+        warnings.append(f"over s = {listed} mm no camera saw the tube's wall facing it on the tube's radius: the "
+                        f"centreline there{to_tip} follows points off the wall (pixels a matcher mixed with the "
+                        "background, a wall seen edge-on), and how far off it is was not measured")
     if lean > BIAS_WARN_FOOTPRINTS * footprint:
         names = " and ".join(looking_into_slots)
         consequence = (f"a camera facing the backbone placed the axis along its line of sight instead, by its level on "
@@ -243,6 +251,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
         "cameras_looking_into_slots": list(looking_into_slots),
         "centerline_cross_view_mm": None if cross_view_spread is None else cross_view_spread * 1e3,
         "centerline_uncertainty_mm": None if uncertainty is None else uncertainty * 1e3,
+        "centerline_unsupported_mm": [[start * 1e3, end * 1e3] for start, end in unsupported],
     }
     return quality, warnings
 
