@@ -191,12 +191,13 @@ def test_a_rim_the_matcher_mixed_with_the_floor_behind_it_is_measured_where_its_
     assert abs(on_rays[0].start_s - as_seen[0].start_s) < FOOTPRINT / 20  # the start rim: as before
 
 
-def test_rim_calibration_gives_back_the_cut_faces_the_cameras_see():
+@pytest.mark.parametrize("reach", [0.6e-3, -0.6e-3])
+def test_rim_calibration_gives_back_the_cut_faces_the_cameras_see(reach):
     """A straight robot seen by two cameras 110 mm away across its middle: every edge eroded by 0.05 mm, and each
     cut face turned towards the cameras covers the gap beside its rim by 0.6 mm x tan(view angle from its plane)
-    (0.14 mm at the end notches). The spines' known length gives back both: the widths come out exact, where one
-    erosion for every edge leaves the end notches 0.08 mm off (too narrow: their seen face's cover is read as
-    erosion spread over both edges)."""
+    (0.14 mm at the end notches) - or, where a matcher averages the face's depth into the rim, uncovers as much
+    (reach < 0). The spines' known length gives back both: the widths come out exact, where one erosion for every
+    edge leaves the end notches 0.08 mm off (their seen face's cover is read as erosion spread over both edges)."""
     from ntcr_recon.core.notches import Notch, calibrate_rims, face_view_tangent
 
     geometry = TubeGeometry()
@@ -205,7 +206,7 @@ def test_rim_calibration_gives_back_the_cut_faces_the_cameras_see():
     cameras = np.array([[0.0, -0.11, middle], [0.0, 0.11, middle]])
     starts = geometry.notch_centers_s - geometry.notch_width / 2
     ends = starts + geometry.notch_width
-    erosion, reach = 0.05e-3, 0.6e-3
+    erosion = 0.05e-3
     start_v = face_view_tangent(centerline, starts, cameras, 1.0)
     end_v = face_view_tangent(centerline, ends, cameras, -1.0)
     assert start_v[0] > 0 and start_v[-1] == 0 and end_v[0] == 0 and end_v[-1] > 0  # each end sees one face

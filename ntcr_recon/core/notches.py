@@ -387,8 +387,10 @@ def calibrate_rims(notches: list[Notch], geometry: TubeGeometry, centerline: Cen
     notch by about the same amount e. A cut face turned towards a camera is seen beside its rim, inside the
     wall's radius, and the matcher's window averages its first rows with the wall ahead: the rim moves over
     the face by k tan(view angle from the face's plane) (`face_view_tangent`), k the depth of face the window
-    reaches (0 to the tube's diameter; the tangent no more than width / diameter, where a face as deep as the
-    tube hides the whole gap); a face turned away is not seen. The spines between notches are rigid,
+    reaches (up to the tube's diameter; the tangent no more than width / diameter, where a face as deep as the
+    tube hides the whole gap); a face turned away is not seen. A matcher that averages the face's depth into
+    the rim's pixels instead pulls the rim down the face, away from its camera: k is then negative (a window
+    mean over 7 px does so, test/synthetic_views.py; the package's simulator moves rims over the faces). The spines between notches are rigid,
     of the robot's nominal length pitch - width whatever the bend, so each spine between consecutive detected
     notches reads nominal - 2 e + k (v_end + v_start) (v: its two faces' view tangents); e and k are solved by
     least squares over the spines (e alone, the median over the spines, when their faces are all seen alike or
@@ -422,7 +424,7 @@ def calibrate_rims(notches: list[Notch], geometry: TubeGeometry, centerline: Cen
     if smallest > (1e-3 * 2.0 * np.sqrt(count)) ** 2:
         right_e, right_k = 2.0 * float(shortfall.sum()), -float(seen @ shortfall)
         solved_k = (a * right_k - b * right_e) / (a * c - b * b)
-        reach = float(min(max(solved_k, 0.0), geometry.outer_diameter))
+        reach = float(min(max(solved_k, -geometry.outer_diameter), geometry.outer_diameter))
     erosion = float(median(shortfall + reach * seen)) / 2.0  # e with k held, robust as the median
     calibrated = []
     for n, start_v, end_v in zip(notches, start_seen.tolist(), end_seen.tolist(), strict=True):  # (plain floats)
