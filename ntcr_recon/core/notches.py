@@ -392,11 +392,10 @@ def calibrate_rims(notches: list[Notch], geometry: TubeGeometry, centerline: Cen
     the rim's pixels instead pulls the rim down the face, away from its camera: k is then negative (a window
     mean over 7 px does so, test/synthetic_views.py; the package's simulator moves rims over the faces). The
     spines between notches are rigid, of the robot's nominal length pitch - width whatever the bend, so each
-    spine between consecutive detected
-    notches reads nominal - 2 e + k (v_end + v_start) (v: its two faces' view tangents); e and k are solved by
-    least squares over the spines (e alone, the median over the spines, when their faces are all seen alike or
-    no camera is known), and every edge moves back by e - k v. (A robot whose spines are all shorter than its
-    drawing says would have that read as erosion.)
+    spine between consecutive detected notches reads nominal - 2 e + k (v_end + v_start) (v: its two faces' view
+    tangents); e and k are solved by least squares over the spines (e alone, the median over the spines, when
+    their faces are all seen alike or no camera is known), and every edge moves back by e - k v. (A robot whose
+    spines are all shorter than its drawing says would have that read as erosion.)
     """
     by_index = {n.index: n for n in notches}
     spine = geometry.notch_pitch - geometry.notch_width
