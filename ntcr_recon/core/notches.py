@@ -309,11 +309,34 @@ def measure_notch_side(observed: TubeCoordinates, notches: list[Notch], geometry
         return None
     ratio = (notch_count / np.maximum(spine_count, 1.0)) / (notch_count[seen].sum() / spine_count[seen].sum())
     centres = -np.pi + (np.arange(sectors) + 0.5) * width
-    # every candidate side at once: (candidates, sectors) open-window masks over the seen sectors
     sides = np.arange(-search, search + 1e-9, np.radians(1.0))
+    coarse = _coarse_side(ratio, seen, centres, sides, geometry.gap_half_angle)
+    if coarse is None:
+        return None
+    side, allowed, outside = coarse
+    # the sectors place the window to a sector; a window edge between two seen neighbouring sectors is
+    # placed within them, where the ratio crosses half its level outside the window
+    located = _window_edges(ratio, seen, centres, width, side, geometry.gap_half_angle, outside)
+    if located:
+        low, high = allowed[0] - width / 2, allowed[1] + width / 2  # what the sectors allow
+        return float(np.clip(np.mean(located), low, high))
+    # an edge that falls where nothing is seen: the sectors at the border of what is seen (grazing views thin
+    # the wall there unevenly, which reads as the window's edge) may have placed the window; judged without
+    # them as well, the smaller turn of the two stands (a side no edge placed moves no further than it must)
+    judged = _coarse_side(ratio, seen & np.roll(seen, 1) & np.roll(seen, -1), centres, sides,
+                          geometry.gap_half_angle)
+    return side if judged is None or abs(judged[0]) >= abs(side) else judged[0]
+
+
+def _coarse_side(ratio: np.ndarray, judged: np.ndarray, centres: np.ndarray, sides: np.ndarray, half_angle: float
+                 ) -> tuple[float, tuple[float, float], np.ndarray] | None:
+    """The candidate side whose open window (within half_angle of it) best separates the wall ratio over the
+    judged sectors (mean outside minus mean inside; ties: the smallest turn), the range of sides tied with it,
+    and its outside mask; None when no candidate has judged sectors both inside and outside its window.
+    Every candidate at once: (candidates, sectors) masks."""
     distance = np.abs(_wrapped(centres[None, :] - sides[:, None]))
-    inside = seen[None, :] & (distance < geometry.gap_half_angle)
-    outside = seen[None, :] & ~(distance < geometry.gap_half_angle)
+    inside = judged[None, :] & (distance < half_angle)
+    outside = judged[None, :] & ~(distance < half_angle)
     count_in, count_out = inside.sum(axis=1), outside.sum(axis=1)
     valid = (count_in > 0) & (count_out > 0)
     if not np.any(valid):
@@ -321,15 +344,8 @@ def measure_notch_side(observed: TubeCoordinates, notches: list[Notch], geometry
     score = (outside @ ratio) / np.maximum(count_out, 1) - (inside @ ratio) / np.maximum(count_in, 1)
     score = np.where(valid, score, -np.inf)
     best = np.flatnonzero(score >= score.max() - 1e-12)
-    side = float(sides[best[np.argmin(np.abs(sides[best]))]])  # ties: the smallest turn
-    # the sectors place the window to a sector; a window edge between two seen neighbouring sectors is
-    # placed within them, where the ratio crosses half its level outside the window
-    located = _window_edges(ratio, seen, centres, width, side, geometry.gap_half_angle, outside[sides == side][0])
-    if not located:
-        return side
-    refined = float(np.mean(located))
-    low, high = sides[best].min() - width / 2, sides[best].max() + width / 2  # what the sectors allow
-    return float(np.clip(refined, low, high))
+    chosen = best[np.argmin(np.abs(sides[best]))]
+    return float(sides[chosen]), (float(sides[best].min()), float(sides[best].max())), outside[chosen]
 
 
 def _window_edges(ratio: np.ndarray, seen: np.ndarray, centres: np.ndarray, width: float, side: float,
