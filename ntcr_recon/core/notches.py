@@ -286,7 +286,7 @@ def measure_notch_side(observed: TubeCoordinates, notches: list[Notch], geometry
     all round. Per sector of angle, the wall points' density inside the notches relative to that on the
     spines (what the cameras can see cancels in the ratio) is matched to that window, slid over +-`search`
     (to a sector), then placed within a sector by its two edges where both are seen (_window_edges).
-    None when fewer than two notches were found or less than two thirds of the ring is seen. wall:
+    None when fewer than two notches were found or half the ring or less is seen. wall:
     spine_wall(observed) when the caller has it already.
     """
     if len(notches) < 2:
@@ -304,8 +304,8 @@ def measure_notch_side(observed: TubeCoordinates, notches: list[Notch], geometry
     notch_count = np.bincount(index[in_notch], minlength=sectors).astype(float)
     spine_count = np.bincount(index[on_spine], minlength=sectors).astype(float)
     seen = spine_count >= max(5.0, 0.1 * spine_count.max(initial=0.0))
-    # the open window is wide: with much of the ring unseen (one camera alone) its position is not fixed
-    if np.count_nonzero(seen) < (2 * sectors) // 3 or notch_count.sum() == 0:
+    # the open window is wide: with half the ring unseen or more (one camera alone) its position is not fixed
+    if np.count_nonzero(seen) <= sectors // 2 or notch_count.sum() == 0:
         return None
     ratio = (notch_count / np.maximum(spine_count, 1.0)) / (notch_count[seen].sum() / spine_count[seen].sum())
     centres = -np.pi + (np.arange(sectors) + 0.5) * width
