@@ -11,7 +11,7 @@ import pytest
 
 from ntcr_recon.core.centerline import Centerline
 from ntcr_recon.core.geometry import TubeGeometry
-from ntcr_recon.core.notches import Notch, measure_notch_side
+from ntcr_recon.core.notches import Notch, SideMeasurement, measure_notch_side
 
 GEOMETRY = TubeGeometry()   # 3.5 mm, 16 notches, configured to open towards +x
 FOOTPRINT = 0.2e-3          # a D405 pixel at 90 mm
@@ -49,9 +49,11 @@ def rolled_robot_wall(roll: float, seen_half_width: float = math.radians(80.0)):
 def test_notch_side_of_a_rolled_robot_is_measured_within_a_degree(roll_deg):
     centerline, coords, notches = rolled_robot_wall(math.radians(roll_deg))
     measured = measure_notch_side(coords, notches, GEOMETRY, centerline, 0.8e-3, FOOTPRINT)
-    print(f"\nnotches open {roll_deg:+.1f} deg from the configured side: measured {math.degrees(measured):+.2f} deg")
+    print(f"\nnotches open {roll_deg:+.1f} deg from the configured side: measured {math.degrees(measured.roll):+.2f} "
+          f"+- {math.degrees(measured.uncertainty):.2f} deg")
     assert measured is not None
-    assert abs(math.degrees(measured) - roll_deg) <= 1.0
+    assert abs(math.degrees(measured.roll) - roll_deg) <= 1.0
+    assert math.degrees(measured.uncertainty) <= 2.0  # both window edges placed it
 
 
 def test_notch_side_is_not_claimed_when_no_notch_edge_is_seen():
@@ -79,7 +81,8 @@ def test_a_side_that_does_not_settle_in_the_turned_frame_keeps_the_configured_on
     config = load_rig_config(bag / "rig.yaml")
     pair = tiny_rig.bag_frame_pairs(bag, config)[0]
     rolls = iter(math.radians(r) for r in rolls_deg)
-    monkeypatch.setattr(pipeline, "measure_notch_side", lambda *args, **kwargs: next(rolls, None))
+    measurements = (SideMeasurement(roll, math.radians(2.0)) for roll in rolls)
+    monkeypatch.setattr(pipeline, "measure_notch_side", lambda *args, **kwargs: next(measurements, None))
     relocation = pipeline.Reconstructor(config).process(pair).relocation
     side = relocation.quality["notch_side_deg"]
     print(f"\nrolls measured {rolls_deg} deg: side reported {side:.1f} deg; warnings {list(relocation.warnings)}")

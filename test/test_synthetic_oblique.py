@@ -113,7 +113,8 @@ def test_notches_facing_a_camera_keep_their_side_where_no_camera_sees_their_wind
     """Notches facing a camera open 114 deg to each side of it: their window's edges lie where the other camera
     sees the wall at grazing angles, thinned by a 7 px matcher window, and the sectors bordering the unseen ones
     read as edges. The side measured once moved 12 deg and said the robot was rolled in its clamp; judged
-    without those sectors, the side stays within 3 deg of the truth and nothing claims a roll."""
+    without those sectors, the side stays within 3 deg of the truth and nothing claims a roll, while its stated
+    uncertainty says that a roll of 15 deg would go unseen here."""
     from synthetic_views import make_config, render_pair
 
     from ntcr_recon.core.kinematics import TubeShape
@@ -121,10 +122,14 @@ def test_notches_facing_a_camera_keep_their_side_where_no_camera_sees_their_wind
     config = make_config({"notch_side": float(np.radians(notch_side_deg))}, distance=0.09)
     shape = TubeShape.from_bend_angle(config.robot, 0.0)
     relocation, _, _, _ = _figures(config, shape, render_pair(shape, config, seed=3, blur_px=7))
-    measured = relocation.quality["notch_side_deg"]
-    print(f"\nnotches facing a camera at {notch_side_deg:+.0f} deg: side measured {measured:+.1f} deg")
+    measured, uncertainty = (relocation.quality[key] for key in ("notch_side_deg", "notch_side_uncertainty_deg"))
+    print(f"\nnotches facing a camera at {notch_side_deg:+.0f} deg: side measured {measured:+.1f} +- "
+          f"{uncertainty:.1f} deg")
     assert abs(measured - notch_side_deg) <= 3.0
     assert not any("rolled in its clamp" in warning for warning in relocation.warnings)
+    # no camera sees the window's edges: the result says the side is known no better than the sectors allow,
+    # wide enough for a robot rolled 15 deg in its clamp (which this pose cannot tell)
+    assert uncertainty >= 15.0
 
 
 @pytest.mark.parametrize("notch_side_deg", [0.0, 180.0])

@@ -17,6 +17,7 @@ Width (the documented definition): the gap on the outer surface line facing the 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from scipy.ndimage import percentile_filter
@@ -277,10 +278,17 @@ def _measure(gaps: list[tuple[float, float]], indices: list[int], signals: list[
             for index, signal, a, b, width, bend in zip(indices, signals, start, end, widths, bends, strict=True)]
 
 
+class SideMeasurement(NamedTuple):
+    roll: float         # rad, how far the notches open from the frame's x axis (the configured side)
+    uncertainty: float  # rad: half the spread of the window's two edges where both placed it, else half the
+                        # range of sides the sectors allow alike, plus half a sector
+
+
 def measure_notch_side(observed: TubeCoordinates, notches: list[Notch], geometry: TubeGeometry, centerline: Centerline,
                        gate: float, footprint: float, search: float = np.radians(45.0),
-                       wall: tuple[np.ndarray, float, float] | None = None) -> float | None:
-    """How far (rad) the notches open from the frame's x axis (the configured side), measured on the data.
+                       wall: tuple[np.ndarray, float, float] | None = None) -> SideMeasurement | None:
+    """How far (rad) the notches open from the frame's x axis (the configured side), measured on the data, and
+    how well.
 
     Inside the found notches the outer wall is missing over |angle - side| < gap_half_angle; spines keep it
     all round. Per sector of angle, the wall points' density inside the notches relative to that on the
@@ -319,13 +327,16 @@ def measure_notch_side(observed: TubeCoordinates, notches: list[Notch], geometry
     located = _window_edges(ratio, seen, centres, width, side, geometry.gap_half_angle, outside)
     if located:
         low, high = allowed[0] - width / 2, allowed[1] + width / 2  # what the sectors allow
-        return float(np.clip(np.mean(located), low, high))
+        return SideMeasurement(float(np.clip(np.mean(located), low, high)),
+                               max(abs(located[0] - located[1]) / 2, np.radians(1.0)))
     # an edge that falls where nothing is seen: the sectors at the border of what is seen (grazing views thin
     # the wall there unevenly, which reads as the window's edge) may have placed the window; judged without
     # them as well, the smaller turn of the two stands (a side no edge placed moves no further than it must)
     judged = _coarse_side(ratio, seen & np.roll(seen, 1) & np.roll(seen, -1), centres, sides,
                           geometry.gap_half_angle)
-    return side if judged is None or abs(judged[0]) >= abs(side) else judged[0]
+    if judged is not None and abs(judged[0]) < abs(side):
+        side, allowed = judged[0], judged[1]
+    return SideMeasurement(side, (allowed[1] - allowed[0]) / 2 + width / 2)
 
 
 def _coarse_side(ratio: np.ndarray, judged: np.ndarray, centres: np.ndarray, sides: np.ndarray, half_angle: float

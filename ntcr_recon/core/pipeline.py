@@ -237,18 +237,20 @@ class Reconstructor:
                                options.min_notch_width_fraction, tip_s, observed=coords, wall=wall)
         # the robot's roll in its clamp is never exact: the side the notches open to, measured; where it is
         # off the configured one the tube frame turns to it and the notches are found again in that frame
-        notch_side, unsettled = geometry.notch_side, None
+        notch_side, unsettled, side_uncertainty = geometry.notch_side, None, None
         configured = centerline, coords, rays, measured, found, frames
         for turn in range(2):  # the second pass measures in the turned frame (the window fits better there)
-            roll = measure_notch_side(coords, found, geometry, centerline, settings.gate, footprint, wall=wall)
-            if roll is None:
+            side_measured = measure_notch_side(coords, found, geometry, centerline, settings.gate, footprint,
+                                               wall=wall)
+            if side_measured is None:
                 break
+            roll, side_uncertainty = side_measured
             if abs(roll) <= ROLL_TO_REFRAME:
                 notch_side += roll  # reported as measured; too small a turn to find the notches again for
                 break
             if turn:  # turned to the side measured, the notches should open there: a measurement that does
                 # not settle is no measurement, and the configured frame is kept
-                unsettled = (notch_side - geometry.notch_side, roll)
+                unsettled, side_uncertainty = (notch_side - geometry.notch_side, roll), None
                 notch_side = geometry.notch_side
                 centerline, coords, rays, measured, found, frames = configured
                 break
@@ -259,6 +261,7 @@ class Reconstructor:
                                    options.notch_kernel_px, options.min_notch_width_fraction, tip_s,
                                    observed=turned[1], wall=wall)
             if len(again) < len(found):
+                side_uncertainty = None
                 break  # the turned frame explains the data worse: the measurement was not to be trusted
             notch_side += roll
             (centerline, coords), rays, measured, found = turned, turned_rays, turned_measured, again
@@ -342,6 +345,9 @@ class Reconstructor:
             cross_view_spread=cross_view.spread, unsupported=cross_view.unsupported, backbone_shift=backbone_shift)
         quality = {**quality, "tip_refinement": refinement,
                    "centerline_backbone_shift_mm": None if backbone_shift is None else backbone_shift * 1e3,
+                   # None: the side could not be measured (or did not settle): the configured one is kept
+                   "notch_side_uncertainty_deg": None if side_uncertainty is None else float(np.degrees(
+                       side_uncertainty)),
                    "edge_band_mrad": {name: band * 1e3 for name, band in self._edge_bands.items()}}
         self._prior = fitted
         self._update_roi(relocated)
