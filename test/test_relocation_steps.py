@@ -326,17 +326,23 @@ def test_alignment_keeps_the_axis_between_cameras_at_different_distances():
     assert abs(result.bias_binormal) < 0.005e-3
 
 
+def opposed_cameras_on_a_straight_tube(length: float = 30e-3):
+    """A straight tube's wall (8 notches' geometry, none cut) seen by opposed cameras at -y and +y, each point by the
+    one on its side: (geometry, points, camera index, viewpoints per point, centreline)."""
+    geometry = TubeGeometry(notch_count=8, notch_pitch=3e-3)
+    points = wall_points(length, rng=np.random.default_rng(4))
+    camera = (points[:, 1] > 0).astype(np.intp)
+    viewpoints = np.array([[0.0, -0.09, 0.015], [0.0, 0.09, 0.015]])[camera]
+    return geometry, points, camera, viewpoints, straight_centerline(length)
+
+
 def test_cross_view_spread_is_how_far_each_camera_alone_puts_the_axis_across_its_view():
     """Opposed cameras at -y and +y see a straight tube on its axis: they agree (spread under 5 um). Then cam_a's
     wall is moved 0.1 mm across its view (+x), as a matcher's window reaching the slots on one side of its view
     moves it: cam_a alone puts the axis 0.1 mm off, cam_b on it, an RMS over the cameras of 0.1 / sqrt(2) mm;
     moved along its view (-y, a level) it places the axis no differently across."""
     length = 30e-3
-    geometry = TubeGeometry(notch_count=8, notch_pitch=3e-3)
-    points = wall_points(length, rng=np.random.default_rng(4))
-    camera = (points[:, 1] > 0).astype(np.intp)
-    viewpoints = np.array([[0.0, -0.09, 0.015], [0.0, 0.09, 0.015]])[camera]
-    centerline = straight_centerline(length)
+    geometry, points, camera, viewpoints, centerline = opposed_cameras_on_a_straight_tube(length)
 
     def spread(moved_by):
         moved = points + np.where(camera[:, None] == 0, moved_by, 0.0)
@@ -365,11 +371,7 @@ def test_a_stretch_where_no_camera_sees_its_wall_facing_it_is_reported_unsupport
     whose window meets the background): the windows there hold no trusted point, and the stretch from 21 mm to the
     end's margin is reported; a 3 mm window (one notch pitch) thinned alone is bridged, not reported."""
     length = 30e-3
-    geometry = TubeGeometry(notch_count=8, notch_pitch=3e-3)
-    points = wall_points(length, rng=np.random.default_rng(4))
-    camera = (points[:, 1] > 0).astype(np.intp)
-    viewpoints = np.array([[0.0, -0.09, 0.015], [0.0, 0.09, 0.015]])[camera]
-    centerline = straight_centerline(length)
+    geometry, points, camera, viewpoints, centerline = opposed_cameras_on_a_straight_tube(length)
     margin = alignment.SILHOUETTE_MARGIN_PX * FOOTPRINT
 
     def unsupported(kept):
