@@ -220,8 +220,8 @@ class Reconstructor:
                 centerline = leveled
                 coords, frames = centerline.project_with_frames(cloud.xyz, coords.s)
             # what each camera alone says about the axis across its view: the fused axis is known no better
-            cross_view = cross_view_spread(centerline, coords, frames, viewpoints, seen_by, len(self._camera_origins),
-                                       geometry, settings.gate, footprint, end)
+            cross_view = cross_view_spread(centerline, coords, frames, viewpoints, seen_by,
+                                           len(self._camera_origins), geometry, settings.gate, footprint, end)
         # each point as its camera saw it: along its viewing ray onto the wall (core.relocation)
         rays = None if viewpoints is None else along_rays(coords, frames, viewpoints, geometry.outer_radius,
                                                           settings.gate)

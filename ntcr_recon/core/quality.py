@@ -6,7 +6,8 @@ camera alone), the wall fit's residual, the measured notch side against the conf
 bias the alignment removed and how uncertain the centreline still is, the tip against the robot's known
 length, the pixel footprint against the tube, the depth quantisation seen in the frames, each notch's width
 against the width its measured bend implies, how far the tip's position rests on the rim erosion given back,
-and how much deeper the wall reads between the notches than on the plain tube (a lean no fit can see). Every
+and how much deeper the wall reads between the notches than on the plain tube (a lean no fit can see), and
+the stretches where no camera saw the wall facing it (where the centreline's error was not measured). Every
 figure is in the unit its key names; the warnings are sentences a user can act on. relocation_node puts them
 on /diagnostics, the CLI prints them.
 """
