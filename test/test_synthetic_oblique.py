@@ -106,6 +106,9 @@ def test_a_tube_whose_wall_a_matcher_spoils_against_the_background_is_followed_a
     assert tip < 2e-3
     assert unsupported and any("no camera saw the tube's wall facing it" in w for w in relocation.warnings)
     assert np.all(error[~near_unsupported] <= 3 * stated)
+    # no depth image measured an edge band here (the end is coarse): no warning may say one did
+    assert relocation.quality["tip_refinement"].startswith("coarse end")
+    assert not any("edge band measured" in warning for warning in relocation.warnings)
 
 
 @pytest.mark.parametrize("notch_side_deg", [90.0, -90.0])

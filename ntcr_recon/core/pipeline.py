@@ -300,8 +300,10 @@ class Reconstructor:
                                           [(n.start_s, n.end_s) for n in notches], footprint)
             else:
                 refinement = "coarse end (the end turns towards a camera; no edge band measured)"
-        if refinement.startswith("coarse end") and tip_uncertainty is None:
-            tip_uncertainty = self._unrefined_tip_uncertainty(centerline, tip_s, footprint)
+        # a tip left at the coarse end is known as well as the band the matcher spoils there, not given back
+        # (assess is told no uncertainty then: nothing measured the erosion given back)
+        seen_uncertainty = (tip_uncertainty if tip_uncertainty is not None
+                            else self._unrefined_tip_uncertainty(centerline, tip_s, footprint))
         # how far the centreline may be off: what stereo beside the notches does to the wall (core.quality)
         thinning = notched_thinning(coords.radius - geometry.outer_radius, coords.s,
                                     cut_intervals(geometry, centerline, 0.0), tip_s, settings.gate, 2 * footprint,
@@ -314,9 +316,7 @@ class Reconstructor:
         total_bend = float(centerline.bend_angle(0.0, tip_s))
         length_known = None if geometry.length_tolerance is None else float(np.hypot(
             geometry.length_tolerance, geometry.neutral_axis_offset * centreline_off / geometry.notch_pitch))
-        along = with_known_length(tip_s, tip_uncertainty if tip_uncertainty is not None
-                                  else abs(tip_s - eroded_end) + footprint / 2,
-                                  geometry.bent_length(total_bend), length_known)
+        along = with_known_length(tip_s, seen_uncertainty, geometry.bent_length(total_bend), length_known)
         tip_erosion, tip_s = tip_s - eroded_end, along.s
         # the rims the matcher moves (over the cut faces the cameras see), against the spines' known length
         notches = calibrate_rims(notches, geometry, centerline, None if seen_by is None else self._camera_origins)
