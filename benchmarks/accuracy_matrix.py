@@ -170,14 +170,17 @@ def measure(shape, relocation) -> dict:
     s = np.linspace(0.0, shape.length, 4000)
     true_centerline, _ = shape.centerline(s)
     true_tip, tip_frame = shape.tip_pose()
+    tip_error = relocation.tip - true_tip
+    along = float(tip_error @ tip_frame[:, 2])
     return {
         "found": len(found), "expected": len(truth), "spurious": spurious,
         "width_mae": float(errors.mean()) if errors.size else math.inf,
         "width_max": float(errors.max()) if errors.size else math.inf,
         "centerline": centerline_rmse(relocation.centerline.points, true_centerline),
         "tip": float(np.linalg.norm(relocation.tip - true_tip)),
-        # signed along the true tip's tangent: + past the tip, - short of it
-        "tip_along": float((relocation.tip - true_tip) @ tip_frame[:, 2]),
+        # signed along the true tip's tangent: + past the tip, - short of it; and what is left, across it
+        "tip_along": along,
+        "tip_across": float(np.linalg.norm(tip_error - along * tip_frame[:, 2])),
         "surface": float(np.mean(shape.surface_distance(relocation.relocated.xyz))),
     }
 
@@ -284,10 +287,12 @@ def main() -> int:
     silent = [f"{r['row']} ({','.join(unwarned(r))})" for r in results if unwarned(r)]
     print(f"\nsummary: {len(meeting)}/{len(floored)} rows at cameras <= 110 mm meet every floor; "
           f"silent misses: {', '.join(silent) if silent else 'none'}")
-    along = [r["tip_along"] for r in floored if "error" not in r and abs(r["tip_along"]) < FLOORS["tip"] * 10]
-    if along:
-        print(f"  tip along the tube (cameras <= 110 mm, not cut short): median {np.median(along) * 1e3:+.3f} mm, "
-              f"range {min(along) * 1e3:+.3f} .. {max(along) * 1e3:+.3f} mm")
+    whole = [r for r in floored if "error" not in r and abs(r["tip_along"]) < FLOORS["tip"] * 10]
+    if whole:
+        along, across = np.array([[r["tip_along"], r["tip_across"]] for r in whole]).T * 1e3
+        print(f"  tip along the tube (cameras <= 110 mm, not cut short): median {np.median(along):+.3f} mm, "
+              f"range {along.min():+.3f} .. {along.max():+.3f} mm; across it: median {np.median(across):.3f} mm, "
+              f"worst {across.max():.3f} mm")
     for key in ("width_mae", "width_max", "centerline", "tip", "surface"):
         values = [r[key] for r in results if "error" not in r and math.isfinite(r[key])]
         if values:

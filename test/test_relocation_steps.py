@@ -630,6 +630,8 @@ def test_quality_gives_the_centreline_an_uncertainty_and_warns_above_its_floor()
     assert not any(warning.startswith("the tip") for warning in quiet)
     assert any(warning.startswith("the tip") and "and by 0.17 mm across it (the centreline's, at its free end)"
                in warning for warning in warnings)
+    assert quality["tip_across_uncertainty_mm"] == pytest.approx(math.sqrt(3) * 0.1)
+    assert assessed(None, None)[0]["tip_across_uncertainty_mm"] is None  # nothing measured the centreline
     # looking into the slots, the deficit may lean the axis by twice it: 0.03 and 2 x 0.04 mm make 0.085 mm
     looking_quality, looking = assessed(0.03e-3, 0.04e-3, looking=("cam_a",))
     assert looking_quality["centerline_uncertainty_mm"] == pytest.approx(math.hypot(0.03, 0.08))

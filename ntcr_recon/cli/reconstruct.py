@@ -72,7 +72,8 @@ def main(args: argparse.Namespace) -> int:
               f"(configured {quality['notch_side_configured_deg']:.1f}), centreline bias towards the notch side "
               f"{quality['centerline_bias_mm']['notch_side']:+.3f} mm (removed), centreline uncertain by "
               f"{_millimetres(quality.get('centerline_uncertainty_mm'))}, tip by "
-              f"{_millimetres(quality.get('tip_uncertainty_mm'))}", file=sys.stderr)
+              f"{_millimetres(quality.get('tip_uncertainty_mm'))} along the tube and "
+              f"{_millimetres(quality.get('tip_across_uncertainty_mm'))} across it", file=sys.stderr)
     for warning in result["warnings"]:
         print(f"ntcr-recon reconstruct: warning: {warning}", file=sys.stderr)
     return 0

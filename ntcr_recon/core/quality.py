@@ -245,6 +245,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
         "tip_s_mm": tip_s * 1e3, "tip_seen_s_mm": seen_end * 1e3, "expected_length_mm": expected_length * 1e3,
         "tip_length_weighed": bool(tip_along is not None and tip_along.length_weighed),
         "tip_uncertainty_mm": tip_uncertainty * 1e3,
+        "tip_across_uncertainty_mm": None if uncertainty is None else tip_across * 1e3,
         "notch_width_vs_bend_mm": {str(i): d * 1e3 for i, d in sorted(off_model.items())},
         "pixel_footprint_mm": footprint * 1e3,
         "depth_step_mm": {k: v * 1e3 for k, v in depth_steps.items()},
