@@ -177,7 +177,7 @@ def measure(shape, relocation) -> dict:
         "width_mae": float(errors.mean()) if errors.size else math.inf,
         "width_max": float(errors.max()) if errors.size else math.inf,
         "centerline": centerline_rmse(relocation.centerline.points, true_centerline),
-        "tip": float(np.linalg.norm(relocation.tip - true_tip)),
+        "tip": float(np.linalg.norm(tip_error)),
         # signed along the true tip's tangent: + past the tip, - short of it; and what is left, across it
         "tip_along": along,
         "tip_across": float(np.linalg.norm(tip_error - along * tip_frame[:, 2])),
