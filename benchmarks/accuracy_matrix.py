@@ -214,6 +214,11 @@ def unwarned(figures: dict) -> list[str]:
     return [miss for miss in figures["misses"] if not any(word in text for word in SPOKEN_OF[miss])]
 
 
+def silent_misses(results: list[dict]) -> list[str]:
+    """Each result with a silent miss, as 'name (the floors no warning spoke of)'."""
+    return [f"{r['row']} ({','.join(missed)})" for r in results if (missed := unwarned(r))]
+
+
 def run_row(row: Row, frames: int = 2, seed: int = 1, method: str | None = None) -> dict:
     """Render, reconstruct and measure one row; the figures, the misses and the result's warnings."""
     from ntcr_recon.core.pipeline import ReconstructionError
@@ -284,7 +289,7 @@ def main() -> int:
                     print(f"    ! {warning}")
     floored = [r for r in results if r["floors_apply"]]
     meeting = [r for r in floored if not r["misses"]]
-    silent = [f"{r['row']} ({','.join(unwarned(r))})" for r in results if unwarned(r)]
+    silent = silent_misses(results)
     print(f"\nsummary: {len(meeting)}/{len(floored)} rows at cameras <= 110 mm meet every floor; "
           f"silent misses: {', '.join(silent) if silent else 'none'}")
     whole = [r for r in floored if "error" not in r and abs(r["tip_along"]) < FLOORS["tip"] * 10]

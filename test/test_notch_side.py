@@ -49,9 +49,9 @@ def rolled_robot_wall(roll: float, seen_half_width: float = math.radians(80.0)):
 def test_notch_side_of_a_rolled_robot_is_measured_within_a_degree(roll_deg):
     centerline, coords, notches = rolled_robot_wall(math.radians(roll_deg))
     measured = measure_notch_side(coords, notches, GEOMETRY, centerline, 0.8e-3, FOOTPRINT)
+    assert measured is not None
     print(f"\nnotches open {roll_deg:+.1f} deg from the configured side: measured {math.degrees(measured.roll):+.2f} "
           f"+- {math.degrees(measured.uncertainty):.2f} deg")
-    assert measured is not None
     assert abs(math.degrees(measured.roll) - roll_deg) <= 1.0
     assert math.degrees(measured.uncertainty) <= 2.0  # both window edges placed it
 
