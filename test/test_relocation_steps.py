@@ -355,6 +355,15 @@ def test_cross_view_spread_is_how_far_each_camera_alone_puts_the_axis_across_its
           f"(expected {0.1e3 / math.sqrt(2):.1f}); along it: {along * 1e6:.1f} um")
     assert agreed < 10e-6 and along < 10e-6
     assert across == pytest.approx(0.1e-3 / math.sqrt(2), rel=0.1)
+    # moved over the last window only (a matcher reaching the slots of the last notch), the spread over the length
+    # stays small and the spread at the end (`distal`) is the camera's own 0.1 mm
+    moved = points + np.where((camera[:, None] == 0) & (points[:, 2:] > length - 3e-3), [0.1e-3, 0.0, 0.0], 0.0)
+    coords, frames = centerline.project_with_frames(moved)
+    at_end = cross_view_spread(centerline, coords, frames, viewpoints, camera, 2, geometry, 0.8e-3, FOOTPRINT, length)
+    print(f"cam_a's wall moved 0.1 mm over the last window: over the length {at_end.spread * 1e6:.1f} um, at the "
+          f"end {at_end.distal * 1e6:.1f} um")
+    assert at_end.distal == pytest.approx(0.1e-3 / math.sqrt(2), rel=0.1)
+    assert at_end.spread < 0.5 * at_end.distal
     # too few trusted points in every window (the tube seen only edge-on): nothing to tell
     edge_on = np.abs(points[:, 0]) > 0.99 * R_O
     coords, frames = centerline.project_with_frames(points[edge_on])
@@ -632,6 +641,17 @@ def test_quality_gives_the_centreline_an_uncertainty_and_warns_above_its_floor()
                in warning for warning in warnings)
     assert quality["tip_across_uncertainty_mm"] == pytest.approx(math.sqrt(3) * 0.1)
     assert assessed(None, None)[0]["tip_across_uncertainty_mm"] is None  # nothing measured the centreline
+    # where the cameras disagree more at the end than over the length, the tip is known no better than their axes
+    # there lie apart, 2 x their RMS about the fused one: 0.05 mm over the length, 0.08 mm at the end make 0.16 mm
+    ends_apart = assess(geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=[], notch_signals={},
+                        coords_s=np.linspace(0.0, 50e-3, 1000), camera=np.zeros(1000, np.int8), tip_s=50e-3,
+                        total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.0, notch_side=0.0, configured_side=0.0,
+                        bias_notch_side=0.0, bias_binormal=0.0, depth_steps={}, notched_thinning=0.04e-3,
+                        cross_view_spread=0.03e-3, distal_cross_view=0.08e-3)
+    assert ends_apart[0]["tip_across_uncertainty_mm"] == pytest.approx(0.16)
+    assert ends_apart[0]["centerline_cross_view_at_tip_mm"] == pytest.approx(0.08)
+    assert any("and by 0.16 mm across it (the cameras' axes that far apart across their views at the end)" in warning
+               for warning in ends_apart[1])
     # looking into the slots, the deficit may lean the axis by twice it: 0.03 and 2 x 0.04 mm make 0.085 mm
     looking_quality, looking = assessed(0.03e-3, 0.04e-3, looking=("cam_a",))
     assert looking_quality["centerline_uncertainty_mm"] == pytest.approx(math.hypot(0.03, 0.08))

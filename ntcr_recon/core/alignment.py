@@ -241,6 +241,7 @@ class CrossView:
     spread: float | None  # m, RMS over windows and cameras of each camera's own axis across its view; None: none
     unsupported: tuple[tuple[float, float], ...] = ()  # s intervals (m) of two windows or more where no camera
                                                          # holds enough trusted wall points to place the axis
+    distal: float | None = None  # m, the same RMS over the cameras in the last window where any places the axis
 
 
 def cross_view_spread(centerline: Centerline, coords: TubeCoordinates, frames: tuple, viewpoints: np.ndarray,
@@ -263,6 +264,8 @@ def cross_view_spread(centerline: Centerline, coords: TubeCoordinates, frames: t
     there followed whatever points lay near it - flying pixels a matcher mixed with the background, a wall seen
     edge-on - and nothing measured how far off it is: those stretches are `unsupported` (a window counts in
     proportion to its part between the base's and the end's margins; one under half inside is not judged).
+    `distal` is the spread in the last window alone: at the free end no window beyond holds the axis, and the
+    tip is known across the tube no better than the cameras agree there.
     """
     window = geometry.notch_pitch
     away_from_cuts = ~inside_intervals(coords.s, cut_intervals(geometry, centerline, cut_margin_px * footprint))
@@ -274,8 +277,11 @@ def cross_view_spread(centerline: Centerline, coords: TubeCoordinates, frames: t
     solvable = (count >= minimum_points) & (spread > (min_sine_spread * count) ** 2)
     if not np.any(solvable):
         return CrossView(None, unsupported)
-    slope = (count * sine_offset - sine * offset)[solvable] / spread[solvable]
-    return CrossView(float(np.sqrt(np.mean(slope ** 2))), unsupported)
+    slope = np.full(count.shape, np.nan)
+    slope[solvable] = (count * sine_offset - sine * offset)[solvable] / spread[solvable]
+    last = slope[np.flatnonzero(solvable.any(axis=1))[-1]]
+    return CrossView(float(np.sqrt(np.nanmean(slope ** 2))), unsupported,
+                     float(np.sqrt(np.nanmean(last ** 2))))
 
 
 def _unsupported(best_count: np.ndarray, window: float, margin: float, end_s: float, minimum_points: int

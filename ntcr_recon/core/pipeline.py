@@ -342,7 +342,8 @@ class Reconstructor:
             tip_erosion=tip_erosion, tip_uncertainty=tip_uncertainty, tip_position=tip, tip_along=along,
             crop_box=self.config.crop_box(),
             notched_thinning=thinning, looking_into_slots=looking, tip_from_cap=from_cap, side_unsettled=unsettled,
-            cross_view_spread=cross_view.spread, unsupported=cross_view.unsupported, backbone_shift=backbone_shift)
+            cross_view_spread=cross_view.spread, distal_cross_view=cross_view.distal,
+            unsupported=cross_view.unsupported, backbone_shift=backbone_shift)
         quality = {**quality, "tip_refinement": refinement,
                    "centerline_backbone_shift_mm": None if backbone_shift is None else backbone_shift * 1e3,
                    # None: the side could not be measured (or did not settle): the configured one is kept

@@ -35,6 +35,9 @@ TIP_FLOOR = 0.15e-3
 CENTERLINE_FLOOR = 0.08e-3
 # An error growing linearly from the clamped base to the free end is sqrt(3) times its RMS over the length there.
 FREE_END_FACTOR = math.sqrt(3.0)
+# Two cameras whose own axes at the end lie +-b about the fused one (an RMS of b) place it 2 b apart: the free end
+# follows whichever wall the matcher biased there, and nothing beyond it holds the axis.
+DISTAL_CROSS_VIEW_FACTOR = 2.0
 
 
 def camera_coverage(s: np.ndarray, camera: np.ndarray | None, camera_names: tuple[str, ...], tip_s: float,
@@ -111,7 +114,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
            crop_box: tuple[np.ndarray, np.ndarray] | None = None,
            notched_thinning: float | None = None, looking_into_slots: tuple[str, ...] = (),
            tip_from_cap: bool = False, side_unsettled: tuple[float, float] | None = None,
-           cross_view_spread: float | None = None, tip_along=None,
+           cross_view_spread: float | None = None, distal_cross_view: float | None = None, tip_along=None,
            backbone_shift: float | None = None,
            unsupported: tuple[tuple[float, float], ...] = ()) -> tuple[dict, list[str]]:
     """The `quality` document and the warnings (see the module docstring). tip_uncertainty: how well the tip's
@@ -125,7 +128,9 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
     its uncertainty is the tip's then, and the end seen is what is judged against the robot's length.
     backbone_shift: how far alignment.level_by_backbone moved the axis (m; None or 0: no camera faced the
     backbone), which then places it along the views, not the slots' lean. unsupported: the stretches of s
-    where no camera saw trusted wall (alignment.CrossView), where no uncertainty was measured."""
+    where no camera saw trusted wall (alignment.CrossView), where no uncertainty was measured. distal_cross_view:
+    CrossView.distal, the cameras' spread across their views in the last window, which bounds the tip across
+    the tube from below where it exceeds what the whole length implies."""
     warnings: list[str] = []
     r_o, diameter = geometry.outer_radius, geometry.outer_diameter
     found = sorted(n.index for n in notches)
@@ -157,9 +162,13 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
     lean = 2.0 * notched_thinning if notched_thinning is not None and looking_into_slots else 0.0
     levelled = bool(backbone_shift)
     uncertainty = centerline_uncertainty(cross_view_spread, notched_thinning, looking_into_slots, levelled)
-    # the tip sits on the centreline's free end, where an error growing along the tube is sqrt(3) its RMS
-    tip_across = FREE_END_FACTOR * (uncertainty or 0.0)
-    across = f", and by {tip_across * 1e3:.2f} mm across it (the centreline's, at its free end)" if tip_across else ""
+    # the tip sits on the centreline's free end, where an error growing along the tube is sqrt(3) its RMS, and
+    # where the cameras disagree in the last window, their own axes' distance apart
+    end_spread = DISTAL_CROSS_VIEW_FACTOR * (distal_cross_view or 0.0)
+    tip_across = max(FREE_END_FACTOR * (uncertainty or 0.0), end_spread)
+    why = ("the cameras' axes that far apart across their views at the end" if end_spread >= tip_across
+           else "the centreline's, at its free end")
+    across = f", and by {tip_across * 1e3:.2f} mm across it ({why})" if tip_across else ""
     tip_total = math.hypot(tip_uncertainty, tip_across)
     if tip_total > TIP_FLOOR and tip_from_cap:
         warnings.append(f"the tip is the end cap's plane, whose points the stereo matcher smeared over "
@@ -252,6 +261,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
         "notched_thinning_mm": None if notched_thinning is None else notched_thinning * 1e3,
         "cameras_looking_into_slots": list(looking_into_slots),
         "centerline_cross_view_mm": None if cross_view_spread is None else cross_view_spread * 1e3,
+        "centerline_cross_view_at_tip_mm": None if distal_cross_view is None else distal_cross_view * 1e3,
         "centerline_uncertainty_mm": None if uncertainty is None else uncertainty * 1e3,
         "centerline_unsupported_mm": [[start * 1e3, end * 1e3] for start, end in unsupported],
     }
