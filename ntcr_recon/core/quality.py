@@ -35,7 +35,7 @@ TIP_FLOOR = 0.15e-3
 CENTERLINE_FLOOR = 0.08e-3
 # An error growing linearly from the clamped base to the free end is sqrt(3) times its RMS over the length there.
 FREE_END_FACTOR = math.sqrt(3.0)
-# Two cameras whose own axes at the end lie +-b about the fused one (an RMS of b) place it 2 b apart: the free end
+# Two cameras whose own axes at the end lie +-b about the fused one (an RMS of b) lie 2 b apart: the free end
 # follows whichever wall the matcher biased there, and nothing beyond it holds the axis.
 DISTAL_CROSS_VIEW_FACTOR = 2.0
 
