@@ -618,12 +618,12 @@ def test_quality_gives_the_centreline_an_uncertainty_and_warns_above_its_floor()
     assert centerline_uncertainty(0.06e-3, 0.04e-3, ("cam_a",)) == pytest.approx(0.1e-3)
     assert centerline_uncertainty(None, None) is None
 
-    def assessed(spread, thinning, looking=()):
+    def assessed(spread, thinning, looking=(), at_end=None):
         return assess(geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=[], notch_signals={},
                       coords_s=np.linspace(0.0, 50e-3, 1000), camera=np.zeros(1000, np.int8), tip_s=50e-3,
                       total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.0, notch_side=0.0, configured_side=0.0,
                       bias_notch_side=0.1e-3, bias_binormal=0.0, depth_steps={}, notched_thinning=thinning,
-                      looking_into_slots=looking, cross_view_spread=spread)
+                      looking_into_slots=looking, cross_view_spread=spread, distal_cross_view=at_end)
 
     quality, warnings = assessed(0.06e-3, 0.08e-3)
     print("\n" + "\n".join(warnings))
@@ -643,11 +643,7 @@ def test_quality_gives_the_centreline_an_uncertainty_and_warns_above_its_floor()
     assert assessed(None, None)[0]["tip_across_uncertainty_mm"] is None  # nothing measured the centreline
     # where the cameras disagree more at the end than over the length, the tip is known no better than their axes
     # there lie apart, 2 x their RMS about the fused one: 0.05 mm over the length, 0.08 mm at the end make 0.16 mm
-    ends_apart = assess(geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=[], notch_signals={},
-                        coords_s=np.linspace(0.0, 50e-3, 1000), camera=np.zeros(1000, np.int8), tip_s=50e-3,
-                        total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.0, notch_side=0.0, configured_side=0.0,
-                        bias_notch_side=0.0, bias_binormal=0.0, depth_steps={}, notched_thinning=0.04e-3,
-                        cross_view_spread=0.03e-3, distal_cross_view=0.08e-3)
+    ends_apart = assessed(0.03e-3, 0.04e-3, at_end=0.08e-3)
     assert ends_apart[0]["tip_across_uncertainty_mm"] == pytest.approx(0.16)
     assert ends_apart[0]["centerline_cross_view_at_tip_mm"] == pytest.approx(0.08)
     assert any("and by 0.16 mm across it (the cameras' axes that far apart across their views at the end)" in warning
