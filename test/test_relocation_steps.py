@@ -143,6 +143,49 @@ def test_one_notch_is_found_where_the_comb_puts_it_by_the_signal_that_shows_it(d
     assert abs(notches[0].width - geometry.notch_width) < FOOTPRINT
 
 
+def _comb_tube(shift_of_notch_5: float = 0.0, window_unseen_from: float = np.inf, rng=None):
+    """A straight robot's outer wall with every notch open where the comb puts it (notch 5 moved along s by
+    `shift_of_notch_5`); past `window_unseen_from` the notch window holds only a stray point every 0.7 mm
+    (the notched side turned away from both cameras), the backbone side is still seen."""
+    geometry = TubeGeometry(notch_count=16)
+    points = wall_points(geometry.length, spacing=FOOTPRINT / 2)
+    phi = np.arctan2(points[:, 1], points[:, 0])
+    in_window = np.abs(phi) < geometry.gap_half_angle
+    centres = geometry.notch_centers_s + np.where(np.arange(16) == 5, shift_of_notch_5, 0.0)
+    cut = np.zeros(len(points), bool)
+    for centre in centres:
+        cut |= in_window & (np.abs(points[:, 2] - centre) < geometry.notch_width / 2)
+    keep = ~cut & ~(in_window & (points[:, 2] > window_unseen_from))
+    points = points[keep]
+    if rng is not None:
+        stray_s = np.arange(window_unseen_from, geometry.length, 0.7e-3)
+        stray_phi = rng.uniform(-geometry.gap_half_angle, geometry.gap_half_angle, len(stray_s))
+        strays = np.stack([R_O * np.cos(stray_phi), R_O * np.sin(stray_phi), stray_s], axis=1)
+        points = np.concatenate([points, strays])
+    centerline = straight_centerline(geometry.length + 2e-3)
+    return geometry, centerline, centerline.project(points)
+
+
+def test_no_notch_is_found_where_no_camera_sees_the_notched_side():
+    """Past 30 mm the window holds a few stray points: gaps between them are no slots seen through (once
+    read as notches of any width there, which then spoiled the rim calibration of every notch)."""
+    geometry, centerline, coords = _comb_tube(window_unseen_from=30e-3, rng=np.random.default_rng(4))
+    notches = detect_notches(coords, centerline, geometry, 0.8e-3, FOOTPRINT, 0.5, 0.25, geometry.length - 0.1e-3)
+    seen = [k for k, centre in enumerate(geometry.notch_centers_s) if centre + geometry.notch_width / 2 < 30e-3]
+    print(f"\nwindow unseen past 30 mm: found {[n.index for n in notches]}, seen {seen}")
+    assert [n.index for n in notches] == seen
+    for notch in notches:
+        assert abs(notch.width - geometry.notch_width) < FOOTPRINT
+
+
+def test_a_run_centred_off_its_notch_is_not_that_notch():
+    """Notch 5 cut 0.9 mm (0.6 widths) along from where the comb puts it: not taken as notch 5 (nor as 6)."""
+    geometry, centerline, coords = _comb_tube(shift_of_notch_5=0.6 * TubeGeometry().notch_width)
+    notches = detect_notches(coords, centerline, geometry, 0.8e-3, FOOTPRINT, 0.5, 0.25, geometry.length - 0.1e-3)
+    print(f"\nnotch 5 moved 0.6 widths: found {[n.index for n in notches]}")
+    assert [n.index for n in notches] == [k for k in range(16) if k != 5]
+
+
 def test_a_rim_the_matcher_mixed_with_the_floor_behind_it_is_measured_where_its_rays_put_it():
     """A see-through notch seen from a camera 16 mm further along the tube (looking down 10 degrees onto it): its
     end face is turned away, so the first 0.3 mm of wall past its end rim is a depth edge the matcher mixes with

@@ -29,6 +29,10 @@ from ntcr_recon.core.geometry import TubeGeometry
 from ntcr_recon.core.profile import coverage_profile
 from ntcr_recon.core.wall import median, robust_spread, surface_band
 
+# a notch window whose density plateau is under this share of the tube's (its 90th percentile) is seen by no
+# camera
+UNSEEN_PLATEAU_FRACTION = 0.1
+
 
 @dataclass(frozen=True)
 class Notch:
@@ -67,8 +71,10 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
     The comb (count and pitch from the configuration, bent by the centreline: comb.expected_centres) is
     slid along s as one matched filter to where the evidence agrees best; each notch is then the run of
     evidence above one half around its comb position, its edges where the evidence crosses one half (for
-    coverage that is the half-plateau level: each depth pixel stands for a cell of one footprint). A rim the
-    matcher mixed with the floor behind it is measured where its viewing rays put it (_rim_gaps).
+    coverage that is the half-plateau level: each depth pixel stands for a cell of one footprint), centred
+    within the comb's notch (a run centred farther off is not that notch). A rim the matcher mixed with the
+    floor behind it is measured where its viewing rays put it (_rim_gaps). Where no camera sees the window
+    (its plateau under UNSEEN_PLATEAU_FRACTION of the tube's) no notch is found, nor one reaching into it.
 
     wall: spine_wall(observed) when the caller has it already.
     observed: the points' coordinates as measured, when `coords` are those points moved (e.g. along their
@@ -101,14 +107,19 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
     # local plateau: the upper quartile over one notch pitch (a gap fills at most half of it)
     span = max(int(round(geometry.notch_pitch / cell)), 3)
     plateau = percentile_filter(density, 75, size=2 * span + 1, mode="nearest")
-    coverage_gap = np.clip(1.0 - density / np.maximum(plateau, 1e-12), 0.0, 1.0)
+    # where no camera sees the window (the notched side turned away from both, or nearer one than its depth
+    # range), its density and plateau are a few stray points, whose gaps are no slots: the wall counts as
+    # missing there all along, so a run reaching into it has no far edge (it runs on to the tip, or wider than
+    # any notch) and is no notch
+    window_seen = plateau >= UNSEEN_PLATEAU_FRACTION * np.percentile(plateau, 90)
+    coverage_gap = np.where(window_seen, np.clip(1.0 - density / np.maximum(plateau, 1e-12), 0.0, 1.0), 1.0)
     rim_gaps = _rim_gaps(coords, seen, density, depressed, r_o, level, band, plateau, tip_s, cell, kernel)
     _, deep = coverage_profile(coords.s[depressed], 0.0, tip_s, cell, kernel)
     _, anything = coverage_profile(coords.s[in_window & (np.abs(offset) < gate + r_o - geometry.inner_radius)],
                                    0.0, tip_s, cell, kernel)
     # share of the window's points that are depressed; where the window holds few points it says nothing
     total = deep + density
-    depression = np.where(total > 0.25 * plateau, deep / np.maximum(total, 1e-12), 0.0)
+    depression = np.where(window_seen & (total > 0.25 * plateau), deep / np.maximum(total, 1e-12), 0.0)
     evidence = np.maximum(coverage_gap, depression)
     # the comb as one matched filter: shift along s (within half a pitch) maximising the evidence under it
     half_width = geometry.notch_width / 2.0
@@ -132,9 +143,9 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
         found = _run_around(grid, coverage_gap, centre, geometry.notch_pitch / 2)
         if found is not None and rim_gaps is not None:
             found = _with_mixed_rims(found, grid, rim_gaps, geometry, footprint, min_width_fraction)
-        if found is None or not _plausible(found, geometry, footprint, min_width_fraction):
+        if found is None or not _plausible(found, centre, geometry, footprint, min_width_fraction):
             found = _run_around(grid, depression, centre, geometry.notch_pitch / 2)
-        if found is None or not _plausible(found, geometry, footprint, min_width_fraction):
+        if found is None or not _plausible(found, centre, geometry, footprint, min_width_fraction):
             continue
         gaps.append(found)
         indices.append(k)
@@ -185,7 +196,7 @@ def _with_mixed_rims(found: tuple[float, float], grid: np.ndarray, rim_gaps: tup
     if for_start is not None:
         start = max(start, for_start[0])
     candidate = (start, end)
-    return candidate if _plausible(candidate, geometry, footprint, min_width_fraction) else found
+    return candidate if _plausible(candidate, centre, geometry, footprint, min_width_fraction) else found
 
 
 def _seen_through(grid: np.ndarray, anything: np.ndarray, plateau: np.ndarray, gaps: list[tuple[float, float]]
@@ -203,10 +214,14 @@ def _seen_through(grid: np.ndarray, anything: np.ndarray, plateau: np.ndarray, g
     return (stop <= first) | (held < 0.5 * level)
 
 
-def _plausible(gap: tuple[float, float], geometry: TubeGeometry, footprint: float, min_width_fraction: float) -> bool:
-    """Not narrower than the configured fraction of a notch, not wider than a notch could look."""
+def _plausible(gap: tuple[float, float], comb_centre: float, geometry: TubeGeometry, footprint: float,
+               min_width_fraction: float) -> bool:
+    """Not narrower than the configured fraction of a notch, not wider than a notch could look, and centred
+    within the notch where the comb puts it (the comb places a notch to a small fraction of its width, so a
+    run centred farther off is something else - and no two notches can take the same run)."""
     width = gap[1] - gap[0]
-    return min_width_fraction * geometry.notch_width <= width <= 2.0 * geometry.notch_width + 2 * footprint
+    return (min_width_fraction * geometry.notch_width <= width <= 2.0 * geometry.notch_width + 2 * footprint
+            and abs((gap[0] + gap[1]) / 2 - comb_centre) <= geometry.notch_width / 2)
 
 
 def _run_around(grid: np.ndarray, evidence: np.ndarray, centre: float, reach: float) -> tuple[float, float] | None:
