@@ -214,14 +214,15 @@ def _seen_through(grid: np.ndarray, anything: np.ndarray, plateau: np.ndarray, g
     return (stop <= first) | (held < 0.5 * level)
 
 
-def _plausible(gap: tuple[float, float], comb_centre: float, geometry: TubeGeometry, footprint: float,
+def _plausible(gap: tuple[float, float], centre: float, geometry: TubeGeometry, footprint: float,
                min_width_fraction: float) -> bool:
     """Not narrower than the configured fraction of a notch, not wider than a notch could look, and centred
-    within the notch where the comb puts it (the comb places a notch to a small fraction of its width, so a
-    run centred farther off is something else - and no two notches can take the same run)."""
+    within half a notch width of `centre`: where the comb puts the notch (it places one to a small fraction of
+    its width, so a run centred farther off is something else, and no two notches can take the same run), or
+    the gap a refinement started from."""
     width = gap[1] - gap[0]
     return (min_width_fraction * geometry.notch_width <= width <= 2.0 * geometry.notch_width + 2 * footprint
-            and abs((gap[0] + gap[1]) / 2 - comb_centre) <= geometry.notch_width / 2)
+            and abs((gap[0] + gap[1]) / 2 - centre) <= geometry.notch_width / 2)
 
 
 def _run_around(grid: np.ndarray, evidence: np.ndarray, centre: float, reach: float) -> tuple[float, float] | None:
