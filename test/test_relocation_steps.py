@@ -570,9 +570,15 @@ def test_quality_says_what_is_doubtful():
     notches = []
     s = np.linspace(0.0, 50e-3, 5000)
     camera = np.where(s < 40e-3, np.arange(len(s)) % 2, 1).astype(np.int8)  # cam_b alone past 40 mm
-    share, alone = camera_coverage(s, camera, ("cam_a", "cam_b"), 50e-3, 0.25e-3)
+    share, alone = camera_coverage(s, camera, ("cam_a", "cam_b"), 50e-3, 0.25e-3, pool=3.5e-3)
     assert alone["cam_b"] == pytest.approx(10e-3, abs=0.5e-3) and alone["cam_a"] == 0.0
     assert share["cam_a"] == pytest.approx(0.8, abs=0.02)
+    # a stray cam_a point every 0.7 mm past 40 mm (a twentieth of its density before) is no view of the tube
+    stray = (s >= 40e-3) & (np.arange(len(s)) % 70 == 0)
+    share_stray, alone_stray = camera_coverage(s, np.where(stray, 0, camera).astype(np.int8), ("cam_a", "cam_b"),
+                                               50e-3, 0.25e-3, pool=3.5e-3)
+    assert alone_stray["cam_b"] == pytest.approx(10e-3, abs=1e-3)
+    assert share_stray["cam_a"] == pytest.approx(0.8, abs=0.04)
     quality, warnings = assess(
         geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=notches, notch_signals={}, coords_s=s,
         camera=camera, tip_s=50e-3, total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.05e-3,

@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.ndimage import uniform_filter1d
 
 from ntcr_recon.core.comb import expected_centres, inside_intervals
 from ntcr_recon.core.tip import LENGTH_AGREEMENT_SIGMAS
@@ -24,6 +25,7 @@ from ntcr_recon.core.wall import median, surface_band
 
 # Thresholds, relative to the robot and the camera so that no robot is special.
 ONE_CAMERA_RUN_DIAMETERS = 1.0     # a distal stretch longer than this many diameters seen by one camera: warn
+SEEN_DENSITY_FRACTION = 0.2        # a camera saw a stretch holding this share of its typical wall points there
 SIDE_OFF_DEG = 10.0                # measured notch side this far from the configured one: warn
 TIP_SHORT_DIAMETERS = 0.5          # tip this many diameters short of (or past) the robot's length: warn
 FOOTPRINT_RADIUS_FRACTION = 1 / 7  # pixel footprint above this fraction of r_o: too few pixels across
@@ -41,16 +43,22 @@ DISTAL_CROSS_VIEW_FACTOR = 2.0
 
 
 def camera_coverage(s: np.ndarray, camera: np.ndarray | None, camera_names: tuple[str, ...], tip_s: float,
-                    cell: float) -> tuple[dict[str, float], dict[str, float]]:
-    """Per camera the share of [0, tip] (in cells) holding its wall points, and the length (m) of the distal
-    stretch that camera alone saw (0 when the other cameras see the tip too)."""
-    cells = max(int(np.ceil(tip_s / cell)), 1)
-    seen = np.zeros((len(camera_names), cells), dtype=bool)
-    inside = (s >= 0) & (s < tip_s)
+                    cell: float, pool: float) -> tuple[dict[str, float], dict[str, float]]:
+    """Per camera the share of [0, tip] (in cells) it saw, and the length (m) of the distal stretch that camera
+    alone saw (0 when the other cameras see the tip too). A camera saw a cell that holds its wall points, when
+    those within `pool` (m, centred on the cell) are at least SEEN_DENSITY_FRACTION of its typical count (their
+    90th percentile over the tube): a few stray points where it cannot see the tube (nearer than its minimum
+    depth) are no view of it."""
     if camera is None:
         return {}, {}
+    cells = max(int(np.ceil(tip_s / cell)), 1)
+    counts = np.zeros((len(camera_names), cells))
+    inside = (s >= 0) & (s < tip_s)
     index = np.minimum((s[inside] / cell).astype(np.intp), cells - 1)
-    seen[camera[inside].astype(np.intp), index] = True
+    np.add.at(counts, (camera[inside].astype(np.intp), index), 1.0)
+    pooled = uniform_filter1d(counts, size=max(int(round(pool / cell)), 1), axis=1, mode="nearest")
+    typical = np.percentile(pooled, 90, axis=1, keepdims=True)
+    seen = (counts > 0) & (pooled >= SEEN_DENSITY_FRACTION * typical)
     share = {name: float(seen[i].mean()) for i, name in enumerate(camera_names)}
     alone = {}
     for i, name in enumerate(camera_names):
@@ -180,7 +188,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
                         f"its position is uncertain by about {tip_uncertainty * 1e3:.2f} mm along the tube{weighed}"
                         f"{across}")
     cell = max(footprint, r_o / 8)
-    share, alone = camera_coverage(coords_s, camera, camera_names, tip_s, cell)
+    share, alone = camera_coverage(coords_s, camera, camera_names, tip_s, cell, pool=diameter)
     for name, length in alone.items():
         if length > ONE_CAMERA_RUN_DIAMETERS * diameter:
             warnings.append(f"the distal {length * 1e3:.0f} mm is seen by {name} alone: the tube's far side "
