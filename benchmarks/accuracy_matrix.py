@@ -91,6 +91,7 @@ def simulation_for(row: Row, seed: int, frames: int):
     from ntcr_recon.cli import simulate as simulate_command
     from ntcr_recon.core.geometry import TubeGeometry
     from ntcr_recon.core.kinematics import TubeShape
+    from ntcr_recon.sim.scene import Scene
 
     parser = argparse.ArgumentParser()
     simulate_command.add_arguments(parser)
@@ -105,9 +106,12 @@ def simulation_for(row: Row, seed: int, frames: int):
                 extra += ["--notch-side", "side-on"]
         if "largest" in args:
             # the robot's largest bend: every notch just short of closing, or - for a robot that could curl
-            # past a full turn that way - 300 degrees, short of touching itself
+            # past a full turn that way - 300 degrees, short of touching itself; and in either case short of
+            # curling down into its clamp post (which the simulator refuses to render)
             geometry = TubeGeometry(**row.robot) if row.robot else TubeGeometry()
             largest = min(0.97 * geometry.max_notch_bend * geometry.notch_count, math.radians(300.0))
+            while Scene(TubeShape.from_bend_angle(geometry, largest), []).props_clearance()[0] < 0:
+                largest -= math.radians(1.0)
             args[args.index("largest")] = f"{math.degrees(largest):.2f}"
         parsed = parser.parse_args([str(Path(folder) / row.name), *args, *extra])
         simulation = simulate_command.build_simulation(parsed)

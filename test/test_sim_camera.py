@@ -179,3 +179,18 @@ def test_notches_facing_a_camera_show_it_their_cuts():
                   for name, f in frames.items()}
     assert inside_cut["cam_a"] > 300
     assert inside_cut["cam_a"] > 5 * inside_cut["cam_b"]
+
+
+def test_a_robot_curled_into_its_clamp_post_is_refused():
+    from ntcr_recon.sim.simulate import Simulation
+
+    # 280 deg curls the tip down beside the 4 mm post; 300 deg drives it through the post
+    clearance, _ = Scene(TubeShape.from_bend_angle(GEOMETRY, math.radians(280)), []).props_clearance()
+    assert 0 < clearance < GEOMETRY.outer_radius
+    through, where = Scene(TubeShape.from_bend_angle(GEOMETRY, math.radians(300)), []).props_clearance()
+    assert through < -1e-3 and where > 0.8 * GEOMETRY.length
+    with pytest.raises(ValueError, match=r"passes 2\.\d\d mm into its clamp post .*bend it less"):
+        Simulation(TubeShape.from_bend_angle(GEOMETRY, math.radians(300)))
+    # straight up, the nearest the robot comes is its own base just above the post's top
+    straight, _ = Scene(TubeShape.straight(GEOMETRY), []).props_clearance()
+    assert straight == pytest.approx(GEOMETRY.outer_diameter - GEOMETRY.outer_radius, abs=1e-9)

@@ -73,6 +73,24 @@ class Scene:
     def surface(self):
         return self.shape.sample_surface_parts(self.surface_spacing)
 
+    def props_clearance(self) -> tuple[float, float]:
+        """How far (m) the robot's surface stays from the post and the table: the least distance from its
+        centreline, past the clamped base, to the post's solid cylinder or the table's plane, less the tube's
+        outer radius (negative: it passes through them), and the arc length (m) where it comes nearest."""
+        geometry = self.shape.geometry
+        base = np.asarray(geometry.base_position, dtype=float)
+        s = np.arange(geometry.outer_diameter, self.shape.length, geometry.outer_radius / 4)
+        points = np.asarray(self.shape.centerline(s)[0]) - base
+        table = -self.props.post_height
+        across = np.hypot(points[:, 0], points[:, 1]) - self.props.post_radius
+        above = np.maximum(points[:, 2], table - points[:, 2])  # > 0 outside the post's height
+        inside = (across < 0) & (above < 0)
+        to_post = np.where(inside, np.maximum(across, above),
+                           np.hypot(np.maximum(across, 0.0), np.maximum(above, 0.0)))
+        clearance = np.minimum(to_post, points[:, 2] - table) - geometry.outer_radius
+        nearest = int(np.argmin(clearance))
+        return float(clearance[nearest]), float(s[nearest])
+
     def camera(self, name: str) -> CameraPose:
         for camera in self.cameras:
             if camera.name == name:

@@ -80,6 +80,10 @@ class Simulation:
                                                      distances=self.camera_distances, yaw_deg=self.camera_yaw_deg,
                                                      pitch_deg=self.camera_pitch_deg)
         self.scene = Scene(self.shape, self.cameras, self.intrinsics, self.props)
+        clearance, where = self.scene.props_clearance()
+        if clearance < 0:
+            raise ValueError(f"the robot passes {-clearance * 1e3:.2f} mm into its clamp post or the table at "
+                             f"{where * 1e3:.1f} mm along it: no rig holds this pose (bend it less)")
 
     @cached_property
     def exact(self) -> dict[str, ExactFrame]:
