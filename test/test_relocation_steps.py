@@ -50,13 +50,30 @@ def wall_points(length: float, spacing: float = FOOTPRINT, angles=(-math.pi, mat
     return points
 
 
+def true_centerline(shape: TubeShape, samples: int = 2000) -> Centerline:
+    s = np.linspace(0.0, shape.length, samples)
+    points, frames = shape.centerline(s)
+    return Centerline(s, points, frames[:, :, 2], frames[:, :, 0], frames[:, :, 1])
+
+
+@pytest.mark.parametrize("bend_deg", [100, 179, 181, 250, 280])
+def test_a_bend_past_half_a_turn_is_read_whole(bend_deg):
+    shape = TubeShape.from_bend_angle(GEOMETRY, math.radians(bend_deg))
+    curve = true_centerline(shape)
+    turn = np.degrees(curve.bend_angle(0.0, curve.s))
+    assert turn[-1] == pytest.approx(bend_deg, abs=1e-6)  # the end tangents alone read 360 - bend past 180
+    assert np.all(np.diff(turn) > -1e-9)  # it grows along the robot, never folding back
+    assert np.degrees(curve.rolled(np.pi).bend_angle(0.0, shape.length)) == pytest.approx(-bend_deg, abs=1e-6)
+    # the turn between two places past the base, and from a later place back to an earlier one
+    assert np.degrees(curve.bend_angle(curve.s[200], curve.s[-1])) == pytest.approx(turn[-1] - turn[200], abs=1e-6)
+    assert np.degrees(curve.bend_angle(curve.s[-1], curve.s[200])) == pytest.approx(turn[200] - turn[-1], abs=1e-6)
+
+
 def test_comb_lies_on_the_configured_notches_of_a_straight_tube_and_shortens_with_bend():
     straight = straight_centerline(GEOMETRY.length)
     assert np.allclose(expected_centres(GEOMETRY, straight), GEOMETRY.notch_centers_s)
     shape = TubeShape.from_bend_angle(GEOMETRY, math.radians(60))
-    s = np.linspace(0.0, shape.length, 2000)
-    points, frames = shape.centerline(s)
-    bent = Centerline(s, points, frames[:, :, 2], frames[:, :, 0], frames[:, :, 1])
+    bent = true_centerline(shape)
     truth = np.array([n["center_s"] for n in shape.notch_table()])
     error = np.abs(expected_centres(GEOMETRY, bent) - truth).max()
     print(f"\ncomb on a 60 deg arc: worst notch centre {error * 1e3:.3f} mm off")

@@ -334,13 +334,39 @@ class Centerline:
 
     def bend_angle(self, s0, s1) -> np.ndarray | float:
         """Signed turn of the tangent from s0 to s1 (scalars or arrays, one of them of length 1 or both of the
-        same length), positive towards the notch side."""
+        same length), positive towards the notch side; past half a turn it goes on counting (a robot curled
+        through 250 deg reads 250, not the 110 between its end tangents)."""
         s0, s1 = (np.atleast_1d(np.asarray(s, dtype=float)) for s in (s0, s1))
         np.broadcast_shapes(s0.shape, s1.shape)  # refuses lengths that do not pair (the kernel would not check)
         if not s0.size or not s1.size:
             return np.empty(0)
         angle = _bend_kernel(self._samples, float(self.s[1] - self.s[0]), self.length, s0, s1)
+        for start in np.unique(s0):
+            pairs = np.flatnonzero(s0 == start) if s0.size > 1 else np.arange(angle.size)
+            angle[pairs] = self._unfolded(float(start), s1[pairs] if s1.size > 1 else s1, angle[pairs])
         return float(angle[0]) if angle.size == 1 else angle
+
+    def _unfolded(self, s0: float, s1: np.ndarray, angle: np.ndarray) -> np.ndarray:
+        """`angle` (the tangents' angle, at most pi) where the tangent turned past pi on the way from s0 to s1:
+        n pi + the angle (n even) or + pi less it (n odd), n the half turns counted in the plane the tangents
+        sweep (the least-squares plane through them), signed positive towards the notch side at s0."""
+        low, high = np.clip(min(s0, float(s1.min())), 0.0, self.length), np.clip(max(s0, float(s1.max())), 0.0,
+                                                                               self.length)
+        span = (self.s >= low) & (self.s <= high)
+        _, start_tangent, start_normal, _ = self.frames_at(np.array([np.clip(s0, 0.0, self.length)]))
+        tangents = self.tangents[span]
+        if len(tangents) < 2 or np.all(tangents @ start_tangent[0] > 0):
+            return angle  # the tangent never turned a right angle from its start: no half turn to count
+        plane_normal = np.linalg.eigh(tangents.T @ tangents)[1][:, 0]
+        towards = np.cross(plane_normal, start_tangent[0])
+        if towards @ start_normal[0] < 0:
+            towards = -towards
+        turn = np.unwrap(np.arctan2(tangents @ towards, tangents @ start_tangent[0]))
+        turn -= np.interp(s0, self.s[span], turn)
+        turn_at = np.interp(np.clip(s1, low, high), self.s[span], turn)
+        half_turns = np.floor(np.abs(turn_at) / np.pi)
+        folded = np.where(half_turns % 2 == 0, np.abs(angle), np.pi - np.abs(angle))
+        return np.where(half_turns > 0, np.sign(turn_at) * (half_turns * np.pi + folded), angle)
 
 
 @dataclass(frozen=True)
