@@ -341,10 +341,18 @@ class Centerline:
         if not s0.size or not s1.size:
             return np.empty(0)
         angle = _bend_kernel(self._samples, float(self.s[1] - self.s[0]), self.length, s0, s1)
+        if self._total_turning < 2 * np.pi / 3:
+            return float(angle[0]) if angle.size == 1 else angle  # no two tangents 120 deg apart: nothing folds
         for start in np.unique(s0):
             pairs = np.flatnonzero(s0 == start) if s0.size > 1 else np.arange(angle.size)
             angle[pairs] = self._unfolded(float(start), s1[pairs] if s1.size > 1 else s1, angle[pairs])
         return float(angle[0]) if angle.size == 1 else angle
+
+    @cached_property
+    def _total_turning(self) -> float:
+        """The angles between successive tangents summed (rad): no two tangents lie farther apart."""
+        steps = np.einsum("ij,ij->i", self.tangents[1:], self.tangents[:-1])
+        return float(np.sum(np.arccos(np.clip(steps, -1.0, 1.0))))
 
     def _unfolded(self, s0: float, s1: np.ndarray, angle: np.ndarray) -> np.ndarray:
         """`angle` (the tangents' angle, at most pi) where the tangent turned past pi on the way from s0 to s1:
@@ -355,8 +363,8 @@ class Centerline:
         span = (self.s >= low) & (self.s <= high)
         _, start_tangent, start_normal, _ = self.frames_at(np.array([np.clip(s0, 0.0, self.length)]))
         tangents = self.tangents[span]
-        if len(tangents) < 2 or np.all(tangents @ start_tangent[0] > 0):
-            return angle  # the tangent never turned a right angle from its start: no half turn to count
+        if len(tangents) < 2 or np.min(tangents @ start_tangent[0]) > -0.5:
+            return angle  # the tangent never turned 120 deg from its start: no half turn to count
         plane_normal = np.linalg.eigh(tangents.T @ tangents)[1][:, 0]
         towards = np.cross(plane_normal, start_tangent[0])
         if towards @ start_normal[0] < 0:
