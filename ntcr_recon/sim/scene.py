@@ -79,7 +79,8 @@ class Scene:
         outer radius (negative: it passes through them), and the arc length (m) where it comes nearest."""
         geometry = self.shape.geometry
         base = np.asarray(geometry.base_position, dtype=float)
-        s = np.arange(geometry.outer_diameter, self.shape.length, geometry.outer_radius / 4)
+        s = np.append(np.arange(geometry.outer_diameter, self.shape.length, geometry.outer_radius / 4),
+                      self.shape.length)
         points = np.asarray(self.shape.centerline(s)[0]) - base
         table = -self.props.post_height
         across = np.hypot(points[:, 0], points[:, 1]) - self.props.post_radius
