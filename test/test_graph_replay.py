@@ -136,9 +136,10 @@ def test_relocated_clouds_and_notches_match_the_core(reference, replay):
         distance = cKDTree(expected.relocated.xyz).query(cloud.xyz)[0]
         print(f"relocated {len(cloud)} points (core {len(expected.relocated)}), distance to the core's: median "
               f"{np.median(distance) * 1e6:.2f} um, 99th percentile {np.percentile(distance, 99) * 1e6:.2f} um")
-        # Float32 rounding moves a few points a little more (an iterative fit amplifies 0.01 um); a different
-        # computation would move them all.
-        assert np.median(distance) < 1e-6 and np.percentile(distance, 99) < 30e-6
+        # Float32 rounding moves a few points a little more (an iterative fit amplifies 0.01 um: one of the bag's
+        # frames, when the graph's timing hands it on, lands at a 1.3 um median); a different computation would
+        # move them all (a pixel footprint is ~200 um here).
+        assert np.median(distance) < 5e-6 and np.percentile(distance, 99) < 30e-6
         notches = notches_from_array(notch_msg)
         assert [n["index"] for n in notches] == [n.index for n in expected.notches]
         if len(cameras) == len(config.camera_names):
