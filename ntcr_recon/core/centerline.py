@@ -341,11 +341,11 @@ class Centerline:
         if not s0.size or not s1.size:
             return np.empty(0)
         angle = _bend_kernel(self._samples, float(self.s[1] - self.s[0]), self.length, s0, s1)
-        if self._total_turning < 2 * np.pi / 3:
-            return float(angle[0]) if angle.size == 1 else angle  # no two tangents 120 deg apart: nothing folds
-        for start in np.unique(s0):
-            pairs = np.flatnonzero(s0 == start) if s0.size > 1 else np.arange(angle.size)
-            angle[pairs] = self._unfolded(float(start), s1[pairs] if s1.size > 1 else s1, angle[pairs])
+        if self._total_turning >= 2 * np.pi / 3:  # below, no two tangents lie 120 deg apart: nothing folds
+            starts, ends = np.broadcast_arrays(s0, s1)
+            for start in np.unique(starts):
+                pairs = starts == start
+                angle[pairs] = self._unfolded(float(start), ends[pairs], angle[pairs])
         return float(angle[0]) if angle.size == 1 else angle
 
     @cached_property
@@ -358,8 +358,7 @@ class Centerline:
         """`angle` (the tangents' angle, at most pi) where the tangent turned past pi on the way from s0 to s1:
         n pi + the angle (n even) or + pi less it (n odd), n the half turns counted in the plane the tangents
         sweep (the least-squares plane through them), signed positive towards the notch side at s0."""
-        low, high = np.clip(min(s0, float(s1.min())), 0.0, self.length), np.clip(max(s0, float(s1.max())), 0.0,
-                                                                               self.length)
+        low, high = np.clip([min(s0, s1.min()), max(s0, s1.max())], 0.0, self.length)
         span = (self.s >= low) & (self.s <= high)
         _, start_tangent, start_normal, _ = self.frames_at(np.array([np.clip(s0, 0.0, self.length)]))
         tangents = self.tangents[span]
