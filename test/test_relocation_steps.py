@@ -748,9 +748,7 @@ def test_icp_recovers_a_known_motion_of_the_reference_and_relocates_onto_it():
     from ntcr_recon.core.transforms import quaternion_to_matrix
 
     shape = TubeShape.from_bend_angle(GEOMETRY, math.radians(45))
-    s = np.linspace(0.0, shape.length, 2000)
-    points, frames = shape.centerline(s)
-    centerline = Centerline(s, points, frames[:, :, 2], frames[:, :, 0], frames[:, :, 1])
+    centerline = true_centerline(shape)
     reference, normals, part = posed_reference(centerline, GEOMETRY, [], shape.length, 0.1e-3)
     # the observed cloud: the true outer wall, moved by a small rigid motion and made noisy
     sample = shape.sample_surface_parts(0.1e-3)
