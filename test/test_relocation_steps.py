@@ -129,9 +129,10 @@ def test_tip_of_a_tube_pointing_at_a_camera_uses_any_wall_point():
     assert abs(end - length) < 2 * FOOTPRINT
 
 
-def _tube_with_one_notch(depressed: bool):
+def _tube_with_one_notch(depressed: bool, filled: float = 0.0):
     """A straight robot's outer wall with notch 5 open: a see-through slot, or (depressed) its window filled
-    by points at the notch floor's depth, as an obliquely seen notch is."""
+    by points at the notch floor's depth, as an obliquely seen notch is, or (filled > 0) that share of its window
+    left on the wall, as a matcher whose window is wider than the slot fills it."""
     geometry = TubeGeometry(notch_count=16)
     start = geometry.notch_centers_s[5] - geometry.notch_width / 2
     end = start + geometry.notch_width
@@ -141,7 +142,7 @@ def _tube_with_one_notch(depressed: bool):
     if depressed:
         points[open_window, :2] *= (geometry.outer_radius - 0.4e-3) / geometry.outer_radius
     else:
-        points = points[~open_window]
+        points = points[~(open_window & (np.random.default_rng(3).random(len(points)) >= filled))]
     centerline = straight_centerline(geometry.length + 2e-3)
     return geometry, centerline, centerline.project(points), start, end
 
@@ -158,6 +159,28 @@ def test_one_notch_is_found_where_the_comb_puts_it_by_the_signal_that_shows_it(d
     assert abs(notches[0].start_s - start) < FOOTPRINT / 2
     assert abs(notches[0].end_s - end) < FOOTPRINT / 2
     assert abs(notches[0].width - geometry.notch_width) < FOOTPRINT
+
+
+def test_a_slot_the_matcher_filled_is_found_by_its_dip_and_given_its_bends_width():
+    """A slot narrower than the matcher's window keeps part of its wall: 60% left, the coverage dips to 0.4 and
+    never crosses the half-plateau edge level; the notch is still found where the comb puts it ("dip"), its arc
+    and width those its bend implies (straight: the configured width). Left at 85%, the dip is under DIP_PEAK:
+    no notch is made of it."""
+    from ntcr_recon.core.notches import DIP_PEAK
+
+    found = {}
+    for filled in (0.6, 0.85):
+        geometry, centerline, coords, start, end = _tube_with_one_notch(False, filled=filled)
+        found[filled] = detect_notches(coords, centerline, geometry, 0.8e-3, FOOTPRINT, 0.5, 0.25,
+                                       geometry.length - 0.1e-3)
+        listed = [(n.index, n.signal, round(n.width * 1e3, 3)) for n in found[filled]]
+        print(f"\n{filled:.0%} of the slot's wall left: found {listed}")
+    [dip] = found[0.6]
+    assert (dip.index, dip.signal) == (5, "dip")
+    assert abs(dip.center_s - (start + end) / 2) < FOOTPRINT / 2
+    assert dip.width == pytest.approx(geometry.notch_width_at_bend(dip.bend)) and abs(dip.bend) < 1e-3
+    assert dip.end_s - dip.start_s == pytest.approx(geometry.notch_arc_at_bend(dip.bend))
+    assert found[0.85] == [] and DIP_PEAK > 1 - 0.85
 
 
 def _comb_tube(shift_of_notch_5: float = 0.0, window_unseen_from: float = np.inf, rng=None):

@@ -144,6 +144,15 @@ class TubeGeometry:
         neutral axis, which keeps its length while the axis, ybar off it, shortens by ybar x the bend."""
         return self.length - self.neutral_axis_offset * abs(total_bend)
 
+    def notch_arc_at_bend(self, bend: float) -> float:
+        """The centreline's arc length across a notch closed by `bend` (rad): h - ybar |theta| (kinematics)."""
+        return self.notch_width - self.neutral_axis_offset * abs(bend)
+
+    def notch_width_at_bend(self, bend: float) -> float:
+        """The width (outer-surface gap facing the notches) of a notch closed by `bend` (rad): its arc less
+        |theta| r_o, never below 0."""
+        return max(self.notch_arc_at_bend(bend) - abs(bend) * self.outer_radius, 0.0)
+
     @property
     def reach(self) -> float:
         """How far along its centreline the robot can be seen from its base: its length and a diameter (the

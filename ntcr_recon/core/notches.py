@@ -33,6 +33,14 @@ from ntcr_recon.core.wall import median, robust_spread, surface_band
 # camera
 UNSEEN_PLATEAU_FRACTION = 0.1
 
+# A notch neither signal measures is still found where the comb puts it when the wall's coverage dips there: its
+# coverage gap peaks at DIP_PEAK or more within a quarter of a notch width of the comb's centre, DIP_PROMINENCE
+# above its median over the spines either side (up to half a pitch away), the whole pitch seen by a camera. A slot
+# narrower than the stereo matcher's window (4 px at 105 mm for a 1 mm notch, against 7 px) leaves that and no
+# more: the window fills it with the spines' depth.
+DIP_PEAK = 0.3
+DIP_PROMINENCE = 0.25
+
 
 @dataclass(frozen=True)
 class Notch:
@@ -42,8 +50,9 @@ class Notch:
     end_s: float
     width: float          # m, outer-surface gap facing the notches
     bend: float | None    # rad, the centreline's turn across the notch
-    signal: str = "coverage"  # what measured it: "coverage" (a slot seen through) or "depression" (seen
-                              # obliquely: its floor and faces inside the wall's radius)
+    signal: str = "coverage"  # what measured it: "coverage" (a slot seen through), "depression" (seen
+                              # obliquely: its floor and faces inside the wall's radius) or "dip" (a slot the
+                              # matcher filled: only its place is measured, its width is its bend's)
 
 
 def spine_wall(observed: TubeCoordinates, centerline: Centerline, geometry: TubeGeometry, gate: float,
@@ -72,7 +81,9 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
     slid along s as one matched filter to where the evidence agrees best; each notch is then the run of
     evidence above one half around its comb position, its edges where the evidence crosses one half (for
     coverage that is the half-plateau level: each depth pixel stands for a cell of one footprint), centred
-    within the comb's notch (a run centred farther off is not that notch). A rim the matcher mixed with the
+    within the comb's notch (a run centred farther off is not that notch). Where neither gives a run, a dip of
+    the coverage at the comb's place (_dips_at) finds the notch without edges ("dip": placed by the comb, its
+    width what its measured bend implies, geometry.notch_width_at_bend). A rim the matcher mixed with the
     floor behind it is measured where its viewing rays put it (_rim_gaps). Where no camera sees the window
     (its plateau under UNSEEN_PLATEAU_FRACTION of the tube's) no notch is found, nor one reaching into it.
 
@@ -134,8 +145,10 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
     placed = centres[None, :] + shifts[:, None]
     score = mean_over(placed - half_width, placed + half_width).sum(axis=1)
     shift = float(shifts[int(np.argmax(score))])
-    gaps, indices = [], []
-    for k, centre in enumerate(centres + shift):
+    gaps, indices, dipped = [], [], []
+    placed_centres = centres + shift
+    dips = _dips_at(grid, coverage_gap, window_seen, placed_centres, half_width, geometry.notch_pitch)
+    for k, centre in enumerate(placed_centres):
         if centre - half_width <= 0 or centre + half_width >= tip_s:
             continue
         # wall coverage measures the edges (exact at half the plateau); where it shows no gap, the share of
@@ -145,14 +158,16 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
             found = _with_mixed_rims(found, grid, rim_gaps, geometry, footprint, min_width_fraction)
         if found is None or not _plausible(found, centre, geometry, footprint, min_width_fraction):
             found = _run_around(grid, depression, centre, geometry.notch_pitch / 2)
-        if found is None or not _plausible(found, centre, geometry, footprint, min_width_fraction):
+        dip = found is None or not _plausible(found, centre, geometry, footprint, min_width_fraction)
+        if dip and not dips[k]:
             continue
-        gaps.append(found)
+        gaps.append((centre - half_width, centre + half_width) if dip else found)
         indices.append(k)
+        dipped.append(dip)
     # the signal: a slot seen through leaves the window empty; one seen obliquely fills it with its floor and
     # faces, inside the wall's radius (all notches' cells at once: one call, not two means per notch)
-    signals = ["coverage" if see_through else "depression" for see_through in _seen_through(grid, anything, plateau,
-                                                                                              gaps)]
+    signals = ["dip" if dip else "coverage" if see_through else "depression"
+               for dip, see_through in zip(dipped, _seen_through(grid, anything, plateau, gaps), strict=True)]
     return _measure(gaps, indices, signals, centerline, geometry, centres + shift, tip_s)
 
 
@@ -197,6 +212,23 @@ def _with_mixed_rims(found: tuple[float, float], grid: np.ndarray, rim_gaps: tup
         start = max(start, for_start[0])
     candidate = (start, end)
     return candidate if _plausible(candidate, centre, geometry, footprint, min_width_fraction) else found
+
+
+def _dips_at(grid: np.ndarray, coverage_gap: np.ndarray, window_seen: np.ndarray, centres: np.ndarray,
+             half_width: float, pitch: float) -> np.ndarray:
+    """Per comb centre, whether the coverage gap dips there (see DIP_PEAK): its peak within half_width / 2 of
+    the centre at least DIP_PEAK and DIP_PROMINENCE above its median over the spines beside it (beyond
+    half_width, within half a pitch), every cell within half a pitch seen (window_seen)."""
+    dips = np.zeros(len(centres), bool)
+    for k, centre in enumerate(centres):
+        distance = np.abs(grid - centre)
+        near, pitch_cells = distance <= half_width / 2, distance <= pitch / 2
+        beside = pitch_cells & (distance > half_width)
+        if not near.any() or not beside.any() or not window_seen[pitch_cells].all():
+            continue
+        peak = coverage_gap[near].max()
+        dips[k] = peak >= DIP_PEAK and peak - median(coverage_gap[beside]) >= DIP_PROMINENCE
+    return dips
 
 
 def _seen_through(grid: np.ndarray, anything: np.ndarray, plateau: np.ndarray, gaps: list[tuple[float, float]]
@@ -290,6 +322,10 @@ def _measure(gaps: list[tuple[float, float]], indices: list[int], signals: list[
     bends = np.arccos(np.clip(np.einsum("ij,ij->i", before, after), -1.0, 1.0))
     bends *= np.where(np.einsum("ij,ij->i", after - before, normals) >= 0, 1.0, -1.0)  # + towards the notch side
     widths = np.maximum((end - start) - bends * r_o, 0.0)  # s_n (1 - kappa r_o) with kappa s_n = theta
+    for i, signal in enumerate(signals):
+        if signal == "dip":  # no edges measured: the arc and gap its bend implies, about the comb's place
+            centre, arc = (start[i] + end[i]) / 2, geometry.notch_arc_at_bend(bends[i])
+            start[i], end[i], widths[i] = centre - arc / 2, centre + arc / 2, geometry.notch_width_at_bend(bends[i])
     return [Notch(index, float((a + b) / 2), float(a), float(b), float(width), float(bend), signal)
             for index, signal, a, b, width, bend in zip(indices, signals, start, end, widths, bends, strict=True)]
 
@@ -440,7 +476,7 @@ def calibrate_rims(notches: list[Notch], geometry: TubeGeometry, centerline: Cen
     their faces are all seen alike or no camera is known), and every edge moves back by e - k v. (A robot whose
     spines are all shorter than its drawing says would have that read as erosion.)
     """
-    by_index = {n.index: n for n in notches}
+    by_index = {n.index: n for n in notches if n.signal != "dip"}  # a dip's edges are the comb's: nothing to correct
     spine = geometry.notch_pitch - geometry.notch_width
     pairs = [(by_index[i], by_index[i + 1]) for i in sorted(by_index) if i + 1 in by_index]
     if len(pairs) < 3:
@@ -471,6 +507,9 @@ def calibrate_rims(notches: list[Notch], geometry: TubeGeometry, centerline: Cen
     erosion = float(median(shortfall + reach * seen)) / 2.0  # e with k held, robust as the median
     calibrated = []
     for n, start_v, end_v in zip(notches, start_seen.tolist(), end_seen.tolist(), strict=True):  # (plain floats)
+        if n.signal == "dip":
+            calibrated.append(n)
+            continue
         start_move, end_move = erosion - reach * start_v, erosion - reach * end_v
         calibrated.append(Notch(n.index, n.center_s, n.start_s + start_move, n.end_s - end_move,
                                 max(n.width - start_move - end_move, 0.0), n.bend, n.signal))
