@@ -218,7 +218,8 @@ def _dips_at(grid: np.ndarray, coverage_gap: np.ndarray, window_seen: np.ndarray
              half_width: float, pitch: float) -> np.ndarray:
     """Per comb centre, whether the coverage gap dips there (see DIP_PEAK): its peak within half_width / 2 of
     the centre at least DIP_PEAK and DIP_PROMINENCE above its median over the spines beside it (beyond
-    half_width, within half a pitch), every cell within half a pitch seen (window_seen)."""
+    half_width, within half a pitch), the run above half that peak centred as near, every cell within half a
+    pitch seen (window_seen)."""
     dips = np.zeros(len(centres), bool)
     for k, centre in enumerate(centres):
         distance = np.abs(grid - centre)
@@ -226,8 +227,17 @@ def _dips_at(grid: np.ndarray, coverage_gap: np.ndarray, window_seen: np.ndarray
         beside = pitch_cells & (distance > half_width)
         if not near.any() or not beside.any() or not window_seen[pitch_cells].all():
             continue
-        peak = coverage_gap[near].max()
-        dips[k] = peak >= DIP_PEAK and peak - median(coverage_gap[beside]) >= DIP_PROMINENCE
+        top = int(np.flatnonzero(near)[np.argmax(coverage_gap[near])])
+        peak = coverage_gap[top]
+        # the dip's own middle (its run above half its peak) at the comb's place: a full slot cut off it, reaching
+        # in from one side, is not this notch (_plausible)
+        first, last = top, top
+        while first > 0 and pitch_cells[first - 1] and coverage_gap[first - 1] >= peak / 2:
+            first -= 1
+        while last < len(grid) - 1 and pitch_cells[last + 1] and coverage_gap[last + 1] >= peak / 2:
+            last += 1
+        centred = abs((grid[first] + grid[last]) / 2 - centre) <= half_width / 2
+        dips[k] = centred and peak >= DIP_PEAK and peak - median(coverage_gap[beside]) >= DIP_PROMINENCE
     return dips
 
 
