@@ -82,7 +82,7 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
     evidence above one half around its comb position, its edges where the evidence crosses one half (for
     coverage that is the half-plateau level: each depth pixel stands for a cell of one footprint), centred
     within the comb's notch (a run centred farther off is not that notch). Where neither gives a run, a dip of
-    the coverage at the comb's place (_dips_at) finds the notch without edges ("dip": placed by the comb, its
+    the coverage at the comb's place (_dip_at) finds the notch without edges ("dip": placed by the comb, its
     width what its measured bend implies, geometry.notch_width_at_bend). A rim the matcher mixed with the
     floor behind it is measured where its viewing rays put it (_rim_gaps). Where no camera sees the window
     (its plateau under UNSEEN_PLATEAU_FRACTION of the tube's) no notch is found, nor one reaching into it.
@@ -146,9 +146,7 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
     score = mean_over(placed - half_width, placed + half_width).sum(axis=1)
     shift = float(shifts[int(np.argmax(score))])
     gaps, indices, dipped = [], [], []
-    placed_centres = centres + shift
-    dips = _dips_at(grid, coverage_gap, window_seen, placed_centres, half_width, geometry.notch_pitch)
-    for k, centre in enumerate(placed_centres):
+    for k, centre in enumerate(centres + shift):
         if centre - half_width <= 0 or centre + half_width >= tip_s:
             continue
         # wall coverage measures the edges (exact at half the plateau); where it shows no gap, the share of
@@ -159,7 +157,7 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
         if found is None or not _plausible(found, centre, geometry, footprint, min_width_fraction):
             found = _run_around(grid, depression, centre, geometry.notch_pitch / 2)
         dip = found is None or not _plausible(found, centre, geometry, footprint, min_width_fraction)
-        if dip and not dips[k]:
+        if dip and not _dip_at(grid, coverage_gap, window_seen, centre, half_width, geometry.notch_pitch):
             continue
         gaps.append((centre - half_width, centre + half_width) if dip else found)
         indices.append(k)
@@ -214,31 +212,28 @@ def _with_mixed_rims(found: tuple[float, float], grid: np.ndarray, rim_gaps: tup
     return candidate if _plausible(candidate, centre, geometry, footprint, min_width_fraction) else found
 
 
-def _dips_at(grid: np.ndarray, coverage_gap: np.ndarray, window_seen: np.ndarray, centres: np.ndarray,
-             half_width: float, pitch: float) -> np.ndarray:
-    """Per comb centre, whether the coverage gap dips there (see DIP_PEAK): its peak within half_width / 2 of
-    the centre at least DIP_PEAK and DIP_PROMINENCE above its median over the spines beside it (beyond
-    half_width, within half a pitch), the run above half that peak centred as near, every cell within half a
-    pitch seen (window_seen)."""
-    dips = np.zeros(len(centres), bool)
-    for k, centre in enumerate(centres):
-        distance = np.abs(grid - centre)
-        near, pitch_cells = distance <= half_width / 2, distance <= pitch / 2
-        beside = pitch_cells & (distance > half_width)
-        if not near.any() or not beside.any() or not window_seen[pitch_cells].all():
-            continue
-        top = int(np.flatnonzero(near)[np.argmax(coverage_gap[near])])
-        peak = coverage_gap[top]
-        # the dip's own middle (its run above half its peak) at the comb's place: a full slot cut off it, reaching
-        # in from one side, is not this notch (_plausible)
-        first, last = top, top
-        while first > 0 and pitch_cells[first - 1] and coverage_gap[first - 1] >= peak / 2:
-            first -= 1
-        while last < len(grid) - 1 and pitch_cells[last + 1] and coverage_gap[last + 1] >= peak / 2:
-            last += 1
-        centred = abs((grid[first] + grid[last]) / 2 - centre) <= half_width / 2
-        dips[k] = centred and peak >= DIP_PEAK and peak - median(coverage_gap[beside]) >= DIP_PROMINENCE
-    return dips
+def _dip_at(grid: np.ndarray, coverage_gap: np.ndarray, window_seen: np.ndarray, centre: float,
+            half_width: float, pitch: float) -> bool:
+    """Whether the coverage gap dips at a comb centre (see DIP_PEAK): its peak within half_width / 2 of the
+    centre at least DIP_PEAK and DIP_PROMINENCE above its median over the spines beside it (beyond half_width,
+    within half a pitch), the run above half that peak centred as near, every cell within half a pitch seen
+    (window_seen)."""
+    distance = np.abs(grid - centre)
+    near, pitch_cells = distance <= half_width / 2, distance <= pitch / 2
+    beside = pitch_cells & (distance > half_width)
+    if not near.any() or not beside.any() or not window_seen[pitch_cells].all():
+        return False
+    top = int(np.flatnonzero(near)[np.argmax(coverage_gap[near])])
+    peak = coverage_gap[top]
+    # the dip's own middle (its run above half its peak) at the comb's place: a full slot cut off it, reaching in
+    # from one side, is not this notch (_plausible)
+    first, last = top, top
+    while first > 0 and pitch_cells[first - 1] and coverage_gap[first - 1] >= peak / 2:
+        first -= 1
+    while last < len(grid) - 1 and pitch_cells[last + 1] and coverage_gap[last + 1] >= peak / 2:
+        last += 1
+    centred = abs((grid[first] + grid[last]) / 2 - centre) <= half_width / 2
+    return bool(centred and peak >= DIP_PEAK and peak - median(coverage_gap[beside]) >= DIP_PROMINENCE)
 
 
 def _seen_through(grid: np.ndarray, anything: np.ndarray, plateau: np.ndarray, gaps: list[tuple[float, float]]
