@@ -478,14 +478,15 @@ def calibrate_rims(notches: list[Notch], geometry: TubeGeometry, centerline: Cen
     spines between notches are rigid, of the robot's nominal length pitch - width whatever the bend, so each
     spine between consecutive detected notches reads nominal - 2 e + k (v_end + v_start) (v: its two faces' view
     tangents); e and k are solved by least squares over the spines (e alone, the median over the spines, when
-    their faces are all seen alike or no camera is known), and every edge moves back by e - k v. (A robot whose
-    spines are all shorter than its drawing says would have that read as erosion.)
+    their faces are all seen alike or no camera is known), and every edge moves back by e - k v (with fewer than
+    three such spines, nothing moves). What each spine still reads off its length is then shared by its two rims
+    (share_spines). (A robot whose spines are all shorter than its drawing says would have that read as erosion.)
     """
     by_index = {n.index: n for n in notches if n.signal != "dip"}  # a dip's edges are the comb's: nothing to correct
     spine = geometry.notch_pitch - geometry.notch_width
     pairs = [(by_index[i], by_index[i + 1]) for i in sorted(by_index) if i + 1 in by_index]
     if len(pairs) < 3:
-        return notches
+        return share_spines(notches, spine)
     shortfall = np.array([spine - (after.start_s - before.end_s) for before, after in pairs])
     start_seen, end_seen = np.zeros(len(notches)), np.zeros(len(notches))
     if centerline is not None and camera_origins is not None and len(camera_origins):
@@ -518,4 +519,30 @@ def calibrate_rims(notches: list[Notch], geometry: TubeGeometry, centerline: Cen
         start_move, end_move = erosion - reach * start_v, erosion - reach * end_v
         calibrated.append(Notch(n.index, n.center_s, n.start_s + start_move, n.end_s - end_move,
                                 max(n.width - start_move - end_move, 0.0), n.bend, n.signal))
-    return calibrated
+    return share_spines(calibrated, spine)
+
+
+def share_spines(notches: list[Notch], spine: float) -> list[Notch]:
+    """Each spine between two notches whose edges were measured set to its known length `spine`, its two rims
+    moving by half of what it reads off it, opposite ways.
+
+    A spine is rigid (the uncut tube), so its two rims, measured apart, are one unknown seen twice: each rim's
+    error that is not the other's (pixel phase, a rim the matcher mixed alone) is halved, and one rim read a
+    whole notch off shows as half of that on each of the two notches it bounds, not all of it on one. The first
+    notch's start and the last one's end have no partner and stay as measured; a dip's edges are the comb's and
+    bound no spine here. Width and centre follow their edges."""
+    by_index = {n.index: n for n in notches if n.signal != "dip"}
+    start_move, end_move = dict.fromkeys(by_index, 0.0), dict.fromkeys(by_index, 0.0)
+    for i in by_index:
+        if i + 1 in by_index:
+            off = (by_index[i + 1].start_s - by_index[i].end_s) - spine
+            end_move[i], start_move[i + 1] = off / 2, -off / 2
+    shared = []
+    for n in notches:
+        if n.signal == "dip":
+            shared.append(n)
+            continue
+        start, end = n.start_s + start_move[n.index], n.end_s + end_move[n.index]
+        shared.append(Notch(n.index, (start + end) / 2, start, end,
+                            max(n.width + end_move[n.index] - start_move[n.index], 0.0), n.bend, n.signal))
+    return shared
