@@ -54,6 +54,11 @@ class Notch:
                               # obliquely: its floor and faces inside the wall's radius) or "dip" (a slot the
                               # matcher filled: only its place is measured, its width is its bend's)
 
+    @property
+    def edges_measured(self) -> bool:
+        """Whether its edges are the data's: a dip's are where the comb puts it, its width what its bend implies."""
+        return self.signal != "dip"
+
 
 def spine_wall(observed: TubeCoordinates, centerline: Centerline, geometry: TubeGeometry, gate: float,
                footprint: float) -> tuple[np.ndarray, float, float]:
@@ -482,9 +487,8 @@ def calibrate_rims(notches: list[Notch], geometry: TubeGeometry, centerline: Cen
     three such spines, nothing moves). What each spine still reads off its length is then shared by its two rims
     (share_spines). (A robot whose spines are all shorter than its drawing says would have that read as erosion.)
     """
-    by_index = {n.index: n for n in notches if n.signal != "dip"}  # a dip's edges are the comb's: nothing to correct
     spine = geometry.notch_pitch - geometry.notch_width
-    pairs = [(by_index[i], by_index[i + 1]) for i in sorted(by_index) if i + 1 in by_index]
+    pairs = _spine_pairs(notches)  # a dip's edges are the comb's: nothing to correct
     if len(pairs) < 3:
         return share_spines(notches, spine)
     shortfall = np.array([spine - (after.start_s - before.end_s) for before, after in pairs])
@@ -511,15 +515,10 @@ def calibrate_rims(notches: list[Notch], geometry: TubeGeometry, centerline: Cen
         solved_k = (a * right_k - b * right_e) / (a * c - b * b)
         reach = float(min(max(solved_k, -geometry.outer_diameter), geometry.outer_diameter))
     erosion = float(median(shortfall + reach * seen)) / 2.0  # e with k held, robust as the median
-    calibrated = []
-    for n, start_v, end_v in zip(notches, start_seen.tolist(), end_seen.tolist(), strict=True):  # (plain floats)
-        if n.signal == "dip":
-            calibrated.append(n)
-            continue
-        start_move, end_move = erosion - reach * start_v, erosion - reach * end_v
-        calibrated.append(Notch(n.index, n.center_s, n.start_s + start_move, n.end_s - end_move,
-                                max(n.width - start_move - end_move, 0.0), n.bend, n.signal))
-    return share_spines(calibrated, spine)
+    # every edge back by e - k v: the start along s, the end against it (plain floats)
+    start_moves = {n.index: erosion - reach * v for n, v in zip(notches, start_seen.tolist(), strict=True)}
+    end_moves = {n.index: reach * v - erosion for n, v in zip(notches, end_seen.tolist(), strict=True)}
+    return share_spines(_with_edges_moved(notches, start_moves, end_moves), spine)
 
 
 def share_spines(notches: list[Notch], spine: float) -> list[Notch]:
@@ -531,18 +530,30 @@ def share_spines(notches: list[Notch], spine: float) -> list[Notch]:
     whole notch off shows as half of that on each of the two notches it bounds, not all of it on one. The first
     notch's start and the last one's end have no partner and stay as measured; a dip's edges are the comb's and
     bound no spine here. Width and centre follow their edges."""
-    by_index = {n.index: n for n in notches if n.signal != "dip"}
-    start_move, end_move = dict.fromkeys(by_index, 0.0), dict.fromkeys(by_index, 0.0)
-    for i in by_index:
-        if i + 1 in by_index:
-            off = (by_index[i + 1].start_s - by_index[i].end_s) - spine
-            end_move[i], start_move[i + 1] = off / 2, -off / 2
-    shared = []
+    start_moves, end_moves = {}, {}
+    for before, after in _spine_pairs(notches):
+        off = (after.start_s - before.end_s) - spine
+        end_moves[before.index], start_moves[after.index] = off / 2, -off / 2
+    return _with_edges_moved(notches, start_moves, end_moves)
+
+
+def _spine_pairs(notches: list[Notch]) -> list[tuple[Notch, Notch]]:
+    """The consecutive notches (by index) whose edges were both measured: the two ends of each spine read."""
+    by_index = {n.index: n for n in notches if n.edges_measured}
+    return [(by_index[i], by_index[i + 1]) for i in sorted(by_index) if i + 1 in by_index]
+
+
+def _with_edges_moved(notches: list[Notch], start_moves: dict[int, float], end_moves: dict[int, float]
+                      ) -> list[Notch]:
+    """The notches with each measured one's start moved by start_moves[index] and its end by end_moves[index]
+    (m, + along s; none given: not moved), width and centre following; a dip as it was."""
+    moved = []
     for n in notches:
-        if n.signal == "dip":
-            shared.append(n)
+        if not n.edges_measured:
+            moved.append(n)
             continue
-        start, end = n.start_s + start_move[n.index], n.end_s + end_move[n.index]
-        shared.append(Notch(n.index, (start + end) / 2, start, end,
-                            max(n.width + end_move[n.index] - start_move[n.index], 0.0), n.bend, n.signal))
-    return shared
+        start_move, end_move = start_moves.get(n.index, 0.0), end_moves.get(n.index, 0.0)
+        start, end = n.start_s + start_move, n.end_s + end_move
+        moved.append(Notch(n.index, (start + end) / 2, start, end, max(n.width - start_move + end_move, 0.0),
+                           n.bend, n.signal))
+    return moved

@@ -241,7 +241,7 @@ class Reconstructor:
         configured = centerline, coords, rays, measured, found, frames
         for turn in range(2):  # the second pass measures in the turned frame (the window fits better there)
             # a dip is found where the comb puts it, not where its cut opens: no evidence of the side
-            edged = [notch for notch in found if notch.signal != "dip"]
+            edged = [notch for notch in found if notch.edges_measured]
             side_measured = measure_notch_side(coords, edged, geometry, centerline, settings.gate, footprint,
                                                wall=wall)
             if side_measured is None:

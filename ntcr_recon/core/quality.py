@@ -149,7 +149,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
     if missing:
         warnings.append(f"{len(found)} of {geometry.notch_count} notches found (missing: "
                         f"{', '.join(str(i) for i in missing)}): their widths are unknown")
-    dips = sorted(n.index for n in notches if n.signal == "dip")
+    dips = sorted(n.index for n in notches if not n.edges_measured)
     if dips:
         warnings.append(f"notches {', '.join(str(i) for i in dips)} show only as a shallow dip of the wall's coverage "
                         "where the comb puts them (slots narrower than the stereo matcher's window, which fills "
@@ -159,7 +159,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
     # notch of neutral length h bent by theta): a reading far off it is an error or a damaged robot
     # (a notch found by a dip alone has no edges measured: its width is that, and not checked against itself)
     h = geometry.notch_width
-    off_model = {n.index: n.width - geometry.notch_width_at_bend(n.bend or 0.0) for n in notches if n.signal != "dip"}
+    off_model = {n.index: n.width - geometry.notch_width_at_bend(n.bend or 0.0) for n in notches if n.edges_measured}
     doubtful = sorted(i for i, d in off_model.items() if abs(d) > WIDTH_CHECK_FRACTION * h)
     if doubtful:
         listed = ", ".join(f"{i} ({off_model[i] * 1e3:+.2f} mm)" for i in doubtful)
