@@ -360,6 +360,59 @@ def test_each_spine_is_given_its_known_length_its_two_rims_sharing_what_it_reads
     assert calibrated[7].end_s == pytest.approx(ends[7]) and calibrated[9].start_s == pytest.approx(starts[9])
 
 
+def test_a_notch_read_at_a_width_its_bend_rules_out_is_given_its_bends_and_its_neighbours_are_not_spoiled():
+    """A robot bent 6 deg at each notch, its rims read exactly but notch 6's: only the middle 0.3 mm of its slot
+    was seen through (a narrow run of coverage). Calibrated as measured, its error spreads to the spines it bounds
+    (notches 5 and 7 read off); checked against the bends, notch 6 is given the arc and width its bend implies
+    about its centre (signal "bend", the width read reported), and every other width is exact; not where its next
+    notch is missing. A notch read 0.1 mm wide - under a tenth of the cut width off its bend, a reading a robot
+    could hold - is kept as measured."""
+    from ntcr_recon.core.notches import MISREAD_WIDTH_FRACTION, Notch, calibrate_and_check, calibrate_rims
+
+    geometry = TubeGeometry()
+    bend = math.radians(6.0)
+    arc, width = geometry.notch_arc_at_bend(bend), geometry.notch_width_at_bend(bend)
+    centres = geometry.notch_centers_s - np.arange(geometry.notch_count) * geometry.neutral_axis_offset * bend
+
+    def read(index, start, end, signal="coverage"):
+        return Notch(index, (start + end) / 2, start, end, end - start - bend * geometry.outer_radius, bend, signal)
+
+    exact = [read(i, c - arc / 2, c + arc / 2) for i, c in enumerate(centres)]
+    narrow = [read(6, centres[6] - 0.15e-3, centres[6] + 0.15e-3) if n.index == 6 else n for n in exact]
+    spoiled = np.array([n.width for n in calibrate_rims(narrow, geometry)]) - width
+    assert abs(spoiled[5]) > 0.1e-3 and abs(spoiled[7]) > 0.1e-3  # the misread rims shared with its neighbours
+
+    checked, misread = calibrate_and_check(narrow, geometry)
+    assert set(misread) == {6} and misread[6] < width - MISREAD_WIDTH_FRACTION * geometry.notch_width
+    by_index = {n.index: n for n in checked}
+    assert by_index[6].signal == "bend" and not by_index[6].edges_measured
+    assert by_index[6].width == pytest.approx(width, abs=1e-12)
+    assert by_index[6].center_s == pytest.approx(centres[6], abs=1e-9)
+    assert by_index[6].end_s - by_index[6].start_s == pytest.approx(arc, abs=1e-12)
+    assert np.allclose([n.width for n in checked], width, atol=1e-9)
+    # its next notch not found and the tube seen to just past it: the spine after it may run to a tube cut short,
+    # its bend is not trusted to check it; seen a pitch beyond, it is
+    without_7 = [n for n in narrow if n.index != 7]
+    assert 6 in calibrate_and_check(without_7, geometry, tip_s=centres[8])[1]
+    unchecked, flagged = calibrate_and_check(without_7, geometry, tip_s=centres[7])
+    assert 6 not in flagged and next(n for n in unchecked if n.index == 6).signal == "coverage"
+
+    wide = [read(6, n.start_s - 0.05e-3, n.end_s + 0.05e-3) if n.index == 6 else n for n in exact]
+    assert MISREAD_WIDTH_FRACTION * geometry.notch_width > 0.1e-3
+    kept, none = calibrate_and_check(wide, geometry)
+    assert none == {} and {n.signal for n in kept} == {"coverage"}
+    assert max(n.width for n in kept) - width > 0.04e-3  # still read wider: measured, not overwritten
+    warnings = assess(
+        geometry=geometry, camera_names=("cam_a", "cam_b"), notches=checked,
+        notch_signals={n.index: n.signal for n in checked}, coords_s=np.linspace(0.0, 50e-3, 500), camera=None,
+        tip_s=50e-3, total_bend=bend * geometry.notch_count, footprint=FOOTPRINT, wall_residual=0.0,
+        notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0, depth_steps={},
+        misread_widths=misread)[1]
+    text = " ".join(warnings)
+    print("\n" + text)
+    assert f"6 ({misread[6] * 1e3:.2f} mm read, {width * 1e3:.2f} implied)" in text
+
+
 def test_centreline_of_a_known_arc():
     shape = TubeShape.from_bend_angle(GEOMETRY, math.radians(60))
     sample = shape.sample_surface_parts(0.1e-3)

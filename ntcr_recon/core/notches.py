@@ -41,6 +41,10 @@ UNSEEN_PLATEAU_FRACTION = 0.1
 DIP_PEAK = 0.3
 DIP_PROMINENCE = 0.25
 
+# A notch whose width is off what its bend implies by more than this share of its cut width was misread (see
+# calibrate_and_check): manufacturing keeps a cut to a few hundredths of a millimetre, a tenth of 1.0-1.8 mm.
+MISREAD_WIDTH_FRACTION = 0.1
+
 
 @dataclass(frozen=True)
 class Notch:
@@ -51,13 +55,23 @@ class Notch:
     width: float          # m, outer-surface gap facing the notches
     bend: float | None    # rad, the centreline's turn across the notch
     signal: str = "coverage"  # what measured it: "coverage" (a slot seen through), "depression" (seen
-                              # obliquely: its floor and faces inside the wall's radius) or "dip" (a slot the
-                              # matcher filled: only its place is measured, its width is its bend's)
+                              # obliquely: its floor and faces inside the wall's radius), "dip" (a slot the
+                              # matcher filled: only its place is measured, its width is its bend's) or "bend"
+                              # (found, but its edges read a width its bend rules out: its width is its bend's)
 
     @property
     def edges_measured(self) -> bool:
-        """Whether its edges are the data's: a dip's are where the comb puts it, its width what its bend implies."""
-        return self.signal != "dip"
+        """Whether its edges are the data's: a dip's or a misread one's ("bend") are those its bend implies."""
+        return self.signal not in ("dip", "bend")
+
+
+def bend_implied(notch: Notch, geometry: TubeGeometry, signal: str) -> Notch:
+    """The notch given the arc and width its bend implies (geometry.notch_arc_at_bend, notch_width_at_bend)
+    about its centre: what is known of a notch whose edges were not measured, or misread."""
+    bend = notch.bend or 0.0
+    arc = geometry.notch_arc_at_bend(bend)
+    return Notch(notch.index, notch.center_s, notch.center_s - arc / 2, notch.center_s + arc / 2,
+                 geometry.notch_width_at_bend(bend), notch.bend, signal)
 
 
 def spine_wall(observed: TubeCoordinates, centerline: Centerline, geometry: TubeGeometry, gate: float,
@@ -332,12 +346,10 @@ def _measure(gaps: list[tuple[float, float]], indices: list[int], signals: list[
     bends = np.arccos(np.clip(np.einsum("ij,ij->i", before, after), -1.0, 1.0))
     bends *= np.where(np.einsum("ij,ij->i", after - before, normals) >= 0, 1.0, -1.0)  # + towards the notch side
     widths = np.maximum((end - start) - bends * r_o, 0.0)  # s_n (1 - kappa r_o) with kappa s_n = theta
-    for i, signal in enumerate(signals):
-        if signal == "dip":  # no edges measured: the arc and gap its bend implies, about the comb's place
-            centre, arc = (start[i] + end[i]) / 2, geometry.notch_arc_at_bend(bends[i])
-            start[i], end[i], widths[i] = centre - arc / 2, centre + arc / 2, geometry.notch_width_at_bend(bends[i])
-    return [Notch(index, float((a + b) / 2), float(a), float(b), float(width), float(bend), signal)
-            for index, signal, a, b, width, bend in zip(indices, signals, start, end, widths, bends, strict=True)]
+    measured = [Notch(index, float((a + b) / 2), float(a), float(b), float(width), float(bend), signal)
+                for index, signal, a, b, width, bend in zip(indices, signals, start, end, widths, bends, strict=True)]
+    # a dip has no edges measured: the arc and gap its bend implies, about the comb's place
+    return [bend_implied(n, geometry, "dip") if n.signal == "dip" else n for n in measured]
 
 
 class SideMeasurement(NamedTuple):
@@ -519,6 +531,39 @@ def calibrate_rims(notches: list[Notch], geometry: TubeGeometry, centerline: Cen
     start_moves = {n.index: erosion - reach * v for n, v in zip(notches, start_seen.tolist(), strict=True)}
     end_moves = {n.index: reach * v - erosion for n, v in zip(notches, end_seen.tolist(), strict=True)}
     return share_spines(_with_edges_moved(notches, start_moves, end_moves), spine)
+
+
+def calibrate_and_check(notches: list[Notch], geometry: TubeGeometry, centerline: Centerline | None = None,
+                        camera_origins: np.ndarray | None = None, tip_s: float = np.inf
+                        ) -> tuple[list[Notch], dict[int, float]]:
+    """calibrate_rims, with the notches its widths show misread left out of it: the notches, and the width each
+    misread one was read at (by index).
+
+    A notch's width follows from its cut width and its bend (geometry.notch_width_at_bend), the bend measured by
+    the spines on either side, apart from its rims; a laser-cut notch keeps its drawing's width to a few
+    hundredths of a millimetre. One whose bend two whole spines measured (the next notch found, or the tube seen
+    to tip_s a pitch past where it should be: a spine running to a tube cut short is no chord of it) and
+    whose calibrated width is off what its bend implies by more than MISREAD_WIDTH_FRACTION of the cut width was
+    misread (a rim lost where only a narrow run of the slot was seen through, a rim merged with a face): it is
+    given the arc and width its bend implies, about its centre (signal "bend"), and the rims are calibrated again
+    without it, so that no spine it bounds shares its error with a neighbour; so on, the farthest off first,
+    until no measured notch is off its bend that far."""
+    misread: dict[int, float] = {}
+    limit = MISREAD_WIDTH_FRACTION * geometry.notch_width
+    found = {n.index for n in notches}
+    last = geometry.notch_count - 1
+    checked = {n.index for n in notches if n.index + 1 in found or n.index == last
+               or n.end_s + 2 * geometry.notch_pitch - geometry.notch_width <= tip_s}
+    while True:  # one at a time, the farthest off first: a misread rim shared over a spine puts its neighbour off too
+        calibrated = calibrate_rims(notches, geometry, centerline, camera_origins)
+        off = {n.index: abs(n.width - geometry.notch_width_at_bend(n.bend or 0.0))
+               for n in calibrated if n.edges_measured and n.index in checked}
+        worst = max(off, key=off.get, default=None)
+        if worst is None or off[worst] <= limit:
+            return calibrated, misread
+        read = next(n for n in calibrated if n.index == worst)
+        misread[worst] = read.width
+        notches = [bend_implied(read, geometry, "bend") if n.index == worst else n for n in notches]
 
 
 def share_spines(notches: list[Notch], spine: float) -> list[Notch]:

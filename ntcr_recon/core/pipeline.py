@@ -35,7 +35,7 @@ from ntcr_recon.core.config import RigConfig
 from ntcr_recon.core.filters import filter_cloud
 from ntcr_recon.core.fusion import FramePair, fuse
 from ntcr_recon.core.icp import icp, mesh_reference, posed_reference, relocate_onto_reference
-from ntcr_recon.core.notches import Notch, calibrate_rims, detect_notches, measure_notch_side, spine_wall
+from ntcr_recon.core.notches import Notch, calibrate_and_check, detect_notches, measure_notch_side, spine_wall
 from ntcr_recon.core.quality import (
     assess,
     cameras_looking_into_slots,
@@ -268,7 +268,7 @@ class Reconstructor:
             notch_side += roll
             (centerline, coords), rays, measured, found = turned, turned_rays, turned_measured, again
             frames = (frames[0], frames[1], *_rolled_axes(frames[2], frames[3], roll))
-        notches, signals = found, {n.index: n.signal for n in found}
+        notches = found
         # 5. tip, refined: the rim the stereo matcher erodes at depth edges given back
         eroded_end, refinement, tip_uncertainty, from_cap = tip_s, "coarse end (no camera seen)", None, False
         # where a camera looks onto the end cap - wider in its image than 4 pixels, more than a matcher's
@@ -320,8 +320,11 @@ class Reconstructor:
             geometry.length_tolerance, geometry.neutral_axis_offset * centreline_off / geometry.notch_pitch))
         along = with_known_length(tip_s, seen_uncertainty, geometry.bent_length(total_bend), length_known)
         tip_erosion, tip_s = tip_s - eroded_end, along.s
-        # the rims the matcher moves (over the cut faces the cameras see), against the spines' known length
-        notches = calibrate_rims(notches, geometry, centerline, None if seen_by is None else self._camera_origins)
+        # the rims the matcher moves (over the cut faces the cameras see), against the spines' known length; a
+        # notch whose width its bend rules out was misread, and is given its bend's
+        notches, misread = calibrate_and_check(notches, geometry, centerline,
+                                               None if seen_by is None else self._camera_origins, tip_s)
+        signals = {n.index: n.signal for n in notches}
         # 6. relocation: every point within the gate onto the reference surface (core.relocation)
         tip = centerline.frames_at(np.array([tip_s]))[0][0]
         if options.method == "icp":  # the paper's KD-tree + ICP onto a reference (core.icp)
@@ -345,7 +348,7 @@ class Reconstructor:
             crop_box=self.config.crop_box(),
             notched_thinning=thinning, looking_into_slots=looking, tip_from_cap=from_cap, side_unsettled=unsettled,
             cross_view_spread=cross_view.spread, distal_cross_view=cross_view.distal,
-            unsupported=cross_view.unsupported, backbone_shift=backbone_shift)
+            unsupported=cross_view.unsupported, backbone_shift=backbone_shift, misread_widths=misread)
         quality = {**quality, "tip_refinement": refinement,
                    "centerline_backbone_shift_mm": None if backbone_shift is None else backbone_shift * 1e3,
                    # None: the side could not be measured (or did not settle): the configured one is kept

@@ -31,7 +31,6 @@ TIP_SHORT_DIAMETERS = 0.5          # tip this many diameters short of (or past) 
 FOOTPRINT_RADIUS_FRACTION = 1 / 7  # pixel footprint above this fraction of r_o: too few pixels across
 QUANTISATION_RADIUS_FRACTION = 1 / 8   # depth step above this fraction of r_o: the tube's roundness is lost
 BIAS_WARN_FOOTPRINTS = 0.5         # a lean into the slots above this many footprints: warn
-WIDTH_CHECK_FRACTION = 0.1         # a notch whose width is off what its bend implies by this share of h: warn
 # The project's floors (issue 9): a figure whose uncertainty exceeds its floor is worth a warning.
 TIP_FLOOR = 0.15e-3
 CENTERLINE_FLOOR = 0.08e-3
@@ -124,7 +123,8 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
            tip_from_cap: bool = False, side_unsettled: tuple[float, float] | None = None,
            cross_view_spread: float | None = None, distal_cross_view: float | None = None, tip_along=None,
            backbone_shift: float | None = None,
-           unsupported: tuple[tuple[float, float], ...] = ()) -> tuple[dict, list[str]]:
+           unsupported: tuple[tuple[float, float], ...] = (),
+           misread_widths: dict[int, float] | None = None) -> tuple[dict, list[str]]:
     """The `quality` document and the warnings (see the module docstring). tip_uncertainty: how well the tip's
     refinement placed it along the tube, when it measured the erosion it gave back (else the erosion itself
     counts as uncertain, and half a footprint). tip_position, crop_box: where the tip is and the box the points
@@ -138,7 +138,8 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
     backbone), which then places it along the views, not the slots' lean. unsupported: the stretches of s
     where no camera saw trusted wall (alignment.CrossView), where no uncertainty was measured. distal_cross_view:
     CrossView.distal, the cameras' spread across their views in the last window, which bounds the tip across
-    the tube from below where it exceeds what the whole length implies."""
+    the tube from below where it exceeds what the whole length implies. misread_widths: the width each notch
+    notches.calibrate_and_check found misread was read at (by index), now its bend's."""
     warnings: list[str] = []
     r_o, diameter = geometry.outer_radius, geometry.outer_diameter
     found = sorted(n.index for n in notches)
@@ -149,21 +150,24 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
     if missing:
         warnings.append(f"{len(found)} of {geometry.notch_count} notches found (missing: "
                         f"{', '.join(str(i) for i in missing)}): their widths are unknown")
-    dips = sorted(n.index for n in notches if not n.edges_measured)
+    dips = sorted(n.index for n in notches if n.signal == "dip")
     if dips:
         warnings.append(f"notches {', '.join(str(i) for i in dips)} show only as a shallow dip of the wall's coverage "
                         "where the comb puts them (slots narrower than the stereo matcher's window, which fills "
                         "them): their edges were not measured, and their widths are what their measured bends "
                         "imply")
-    # a notch's width follows from the configured one and its measured bend (the gap on the outer wall of a
-    # notch of neutral length h bent by theta): a reading far off it is an error or a damaged robot
-    # (a notch found by a dip alone has no edges measured: its width is that, and not checked against itself)
-    h = geometry.notch_width
-    off_model = {n.index: n.width - geometry.notch_width_at_bend(n.bend or 0.0) for n in notches if n.edges_measured}
-    doubtful = sorted(i for i, d in off_model.items() if abs(d) > WIDTH_CHECK_FRACTION * h)
-    if doubtful:
-        listed = ", ".join(f"{i} ({off_model[i] * 1e3:+.2f} mm)" for i in doubtful)
-        warnings.append(f"notch widths off what their bends imply: {listed}; check those notches")
+    # a notch's width follows from its cut and its measured bend (the gap on the outer wall of a notch of neutral
+    # length h bent by theta): one read far off it was misread, and given its bend's (notches.calibrate_and_check);
+    # per notch how far the width read is off it (a misread one's as read)
+    misread_widths = misread_widths or {}
+    off_model = {n.index: misread_widths.get(n.index, n.width) - geometry.notch_width_at_bend(n.bend or 0.0)
+                 for n in notches if n.edges_measured or n.index in misread_widths}
+    if misread_widths:
+        listed = ", ".join(f"{n.index} ({misread_widths[n.index] * 1e3:.2f} mm read, {n.width * 1e3:.2f} implied)"
+                           for n in notches if n.index in misread_widths)
+        warnings.append(f"notches whose edges read a width their bends rule out: {listed}; their rims were misread "
+                        "(a slot seen through over a narrow run, a rim merged with a cut face), and their widths are "
+                        "what their measured bends imply (a robot whose cuts are off its drawing would read so too)")
     # the tip's rim is a depth edge: it rests on the erosion given back, known to about that much unless the
     # refinement measured it
     measured = tip_uncertainty is not None
