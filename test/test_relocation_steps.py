@@ -403,9 +403,8 @@ def test_a_notch_read_at_a_width_its_bend_rules_out_is_given_its_bends_and_its_n
     assert none == {} and {n.signal for n in kept} == {"coverage"}
     assert max(n.width for n in kept) - width > 0.04e-3  # still read wider: measured, not overwritten
     warnings = assess(
-        geometry=geometry, camera_names=("cam_a", "cam_b"), notches=checked,
-        notch_signals={n.index: n.signal for n in checked}, coords_s=np.linspace(0.0, 50e-3, 500), camera=None,
-        tip_s=50e-3, total_bend=bend * geometry.notch_count, footprint=FOOTPRINT, wall_residual=0.0,
+        geometry=geometry, camera_names=("cam_a", "cam_b"), notches=checked, coords_s=np.linspace(0.0, 50e-3, 500),
+        camera=None, tip_s=50e-3, total_bend=bend * geometry.notch_count, footprint=FOOTPRINT, wall_residual=0.0,
         notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0, depth_steps={},
         misread_widths=misread)[1]
     text = " ".join(warnings)
@@ -716,7 +715,7 @@ def test_quality_says_what_is_doubtful():
     assert alone_stray["cam_b"] == pytest.approx(10e-3, abs=1e-3)
     assert share_stray["cam_a"] == pytest.approx(0.8, abs=0.04)
     quality, warnings = assess(
-        geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=notches, notch_signals={}, coords_s=s,
+        geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=notches, coords_s=s,
         camera=camera, tip_s=50e-3, total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.05e-3,
         notch_side=math.radians(20), configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0,
         depth_steps={"cam_a": 1e-3, "cam_b": 1e-4})
@@ -730,7 +729,7 @@ def test_quality_says_what_is_doubtful():
     assert quality["notches_found"] == 0 and quality["notch_side_deg"] == pytest.approx(20.0)
     assert "crop box" not in text
     cap_warnings = assess(
-        geometry=GEOMETRY, camera_names=("cam_a",), notches=[], notch_signals={}, coords_s=s,
+        geometry=GEOMETRY, camera_names=("cam_a",), notches=[], coords_s=s,
         camera=np.zeros(len(s), np.int8), tip_s=50e-3, total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.0,
         notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0, depth_steps={},
         tip_uncertainty=0.26e-3, tip_from_cap=True)[1]
@@ -744,7 +743,7 @@ def test_quality_tells_a_tube_cut_short_by_the_crop_box_from_one_that_ends_insid
 
     def warnings_for(tip):
         return " ".join(assess(
-            geometry=GEOMETRY, camera_names=("cam_a",), notches=[], notch_signals={}, coords_s=s,
+            geometry=GEOMETRY, camera_names=("cam_a",), notches=[], coords_s=s,
             camera=np.zeros(len(s), np.int8), tip_s=30e-3, total_bend=0.0, footprint=FOOTPRINT,
             wall_residual=0.0, notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0,
             depth_steps={}, tip_position=np.array(tip), crop_box=box)[1])
@@ -777,7 +776,7 @@ def test_quality_measures_a_wall_that_reads_deeper_between_the_notches_than_on_t
 
     def warnings_for(deep, looking=("cam_a",)):
         quality, warnings = assess(
-            geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=[], notch_signals={}, coords_s=s,
+            geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=[], coords_s=s,
             camera=np.zeros(len(s), np.int8), tip_s=50e-3, total_bend=0.0, footprint=FOOTPRINT,
             wall_residual=0.0, notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0,
             depth_steps={}, notched_thinning=thinning(deep), looking_into_slots=looking)
@@ -804,7 +803,7 @@ def test_quality_gives_the_centreline_an_uncertainty_and_warns_above_its_floor()
     assert centerline_uncertainty(None, None) is None
 
     def assessed(spread, thinning, looking=(), at_end=None):
-        return assess(geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=[], notch_signals={},
+        return assess(geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=[],
                       coords_s=np.linspace(0.0, 50e-3, 1000), camera=np.zeros(1000, np.int8), tip_s=50e-3,
                       total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.0, notch_side=0.0, configured_side=0.0,
                       bias_notch_side=0.1e-3, bias_binormal=0.0, depth_steps={}, notched_thinning=thinning,

@@ -180,7 +180,7 @@ def test_the_tip_weighs_the_end_seen_against_the_robots_known_length():
     geometry = TubeGeometry()  # 53 mm straight
 
     def warnings_for(along):
-        return assess(geometry=geometry, camera_names=("cam_a", "cam_b"), notches=[], notch_signals={},
+        return assess(geometry=geometry, camera_names=("cam_a", "cam_b"), notches=[],
                       coords_s=np.linspace(0.0, along.s, 100), camera=np.arange(100) % 2, tip_s=along.s,
                       total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.0, notch_side=0.0, configured_side=0.0,
                       bias_notch_side=0.0, bias_binormal=0.0, depth_steps={}, tip_uncertainty=along.seen_uncertainty,
@@ -281,7 +281,7 @@ def test_tip_warning_states_how_well_the_erosion_is_known(erosion, uncertainty, 
     geometry = TubeGeometry()
     s = np.linspace(0.0, geometry.length, 2000)
     _, warnings = assess(
-        geometry=geometry, camera_names=("cam_a", "cam_b"), notches=[], notch_signals={}, coords_s=s,
+        geometry=geometry, camera_names=("cam_a", "cam_b"), notches=[], coords_s=s,
         camera=(np.arange(len(s)) % 2).astype(np.int8), tip_s=geometry.length, total_bend=0.0, footprint=0.2e-3,
         wall_residual=0.05e-3, notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0,
         depth_steps={}, tip_erosion=erosion, tip_uncertainty=uncertainty)

@@ -324,7 +324,6 @@ class Reconstructor:
         # notch whose width its bend rules out was misread, and is given its bend's
         notches, misread = calibrate_and_check(notches, geometry, centerline,
                                                None if seen_by is None else self._camera_origins, tip_s)
-        signals = {n.index: n.signal for n in notches}
         # 6. relocation: every point within the gate onto the reference surface (core.relocation)
         tip = centerline.frames_at(np.array([tip_s]))[0][0]
         if options.method == "icp":  # the paper's KD-tree + ICP onto a reference (core.icp)
@@ -338,7 +337,7 @@ class Reconstructor:
         near_wall = np.abs(offset - level) < settings.gate
         wall_residual = float(np.sqrt(np.mean((offset[near_wall] - level) ** 2))) if np.any(near_wall) else 0.0
         quality, warnings = assess(
-            geometry=geometry, camera_names=self.config.camera_names, notches=notches, notch_signals=signals,
+            geometry=geometry, camera_names=self.config.camera_names, notches=notches,
             coords_s=measured.s, camera=seen_by, tip_s=tip_s, total_bend=total_bend,
             footprint=footprint, wall_residual=wall_residual, notch_side=notch_side,
             configured_side=geometry.notch_side,

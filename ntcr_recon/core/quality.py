@@ -113,7 +113,7 @@ def cameras_looking_into_slots(centerline, geometry, camera_origins: np.ndarray,
     return looking
 
 
-def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_signals: dict[int, str],
+def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
            coords_s: np.ndarray, camera: np.ndarray | None, tip_s: float, total_bend: float, footprint: float,
            wall_residual: float, notch_side: float, configured_side: float, bias_notch_side: float,
            bias_binormal: float, depth_steps: dict[str, float], tip_erosion: float = 0.0,
@@ -145,8 +145,8 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
     found = sorted(n.index for n in notches)
     missing = sorted(set(range(geometry.notch_count)) - set(found))
     by_signal: dict[str, int] = {}
-    for signal in notch_signals.values():
-        by_signal[signal] = by_signal.get(signal, 0) + 1
+    for notch in notches:
+        by_signal[notch.signal] = by_signal.get(notch.signal, 0) + 1
     if missing:
         warnings.append(f"{len(found)} of {geometry.notch_count} notches found (missing: "
                         f"{', '.join(str(i) for i in missing)}): their widths are unknown")
@@ -263,7 +263,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list, notch_sign
     quality = {
         "notches_found": len(found), "notches_expected": geometry.notch_count, "notches_missing": missing,
         "notches_by_signal": by_signal,
-        "notch_signal": {str(i): notch_signals[i] for i in sorted(notch_signals)},
+        "notch_signal": {str(n.index): n.signal for n in sorted(notches, key=lambda n: n.index)},
         "length_seen_share": share, "distal_one_camera_mm": {k: v * 1e3 for k, v in alone.items()},
         "fit_residual_mm": wall_residual * 1e3,
         "notch_side_deg": math.degrees(notch_side), "notch_side_configured_deg": math.degrees(configured_side),
