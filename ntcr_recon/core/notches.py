@@ -500,7 +500,7 @@ def calibrate_rims(notches: list[Notch], geometry: TubeGeometry, centerline: Cen
     (share_spines). (A robot whose spines are all shorter than its drawing says would have that read as erosion.)
     """
     spine = geometry.notch_pitch - geometry.notch_width
-    pairs = _spine_pairs(notches)  # a dip's edges are the comb's: nothing to correct
+    pairs = _spine_pairs(notches)  # a dip's or a misread notch's edges are its bend's: nothing to correct
     if len(pairs) < 3:
         return share_spines(notches, spine)
     shortfall = np.array([spine - (after.start_s - before.end_s) for before, after in pairs])
@@ -573,8 +573,8 @@ def share_spines(notches: list[Notch], spine: float) -> list[Notch]:
     A spine is rigid (the uncut tube), so its two rims, measured apart, are one unknown seen twice: each rim's
     error that is not the other's (pixel phase, a rim the matcher mixed alone) is halved, and one rim read a
     whole notch off shows as half of that on each of the two notches it bounds, not all of it on one. The first
-    notch's start and the last one's end have no partner and stay as measured; a dip's edges are the comb's and
-    bound no spine here. Width and centre follow their edges."""
+    notch's start and the last one's end have no partner and stay as measured; a notch whose edges were not
+    measured (a dip, a misread one) bounds no spine here. Width and centre follow their edges."""
     start_moves, end_moves = {}, {}
     for before, after in _spine_pairs(notches):
         off = (after.start_s - before.end_s) - spine
@@ -591,7 +591,8 @@ def _spine_pairs(notches: list[Notch]) -> list[tuple[Notch, Notch]]:
 def _with_edges_moved(notches: list[Notch], start_moves: dict[int, float], end_moves: dict[int, float]
                       ) -> list[Notch]:
     """The notches with each measured one's start moved by start_moves[index] and its end by end_moves[index]
-    (m, + along s; none given: not moved), width and centre following; a dip as it was."""
+    (m, + along s; none given: not moved), width and centre following; one whose edges were not measured as it
+    was."""
     moved = []
     for n in notches:
         if not n.edges_measured:
