@@ -396,6 +396,14 @@ def test_a_notch_read_at_a_width_its_bend_rules_out_is_given_its_bends_and_its_n
     assert 6 in calibrate_and_check(without_7, geometry, tip_s=centres[8])[1]
     unchecked, flagged = calibrate_and_check(without_7, geometry, tip_s=centres[7])
     assert 6 not in flagged and next(n for n in unchecked if n.index == 6).signal == "coverage"
+    # ... and the result says its width was checked against nothing
+    quality, said = assess(
+        geometry=geometry, camera_names=("cam_a", "cam_b"), notches=unchecked,
+        coords_s=np.linspace(0.0, centres[7], 500), camera=None, tip_s=centres[7],
+        total_bend=bend * geometry.notch_count, footprint=FOOTPRINT, wall_residual=0.0, notch_side=0.0,
+        configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0, depth_steps={})
+    assert quality["notches_unchecked"] == [6]
+    assert any(w.startswith("notch 6: the width is as read, not checked against the bend") for w in said)
 
     wide = [read(6, n.start_s - 0.05e-3, n.end_s + 0.05e-3) if n.index == 6 else n for n in exact]
     assert MISREAD_WIDTH_FRACTION * geometry.notch_width > 0.1e-3

@@ -550,10 +550,7 @@ def calibrate_and_check(notches: list[Notch], geometry: TubeGeometry, centerline
     until no measured notch is off its bend that far."""
     misread: dict[int, float] = {}
     limit = MISREAD_WIDTH_FRACTION * geometry.notch_width
-    found = {n.index for n in notches}
-    last = geometry.notch_count - 1
-    checked = {n.index for n in notches if n.index + 1 in found or n.index == last
-               or n.end_s + 2 * geometry.notch_pitch - geometry.notch_width <= tip_s}
+    checked = bends_measured(notches, geometry, tip_s)
     while True:  # one at a time, the farthest off first: a misread rim shared over a spine puts its neighbour off too
         calibrated = calibrate_rims(notches, geometry, centerline, camera_origins)
         off = {n.index: abs(n.width - geometry.notch_width_at_bend(n.bend or 0.0))
@@ -564,6 +561,15 @@ def calibrate_and_check(notches: list[Notch], geometry: TubeGeometry, centerline
         read = next(n for n in calibrated if n.index == worst)
         misread[worst] = read.width
         notches = [bend_implied(read, geometry, "bend") if n.index == worst else n for n in notches]
+
+
+def bends_measured(notches: list[Notch], geometry: TubeGeometry, tip_s: float) -> set[int]:
+    """The indices of the notches whose bend two whole spines measured: the next notch was found, or it is the
+    robot's last, or the tube is seen to tip_s a whole pitch past the spine after it (a spine running into a tube
+    cut short is no chord of it). Only their widths can be checked against their bends."""
+    found = {n.index for n in notches}
+    return {n.index for n in notches if n.index + 1 in found or n.index == geometry.notch_count - 1
+            or n.end_s + 2 * geometry.notch_pitch - geometry.notch_width <= tip_s}
 
 
 def share_spines(notches: list[Notch], spine: float) -> list[Notch]:

@@ -5,7 +5,7 @@ and by which signal, the share of the robot's length each camera saw (and a dist
 camera alone), the wall fit's residual, the measured notch side against the configured one, the centreline
 bias the alignment removed and how uncertain the centreline still is, the tip against the robot's known
 length, the pixel footprint against the tube, the depth quantisation seen in the frames, each notch's width
-against the width its measured bend implies, how far the tip's position rests on the rim erosion given back,
+against the width its measured bend implies (and those it could not be checked against), how far the tip's position rests on the rim erosion given back,
 and how much deeper the wall reads between the notches than on the plain tube (a lean no fit can see), and
 the stretches where no camera saw the wall facing it (where the centreline's error was not measured). Every
 figure is in the unit its key names; the warnings are sentences a user can act on. relocation_node puts them
@@ -20,6 +20,7 @@ import numpy as np
 from scipy.ndimage import uniform_filter1d
 
 from ntcr_recon.core.comb import expected_centres, inside_intervals
+from ntcr_recon.core.notches import bends_measured
 from ntcr_recon.core.tip import LENGTH_AGREEMENT_SIGMAS
 from ntcr_recon.core.wall import median, surface_band
 
@@ -168,6 +169,14 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
         warnings.append(f"notches whose edges read a width their bends rule out: {listed}; their rims were misread "
                         "(a slot seen through over a narrow run, a rim merged with a cut face), and their widths are "
                         "what their measured bends imply (a robot whose cuts are off its drawing would read so too)")
+    # a notch whose next one is missing where the tube seen ends within a pitch: its bend is a chord that may run
+    # into a tube cut short, so its width, as read, was checked against nothing
+    unchecked = sorted(n.index for n in notches if n.edges_measured
+                       and n.index not in bends_measured(notches, geometry, tip_s))
+    if unchecked:
+        warnings.append(f"notch{'es' if len(unchecked) > 1 else ''} {', '.join(str(i) for i in unchecked)}: the "
+                        "width is as read, not checked against the bend (the next notch was not found and the tube "
+                        "seen ends within a pitch of it, so no whole spine beyond it measures its bend)")
     # the tip's rim is a depth edge: it rests on the erosion given back, known to about that much unless the
     # refinement measured it
     measured = tip_uncertainty is not None
@@ -274,6 +283,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
         "tip_uncertainty_mm": tip_uncertainty * 1e3,
         "tip_across_uncertainty_mm": None if uncertainty is None else tip_across * 1e3,
         "notch_width_vs_bend_mm": {str(i): d * 1e3 for i, d in sorted(off_model.items())},
+        "notches_unchecked": unchecked,
         "pixel_footprint_mm": footprint * 1e3,
         "depth_step_mm": {k: v * 1e3 for k, v in depth_steps.items()},
         "notched_thinning_mm": None if notched_thinning is None else notched_thinning * 1e3,
