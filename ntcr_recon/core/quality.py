@@ -5,11 +5,11 @@ and by which signal, the share of the robot's length each camera saw (and a dist
 camera alone), the wall fit's residual, the measured notch side against the configured one, the centreline
 bias the alignment removed and how uncertain the centreline still is, the tip against the robot's known
 length, the pixel footprint against the tube, the depth quantisation seen in the frames, each notch's width
-against the width its measured bend implies (and those it could not be checked against), how far the tip's position rests on the rim erosion given back,
-and how much deeper the wall reads between the notches than on the plain tube (a lean no fit can see), and
-the stretches where no camera saw the wall facing it (where the centreline's error was not measured). Every
-figure is in the unit its key names; the warnings are sentences a user can act on. relocation_node puts them
-on /diagnostics, the CLI prints them.
+against the width its measured bend implies (and the notches it could not be checked for), how far the tip's
+position rests on the rim erosion given back, and how much deeper the wall reads between the notches than on
+the plain tube (a lean no fit can see), and the stretches where no camera saw the wall facing it (where the
+centreline's error was not measured). Every figure is in the unit its key names; the warnings are sentences a
+user can act on. relocation_node puts them on /diagnostics, the CLI prints them.
 """
 
 from __future__ import annotations
