@@ -365,8 +365,8 @@ def test_a_notch_read_at_a_width_its_bend_rules_out_is_given_its_bends_and_its_n
     was seen through (a narrow run of coverage). Calibrated as measured, its error spreads to the spines it bounds
     (notches 5 and 7 read off); checked against the bends, notch 6 is given the arc and width its bend implies
     about its centre (signal "bend", the width read reported), and every other width is exact; not where its next
-    notch is missing. A notch read 0.1 mm wide - under a tenth of the cut width off its bend, a reading a robot
-    could hold - is kept as measured."""
+    notch is missing near the tube's end (a warning names it unchecked). A notch read 0.1 mm wide - under a
+    tenth of the cut width off its bend, a reading a robot could hold - is kept as measured."""
     from ntcr_recon.core.notches import MISREAD_WIDTH_FRACTION, Notch, calibrate_and_check, calibrate_rims
 
     geometry = TubeGeometry()
@@ -403,7 +403,7 @@ def test_a_notch_read_at_a_width_its_bend_rules_out_is_given_its_bends_and_its_n
         total_bend=bend * geometry.notch_count, footprint=FOOTPRINT, wall_residual=0.0, notch_side=0.0,
         configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0, depth_steps={})
     assert quality["notches_unchecked"] == [6]
-    assert any(w.startswith("notch 6: the width is as read, not checked against the bend") for w in said)
+    assert any(w.startswith("widths not checked against their bends, as read: notches 6 (") for w in said)
 
     wide = [read(6, n.start_s - 0.05e-3, n.end_s + 0.05e-3) if n.index == 6 else n for n in exact]
     assert MISREAD_WIDTH_FRACTION * geometry.notch_width > 0.1e-3

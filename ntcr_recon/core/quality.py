@@ -174,9 +174,9 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     unchecked = sorted(n.index for n in notches if n.edges_measured
                        and n.index not in bends_measured(notches, geometry, tip_s))
     if unchecked:
-        warnings.append(f"notch{'es' if len(unchecked) > 1 else ''} {', '.join(str(i) for i in unchecked)}: the "
-                        "width is as read, not checked against the bend (the next notch was not found and the tube "
-                        "seen ends within a pitch of it, so no whole spine beyond it measures its bend)")
+        warnings.append(f"widths not checked against their bends, as read: notches {', '.join(map(str, unchecked))} "
+                        "(the next notch was not found and the tube seen ends within a pitch: no whole spine beyond "
+                        "measures the bend)")
     # the tip's rim is a depth edge: it rests on the erosion given back, known to about that much unless the
     # refinement measured it
     measured = tip_uncertainty is not None
