@@ -382,7 +382,7 @@ def test_a_notch_read_at_a_width_its_bend_rules_out_is_given_its_bends_and_its_n
     spoiled = np.array([n.width for n in calibrate_rims(narrow, geometry)]) - width
     assert abs(spoiled[5]) > 0.1e-3 and abs(spoiled[7]) > 0.1e-3  # the misread rims shared with its neighbours
 
-    checked, misread = calibrate_and_check(narrow, geometry)
+    checked, misread, _ = calibrate_and_check(narrow, geometry)
     assert set(misread) == {6} and misread[6] < width - MISREAD_WIDTH_FRACTION * geometry.notch_width
     by_index = {n.index: n for n in checked}
     assert by_index[6].signal == "bend" and not by_index[6].edges_measured
@@ -393,21 +393,22 @@ def test_a_notch_read_at_a_width_its_bend_rules_out_is_given_its_bends_and_its_n
     # its next notch not found and the tube seen to just past it: the spine after it may run to a tube cut short,
     # its bend is not trusted to check it; seen a pitch beyond, it is
     without_7 = [n for n in narrow if n.index != 7]
-    assert 6 in calibrate_and_check(without_7, geometry, tip_s=centres[8])[1]
-    unchecked, flagged = calibrate_and_check(without_7, geometry, tip_s=centres[7])
+    assert 6 in calibrate_and_check(without_7, geometry, tip_s=centres[8]).misread
+    unchecked, flagged, not_checked = calibrate_and_check(without_7, geometry, tip_s=centres[7])
     assert 6 not in flagged and next(n for n in unchecked if n.index == 6).signal == "coverage"
+    assert not_checked == [6]
     # ... and the result says its width was checked against nothing
     quality, said = assess(
         geometry=geometry, camera_names=("cam_a", "cam_b"), notches=unchecked,
         coords_s=np.linspace(0.0, centres[7], 500), camera=None, tip_s=centres[7],
         total_bend=bend * geometry.notch_count, footprint=FOOTPRINT, wall_residual=0.0, notch_side=0.0,
-        configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0, depth_steps={})
+        configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0, depth_steps={}, unchecked=not_checked)
     assert quality["notches_unchecked"] == [6]
     assert any(w.startswith("widths not checked against their bends, as read: notches 6 (") for w in said)
 
     wide = [read(6, n.start_s - 0.05e-3, n.end_s + 0.05e-3) if n.index == 6 else n for n in exact]
     assert MISREAD_WIDTH_FRACTION * geometry.notch_width > 0.1e-3
-    kept, none = calibrate_and_check(wide, geometry)
+    kept, none, _ = calibrate_and_check(wide, geometry)
     assert none == {} and {n.signal for n in kept} == {"coverage"}
     assert max(n.width for n in kept) - width > 0.04e-3  # still read wider: measured, not overwritten
     warnings = assess(

@@ -533,11 +533,17 @@ def calibrate_rims(notches: list[Notch], geometry: TubeGeometry, centerline: Cen
     return share_spines(_with_edges_moved(notches, start_moves, end_moves), spine)
 
 
+class CheckedNotches(NamedTuple):
+    """calibrate_and_check's result."""
+    notches: list[Notch]
+    misread: dict[int, float]  # the width each notch found misread was read at (by index), now its bend's
+    unchecked: list[int]       # the measured notches whose bends no two whole spines measured: widths as read
+
+
 def calibrate_and_check(notches: list[Notch], geometry: TubeGeometry, centerline: Centerline | None = None,
-                        camera_origins: np.ndarray | None = None, tip_s: float = np.inf
-                        ) -> tuple[list[Notch], dict[int, float]]:
-    """calibrate_rims, with the notches its widths show misread left out of it: the notches, and the width each
-    misread one was read at (by index).
+                        camera_origins: np.ndarray | None = None, tip_s: float = np.inf) -> CheckedNotches:
+    """calibrate_rims, with the notches its widths show misread left out of it: the notches, the width each
+    misread one was read at (by index), and the notches that could not be checked.
 
     A notch's width follows from its cut width and its bend (geometry.notch_width_at_bend), the bend measured by
     the spines on either side, apart from its rims; a laser-cut notch keeps its drawing's width to a few
@@ -547,23 +553,25 @@ def calibrate_and_check(notches: list[Notch], geometry: TubeGeometry, centerline
     misread (a rim lost where only a narrow run of the slot was seen through, a rim merged with a face): it is
     given the arc and width its bend implies, about its centre (signal "bend"), and the rims are calibrated again
     without it, so that no spine it bounds shares its error with a neighbour; so on, the farthest off first,
-    until no measured notch is off its bend that far."""
+    until no measured notch is off its bend that far. Those whose bends were not so measured are listed
+    unchecked."""
     misread: dict[int, float] = {}
     limit = MISREAD_WIDTH_FRACTION * geometry.notch_width
-    checked = bends_measured(notches, geometry, tip_s)
+    checked = _bends_measured(notches, geometry, tip_s)
     while True:  # one at a time, the farthest off first: a misread rim shared over a spine puts its neighbour off too
         calibrated = calibrate_rims(notches, geometry, centerline, camera_origins)
         off = {n.index: abs(n.width - geometry.notch_width_at_bend(n.bend or 0.0))
                for n in calibrated if n.edges_measured and n.index in checked}
         worst = max(off, key=off.get, default=None)
         if worst is None or off[worst] <= limit:
-            return calibrated, misread
+            return CheckedNotches(calibrated, misread,
+                                  sorted(n.index for n in calibrated if n.edges_measured and n.index not in checked))
         read = next(n for n in calibrated if n.index == worst)
         misread[worst] = read.width
         notches = [bend_implied(read, geometry, "bend") if n.index == worst else n for n in notches]
 
 
-def bends_measured(notches: list[Notch], geometry: TubeGeometry, tip_s: float) -> set[int]:
+def _bends_measured(notches: list[Notch], geometry: TubeGeometry, tip_s: float) -> set[int]:
     """The indices of the notches whose bend two whole spines measured: the next notch was found, or it is the
     robot's last, or the tube is seen to tip_s a whole pitch past the spine after it (a spine running into a tube
     cut short is no chord of it). Only their widths can be checked against their bends."""

@@ -322,8 +322,8 @@ class Reconstructor:
         tip_erosion, tip_s = tip_s - eroded_end, along.s
         # the rims the matcher moves (over the cut faces the cameras see), against the spines' known length; a
         # notch whose width its bend rules out was misread, and is given its bend's
-        notches, misread = calibrate_and_check(notches, geometry, centerline,
-                                               None if seen_by is None else self._camera_origins, tip_s)
+        notches, misread, unchecked = calibrate_and_check(notches, geometry, centerline,
+                                                          None if seen_by is None else self._camera_origins, tip_s)
         # 6. relocation: every point within the gate onto the reference surface (core.relocation)
         tip = centerline.frames_at(np.array([tip_s]))[0][0]
         if options.method == "icp":  # the paper's KD-tree + ICP onto a reference (core.icp)
@@ -347,7 +347,8 @@ class Reconstructor:
             crop_box=self.config.crop_box(),
             notched_thinning=thinning, looking_into_slots=looking, tip_from_cap=from_cap, side_unsettled=unsettled,
             cross_view_spread=cross_view.spread, distal_cross_view=cross_view.distal,
-            unsupported=cross_view.unsupported, backbone_shift=backbone_shift, misread_widths=misread)
+            unsupported=cross_view.unsupported, backbone_shift=backbone_shift, misread_widths=misread,
+            unchecked=unchecked)
         quality = {**quality, "tip_refinement": refinement,
                    "centerline_backbone_shift_mm": None if backbone_shift is None else backbone_shift * 1e3,
                    # None: the side could not be measured (or did not settle): the configured one is kept

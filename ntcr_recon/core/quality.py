@@ -20,7 +20,6 @@ import numpy as np
 from scipy.ndimage import uniform_filter1d
 
 from ntcr_recon.core.comb import expected_centres, inside_intervals
-from ntcr_recon.core.notches import bends_measured
 from ntcr_recon.core.tip import LENGTH_AGREEMENT_SIGMAS
 from ntcr_recon.core.wall import median, surface_band
 
@@ -125,7 +124,8 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
            cross_view_spread: float | None = None, distal_cross_view: float | None = None, tip_along=None,
            backbone_shift: float | None = None,
            unsupported: tuple[tuple[float, float], ...] = (),
-           misread_widths: dict[int, float] | None = None) -> tuple[dict, list[str]]:
+           misread_widths: dict[int, float] | None = None, unchecked: list[int] | None = None
+           ) -> tuple[dict, list[str]]:
     """The `quality` document and the warnings (see the module docstring). tip_uncertainty: how well the tip's
     refinement placed it along the tube, when it measured the erosion it gave back (else the erosion itself
     counts as uncertain, and half a footprint). tip_position, crop_box: where the tip is and the box the points
@@ -140,7 +140,8 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     where no camera saw trusted wall (alignment.CrossView), where no uncertainty was measured. distal_cross_view:
     CrossView.distal, the cameras' spread across their views in the last window, which bounds the tip across
     the tube from below where it exceeds what the whole length implies. misread_widths: the width each notch
-    notches.calibrate_and_check found misread was read at (by index), now its bend's."""
+    notches.calibrate_and_check found misread was read at (by index), now its bend's; unchecked: the notches it
+    could not check (CheckedNotches.unchecked)."""
     warnings: list[str] = []
     r_o, diameter = geometry.outer_radius, geometry.outer_diameter
     found = sorted(n.index for n in notches)
@@ -171,8 +172,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
                         "what their measured bends imply (a robot whose cuts are off its drawing would read so too)")
     # a notch whose next one is missing where the tube seen ends within a pitch: its bend is a chord that may run
     # into a tube cut short, so its width, as read, was checked against nothing
-    unchecked = sorted(n.index for n in notches if n.edges_measured
-                       and n.index not in bends_measured(notches, geometry, tip_s))
+    unchecked = list(unchecked or ())
     if unchecked:
         warnings.append(f"widths not checked against their bends, as read: notches {', '.join(map(str, unchecked))} "
                         "(the next notch was not found and the tube seen ends within a pitch: no whole spine beyond "
