@@ -44,19 +44,40 @@ def rig_mapping(geometry_mapping: dict, distance: float = 0.09, height: float = 
     return mapping
 
 
+def post_surface(radius: float, height: float, spacing: float) -> tuple[np.ndarray, np.ndarray]:
+    """Points and outward normals of a post the robot's base stands on: a cylinder of `radius` about the base
+    frame's z from -height up to the base plane, and its top disc."""
+    angles = np.arange(0.0, 2 * np.pi, spacing / radius)
+    heights = np.arange(-height, 0.0, spacing)
+    angle, z = (grid.ravel() for grid in np.meshgrid(angles, heights))
+    side = np.stack([radius * np.cos(angle), radius * np.sin(angle), z], axis=1)
+    side_normals = np.stack([np.cos(angle), np.sin(angle), np.zeros_like(z)], axis=1)
+    across = np.arange(-radius, radius, spacing)
+    x, y = (grid.ravel() for grid in np.meshgrid(across, across))
+    top = np.stack([x, y, np.zeros_like(x)], axis=1)[x ** 2 + y ** 2 <= radius ** 2]
+    return (np.concatenate([side, top]),
+            np.concatenate([side_normals, np.tile([0.0, 0.0, 1.0], (len(top), 1))]))
+
+
 def render_pair(shape, config, seed: int = 0, blur_px: int = 3, noise_at_90mm: float = 2e-5,
-                spacing: float = 0.03e-3, stamp_ns: int = 0, backdrop: float | None = None) -> FramePair:
+                spacing: float = 0.03e-3, stamp_ns: int = 0, backdrop: float | None = None,
+                post_radius: float | None = None) -> FramePair:
     """backdrop: depth (m) of a wall perpendicular to each camera's optical axis behind the robot, or none (the
     robot alone has depth). With a wall, the blur mixes its depth into the robot's edge pixels and the robot's
-    into the wall's: each side of an edge spoils by about half the blur window."""
+    into the wall's: each side of an edge spoils by about half the blur window. post_radius: a post of that
+    radius under the robot's base (post_surface, 40 mm high), or none."""
     rng = np.random.default_rng(seed)
     sample = shape.sample_surface_parts(spacing)
+    surface, surface_normals = sample.points, sample.normals
+    if post_radius is not None:
+        post, post_normals = post_surface(post_radius, 0.04, 2 * spacing)
+        surface, surface_normals = np.concatenate([surface, post]), np.concatenate([surface_normals, post_normals])
     frames = {}
     for name in config.camera_names:
         pose = config.cameras[name].extrinsic
         to_camera = invert_transform(pose)
-        points = transform_points(to_camera, sample.points)
-        normals = sample.normals @ to_camera[:3, :3].T
+        points = transform_points(to_camera, surface)
+        normals = surface_normals @ to_camera[:3, :3].T
         facing = np.einsum("ij,ij->i", normals, -points) > 0
         points = points[facing]
         z = points[:, 2]

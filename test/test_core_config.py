@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 
+import numpy as np
 import pytest
 import yaml
 
@@ -54,15 +55,41 @@ def test_stage_sections_are_optional(sim_mapping):
 
 
 def test_auto_crop_box_starts_at_the_base(sim_mapping):
-    config = rig_config_from_mapping(sim_mapping)
+    mapping = copy.deepcopy(sim_mapping)
+    mapping["filters"]["clamp_radius"] = 0.0
+    config = rig_config_from_mapping(mapping)
     box_min, box_max = config.crop_box()
     reach = config.robot.length + config.robot.outer_diameter
     assert box_min == pytest.approx([-reach, -reach, 0.0])
     assert box_max == pytest.approx([reach, reach, reach])
-    tilted = copy.deepcopy(sim_mapping)
+    tilted = copy.deepcopy(mapping)
     tilted["robot"]["base_orientation"] = [1.0, 0.0, 0.0, 0.0]  # robot pointing down -z
     box_min, box_max = rig_config_from_mapping(tilted).crop_box()
     assert box_max[2] == pytest.approx(0.0) and box_min[2] == pytest.approx(-reach)
+
+
+@pytest.mark.parametrize("pointing_down", [False, True])
+def test_with_a_clamp_radius_the_crop_reaches_below_the_base_plane_and_keeps_the_clamp_out(sim_mapping,
+                                                                                           pointing_down):
+    """A robot bent past 90 deg goes on below its base plane, where the clamp stands: the box reaches there,
+    and a cylinder of the clamp's radius about the base's axis below the plane is cut out of it."""
+    mapping = copy.deepcopy(sim_mapping)
+    mapping["filters"]["clamp_radius"] = 0.005
+    mapping["robot"]["base_position"] = [0.01, 0.0, 0.0]
+    if pointing_down:  # the base turned half a turn about x: its axis, and the clamp below it, are flipped
+        mapping["robot"]["base_orientation"] = [1.0, 0.0, 0.0, 0.0]
+    config = rig_config_from_mapping(mapping)
+    reach = config.robot.length + config.robot.outer_diameter
+    assert config.crop_box()[0][2] == pytest.approx(-reach) and config.crop_box()[1][2] == pytest.approx(reach)
+    below = 1.0 if pointing_down else -1.0  # the side of the base plane the clamp is on, along base z
+    points = np.array([[0.01, 0.0, 0.02 * below],            # on the clamp's axis, below the base: out
+                       [0.01 + 0.0049, 0.0, 0.001 * below],  # just inside the clamp's radius: out
+                       [0.01 + 0.0051, 0.0, 0.001 * below],  # just outside it: a robot bent back down, in
+                       [0.01, 0.0, -0.001 * below],          # above the base, on the axis: the robot, in
+                       [0.01, 0.0, 0.08 * below]])           # beyond the robot's reach: out
+    assert config.crop_mask(points).tolist() == [False, False, True, True, False]
+    mapping["filters"]["clamp_radius"] = 0.0  # no clamp given: the box stops at the base plane
+    assert rig_config_from_mapping(mapping).crop_mask(points).tolist() == [False, False, False, True, False]
 
 
 @pytest.mark.parametrize(("edit", "message"), [

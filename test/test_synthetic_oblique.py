@@ -154,3 +154,36 @@ def test_a_rig_file_rolled_15_deg_is_corrected_though_a_7px_window_thins_the_rin
     print(f"\nrig file 15 deg off side-on notches at {notch_side_deg:.0f} deg: measured {measured:.1f} deg")
     assert abs((measured - notch_side_deg + 180.0) % 360.0 - 180.0) <= 3.0
     assert len(relocation.notches) == truth.robot.notch_count
+
+
+@pytest.mark.parametrize("clamp_radius", [0.005, 0.0])
+def test_a_robot_curled_below_its_base_plane_is_followed_there_past_its_post_or_said_to_be_cut(clamp_radius):
+    """Bent 270 deg, the robot's distal part lies below its base plane, curled back 2.4 mm from the post it
+    stands on. With the post's radius given (filters.clamp_radius) the crop box reaches there and keeps the
+    post out: every notch is found and the tip placed (with the post in, the tube ran on 5 mm into it). Without,
+    the box stops at the base plane: the tube is cut there, and the result says where and which setting lets
+    the box reach on."""
+    from synthetic_views import render_pair, rig_mapping
+
+    from ntcr_recon.core.config import rig_config_from_mapping
+    from ntcr_recon.core.kinematics import TubeShape
+
+    mapping = rig_mapping({"notch_side": 0.0}, distance=0.09)
+    mapping["filters"] = {"clamp_radius": clamp_radius}
+    config = rig_config_from_mapping(mapping)
+    shape = TubeShape.from_bend_angle(config.robot, np.radians(270.0))
+    assert shape.tip_pose()[0][2] < -4e-3
+    relocation, errors, rmse, tip = _figures(config, shape, render_pair(shape, config, seed=3, post_radius=4e-3))
+    xyz = relocation.relocated.xyz
+    on_post = (xyz[:, 2] < 0) & (np.hypot(xyz[:, 0], xyz[:, 1]) < 4.5e-3)
+    print(f"\ncurled 270 deg, clamp_radius {clamp_radius * 1e3:.0f} mm: {len(relocation.notches)}/16 notches, tip "
+          f"{tip * 1e3:.2f} mm off, centreline {rmse * 1e3:.3f} mm; warnings: {list(relocation.warnings)}")
+    assert not np.any(on_post)
+    if clamp_radius:
+        assert relocation.quality["notches_found"] == config.robot.notch_count
+        assert errors.mean() <= 0.08e-3 and tip <= 0.15e-3
+        assert not any("crop box" in warning for warning in relocation.warnings)
+    else:
+        assert tip > 3e-3
+        assert any("crop box's face z = 0.0 mm" in warning and "filters.clamp_radius" in warning
+                   for warning in relocation.warnings)

@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 
 from ntcr_recon.core.config_yaml import read_config_document
+from ntcr_recon.core.filters import crop_box_mask
 from ntcr_recon.core.geometry import TubeGeometry
 from ntcr_recon.core.schema import (
     ConfigError,
@@ -127,6 +128,11 @@ class FilterConfig:
                                                        **_WITHIN_A_LAB)
     crop_box_max: tuple[float, float, float] = setting((0.0, 0.0, 0.0), "crop box corner, base frame", unit="m",
                                                        **_WITHIN_A_LAB)
+    clamp_radius: float = setting(0.0, "> 0: the automatic crop box reaches below the robot's base plane too (a "
+                                  "robot bent past 90 deg), and a cylinder of this radius about the base's axis "
+                                  "below that plane is kept out - the clamp or post the robot stands on, with a "
+                                  "millimetre for the flying pixels at its edges; 0: the box starts at the base "
+                                  "plane", unit="m", minimum=0.0, maximum=1.0)
     color_filter: bool = setting(False, "keep only points whose 8-bit R, G, B lie within [color_min, color_max]")
     color_min: tuple[int, int, int] = setting((0, 0, 0), "lowest R, G, B kept", minimum=0, maximum=255)
     color_max: tuple[int, int, int] = setting((255, 255, 255), "highest R, G, B kept", minimum=0, maximum=255)
@@ -220,9 +226,22 @@ class RigConfig:
         """The crop box (min, max) in the base frame, resolving `crop_box_auto` from the robot.
 
         Automatic: what the robot can reach - within its length (plus a diameter) of the base on the side its
-        axis points to, starting at the base, so the clamp or post it stands on stays out.
+        axis points to, starting at the base, so the clamp or post it stands on stays out; with
+        `filters.clamp_radius` on both sides of the base plane (crop_mask keeps the clamp out).
         """
         return self._crop_box
+
+    def crop_mask(self, xyz: np.ndarray, box: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+        """(N,) bool: the points (base frame) inside the crop box - or `box` within it - and outside the clamp's
+        cylinder below the robot's base plane (filters.clamp_radius)."""
+        inside = crop_box_mask(xyz, *(self.crop_box() if box is None else box))
+        radius = self.filters.clamp_radius
+        if radius > 0 and np.any(inside):
+            index = np.flatnonzero(inside)
+            base = np.asarray(self.robot.base_position, float)
+            local = (np.take(xyz, index, axis=0) - base) @ self.robot.base_rotation  # in the robot base's frame
+            inside[index[(local[:, 2] < 0) & (local[:, 0] ** 2 + local[:, 1] ** 2 < radius ** 2)]] = False
+        return inside
 
     @cached_property
     def _crop_box(self) -> tuple[np.ndarray, np.ndarray]:
@@ -231,7 +250,8 @@ class RigConfig:
             low, high = np.array(self.filters.crop_box_min, float), np.array(self.filters.crop_box_max, float)
         else:
             reach = self.robot.reach
-            corners = np.array(np.meshgrid([-reach, reach], [-reach, reach], [0.0, reach],
+            below = -reach if self.filters.clamp_radius > 0 else 0.0
+            corners = np.array(np.meshgrid([-reach, reach], [-reach, reach], [below, reach],
                                            indexing="ij")).reshape(3, -1)
             corners = (self.robot.base_rotation @ corners).T + np.asarray(self.robot.base_position, float)
             low, high = corners.min(axis=0), corners.max(axis=0)

@@ -414,10 +414,10 @@ def _neighbours_among_kept(index, keep):
 
 
 def filter_cloud(cloud: Cloud, config) -> Cloud:
-    """The configured filter chain: crop box, colour condition, SOR (Eq. 5), MLS (Eq. 6), voxel grid."""
+    """The configured filter chain: crop box (the clamp kept out), colour condition, SOR (Eq. 5), MLS (Eq. 6),
+    voxel grid."""
     f = config.filters
-    box_min, box_max = config.crop_box()
-    inside = crop_box_mask(cloud.xyz, box_min, box_max)
+    inside = config.crop_mask(cloud.xyz)
     if not inside.all():           # (fusion crops to the same box: usually nothing to drop, nothing to copy)
         cloud = cloud.subset(inside)
     if f.color_filter and cloud.rgb is not None:

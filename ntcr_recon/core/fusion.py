@@ -16,7 +16,6 @@ import numpy as np
 from ntcr_recon.core.cloud import Cloud, finite_rows, rows
 from ntcr_recon.core.config import RigConfig
 from ntcr_recon.core.deproject import Intrinsics, crop_window, depth_to_points
-from ntcr_recon.core.filters import crop_box_mask
 from ntcr_recon.core.transforms import transform_points
 from ntcr_recon.core.wall import median
 
@@ -52,8 +51,8 @@ class FramePair:
 
 def camera_cloud(frame: CameraFrame, config: RigConfig, box_min: np.ndarray, box_max: np.ndarray
                  ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, float]:
-    """One camera's points in the base frame cropped to the box, their colours, their pixels (None for an
-    unorganised cloud) and the pixel footprint (m, 0 unknown)."""
+    """One camera's points in the base frame cropped to the box (the clamp kept out), their colours, their pixels
+    (None for an unorganised cloud) and the pixel footprint (m, 0 unknown)."""
     camera = config.cameras[frame.camera]
     extrinsic = camera.extrinsic
     footprint = 0.0
@@ -74,7 +73,7 @@ def camera_cloud(frame: CameraFrame, config: RigConfig, box_min: np.ndarray, box
         xyz, rgb = xyz[finite], None if rgb is None else np.asarray(rgb)[finite]
     depth = xyz[:, 2]
     xyz = transform_points(extrinsic, xyz)
-    inside = crop_box_mask(xyz, box_min, box_max)
+    inside = config.crop_mask(xyz, (box_min, box_max))
     if frame.intrinsics is not None and np.any(inside):  # a point frame gives it too when its camera_info came
         footprint = float(median(depth[inside])) / frame.intrinsics.fx
     index = rows(inside)

@@ -233,7 +233,8 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
             edge = _nearest_box_face(np.asarray(tip_position, float), crop_box)
             if edge[2] < diameter:  # the points were cut there, not the robot
                 warning += (f"; it ends on the crop box's face {'xyz'[edge[0]]} = {edge[1] * 1e3:.1f} mm: the robot "
-                            "may go on outside the box")
+                            "may go on outside the box (filters.crop_box_min / crop_box_max; below the base plane, "
+                            "filters.clamp_radius lets the automatic box reach there)")
         warnings.append(warning)
     side_off = math.degrees(math.remainder(notch_side - configured_side, 2 * math.pi))
     if side_unsettled is not None:

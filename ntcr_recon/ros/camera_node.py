@@ -43,7 +43,6 @@ from std_msgs.msg import Float64
 
 from ntcr_recon.core.cloud import rows
 from ntcr_recon.core.deproject import Intrinsics, crop_window, depth_to_points
-from ntcr_recon.core.filters import crop_box_mask
 from ntcr_recon.core.quality import depth_quantisation_warning, depth_step
 from ntcr_recon.core.tip import EDGE_BAND_ATTEMPTS, edge_band_angle
 from ntcr_recon.core.transforms import transform_points
@@ -148,7 +147,6 @@ class CameraNode(RigNode):
                     raise
                 self._waiting_for = str(error)  # the producer thread keeps trying
         self.rig, self.camera, self._params = rig, params["camera"], params
-        self._box = rig.crop_box()
         self._windows: dict[Intrinsics, object] = {}
         # the depth quantisation the frames show, measured on the first one (the self-check the offline
         # command makes; in the graph no other node sees depth images)
@@ -317,7 +315,7 @@ class CameraNode(RigNode):
                 # Only the points inside the crop box travel: fusion would drop the others, and a D405 window's
                 # full cloud (~28 000 points, 0.7 MB) overflows a shared-memory segment, so that over UDP a
                 # best-effort subscriber lost half of them on a busy machine.
-                inside = rows(crop_box_mask(transform_points(camera.extrinsic, xyz), *self._box))
+                inside = rows(self.rig.crop_mask(transform_points(camera.extrinsic, xyz)))
                 xyz, pixel = np.take(xyz, inside, axis=0), np.take(pixel, inside, axis=0)
                 rgb = None if rgb is None else rgb[inside]
         self._cloud_publisher.publish(camera_cloud_to_msg(xyz, rgb, pixel, camera.frame_id, frame.stamp_ns))
