@@ -55,14 +55,12 @@ def test_stage_sections_are_optional(sim_mapping):
 
 
 def test_auto_crop_box_starts_at_the_base(sim_mapping):
-    mapping = copy.deepcopy(sim_mapping)
-    mapping["filters"]["clamp_radius"] = 0.0
-    config = rig_config_from_mapping(mapping)
+    config = rig_config_from_mapping(sim_mapping)
     box_min, box_max = config.crop_box()
     reach = config.robot.length + config.robot.outer_diameter
     assert box_min == pytest.approx([-reach, -reach, 0.0])
     assert box_max == pytest.approx([reach, reach, reach])
-    tilted = copy.deepcopy(mapping)
+    tilted = copy.deepcopy(sim_mapping)
     tilted["robot"]["base_orientation"] = [1.0, 0.0, 0.0, 0.0]  # robot pointing down -z
     box_min, box_max = rig_config_from_mapping(tilted).crop_box()
     assert box_max[2] == pytest.approx(0.0) and box_min[2] == pytest.approx(-reach)
@@ -72,7 +70,8 @@ def test_auto_crop_box_starts_at_the_base(sim_mapping):
 def test_with_a_clamp_radius_the_crop_reaches_below_the_base_plane_and_keeps_the_clamp_out(sim_mapping,
                                                                                            pointing_down):
     """A robot bent past 90 deg goes on below its base plane, where the clamp stands: the box reaches there,
-    and a cylinder of the clamp's radius about the base's axis below the plane is cut out of it."""
+    and a cylinder of the clamp's radius about the base's axis below the plane is cut out of it, with what it
+    hides from the camera that saw a point."""
     mapping = copy.deepcopy(sim_mapping)
     mapping["filters"]["clamp_radius"] = 0.005
     mapping["robot"]["base_position"] = [0.01, 0.0, 0.0]
@@ -88,6 +87,16 @@ def test_with_a_clamp_radius_the_crop_reaches_below_the_base_plane_and_keeps_the
                        [0.01, 0.0, -0.001 * below],          # above the base, on the axis: the robot, in
                        [0.01, 0.0, 0.08 * below]])           # beyond the robot's reach: out
     assert config.crop_mask(points).tolist() == [False, False, True, True, False]
+    # a camera 90 mm off along base -y, 25 mm above the base plane: what the clamp hides from it, a stereo
+    # matcher's pixels flying off the clamp's edge, is out; beside the clamp and above the plane is in
+    rotation, base = config.robot.base_rotation, np.array([0.01, 0.0, 0.0])
+    camera = base + rotation @ [0.0, -0.09, 0.025]
+    seen = base + np.array([[0.0, 0.02, -0.01],     # behind the clamp, below the plane: hidden
+                            [0.0, 0.02, 0.01],      # behind it, above the plane: the line of sight passes over
+                            [0.02, 0.0, -0.005],    # beside it
+                            [0.0, -0.01, -0.005]]) @ rotation.T  # in front of it
+    assert config.crop_mask(seen, viewpoints=camera).tolist() == [False, True, True, True]
+    assert config.crop_mask(seen).tolist() == [True, True, True, True]
     mapping["filters"]["clamp_radius"] = 0.0  # no clamp given: the box stops at the base plane
     assert rig_config_from_mapping(mapping).crop_mask(points).tolist() == [False, False, False, True, False]
 

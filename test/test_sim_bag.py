@@ -17,6 +17,7 @@ from ntcr_recon.io.pointcloud import cloud_from_msg
 from ntcr_recon.io.staging import StagingError
 from ntcr_recon.sim.bag import TOPIC_KINDS, BagContents, topic_name, write_rig_bag
 from ntcr_recon.sim.camera import D405Intrinsics
+from ntcr_recon.sim.scene import RigProps
 from ntcr_recon.sim.simulate import Simulation
 from ntcr_recon.sim.truth import load_truth
 
@@ -117,6 +118,18 @@ def test_ground_truth_and_rig_configuration_beside_the_bag(written):
         np.testing.assert_allclose(camera.rotation, truth_camera["rotation"])
         assert camera.depth_unit == truth_camera["depth_unit"] == 1e-4
     json.loads((path / "ground_truth.json").read_text())  # plain JSON
+    assert config.filters.clamp_radius == 0.0  # bent 30 deg: the crop box starts at the base plane
+
+
+def test_the_rig_of_a_robot_curled_below_its_base_plane_gives_its_post():
+    """Bent 270 deg, the robot reaches below its base plane: the rig written beside the bag gives the post's
+    radius (and a millimetre), so that the crop box reaches there; bent 90 deg it does not."""
+    radii = {}
+    for bend in (90, 270):
+        simulation = Simulation(TubeShape.from_bend_angle(TubeGeometry(), math.radians(bend)), frame_count=1)
+        filters = simulation.rig_parameters()["/**"]["ros__parameters"].get("filters", {})
+        radii[bend] = filters.get("clamp_radius", 0.0)
+    assert radii == {90: 0.0, 270: pytest.approx(RigProps().post_radius + 1e-3)}
 
 
 def test_simulate_command_refuses_bad_input_clearly(tmp_path, capsys):

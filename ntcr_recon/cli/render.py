@@ -57,7 +57,7 @@ def render_bag(bag: Path, out: Path, config_path: Path | None = None, frame_inde
         xyz, *_ = depth_to_points(frame.depth, frame.intrinsics, unit,
                                  window=crop_window(frame.intrinsics, camera.extrinsic, box_min, box_max))
         points = transform_points(camera.extrinsic, xyz)
-        inside = config.crop_mask(points)
+        inside = config.crop_mask(points, viewpoints=camera.translation)
         points = points[inside]
         counts[name] = len(points)
         axis = figure.add_subplot(grid[row, 0])

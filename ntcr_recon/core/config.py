@@ -130,9 +130,9 @@ class FilterConfig:
                                                        **_WITHIN_A_LAB)
     clamp_radius: float = setting(0.0, "> 0: the automatic crop box reaches below the robot's base plane too (a "
                                   "robot bent past 90 deg), and a cylinder of this radius about the base's axis "
-                                  "below that plane is kept out - the clamp or post the robot stands on, with a "
-                                  "millimetre for the flying pixels at its edges; 0: the box starts at the base "
-                                  "plane", unit="m", minimum=0.0, maximum=1.0)
+                                  "below that plane is kept out, with what it hides from each camera - the clamp "
+                                  "or post the robot stands on, with a millimetre for the flying pixels at its "
+                                  "edges; 0: the box starts at the base plane", unit="m", minimum=0.0, maximum=1.0)
     color_filter: bool = setting(False, "keep only points whose 8-bit R, G, B lie within [color_min, color_max]")
     color_min: tuple[int, int, int] = setting((0, 0, 0), "lowest R, G, B kept", minimum=0, maximum=255)
     color_max: tuple[int, int, int] = setting((255, 255, 255), "highest R, G, B kept", minimum=0, maximum=255)
@@ -231,16 +231,26 @@ class RigConfig:
         """
         return self._crop_box
 
-    def crop_mask(self, xyz: np.ndarray, box: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    def crop_mask(self, xyz: np.ndarray, box: tuple[np.ndarray, np.ndarray] | None = None,
+                  viewpoints: np.ndarray | None = None) -> np.ndarray:
         """(N,) bool: the points (base frame) inside the crop box - or `box` within it - and outside the clamp's
-        cylinder below the robot's base plane (filters.clamp_radius)."""
+        cylinder below the robot's base plane (filters.clamp_radius); with `viewpoints` (the origin of the
+        camera that saw each point, (3,) or (N, 3)), also those the clamp hides from it: a stereo matcher
+        mixes the clamp's edge with the background behind it, and those pixels fly out along their rays."""
         inside = crop_box_mask(xyz, *(self.crop_box() if box is None else box))
         radius = self.filters.clamp_radius
         if radius > 0 and np.any(inside):
             index = np.flatnonzero(inside)
             base = np.asarray(self.robot.base_position, float)
             local = (np.take(xyz, index, axis=0) - base) @ self.robot.base_rotation  # in the robot base's frame
-            inside[index[(local[:, 2] < 0) & (local[:, 0] ** 2 + local[:, 1] ** 2 < radius ** 2)]] = False
+            out = (local[:, 2] < 0) & (local[:, 0] ** 2 + local[:, 1] ** 2 < radius ** 2)
+            if viewpoints is not None:
+                origin = (np.asarray(viewpoints, float) - base) @ self.robot.base_rotation
+                origin = np.take(origin, index, axis=0) if origin.ndim == 2 else np.broadcast_to(origin, local.shape)
+                # a line of sight between two points above the base plane stays above it
+                below = np.flatnonzero((local[:, 2] < 0) | (origin[:, 2] < 0))
+                out[below] |= _through_clamp(origin[below], local[below], radius)
+            inside[index[out]] = False
         return inside
 
     @cached_property
@@ -257,6 +267,26 @@ class RigConfig:
             low, high = corners.min(axis=0), corners.max(axis=0)
         low.flags.writeable = high.flags.writeable = False
         return low, high
+
+
+def _through_clamp(origin: np.ndarray, point: np.ndarray, radius: float) -> np.ndarray:
+    """(N,) bool: the line of sight from `origin` to each point (robot base frame) passes through the cylinder of
+    `radius` about the z axis below z = 0 before it reaches the point."""
+    direction = point - origin
+    # |origin_xy + t direction_xy| < radius over (t_in, t_out); z < 0 over (t_below, t_above)
+    a = direction[:, 0] ** 2 + direction[:, 1] ** 2
+    b = origin[:, 0] * direction[:, 0] + origin[:, 1] * direction[:, 1]
+    c = origin[:, 0] ** 2 + origin[:, 1] ** 2 - radius ** 2
+    root = np.sqrt(np.maximum(b * b - a * c, 0.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_in, t_out = (-b - root) / a, (-b + root) / a
+        crossing = -origin[:, 2] / direction[:, 2]
+    level = np.where(origin[:, 2] < 0, -np.inf, np.inf)  # a level line of sight: below all along, or never
+    t_below = np.where(direction[:, 2] < 0, crossing, np.where(direction[:, 2] > 0, -np.inf, level))
+    t_above = np.where(direction[:, 2] > 0, crossing, np.where(direction[:, 2] < 0, np.inf, -level))
+    start = np.maximum.reduce([t_in, t_below, np.zeros(len(a))])
+    end = np.minimum.reduce([t_out, t_above, np.full(len(a), 1.0 - 1e-9)])
+    return (b * b > a * c) & (a > 0) & (start < end)
 
 
 # Sections with defaults, in the order of the documented file (the cameras' and the robot's come before).

@@ -417,7 +417,9 @@ def filter_cloud(cloud: Cloud, config) -> Cloud:
     """The configured filter chain: crop box (the clamp kept out), colour condition, SOR (Eq. 5), MLS (Eq. 6),
     voxel grid."""
     f = config.filters
-    inside = config.crop_mask(cloud.xyz)
+    origins = None if cloud.camera is None or not f.clamp_radius else np.take(
+        [config.cameras[name].translation for name in config.camera_names], cloud.camera, axis=0)
+    inside = config.crop_mask(cloud.xyz, viewpoints=origins)
     if not inside.all():           # (fusion crops to the same box: usually nothing to drop, nothing to copy)
         cloud = cloud.subset(inside)
     if f.color_filter and cloud.rgb is not None:

@@ -73,7 +73,7 @@ def camera_cloud(frame: CameraFrame, config: RigConfig, box_min: np.ndarray, box
         xyz, rgb = xyz[finite], None if rgb is None else np.asarray(rgb)[finite]
     depth = xyz[:, 2]
     xyz = transform_points(extrinsic, xyz)
-    inside = config.crop_mask(xyz, (box_min, box_max))
+    inside = config.crop_mask(xyz, (box_min, box_max), camera.translation)
     if frame.intrinsics is not None and np.any(inside):  # a point frame gives it too when its camera_info came
         footprint = float(median(depth[inside])) / frame.intrinsics.fx
     index = rows(inside)

@@ -315,7 +315,8 @@ class CameraNode(RigNode):
                 # Only the points inside the crop box travel: fusion would drop the others, and a D405 window's
                 # full cloud (~28 000 points, 0.7 MB) overflows a shared-memory segment, so that over UDP a
                 # best-effort subscriber lost half of them on a busy machine.
-                inside = rows(self.rig.crop_mask(transform_points(camera.extrinsic, xyz)))
+                inside = rows(self.rig.crop_mask(transform_points(camera.extrinsic, xyz),
+                                                 viewpoints=camera.translation))
                 xyz, pixel = np.take(xyz, inside, axis=0), np.take(pixel, inside, axis=0)
                 rgb = None if rgb is None else rgb[inside]
         self._cloud_publisher.publish(camera_cloud_to_msg(xyz, rgb, pixel, camera.frame_id, frame.stamp_ns))

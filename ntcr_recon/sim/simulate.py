@@ -31,7 +31,7 @@ RIG_FILE = "rig.yaml"
 START_STAMP_NS = 1_767_225_600_000_000_000  # 2026-01-01T00:00:00Z: fixed, so a seed gives the same bag
 CAMERA_STAGGER_NS = 4_300_000  # no hardware sync: each further camera's frames come this much later
 STAMP_JITTER_NS = 300_000  # +- per frame, from the seed
-CLAMP_EDGE_MARGIN = 1.0e-3  # the rig's filters.clamp_radius: the post's radius and this (depth edges fly)
+CLAMP_EDGE_MARGIN = 1.0e-3  # filters.clamp_radius: the post's radius and this (depth edges fly)
 
 
 def notch_side_angle(value: str) -> float:
@@ -122,9 +122,12 @@ class Simulation:
         robot = self.shape.geometry.to_dict()
         robot["notch_depth"] = self.shape.geometry.cut_depth  # ROS parameters have no null
         parameters["robot"] = robot
-        # the post the robot's base stands on, with a millimetre for the flying pixels at its edges: the crop box
-        # may then reach below the base plane, where a robot bent past 90 deg goes on
-        parameters["filters"] = {"clamp_radius": self.props.post_radius + CLAMP_EDGE_MARGIN}
+        # a robot whose wall reaches below its base plane needs the crop box to reach there, less the post it
+        # stands on (its radius, with a millimetre for the flying pixels at its edges): as its user would set it
+        radius = self.shape.geometry.outer_radius
+        s = np.linspace(2 * radius, self.shape.length, 512)  # past the base, which stands on the plane
+        if self.shape.centerline(s)[0][:, 2].min() < radius:
+            parameters["filters"] = {"clamp_radius": self.props.post_radius + CLAMP_EDGE_MARGIN}
         return {"/**": {"ros__parameters": parameters}}
 
     def truth(self) -> dict:
@@ -143,8 +146,8 @@ class Simulation:
         import json
 
         header = (f"# Rig configuration of the simulated scene '{self.scene_name}' (written by ntcr-recon simulate).\n"
-                  "# Camera poses are exact; filters.clamp_radius is the post's; the other stage settings take their "
-                  "defaults.\n")
+                  "# Camera poses are exact; stage sections (fusion, filters, ...) take their defaults, but for a\n"
+                  "# robot reaching below its base plane filters.clamp_radius (its post's).\n")
         rig_text = header + yaml.safe_dump(self.rig_parameters(), sort_keys=False, default_flow_style=None)
         files = {TRUTH_FILE: json.dumps(self.truth(), indent=1) + "\n", RIG_FILE: rig_text}
         contents = BagContents(self.namespace, self.intrinsics, self.frames(progress), self.with_points)
