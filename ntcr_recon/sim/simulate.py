@@ -110,7 +110,8 @@ class Simulation:
             yield CameraFrame(camera, stamp, depth, color)
 
     def rig_parameters(self) -> dict:
-        """The rig configuration (ROS 2 parameter file) of this scene: cameras, topics, robot and the post."""
+        """The rig configuration (ROS 2 parameter file) of this scene: cameras, topics, robot, and the post of a
+        robot reaching below its base plane."""
         parameters: dict = {"base_frame": self.base_frame, "camera_names": list(self.camera_names),
                             "topics": {"namespace": self.namespace}}
         for camera in self.cameras:
