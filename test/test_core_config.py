@@ -17,6 +17,7 @@ from ntcr_recon.core.config import (
     rig_parameter_keys,
 )
 from ntcr_recon.core.config_doc import document_rig_config
+from ntcr_recon.core.filters import crop_mask
 from ntcr_recon.core.geometry import TubeGeometry
 
 
@@ -86,7 +87,7 @@ def test_with_a_clamp_radius_the_crop_reaches_below_the_base_plane_and_keeps_the
                        [0.01 + 0.0051, 0.0, 0.001 * below],  # just outside it: a robot bent back down, in
                        [0.01, 0.0, -0.001 * below],          # above the base, on the axis: the robot, in
                        [0.01, 0.0, 0.08 * below]])           # beyond the robot's reach: out
-    assert config.crop_mask(points).tolist() == [False, False, True, True, False]
+    assert crop_mask(points, config).tolist() == [False, False, True, True, False]
     # a camera 90 mm off along base -y, 25 mm above the base plane: what the clamp hides from it, a stereo
     # matcher's pixels flying off the clamp's edge, is out; beside the clamp and above the plane is in
     rotation, base = config.robot.base_rotation, np.array([0.01, 0.0, 0.0])
@@ -95,10 +96,10 @@ def test_with_a_clamp_radius_the_crop_reaches_below_the_base_plane_and_keeps_the
                             [0.0, 0.02, 0.01],      # behind it, above the plane: the line of sight passes over
                             [0.02, 0.0, -0.005],    # beside it
                             [0.0, -0.01, -0.005]]) @ rotation.T  # in front of it
-    assert config.crop_mask(seen, viewpoints=camera).tolist() == [False, True, True, True]
-    assert config.crop_mask(seen).tolist() == [True, True, True, True]
+    assert crop_mask(seen, config, viewpoints=camera).tolist() == [False, True, True, True]
+    assert crop_mask(seen, config).tolist() == [True, True, True, True]
     mapping["filters"]["clamp_radius"] = 0.0  # no clamp given: the box stops at the base plane
-    assert rig_config_from_mapping(mapping).crop_mask(points).tolist() == [False, False, False, True, False]
+    assert crop_mask(points, rig_config_from_mapping(mapping)).tolist() == [False, False, False, True, False]
 
 
 @pytest.mark.parametrize(("edit", "message"), [

@@ -39,6 +39,7 @@ def render_bag(bag: Path, out: Path, config_path: Path | None = None, frame_inde
 
     from ntcr_recon.core.config import load_rig_config
     from ntcr_recon.core.deproject import crop_window, depth_to_points
+    from ntcr_recon.core.filters import crop_mask
     from ntcr_recon.core.transforms import transform_points
 
     config = load_rig_config(config_path or bag / "rig.yaml")
@@ -57,7 +58,7 @@ def render_bag(bag: Path, out: Path, config_path: Path | None = None, frame_inde
         xyz, *_ = depth_to_points(frame.depth, frame.intrinsics, unit,
                                  window=crop_window(frame.intrinsics, camera.extrinsic, box_min, box_max))
         points = transform_points(camera.extrinsic, xyz)
-        inside = config.crop_mask(points, viewpoints=camera.translation)
+        inside = crop_mask(points, config, viewpoints=camera.translation)
         points = points[inside]
         counts[name] = len(points)
         axis = figure.add_subplot(grid[row, 0])

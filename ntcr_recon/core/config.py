@@ -38,7 +38,6 @@ from typing import Any
 import numpy as np
 
 from ntcr_recon.core.config_yaml import read_config_document
-from ntcr_recon.core.filters import crop_box_mask
 from ntcr_recon.core.geometry import TubeGeometry
 from ntcr_recon.core.schema import (
     ConfigError,
@@ -222,36 +221,21 @@ class RigConfig:
     mesh: MeshConfig = field(default_factory=MeshConfig)
     metrics: MetricsConfig = field(default_factory=MetricsConfig)
 
+    @cached_property
+    def camera_origins(self) -> np.ndarray:
+        """(C, 3) each camera's optical centre in the base frame, in camera_names' order (read-only)."""
+        origins = np.array([self.cameras[name].translation for name in self.camera_names], float)
+        origins.flags.writeable = False
+        return origins
+
     def crop_box(self) -> tuple[np.ndarray, np.ndarray]:
         """The crop box (min, max) in the base frame, resolving `crop_box_auto` from the robot.
 
         Automatic: what the robot can reach - within its length (plus a diameter) of the base on the side its
         axis points to, starting at the base, so the clamp or post it stands on stays out; with
-        `filters.clamp_radius` on both sides of the base plane (crop_mask keeps the clamp out).
+        `filters.clamp_radius` on both sides of the base plane (filters.crop_mask keeps the clamp out).
         """
         return self._crop_box
-
-    def crop_mask(self, xyz: np.ndarray, box: tuple[np.ndarray, np.ndarray] | None = None,
-                  viewpoints: np.ndarray | None = None) -> np.ndarray:
-        """(N,) bool: the points (base frame) inside the crop box - or `box` within it - and outside the clamp's
-        cylinder below the robot's base plane (filters.clamp_radius); with `viewpoints` (the origin of the
-        camera that saw each point, (3,) or (N, 3)), also those the clamp hides from it: a stereo matcher
-        mixes the clamp's edge with the background behind it, and those pixels fly out along their rays."""
-        inside = crop_box_mask(xyz, *(self.crop_box() if box is None else box))
-        radius = self.filters.clamp_radius
-        if radius > 0 and np.any(inside):
-            index = np.flatnonzero(inside)
-            base = np.asarray(self.robot.base_position, float)
-            local = (np.take(xyz, index, axis=0) - base) @ self.robot.base_rotation  # in the robot base's frame
-            out = (local[:, 2] < 0) & (local[:, 0] ** 2 + local[:, 1] ** 2 < radius ** 2)
-            if viewpoints is not None:
-                origin = (np.asarray(viewpoints, float) - base) @ self.robot.base_rotation
-                origin = np.take(origin, index, axis=0) if origin.ndim == 2 else np.broadcast_to(origin, local.shape)
-                # a line of sight between two points above the base plane stays above it
-                below = np.flatnonzero((local[:, 2] < 0) | (origin[:, 2] < 0))
-                out[below] |= _through_clamp(origin[below], local[below], radius)
-            inside[index[out]] = False
-        return inside
 
     @cached_property
     def _crop_box(self) -> tuple[np.ndarray, np.ndarray]:
@@ -267,26 +251,6 @@ class RigConfig:
             low, high = corners.min(axis=0), corners.max(axis=0)
         low.flags.writeable = high.flags.writeable = False
         return low, high
-
-
-def _through_clamp(origin: np.ndarray, point: np.ndarray, radius: float) -> np.ndarray:
-    """(N,) bool: the line of sight from `origin` to each point (robot base frame) passes through the cylinder of
-    `radius` about the z axis below z = 0 before it reaches the point."""
-    direction = point - origin
-    # |origin_xy + t direction_xy| < radius over (t_in, t_out); z < 0 over (t_below, t_above)
-    a = direction[:, 0] ** 2 + direction[:, 1] ** 2
-    b = origin[:, 0] * direction[:, 0] + origin[:, 1] * direction[:, 1]
-    c = origin[:, 0] ** 2 + origin[:, 1] ** 2 - radius ** 2
-    root = np.sqrt(np.maximum(b * b - a * c, 0.0))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t_in, t_out = (-b - root) / a, (-b + root) / a
-        crossing = -origin[:, 2] / direction[:, 2]
-    level = np.where(origin[:, 2] < 0, -np.inf, np.inf)  # a level line of sight: below all along, or never
-    t_below = np.where(direction[:, 2] < 0, crossing, np.where(direction[:, 2] > 0, -np.inf, level))
-    t_above = np.where(direction[:, 2] > 0, crossing, np.where(direction[:, 2] < 0, np.inf, -level))
-    start = np.maximum.reduce([t_in, t_below, np.zeros(len(a))])
-    end = np.minimum.reduce([t_out, t_above, np.full(len(a), 1.0 - 1e-9)])
-    return (b * b > a * c) & (a > 0) & (start < end)
 
 
 # Sections with defaults, in the order of the documented file (the cameras' and the robot's come before).

@@ -3,6 +3,7 @@
 Public API (masks are boolean arrays over the points; the per-point loops, the image-window k-NN, SOR's mean
 distances and MLS's local fits, are compiled kernels, core.compiled):
     crop_box_mask(xyz, box_min, box_max)             spatial condition
+    crop_mask(xyz, config, box=None, viewpoints=None) the rig's crop box, less the clamp and what it hides
     color_mask(rgb, color_min, color_max)            colour condition on packed 0x00RRGGBB
     statistical_outlier_mask(xyz, k, alpha)          Eq. 5: mean k-NN distance <= mu + alpha sigma
     mls_smooth(xyz, k, order, radius=0)              Eq. 6: project each point onto its weighted local
@@ -36,6 +37,49 @@ def crop_box_mask(xyz: np.ndarray, box_min, box_max) -> np.ndarray:
         inside &= coordinate >= low
         inside &= coordinate <= high
     return inside
+
+
+def crop_mask(xyz: np.ndarray, config, box: tuple[np.ndarray, np.ndarray] | None = None,
+              viewpoints: np.ndarray | None = None) -> np.ndarray:
+    """(N,) bool: the points (base frame) inside the rig's crop box - or `box` within it - and outside the clamp's
+    cylinder below the robot's base plane (filters.clamp_radius); with `viewpoints` (the origin of the
+    camera that saw each point, (3,) or (N, 3)), also those the clamp hides from it: a stereo matcher
+    mixes the clamp's edge with the background behind it, and those pixels fly out along their rays."""
+    inside = crop_box_mask(xyz, *(config.crop_box() if box is None else box))
+    radius = config.filters.clamp_radius
+    if radius > 0 and np.any(inside):
+        index = np.flatnonzero(inside)
+        base = np.asarray(config.robot.base_position, float)
+        local = (np.take(xyz, index, axis=0) - base) @ config.robot.base_rotation  # in the robot base's frame
+        out = (local[:, 2] < 0) & (local[:, 0] ** 2 + local[:, 1] ** 2 < radius ** 2)
+        if viewpoints is not None:
+            origin = (np.asarray(viewpoints, float) - base) @ config.robot.base_rotation
+            origin = np.take(origin, index, axis=0) if origin.ndim == 2 else np.broadcast_to(origin, local.shape)
+            # a line of sight between two points above the base plane stays above it
+            below = np.flatnonzero((local[:, 2] < 0) | (origin[:, 2] < 0))
+            out[below] |= _through_clamp(origin[below], local[below], radius)
+        inside[index[out]] = False
+    return inside
+
+
+def _through_clamp(origin: np.ndarray, point: np.ndarray, radius: float) -> np.ndarray:
+    """(N,) bool: the line of sight from `origin` to each point (robot base frame) passes through the cylinder of
+    `radius` about the z axis below z = 0 before it reaches the point."""
+    direction = point - origin
+    # |origin_xy + t direction_xy| < radius over (t_in, t_out); z < 0 over (t_below, t_above)
+    a = direction[:, 0] ** 2 + direction[:, 1] ** 2
+    b = origin[:, 0] * direction[:, 0] + origin[:, 1] * direction[:, 1]
+    c = origin[:, 0] ** 2 + origin[:, 1] ** 2 - radius ** 2
+    root = np.sqrt(np.maximum(b * b - a * c, 0.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_in, t_out = (-b - root) / a, (-b + root) / a
+        crossing = -origin[:, 2] / direction[:, 2]
+    level = np.where(origin[:, 2] < 0, -np.inf, np.inf)  # a level line of sight: below all along, or never
+    t_below = np.where(direction[:, 2] < 0, crossing, np.where(direction[:, 2] > 0, -np.inf, level))
+    t_above = np.where(direction[:, 2] > 0, crossing, np.where(direction[:, 2] < 0, np.inf, -level))
+    start = np.maximum.reduce([t_in, t_below, np.zeros(len(a))])
+    end = np.minimum.reduce([t_out, t_above, np.full(len(a), 1.0 - 1e-9)])
+    return (b * b > a * c) & (a > 0) & (start < end)
 
 
 def color_mask(rgb: np.ndarray, color_min, color_max) -> np.ndarray:
@@ -417,9 +461,9 @@ def filter_cloud(cloud: Cloud, config) -> Cloud:
     """The configured filter chain: crop box (the clamp kept out), colour condition, SOR (Eq. 5), MLS (Eq. 6),
     voxel grid."""
     f = config.filters
-    origins = None if cloud.camera is None or not f.clamp_radius else np.take(
-        [config.cameras[name].translation for name in config.camera_names], cloud.camera, axis=0)
-    inside = config.crop_mask(cloud.xyz, viewpoints=origins)
+    origins = None if cloud.camera is None or not f.clamp_radius else np.take(config.camera_origins, cloud.camera,
+                                                                              axis=0)
+    inside = crop_mask(cloud.xyz, config, viewpoints=origins)
     if not inside.all():           # (fusion crops to the same box: usually nothing to drop, nothing to copy)
         cloud = cloud.subset(inside)
     if f.color_filter and cloud.rgb is not None:

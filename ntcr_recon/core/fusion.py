@@ -16,6 +16,7 @@ import numpy as np
 from ntcr_recon.core.cloud import Cloud, finite_rows, rows
 from ntcr_recon.core.config import RigConfig
 from ntcr_recon.core.deproject import Intrinsics, crop_window, depth_to_points
+from ntcr_recon.core.filters import crop_mask
 from ntcr_recon.core.transforms import transform_points
 from ntcr_recon.core.wall import median
 
@@ -73,7 +74,7 @@ def camera_cloud(frame: CameraFrame, config: RigConfig, box_min: np.ndarray, box
         xyz, rgb = xyz[finite], None if rgb is None else np.asarray(rgb)[finite]
     depth = xyz[:, 2]
     xyz = transform_points(extrinsic, xyz)
-    inside = config.crop_mask(xyz, (box_min, box_max), camera.translation)
+    inside = crop_mask(xyz, config, (box_min, box_max), camera.translation)
     if frame.intrinsics is not None and np.any(inside):  # a point frame gives it too when its camera_info came
         footprint = float(median(depth[inside])) / frame.intrinsics.fx
     index = rows(inside)

@@ -113,7 +113,7 @@ class Reconstructor:
         self._roi: tuple[np.ndarray, np.ndarray] | None = None
         self._roi_count = 0
         # optical centre of each camera in the base frame, by camera index (viewing rays for relocation)
-        self._camera_origins = np.array([config.cameras[name].translation for name in config.camera_names], float)
+        self._camera_origins = config.camera_origins
         self.timings_ms: dict[str, float] = {}
         self._depth_steps: dict[str, float] = {}  # per camera, the depth quantisation seen in its first frame
         # per camera, the band its matcher spoils at depth edges (core.tip.edge_band) over its focal length

@@ -43,6 +43,7 @@ from std_msgs.msg import Float64
 
 from ntcr_recon.core.cloud import rows
 from ntcr_recon.core.deproject import Intrinsics, crop_window, depth_to_points
+from ntcr_recon.core.filters import crop_mask
 from ntcr_recon.core.quality import depth_quantisation_warning, depth_step
 from ntcr_recon.core.tip import EDGE_BAND_ATTEMPTS, edge_band_angle
 from ntcr_recon.core.transforms import transform_points
@@ -315,8 +316,8 @@ class CameraNode(RigNode):
                 # Only the points inside the crop box travel: fusion would drop the others, and a D405 window's
                 # full cloud (~28 000 points, 0.7 MB) overflows a shared-memory segment, so that over UDP a
                 # best-effort subscriber lost half of them on a busy machine.
-                inside = rows(self.rig.crop_mask(transform_points(camera.extrinsic, xyz),
-                                                 viewpoints=camera.translation))
+                inside = rows(crop_mask(transform_points(camera.extrinsic, xyz), self.rig,
+                                        viewpoints=camera.translation))
                 xyz, pixel = np.take(xyz, inside, axis=0), np.take(pixel, inside, axis=0)
                 rgb = None if rgb is None else rgb[inside]
         self._cloud_publisher.publish(camera_cloud_to_msg(xyz, rgb, pixel, camera.frame_id, frame.stamp_ns))
