@@ -31,16 +31,15 @@ def _align(offset: int, size: int) -> int:
 _PROBE = (1.2345678901234567e-300, -9.87654321e-299, 3.14159e-301)  # a point no message holds by chance
 
 
-def _points_count_offset(one_point_bytes: bytes) -> int:
+def _points_count_offset(empty_bytes: bytes, one_point_bytes: bytes) -> int:
     """Where the count of a sequence<Point> holding only `_PROBE` lies in a serialized message: right before
-    the element, or 4 bytes of padding before it when the count ends off an 8-byte boundary (rclpy leaves
-    padding bytes unset, so serializations are compared by content, not byte for byte). Not cached: the bytes
-    hold the header stamp, a key that would never repeat."""
+    the element, or 4 bytes of padding before it when the count ends off an 8-byte boundary. Which one is told
+    by the lengths (with nothing after the field aligned above 4, one point adds 24 bytes and the padding):
+    never by the bytes before the element, since rclpy leaves padding unset and a stale count of 1 may sit
+    there. Not cached: the bytes hold the header stamp, a key that would never repeat."""
     element = one_point_bytes.index(struct.pack("<3d", *_PROBE))
-    no_padding = element - 4
-    if struct.unpack_from("<I", one_point_bytes, no_padding)[0] == 1 and (no_padding - ENCAPSULATION) % 8 == 4:
-        return no_padding
-    return element - 8
+    padding = len(one_point_bytes) - len(empty_bytes) - 24
+    return element - 4 - padding
 
 
 def with_points(template, field: str, points: np.ndarray) -> bytes:
@@ -55,7 +54,7 @@ def with_points(template, field: str, points: np.ndarray) -> bytes:
         one = serialize_message(template)
     finally:
         setattr(template, field, [])
-    count_at = _points_count_offset(one)
+    count_at = _points_count_offset(empty, one)
     padding = _align(count_at + 4, 8) - (count_at + 4)
     return b"".join((empty[:count_at], struct.pack("<I", len(points)), bytes(padding), points.tobytes(),
                      empty[count_at + 4:]))
