@@ -61,6 +61,27 @@ class RosGraph:
             self.executor.spin_once(timeout_sec=0.05)
         return condition()
 
+    def call(self, service_type, name: str, request, timeout: float = 20.0, resend_after: float = 2.0):
+        """The response of service `name` to `request`, sent again every `resend_after` seconds unanswered.
+
+        wait_for_service holds once the server is discovered, which can be before the server has matched the
+        client's request and reply topics: a request sent in that gap is lost (a full suite run once waited out
+        10 s for a SetParameters reply). The requests this suite sends are idempotent, so sending one again is
+        safe; the first reply wins.
+        """
+        client = self.node.create_client(service_type, name)
+        deadline = time.monotonic() + timeout
+        if not client.wait_for_service(timeout_sec=timeout):
+            raise TimeoutError(f"service {name} not available within {timeout} s; logs:\n" + self.all_logs())
+        futures = []
+        while time.monotonic() < deadline:
+            futures.append(client.call_async(request))
+            if self.spin_until(lambda: any(f.done() for f in futures),
+                               min(resend_after, max(deadline - time.monotonic(), 0.0))):
+                return next(f for f in futures if f.done()).result()
+        raise TimeoutError(f"no reply from {name} within {timeout} s ({len(futures)} requests); logs:\n"
+                           + self.all_logs())
+
     def wait_for_subscribers(self, publisher, count: int = 1, timeout: float = 20.0) -> None:
         if not self.spin_until(lambda: publisher.get_subscription_count() >= count, timeout):
             raise TimeoutError(f"no subscriber on {publisher.topic_name} within {timeout} s; logs:\n"

@@ -17,11 +17,8 @@ def set_parameter(graph, node: str, name: str, value):
     from rcl_interfaces.srv import SetParameters
     from rclpy.parameter import Parameter
 
-    client = graph.node.create_client(SetParameters, f"/{node}/set_parameters")
-    assert client.wait_for_service(timeout_sec=10)
-    future = client.call_async(SetParameters.Request(parameters=[Parameter(name, value=value).to_parameter_msg()]))
-    assert graph.spin_until(future.done, 10)
-    return future.result().results[0]
+    request = SetParameters.Request(parameters=[Parameter(name, value=value).to_parameter_msg()])
+    return graph.call(SetParameters, f"/{node}/set_parameters", request).results[0]
 
 
 def ply_face_count(path) -> int:

@@ -22,16 +22,8 @@ def relocation(tmp_path_factory):
         yield graph
 
 
-def call(graph, service_type, name: str, request):
-    client = graph.node.create_client(service_type, name)
-    assert client.wait_for_service(timeout_sec=20), graph.all_logs()
-    future = client.call_async(request)
-    assert graph.spin_until(future.done, 10)
-    return future.result()
-
-
 def parameter_value(graph, name: str):
-    response = call(graph, GetParameters, "/relocation_node/get_parameters", GetParameters.Request(names=[name]))
+    response = graph.call(GetParameters, "/relocation_node/get_parameters", GetParameters.Request(names=[name]))
     value = response.values[0]
     return value.integer_value if value.type == 2 else value.double_value
 
@@ -51,7 +43,7 @@ def test_a_runtime_change_outside_the_schema_range_is_refused_and_the_node_keeps
 
 
 def test_rig_parameters_are_described_by_the_schema(relocation):
-    response = call(relocation, DescribeParameters, "/relocation_node/describe_parameters",
+    response = relocation.call(DescribeParameters, "/relocation_node/describe_parameters",
                     DescribeParameters.Request(names=["robot.notch_count", "robot.outer_diameter", "mesh.method"]))
     count, diameter, method = response.descriptors
     assert count.description.startswith("number of notches")
@@ -76,7 +68,7 @@ def test_parameters_a_running_node_cannot_apply_are_read_only(relocation, name, 
     # review: camera_names and topics were accepted at run time though the subscriptions are made once
     refused = set_parameter(relocation, "relocation_node", name, value)
     assert not refused.successful and "read-only" in refused.reason.lower(), refused.reason
-    response = call(relocation, DescribeParameters, "/relocation_node/describe_parameters",
+    response = relocation.call(DescribeParameters, "/relocation_node/describe_parameters",
                     DescribeParameters.Request(names=[name]))
     assert response.descriptors[0].read_only
     assert relocation.process.poll() is None

@@ -106,14 +106,10 @@ def test_bad_parameter_change_is_refused_and_the_old_value_kept(graph):
     from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
     from rcl_interfaces.srv import SetParameters
 
-    client = graph.node.create_client(SetParameters, "/transform_node/set_parameters")
-    assert client.wait_for_service(timeout_sec=10)
     request = SetParameters.Request(parameters=[Parameter(
         name="translation", value=ParameterValue(type=ParameterType.PARAMETER_DOUBLE_ARRAY,
                                                  double_array_value=[0.0, float("nan"), 0.0]))])
-    future = client.call_async(request)
-    assert graph.spin_until(future.done, 10)
-    result = future.result().results[0]
+    result = graph.call(SetParameters, "/transform_node/set_parameters", request).results[0]
     assert not result.successful and "translation" in result.reason
     # The node still applies the configured transform.
     xyz, _, msg = good_cloud(stamp_ns=9_000)
