@@ -67,6 +67,29 @@ def test_depth_to_points_keeps_the_window_and_its_depth_range_only():
     assert len(pixel) == depth.size
 
 
+def test_flying_pixels_ramping_to_the_background_are_dropped_and_the_tube_slots_and_backdrop_kept():
+    """One row of a tube (r = 1.75 mm, 90 mm away) before a backdrop at 300 mm, as a stereo matcher leaves it:
+    a ramp of mixed depths on each side, a one-pixel slot seen through to the backdrop, an invalid pixel."""
+    row_mm = [300, 300, 200, 120, 91.7, 90.6, 90.0, 90.6, 91.7, 300, 91.7, 90.6, 150, 300, 0, 130, 90.2, 300]
+    # between their neighbours, more than a radius from each: flying. Kept: the tube's profile (steps under its
+    # radius), the slot (9: steps both ways), the backdrop's edge pixels (1, 13: one near neighbour), and 15
+    # beside an invalid pixel (cannot be told from a surface)
+    ramp = {2, 3, 12}
+    unit = 1e-4
+    row = np.round(np.array(row_mm) * 10).astype(np.uint16)
+    for depth in (np.tile(row, (3, 1)), np.tile(row, (3, 1)).T.copy()):  # the ramp along a row, then a column
+        height, width = depth.shape
+        intrinsics = Intrinsics(width, height, 600.0, 600.0, width / 2, height / 2)
+        _, _, pixel = depth_to_points(depth, intrinsics, unit, ramp_step=1.75e-3)
+        along = pixel[:, 0] if width > height else pixel[:, 1]
+        kept = set(along.tolist())
+        assert kept == {i for i, z in enumerate(row_mm) if z > 0} - ramp
+        # the step off (0): every valid pixel kept; a step above the backdrop's: none dropped either
+        for step in (0.0, 0.5):
+            _, _, pixel = depth_to_points(depth, intrinsics, unit, ramp_step=step)
+            assert len(pixel) == np.count_nonzero(depth)
+
+
 def test_crop_window_holds_every_pixel_that_sees_the_box():
     config = make_config({})
     camera = config.cameras["cam_a"]

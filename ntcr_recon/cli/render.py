@@ -56,7 +56,8 @@ def render_bag(bag: Path, out: Path, config_path: Path | None = None, frame_inde
         unit = frame.depth_unit or camera.depth_unit
         depth_m = frame.depth.astype(np.float64) * unit
         xyz, *_ = depth_to_points(frame.depth, frame.intrinsics, unit,
-                                 window=crop_window(frame.intrinsics, camera.extrinsic, box_min, box_max))
+                                 window=crop_window(frame.intrinsics, camera.extrinsic, box_min, box_max),
+                                 ramp_step=config.flying_pixel_step)
         points = transform_points(camera.extrinsic, xyz)
         inside = crop_mask(points, config, viewpoints=camera.translation)
         points = points[inside]

@@ -132,6 +132,9 @@ class FilterConfig:
                                   "below that plane is kept out, with what it hides from each camera - the clamp "
                                   "or post the robot stands on, with a millimetre for the flying pixels at its "
                                   "edges; 0: the box starts at the base plane", unit="m", minimum=0.0, maximum=1.0)
+    flying_pixels: bool = setting(True, "drop the flying pixels of depth images: a pixel stepping by more than the "
+                                  "robot's outer radius to both neighbours along its row or column, the same way "
+                                  "(a stereo matcher's mix of the robot with the background behind it)")
     color_filter: bool = setting(False, "keep only points whose 8-bit R, G, B lie within [color_min, color_max]")
     color_min: tuple[int, int, int] = setting((0, 0, 0), "lowest R, G, B kept", minimum=0, maximum=255)
     color_max: tuple[int, int, int] = setting((255, 255, 255), "highest R, G, B kept", minimum=0, maximum=255)
@@ -220,6 +223,12 @@ class RigConfig:
     relocation: RelocationConfig = field(default_factory=RelocationConfig)
     mesh: MeshConfig = field(default_factory=MeshConfig)
     metrics: MetricsConfig = field(default_factory=MetricsConfig)
+
+    @property
+    def flying_pixel_step(self) -> float:
+        """depth_to_points' ramp_step (m): the robot's outer radius, the whole relief its wall can show a
+        camera (0: filters.flying_pixels off)."""
+        return self.robot.outer_radius if self.filters.flying_pixels else 0.0
 
     @cached_property
     def camera_origins(self) -> np.ndarray:

@@ -7,7 +7,8 @@ not 400 000.
 Public API:
     Intrinsics(width, height, fx, fy, cx, cy); Intrinsics.from_camera_info(msg)
     crop_window(intrinsics, extrinsic, box_min, box_max) -> PixelWindow | None   (None: box not in view)
-    depth_to_points(depth, intrinsics, depth_unit, color=None, window=None) -> (xyz (N,3), rgb | None, uv (N,2))
+    depth_to_points(depth, intrinsics, depth_unit, color=None, window=None, ramp_step=0)
+        -> (xyz (N,3), rgb | None, uv (N,2))
 """
 
 from __future__ import annotations
@@ -82,11 +83,17 @@ def crop_window(intrinsics: Intrinsics, extrinsic: np.ndarray, box_min, box_max)
 
 
 def depth_to_points(depth: np.ndarray, intrinsics: Intrinsics, depth_unit: float = 1.0,
-                    color: np.ndarray | None = None, window: PixelWindow | None = None
+                    color: np.ndarray | None = None, window: PixelWindow | None = None, ramp_step: float = 0.0
                     ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
     """Deproject a depth image (16UC1 raw units times depth_unit, or 32FC1 metres with depth_unit 1).
 
     Zero, NaN and infinite depths are invalid and dropped, as are depths outside the window's range.
+    ramp_step > 0 (m): flying pixels are dropped too - a pixel whose depth steps by more than ramp_step to both
+    of its neighbours along its row or its column, the same way (nearer one, farther the other). A stereo
+    matcher whose window straddles a depth edge mixes the two depths, and the pixels there ramp from the object
+    to the background, floating in the space between; an object's own surface whose relief is under ramp_step
+    never steps so, its silhouette pixel has one near neighbour, and a one-pixel slot seen through steps the
+    opposite ways.
     color: (H, W, 3) uint8 RGB registered to the depth image (scaled if its size differs). Returns xyz
     float64 (N, 3) in the optical frame (x right, y down, z forward), packed rgb uint32 or None, and the
     pixel (u, v) of each point as int32 (N, 2).
@@ -107,7 +114,8 @@ def depth_to_points(depth: np.ndarray, intrinsics: Intrinsics, depth_unit: float
     v0, v1 = min(max(int(window.v0), 0), height), min(max(int(window.v1), 0), height)
     xyz, pixel = _deproject_window(np.ascontiguousarray(depth), float(depth_unit), u0, u1, v0, v1,
                                    float(window.z_min), float(window.z_max), float(intrinsics.fx),
-                                   float(intrinsics.fy), float(intrinsics.cx), float(intrinsics.cy))
+                                   float(intrinsics.fy), float(intrinsics.cx), float(intrinsics.cy),
+                                   float(ramp_step))
     u, v = pixel[:, 0].astype(np.intp), pixel[:, 1].astype(np.intp)
     rgb = None
     if color is not None:
@@ -127,21 +135,48 @@ def _valid_depth(z, z_min, z_max):
 
 
 @jit
-def _deproject_window(depth, depth_unit, u0, u1, v0, v1, z_min, z_max, fx, fy, cx, cy):
+def _steps_one_way(before, z, after, step):
+    """z lies on a ramp between two valid neighbours' depths: more than `step` from each, between them."""
+    return ((before > 0.0) & (after > 0.0) & (before < np.inf) & (after < np.inf)
+            & (((z - before > step) & (after - z > step)) | ((before - z > step) & (z - after > step))))
+
+
+@jit
+def _on_ramp(depth, depth_unit, v, u, z, step):
+    """The pixel (v, u) of depth z is a flying pixel (see depth_to_points' ramp_step): along its row or its
+    column it steps by more than `step` to both neighbours, the same way. Pixels at the image's border have
+    no neighbour beyond it, and one whose neighbour is invalid cannot be told: both kept."""
+    height, width = depth.shape
+    if 0 < u < width - 1 and _steps_one_way(np.float64(depth[v, u - 1]) * depth_unit, z,
+                                            np.float64(depth[v, u + 1]) * depth_unit, step):
+        return True
+    return 0 < v < height - 1 and _steps_one_way(np.float64(depth[v - 1, u]) * depth_unit, z,
+                                                 np.float64(depth[v + 1, u]) * depth_unit, step)
+
+
+@jit
+def _deproject_window(depth, depth_unit, u0, u1, v0, v1, z_min, z_max, fx, fy, cx, cy, ramp_step):
     """Eq. 3-4 over the window [v0, v1) x [u0, u1) of a depth image: the pixels whose depth z = raw value *
-    depth_unit is finite, positive and within [z_min, z_max], row by row. Returns their points
-    (x, y, z) = ((u - cx) z / fx, (v - cy) z / fy, z) (N, 3) and pixels (u, v) (N, 2) int32."""
+    depth_unit is finite, positive and within [z_min, z_max], and (ramp_step > 0) that are no flying pixel,
+    row by row. Returns their points (x, y, z) = ((u - cx) z / fx, (v - cy) z / fy, z) (N, 3) and pixels
+    (u, v) (N, 2) int32."""
+    keep = np.zeros((max(v1 - v0, 0), max(u1 - u0, 0)), dtype=np.bool_)
     count = 0
     for v in range(v0, v1):
         for u in range(u0, u1):
-            count += _valid_depth(np.float64(depth[v, u]) * depth_unit, z_min, z_max)
+            z = np.float64(depth[v, u]) * depth_unit
+            valid = _valid_depth(z, z_min, z_max)
+            if valid and ramp_step > 0.0:
+                valid = not _on_ramp(depth, depth_unit, v, u, z, ramp_step)
+            keep[v - v0, u - u0] = valid
+            count += valid
     xyz = np.empty((count, 3))
     pixel = np.empty((count, 2), dtype=np.int32)
     point = 0
     for v in range(v0, v1):
         for u in range(u0, u1):
-            z = np.float64(depth[v, u]) * depth_unit
-            if _valid_depth(z, z_min, z_max):
+            if keep[v - v0, u - u0]:
+                z = np.float64(depth[v, u]) * depth_unit
                 xyz[point, 0] = (u - cx) * z / fx
                 xyz[point, 1] = (v - cy) * z / fy
                 xyz[point, 2] = z

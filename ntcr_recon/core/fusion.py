@@ -62,7 +62,8 @@ def camera_cloud(frame: CameraFrame, config: RigConfig, box_min: np.ndarray, box
         if window is None:
             return np.empty((0, 3)), None, np.empty((0, 2), np.int32), 0.0
         unit = camera.depth_unit if frame.depth_unit is None else frame.depth_unit
-        xyz, rgb, pixel = depth_to_points(frame.depth, frame.intrinsics, unit, frame.color, window)
+        xyz, rgb, pixel = depth_to_points(frame.depth, frame.intrinsics, unit, frame.color, window,
+                                         config.flying_pixel_step)
     else:
         xyz = np.asarray(frame.points, dtype=np.float64)
         rgb = frame.rgb

@@ -311,7 +311,8 @@ class CameraNode(RigNode):
         if self._params["crop_to_robot"] and window is None:  # the camera cannot see the crop box at all
             xyz, rgb, pixel = np.empty((0, 3)), None, np.empty((0, 2), np.int32)
         else:
-            xyz, rgb, pixel = depth_to_points(frame.depth, frame.intrinsics, unit, frame.color, window)
+            xyz, rgb, pixel = depth_to_points(frame.depth, frame.intrinsics, unit, frame.color, window,
+                                             self.rig.flying_pixel_step)
             if window is not None:
                 # Only the points inside the crop box travel: fusion would drop the others, and a D405 window's
                 # full cloud (~28 000 points, 0.7 MB) overflows a shared-memory segment, so that over UDP a
