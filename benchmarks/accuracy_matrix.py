@@ -240,7 +240,9 @@ def run_row(row: Row, frames: int = 2, seed: int = 1, method: str | None = None)
     figures = measure(simulation.shape, relocation)
     quality = getattr(relocation, "quality", None) or {}
     figures.update(row=row.name, warnings=list(getattr(relocation, "warnings", ()) or ()),
-                   side_deg=quality.get("notch_side_deg"), seconds=time.perf_counter() - started,
+                   side_deg=quality.get("notch_side_deg"),
+                   side_uncertainty_deg=quality.get("notch_side_uncertainty_deg"),
+                   seconds=time.perf_counter() - started,
                    floors_apply=distance <= FLOOR_CAMERA_DISTANCE + 1e-9)
     figures["misses"] = misses(figures)
     return figures

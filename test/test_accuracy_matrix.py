@@ -55,8 +55,10 @@ def test_a_centreline_off_its_floor_says_how_uncertain_it_is():
 
 def test_a_rig_file_rolled_20_degrees_off_reports_the_side_the_notches_open_to():
     """The robot's roll in its clamp is never exact: with the rig file's notch_side 20 deg off, every notch is
-    still found and the side reported is the true one (0 deg) to a few degrees."""
+    still found, and the side reported is the true one (0 deg) within half of the 10 deg sectors it is measured in
+    and within the uncertainty the result states for it."""
     figures = accuracy_matrix.run_row(ROWS["side_off20"], frames=2)
-    print("\n" + accuracy_matrix.HEADER + "\n" + accuracy_matrix.format_row(figures))
+    print("\n" + accuracy_matrix.HEADER + "\n" + accuracy_matrix.format_row(figures)
+          + f"\nside uncertainty stated: {figures['side_uncertainty_deg']:.1f} deg")
     assert figures["found"] == figures["expected"] and figures["spurious"] == 0
-    assert abs(figures["side_deg"] - 0.0) <= 3.0
+    assert abs(figures["side_deg"] - 0.0) <= min(5.0, figures["side_uncertainty_deg"])

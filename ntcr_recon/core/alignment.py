@@ -9,19 +9,20 @@ with a valid background behind are mixed with it and filtered away, those whose 
 left-right check invalidates keep their bulge. None of that is symmetric about the view once a notch is near,
 so the fitted axis drifts towards the notches: 0.07-0.2 mm, more with a larger pixel footprint.
 
-Trusted are the wall points that face their camera, `silhouette_margin_px` pixel footprints or more inside the
-tube's silhouette in its image (a view angle a with r (1 - sin a) above the margin, never beyond
-`max_view_angle`), on spines away from the cuts (the expected notches grown by `cut_margin_px`) and as far from
-the base and the tube's end (depth edges too). The criterion is in pixels, so it follows the footprint: on a
-rig twice as far the facing zone narrows to what the matcher leaves unbiased. Along the robot, in windows of a
-notch pitch, the shift of the reference tube (of the known radius, at the wall's level per window) that best
-fits those points is solved by least squares (offset = c_x cos(phi) + c_y sin(phi) + level, the level scaled
+Trusted are the wall points within the gate given (the pipeline's: the outer wall's band measured on the spines, so
+that pixels a matcher mixed with the background behind stay out) that face their camera, `silhouette_margin_px`
+pixel footprints or more inside the tube's silhouette in its image (a view angle a with r (1 - sin a) above the
+margin, never beyond `max_view_angle`), on spines away from the cuts (the expected notches grown by `cut_margin_px`)
+and as far from the base and the tube's end (depth edges too). The criterion is in pixels, so it follows the
+footprint: on a rig twice as far the facing zone narrows to what the matcher leaves unbiased. Along the robot, in
+windows of a notch pitch, the shift of the reference tube (of the known radius, at the wall's level per window) that
+best fits those points is solved by least squares (offset = c_x cos(phi) + c_y sin(phi) + level, the level scaled
 per point by its camera's squared distance from the robot's base: cameras at different distances see the wall
-flattened differently), all windows jointly with a penalty on the difference of consecutive shifts (a window's
-few facing points place it to a tenth of a millimetre only); the shifts, interpolated along s and held beyond
-the last window (the free end follows its data as the rest of the fit does, and leans as the wall before it
-measured), move the centreline. The pipeline runs it a few times, each selecting the facing points about the
-axis the last one moved. The fit's lean towards the notch side (minus the mean shift) is reported as its bias.
+flattened differently), all windows jointly with a penalty on the difference of consecutive shifts (a window's few
+facing points place it to a tenth of a millimetre only); the shifts, interpolated along s and held beyond the last
+window (the free end follows its data as the rest of the fit does, and leans as the wall before it measured), move
+the centreline. The pipeline runs it a few times, each selecting the facing points about the axis the last one
+moved. The fit's lean towards the notch side (minus the mean shift) is reported as its bias.
 """
 
 from __future__ import annotations

@@ -208,20 +208,23 @@ class Reconstructor:
         alignment, cross_view, backbone_shift = None, CrossView(None), None
         if viewpoints is not None:
             end = tube_end(coords, geometry.outer_radius, settings.gate, footprint, max_s=geometry.reach)
+            # trusted wall lies within the wall's band on the spines: the fit's gate, a millimetre wide, lets in
+            # pixels a matcher mixed with the background behind, which pull the axis across the cameras' views
+            trusted_gate = _wall_band_gate(coords, centerline, geometry, settings.gate, footprint)
             # which points face their camera depends on where the axis is: selected again about the moved axis
-            alignment = align_to_trusted_wall(centerline, coords, frames, viewpoints, geometry, settings.gate,
+            alignment = align_to_trusted_wall(centerline, coords, frames, viewpoints, geometry, trusted_gate,
                                               footprint, end, xyz=cloud.xyz, passes=ALIGNMENT_PASSES)
             centerline = alignment.centerline
             coords, frames = centerline.project_with_frames(cloud.xyz, alignment.arc_lengths)
             # the cameras facing the backbone place the axis along their views by the plain tube's level
             leveled, backbone_shift = level_by_backbone(centerline, coords, frames, viewpoints, seen_by,
-                                                        self._camera_origins, geometry, settings.gate, footprint, end)
+                                                        self._camera_origins, geometry, trusted_gate, footprint, end)
             if leveled is not centerline:
                 centerline = leveled
                 coords, frames = centerline.project_with_frames(cloud.xyz, coords.s)
             # what each camera alone says about the axis across its view: the fused axis is known no better
             cross_view = cross_view_spread(centerline, coords, frames, viewpoints, seen_by,
-                                           len(self._camera_origins), geometry, settings.gate, footprint, end)
+                                           len(self._camera_origins), geometry, trusted_gate, footprint, end)
         # each point as its camera saw it: along its viewing ray onto the wall (core.relocation)
         rays = None if viewpoints is None else along_rays(coords, frames, viewpoints, geometry.outer_radius,
                                                           settings.gate)
@@ -438,6 +441,14 @@ class Reconstructor:
         relocation = self.relocate(filtered)
         mesh = self.mesh(relocation) if with_mesh else None
         return FrameResult(fused, filtered, relocation, mesh, dict(self.timings_ms))
+
+
+def _wall_band_gate(coords: TubeCoordinates, centerline: Centerline, geometry, gate: float, footprint: float
+                    ) -> float:
+    """The gate of the wall points the alignment trusts (m): the outer wall's band on the spines (its level's
+    distance from r_o plus its spread, notches.spine_wall), never wider than the fit's gate."""
+    _, level, spread = spine_wall(coords, centerline, geometry, gate, footprint)
+    return min(gate, abs(level) + spread)
 
 
 def _rolled_axes(normal: np.ndarray, binormal: np.ndarray, angle: float) -> tuple[np.ndarray, np.ndarray]:
