@@ -211,7 +211,8 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     for name, length in alone.items():
         if length > ONE_CAMERA_RUN_DIAMETERS * diameter:
             warnings.append(f"the distal {length * 1e3:.0f} mm is seen by {name} alone: the tube's far side "
-                            "there is inferred, not measured, and the centreline there rests on one side")
+                            "there is inferred, not measured, and the centreline there rests on one side, the tip "
+                            "with it: no second view checked where it lies across the tube")
     for name, fraction in share.items():
         if fraction < 0.5:
             warnings.append(f"{name} saw only {fraction:.0%} of the robot's length")
