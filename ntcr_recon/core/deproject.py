@@ -137,7 +137,7 @@ def _valid_depth(z, z_min, z_max):
 @jit
 def _steps_one_way(before, z, after, step):
     """z lies on a ramp between two valid neighbours' depths: more than `step` from each, between them."""
-    return ((before > 0.0) & (after > 0.0) & (before < np.inf) & (after < np.inf)
+    return (_valid_depth(before, 0.0, np.inf) & _valid_depth(after, 0.0, np.inf)
             & (((z - before > step) & (after - z > step)) | ((before - z > step) & (z - after > step))))
 
 
