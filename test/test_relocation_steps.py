@@ -485,8 +485,12 @@ def test_alignment_moves_the_reference_onto_the_facing_wall_and_reports_the_shif
     assert np.abs(moved[:, 0] - shift).max() < 0.02e-3
     assert abs(result.bias_binormal) < 0.01e-3
     end = result.centerline.points[result.centerline.s > length - 2e-3]
-    print(f"last 2 mm of the axis at x = {end[:, 0].min() * 1e3:.3f} .. {end[:, 0].max() * 1e3:.3f} mm")
+    print(f"last 2 mm of the axis at x = {end[:, 0].min() * 1e3:.3f} .. {end[:, 0].max() * 1e3:.3f} mm; the shift "
+          f"held from s = {result.held_from * 1e3:.1f} mm moved the end {result.end_shift * 1e3:.3f} mm")
     assert np.abs(end[:, 0] - shift).max() < 0.02e-3
+    # what the quality states of the tip: the shift held over the stretch no trusted wall checked, and where from
+    assert result.end_shift == pytest.approx(shift, abs=0.02e-3)
+    assert length - geometry.notch_pitch < result.held_from < length - FOOTPRINT
 
 
 def test_alignment_keeps_the_axis_between_cameras_at_different_distances():
@@ -811,12 +815,13 @@ def test_quality_gives_the_centreline_an_uncertainty_and_warns_above_its_floor()
     assert centerline_uncertainty(0.06e-3, 0.04e-3, ("cam_a",)) == pytest.approx(0.1e-3)
     assert centerline_uncertainty(None, None) is None
 
-    def assessed(spread, thinning, looking=(), at_end=None):
+    def assessed(spread, thinning, looking=(), at_end=None, held=None):
         return assess(geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=[],
                       coords_s=np.linspace(0.0, 50e-3, 1000), camera=np.zeros(1000, np.int8), tip_s=50e-3,
                       total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.0, notch_side=0.0, configured_side=0.0,
                       bias_notch_side=0.1e-3, bias_binormal=0.0, depth_steps={}, notched_thinning=thinning,
-                      looking_into_slots=looking, cross_view_spread=spread, distal_cross_view=at_end)
+                      looking_into_slots=looking, cross_view_spread=spread, distal_cross_view=at_end,
+                      held_shift=held)
 
     quality, warnings = assessed(0.06e-3, 0.08e-3)
     print("\n" + "\n".join(warnings))
@@ -841,6 +846,14 @@ def test_quality_gives_the_centreline_an_uncertainty_and_warns_above_its_floor()
     assert ends_apart[0]["centerline_cross_view_at_tip_mm"] == pytest.approx(0.08)
     assert any("and by 0.16 mm across it (the cameras' axes that far apart across their views at the end)" in warning
                for warning in ends_apart[1])
+    # the alignment's shift at the last wall it trusted, held unchecked to the tip, adds in quadrature to the free
+    # end's: 0.05 x sqrt(3) and 0.12 mm make 0.15 mm
+    held_quality, held = assessed(0.03e-3, 0.04e-3, held=(0.12e-3, 46e-3))
+    assert held_quality["tip_across_uncertainty_mm"] == pytest.approx(math.hypot(math.sqrt(3) * 0.05, 0.12))
+    assert held_quality["tip_held_shift_mm"] == pytest.approx(0.12)
+    assert held_quality["tip_held_over_mm"] == pytest.approx(4.0)
+    assert any("and by 0.15 mm across it (the alignment moved the axis 0.12 mm at the last wall it trusted, and "
+               "held that shift unchecked over the 4.0 mm to the tip)" in warning for warning in held)
     # looking into the slots, the deficit may lean the axis by twice it: 0.03 and 2 x 0.04 mm make 0.085 mm
     looking_quality, looking = assessed(0.03e-3, 0.04e-3, looking=("cam_a",))
     assert looking_quality["centerline_uncertainty_mm"] == pytest.approx(math.hypot(0.03, 0.08))

@@ -67,6 +67,10 @@ class Alignment:
     bias_binormal: float     # m, the same across the bending plane (along normal x tangent)
     trusted: int             # points the alignment rests on
     arc_lengths: np.ndarray | None = None  # the points' s on the curve the last pass started from (passes > 1)
+    # beyond the last window whose shift was solved (at s = held_from, m) no trusted wall measured the fit's
+    # lean: the shift there is held to the tube's end, and end_shift (m) is how far it moved the end
+    held_from: float | None = None
+    end_shift: float = 0.0
 
 
 @jit
@@ -199,7 +203,7 @@ def align_to_trusted_wall(centerline: Centerline, coords: TubeCoordinates, frame
     away_from_cuts = ~inside_intervals(coords.s, cut_intervals(geometry, centerline, cut_margin))
     viewpoints = np.ascontiguousarray(viewpoints, dtype=float)
     margin, least_cosine = _trust_limits(geometry, footprint, silhouette_margin_px, max_view_angle)
-    bias = np.zeros(2)
+    bias, end_move = np.zeros(2), np.zeros(3)
     result = Alignment(centerline, 0.0, 0.0, 0)
     for done in range(max(passes, 1)):
         if done:  # the moved axis: its points' coordinates, and its comb (the cuts move with its bends)
@@ -208,10 +212,14 @@ def align_to_trusted_wall(centerline: Centerline, coords: TubeCoordinates, frame
         result = _align_once(centerline, coords, frames, viewpoints, away_from_cuts, geometry, gate, margin, end_s,
                              least_cosine, smoothing, minimum_points)
         bias += (result.bias_notch_side, result.bias_binormal)
-        if result.centerline is centerline or xyz is None:
+        if result.centerline is centerline:
+            break
+        end_move += result.centerline.points[-1] - centerline.points[-1]
+        if xyz is None:
             break
         centerline = result.centerline
-    return Alignment(result.centerline, float(bias[0]), float(bias[1]), result.trusted, coords.s)
+    return Alignment(result.centerline, float(bias[0]), float(bias[1]), result.trusted, coords.s, result.held_from,
+                     float(np.linalg.norm(end_move)))
 
 
 def _trust_limits(geometry: TubeGeometry, footprint: float, silhouette_margin_px: float,
@@ -350,7 +358,7 @@ def _align_once(centerline: Centerline, coords: TubeCoordinates, frames: tuple, 
     aligned = Centerline.from_points(moved, binormal_hint, step)
     weights = counts[solvable].astype(float)
     bias = weights @ shifts[solvable] / weights.sum()
-    return Alignment(aligned, -float(bias[0]), -float(bias[1]), count)
+    return Alignment(aligned, -float(bias[0]), -float(bias[1]), count, held_from=float(known_s[-1]))
 
 
 def level_by_backbone(centerline: Centerline, coords: TubeCoordinates, frames: tuple, viewpoints: np.ndarray,

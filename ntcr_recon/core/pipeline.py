@@ -351,6 +351,7 @@ class Reconstructor:
             notched_thinning=thinning, looking_into_slots=looking, tip_from_cap=from_cap, side_unsettled=unsettled,
             cross_view_spread=cross_view.spread, distal_cross_view=cross_view.distal,
             unsupported=cross_view.unsupported, backbone_shift=backbone_shift, misread_widths=misread,
+            held_shift=None if alignment is None else (alignment.end_shift, alignment.held_from),
             unchecked=unchecked)
         quality = {**quality, "tip_refinement": refinement,
                    "centerline_backbone_shift_mm": None if backbone_shift is None else backbone_shift * 1e3,

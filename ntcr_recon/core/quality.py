@@ -39,6 +39,8 @@ FREE_END_FACTOR = math.sqrt(3.0)
 # Two cameras whose own axes at the end lie +-b about the fused one (an RMS of b) lie 2 b apart: the free end
 # follows whichever wall the matcher biased there, and nothing beyond it holds the axis.
 DISTAL_CROSS_VIEW_FACTOR = 2.0
+# Beyond the last window where trusted wall measured the fit's lean, the alignment holds its shift to the end: the
+# lean it measured there (the shift) is what the fit's end may still be off by, as no wall beyond checked it.
 
 
 def camera_coverage(s: np.ndarray, camera: np.ndarray | None, camera_names: tuple[str, ...], tip_s: float,
@@ -122,7 +124,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
            notched_thinning: float | None = None, looking_into_slots: tuple[str, ...] = (),
            tip_from_cap: bool = False, side_unsettled: tuple[float, float] | None = None,
            cross_view_spread: float | None = None, distal_cross_view: float | None = None, tip_along=None,
-           backbone_shift: float | None = None,
+           backbone_shift: float | None = None, held_shift: tuple[float, float] | None = None,
            unsupported: tuple[tuple[float, float], ...] = (),
            misread_widths: dict[int, float] | None = None, unchecked: list[int] | None = None
            ) -> tuple[dict, list[str]]:
@@ -141,7 +143,9 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     CrossView.distal, the cameras' spread across their views in the last window, which bounds the tip across
     the tube from below where it exceeds what the whole length implies. misread_widths: the width each notch
     notches.calibrate_and_check found misread was read at (by index), now its bend's; unchecked: the notches it
-    could not check (CheckedNotches.unchecked)."""
+    could not check (CheckedNotches.unchecked). held_shift: (how far the alignment moved the end, the s beyond
+    which it held that shift unmeasured) (m; alignment.Alignment's end_shift and held_from), an uncertainty of the
+    tip across the tube of its own: the fit's lean there was measured no nearer the tip."""
     warnings: list[str] = []
     r_o, diameter = geometry.outer_radius, geometry.outer_diameter
     found = sorted(n.index for n in notches)
@@ -191,10 +195,18 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     uncertainty = centerline_uncertainty(cross_view_spread, notched_thinning, looking_into_slots, levelled)
     # the tip sits on the centreline's free end, where an error growing along the tube is sqrt(3) its RMS, and
     # where the cameras disagree in the last window, their own axes' distance apart
+    # and where the alignment held the shift it measured last over the stretch to the tip, that shift
     end_spread = DISTAL_CROSS_VIEW_FACTOR * (distal_cross_view or 0.0)
-    tip_across = max(FREE_END_FACTOR * (uncertainty or 0.0), end_spread)
-    why = ("the cameras' axes that far apart across their views at the end" if end_spread >= tip_across
-           else "the centreline's, at its free end")
+    free_end = FREE_END_FACTOR * (uncertainty or 0.0)
+    held, held_from = held_shift if held_shift is not None and held_shift[1] is not None else (0.0, tip_s)
+    tip_across = max(math.hypot(free_end, held), end_spread)
+    if end_spread >= tip_across:
+        why = "the cameras' axes that far apart across their views at the end"
+    elif held > free_end:
+        why = (f"the alignment moved the axis {held * 1e3:.2f} mm at the last wall it trusted, and held that shift "
+               f"unchecked over the {max(tip_s - held_from, 0.0) * 1e3:.1f} mm to the tip")
+    else:
+        why = "the centreline's, at its free end"
     across = f", and by {tip_across * 1e3:.2f} mm across it ({why})" if tip_across else ""
     tip_total = math.hypot(tip_uncertainty, tip_across)
     if tip_total > TIP_FLOOR and tip_from_cap:
@@ -283,7 +295,8 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
         "tip_s_mm": tip_s * 1e3, "tip_seen_s_mm": seen_end * 1e3, "expected_length_mm": expected_length * 1e3,
         "tip_length_weighed": bool(tip_along is not None and tip_along.length_weighed),
         "tip_uncertainty_mm": tip_uncertainty * 1e3,
-        "tip_across_uncertainty_mm": None if uncertainty is None else tip_across * 1e3,
+        "tip_across_uncertainty_mm": None if uncertainty is None and not held else tip_across * 1e3,
+        "tip_held_shift_mm": held * 1e3, "tip_held_over_mm": max(tip_s - held_from, 0.0) * 1e3,
         "notch_width_vs_bend_mm": {str(i): d * 1e3 for i, d in sorted(off_model.items())},
         "notches_unchecked": unchecked,
         "pixel_footprint_mm": footprint * 1e3,
