@@ -437,6 +437,25 @@ def test_centreline_of_a_known_arc():
     assert centerline.length < GEOMETRY.length + GEOMETRY.outer_diameter + settings.bin_length
 
 
+def test_centreline_circles_leave_out_pixels_a_matcher_mixed_with_the_background():
+    """A straight tube's wall (10 um noise) and, over its +x flank, as many pixels a stereo matcher mixed with the
+    background behind: 0.25-0.5 mm outside the wall, well inside the fit's millimetre gate. Circles fitted over the
+    whole gate leaned 70 um towards them; fitted over the wall's band (two footprints here) the axis stays within
+    the fit's convergence tolerance (17.5 um) of the wall's."""
+    length = 20e-3
+    rng = np.random.default_rng(7)
+    wall = wall_points(length, rng=rng)
+    mixed = wall[wall[:, 0] > 0.9 * R_O].copy()
+    mixed[:, :2] *= (1.0 + rng.uniform(0.25e-3, 0.5e-3, len(mixed)) / R_O)[:, None]
+    settings = settings_for(GEOMETRY, FOOTPRINT, RelocationConfig())
+    assert settings.gate > 0.5e-3  # the mixed pixels lie inside the fit's gate
+    centerline, _, _ = estimate_centerline(np.vstack([wall, mixed]), GEOMETRY, settings)
+    inside = centerline.points[(centerline.s > 2e-3) & (centerline.s < length - 2e-3)]
+    print(f"\n{len(mixed)} mixed pixels on {len(wall)} wall points: axis at x = {inside[:, 0].mean() * 1e6:+.1f} um "
+          f"(worst {np.abs(inside[:, :2]).max() * 1e6:.1f} um off)")
+    assert np.abs(inside[:, :2]).max() < settings.tolerance
+
+
 def test_the_smoothing_does_not_straighten_the_free_end_of_an_arc():
     """Nodes on a 20 mm arc, the data as strong as the prior: a penalty on the curvature itself makes a natural
     end (no curvature) and swings it out of the bend (155 um); penalising only the curvature's departure from

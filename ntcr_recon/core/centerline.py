@@ -690,8 +690,12 @@ def estimate_centerline(xyz: np.ndarray, geometry: TubeGeometry, settings: Cente
         # each point feeds its two neighbouring nodes with linear (hat) weights, so the fit changes
         # smoothly as points slide along s between iterations
         slab, x, y, weight = _hat_shares_kernel(coordinates.s, coordinates.x, coordinates.y, near_tube, step, slabs)
+        # the circles rest on the wall's band: the gate, a millimetre wide, lets in pixels a matcher mixed with the
+        # background, which pull a slab's circle across the view (most where the end's and the last notch's edges
+        # leave few wall points); two pixel footprints at least, as a clean wall's band is thinner than its pixels
+        circle_gate = min(settings.gate, max(abs(band[0]) + band[1], 2 * settings.cell))
         centre, information_2d = fixed_radius_circle_fit(slab, x, y, slabs, geometry.outer_radius + band[0],
-                                                          settings.gate, iterations=3, point_weight=weight)
+                                                          circle_gate, iterations=3, point_weight=weight)
         s_nodes = np.arange(slabs) * step
         position, tangent, normal, binormal = centerline.frames_at(s_nodes)
         basis = np.stack([normal, binormal], axis=2)                      # (M, 3, 2)
