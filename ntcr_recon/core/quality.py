@@ -6,10 +6,11 @@ camera alone), the wall fit's residual, the measured notch side against the conf
 bias the alignment removed and how uncertain the centreline still is, the tip against the robot's known
 length, the pixel footprint against the tube, the depth quantisation seen in the frames, each notch's width
 against the width its measured bend implies (and the notches it could not be checked for), how far the tip's
-position rests on the rim erosion given back, and how much deeper the wall reads between the notches than on
-the plain tube (a lean no fit can see), and the stretches where no camera saw the wall facing it (where the
-centreline's error was not measured). Every figure is in the unit its key names; the warnings are sentences a
-user can act on. relocation_node puts them on /diagnostics, the CLI prints them.
+position rests on the rim erosion given back (and, across the tube, on the alignment's last shift held to it),
+how much deeper the wall reads between the notches than on the plain tube (a lean no fit can see), and the
+stretches where no camera saw the wall facing it (where the centreline's error was not measured). Every figure
+is in the unit its key names; the warnings are sentences a user can act on. relocation_node puts them on
+/diagnostics, the CLI prints them.
 """
 
 from __future__ import annotations
@@ -39,8 +40,6 @@ FREE_END_FACTOR = math.sqrt(3.0)
 # Two cameras whose own axes at the end lie +-b about the fused one (an RMS of b) lie 2 b apart: the free end
 # follows whichever wall the matcher biased there, and nothing beyond it holds the axis.
 DISTAL_CROSS_VIEW_FACTOR = 2.0
-# Beyond the last window where trusted wall measured the fit's lean, the alignment holds its shift to the end: the
-# lean it measured there (the shift) is what the fit's end may still be off by, as no wall beyond checked it.
 
 
 def camera_coverage(s: np.ndarray, camera: np.ndarray | None, camera_names: tuple[str, ...], tip_s: float,
@@ -193,9 +192,9 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     lean = 2.0 * notched_thinning if notched_thinning is not None and looking_into_slots else 0.0
     levelled = bool(backbone_shift)
     uncertainty = centerline_uncertainty(cross_view_spread, notched_thinning, looking_into_slots, levelled)
-    # the tip sits on the centreline's free end, where an error growing along the tube is sqrt(3) its RMS, and
-    # where the cameras disagree in the last window, their own axes' distance apart
-    # and where the alignment held the shift it measured last over the stretch to the tip, that shift
+    # the tip sits on the centreline's free end, where an error growing along the tube is sqrt(3) its RMS, with
+    # the shift the alignment measured last and held unchecked to the tip (the fit's lean it corrected there may
+    # differ beyond); and where the cameras disagree in the last window, their own axes' distance apart
     end_spread = DISTAL_CROSS_VIEW_FACTOR * (distal_cross_view or 0.0)
     free_end = FREE_END_FACTOR * (uncertainty or 0.0)
     held, held_from = held_shift if held_shift is not None and held_shift[1] is not None else (0.0, tip_s)
