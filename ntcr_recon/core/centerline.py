@@ -30,7 +30,7 @@ import scipy.linalg
 from ntcr_recon.core.compiled import jit
 from ntcr_recon.core.geometry import TubeGeometry
 from ntcr_recon.core.tip import tube_end
-from ntcr_recon.core.wall import median, surface_band
+from ntcr_recon.core.wall import band_gate, median, surface_band
 
 
 def resample_polyline(points: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
@@ -690,10 +690,10 @@ def estimate_centerline(xyz: np.ndarray, geometry: TubeGeometry, settings: Cente
         # each point feeds its two neighbouring nodes with linear (hat) weights, so the fit changes
         # smoothly as points slide along s between iterations
         slab, x, y, weight = _hat_shares_kernel(coordinates.s, coordinates.x, coordinates.y, near_tube, step, slabs)
-        # the circles rest on the wall's band: the gate, a millimetre wide, lets in pixels a matcher mixed with the
-        # background, which pull a slab's circle across the view (most where the end's and the last notch's edges
-        # leave few wall points); two pixel footprints at least, as a clean wall's band is thinner than its pixels
-        circle_gate = min(settings.gate, max(abs(band[0]) + band[1], 2 * settings.cell))
+        # the circles rest on the wall's band: mixed pixels pull a slab's circle across the view (most where the
+        # end's and the last notch's edges leave few wall points); two pixel footprints at least, as a clean wall's
+        # band is thinner than its pixels
+        circle_gate = band_gate(*band, settings.gate, least=2 * settings.cell)
         centre, information_2d = fixed_radius_circle_fit(slab, x, y, slabs, geometry.outer_radius + band[0],
                                                           circle_gate, iterations=3, point_weight=weight)
         s_nodes = np.arange(slabs) * step

@@ -55,7 +55,7 @@ from ntcr_recon.core.tip import (
     tube_end,
     with_known_length,
 )
-from ntcr_recon.core.wall import surface_band
+from ntcr_recon.core.wall import band_gate, surface_band
 
 # A measured notch side further than this from the configured one turns the tube frame (smaller: within
 # what the measurement scatters, and the open window is wide enough for it).
@@ -449,7 +449,7 @@ def _wall_band_gate(coords: TubeCoordinates, centerline: Centerline, geometry, g
     """The gate of the wall points the alignment trusts (m): the outer wall's band on the spines (its level's
     distance from r_o plus its spread, notches.spine_wall), never wider than the fit's gate."""
     _, level, spread = spine_wall(coords, centerline, geometry, gate, footprint)
-    return min(gate, abs(level) + spread)
+    return band_gate(level, spread, gate)
 
 
 def _rolled_axes(normal: np.ndarray, binormal: np.ndarray, angle: float) -> tuple[np.ndarray, np.ndarray]:

@@ -121,3 +121,10 @@ def surface_band(offset: np.ndarray, gate: float, spine: np.ndarray | None = Non
         return 0.0, gate
     spread = 3.0 * (MAD_TO_SIGMA * deviation)
     return float(level), min(max(spread, 1e-6), gate)
+
+
+def band_gate(level: float, spread: float, gate: float, least: float = 0.0) -> float:
+    """How far from the outer radius a wall point may lie and still be the wall (m): the band's level (surface_band)
+    off r_o plus its spread, at least `least`, never wider than `gate`. A gate a millimetre wide lets in pixels a
+    stereo matcher mixed with the background behind the robot; the band leaves them out."""
+    return min(gate, max(abs(level) + spread, least))
