@@ -183,9 +183,11 @@ def test_a_slot_the_matcher_filled_is_found_by_its_dip_and_given_its_bends_width
     assert found[0.85] == [] and DIP_PEAK > 1 - 0.85
 
 
-def _comb_tube(shift_of_notch_5: float = 0.0, window_unseen_from: float = np.inf, rng=None):
+def _comb_tube(shift_of_notch_5: float = 0.0, window_unseen_from: float = np.inf, rng=None,
+               notch_5_filled: float = 0.0):
     """A straight robot's outer wall with every notch open where the comb puts it (notch 5 moved along s by
-    `shift_of_notch_5`); past `window_unseen_from` the notch window holds only a stray point every 0.7 mm
+    `shift_of_notch_5`, and that share of its window left on the wall, as a matcher whose window is wider than
+    the slot fills it); past `window_unseen_from` the notch window holds only a stray point every 0.7 mm
     (the notched side turned away from both cameras), the backbone side is still seen."""
     geometry = TubeGeometry(notch_count=16)
     points = wall_points(geometry.length, spacing=FOOTPRINT / 2)
@@ -193,8 +195,9 @@ def _comb_tube(shift_of_notch_5: float = 0.0, window_unseen_from: float = np.inf
     in_window = np.abs(phi) < geometry.gap_half_angle
     centres = geometry.notch_centers_s + np.where(np.arange(16) == 5, shift_of_notch_5, 0.0)
     cut = np.zeros(len(points), bool)
-    for centre in centres:
-        cut |= in_window & (np.abs(points[:, 2] - centre) < geometry.notch_width / 2)
+    left_on_wall = np.random.default_rng(3).random(len(points)) < notch_5_filled
+    for k, centre in enumerate(centres):
+        cut |= in_window & (np.abs(points[:, 2] - centre) < geometry.notch_width / 2) & ~(left_on_wall & (k == 5))
     keep = ~cut & ~(in_window & (points[:, 2] > window_unseen_from))
     points = points[keep]
     if rng is not None:
@@ -224,6 +227,27 @@ def test_a_run_centred_off_its_notch_is_not_that_notch():
     notches = detect_notches(coords, centerline, geometry, 0.8e-3, FOOTPRINT, 0.5, 0.25, geometry.length - 0.1e-3)
     print(f"\nnotch 5 moved 0.6 widths: found {[n.index for n in notches]}")
     assert [n.index for n in notches] == [k for k in range(16) if k != 5]
+
+
+@pytest.mark.parametrize("shift_widths, found", [(0.3, True), (0.6, False)])
+def test_a_dip_seen_obliquely_off_its_comb_place_is_that_notch_within_half_a_width(shift_widths, found):
+    """Notch 5's slot filled to 60% by the matcher (a dip, no edges) and its open part moved along s, as an oblique
+    view moves it: 0.3 widths (0.45 mm, what a robot bent 90 degrees towards the camera its notches face shows)
+    is still notch 5, found as a dip where the comb puts it; 0.6 widths, beyond half a notch width, is not
+    (as a run centred that far off is not: test_a_run_centred_off_its_notch_is_not_that_notch)."""
+    shift = shift_widths * TubeGeometry().notch_width
+    geometry, centerline, coords = _comb_tube(shift_of_notch_5=shift, notch_5_filled=0.6)
+    notches = detect_notches(coords, centerline, geometry, 0.8e-3, FOOTPRINT, 0.5, 0.25, geometry.length - 0.1e-3)
+    print(f"\nfilled notch 5 moved {shift_widths} widths: found {[(n.index, n.signal) for n in notches]}")
+    others = [k for k in range(16) if k != 5]
+    assert [n.index for n in notches if n.index != 5] == others
+    fifth = [n for n in notches if n.index == 5]
+    if found:
+        [notch] = fifth
+        assert notch.signal == "dip"
+        assert abs(notch.center_s - geometry.notch_centers_s[5]) < FOOTPRINT / 2  # where the comb puts it
+    else:
+        assert fifth == []
 
 
 def test_a_rim_the_matcher_mixed_with_the_floor_behind_it_is_measured_where_its_rays_put_it():

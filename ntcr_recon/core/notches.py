@@ -235,8 +235,8 @@ def _dip_at(grid: np.ndarray, coverage_gap: np.ndarray, window_seen: np.ndarray,
             half_width: float, pitch: float) -> bool:
     """Whether the coverage gap dips at a comb centre (see DIP_PEAK): its peak within half_width / 2 of the
     centre at least DIP_PEAK and DIP_PROMINENCE above its median over the spines beside it (beyond half_width,
-    within half a pitch), the run above half that peak centred as near, every cell within half a pitch seen
-    (window_seen)."""
+    within half a pitch), the run above half that peak centred within half_width (as _plausible's runs), every
+    cell within half a pitch seen (window_seen)."""
     distance = np.abs(grid - centre)
     near, pitch_cells = distance <= half_width / 2, distance <= pitch / 2
     beside = pitch_cells & (distance > half_width)
@@ -245,13 +245,15 @@ def _dip_at(grid: np.ndarray, coverage_gap: np.ndarray, window_seen: np.ndarray,
     top = int(np.flatnonzero(near)[np.argmax(coverage_gap[near])])
     peak = coverage_gap[top]
     # the dip's own middle (its run above half its peak) at the comb's place: a full slot cut off it, reaching in
-    # from one side, is not this notch (_plausible)
+    # from one side, is not this notch (_plausible); as near as a run's, not nearer: seen obliquely, the part of a
+    # slot left open moves along s by a good part of its half width (0.4 mm on a robot bent 90 degrees towards the
+    # camera its notches face)
     first, last = top, top
     while first > 0 and pitch_cells[first - 1] and coverage_gap[first - 1] >= peak / 2:
         first -= 1
     while last < len(grid) - 1 and pitch_cells[last + 1] and coverage_gap[last + 1] >= peak / 2:
         last += 1
-    centred = abs((grid[first] + grid[last]) / 2 - centre) <= half_width / 2
+    centred = abs((grid[first] + grid[last]) / 2 - centre) <= half_width
     return bool(centred and peak >= DIP_PEAK and peak - median(coverage_gap[beside]) >= DIP_PROMINENCE)
 
 
