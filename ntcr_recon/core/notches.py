@@ -246,7 +246,7 @@ def _dip_at(grid: np.ndarray, coverage_gap: np.ndarray, window_seen: np.ndarray,
     peak = coverage_gap[top]
     # the dip's own middle (its run above half its peak) at the comb's place: a full slot cut off it, reaching in
     # from one side, is not this notch (_plausible); as near as a run's, not nearer: seen obliquely, the part of a
-    # slot left open moves along s by a good part of its half width (0.4 mm on a robot bent 90 degrees towards the
+    # slot left open moves along s by a good part of its half width (0.4-0.45 mm on a robot bent 90 degrees towards the
     # camera its notches face)
     first, last = top, top
     while first > 0 and pitch_cells[first - 1] and coverage_gap[first - 1] >= peak / 2:
