@@ -4,6 +4,7 @@ known exactly; each number asserted is printed."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -20,10 +21,13 @@ from ntcr_recon.core.notches import detect_notches
 from ntcr_recon.core.quality import (
     assess,
     camera_coverage,
+    camera_reach,
     cameras_looking_into_slots,
     centerline_uncertainty,
     depth_step,
+    extended_at_last_bend,
     notched_thinning,
+    surface_depth,
 )
 from ntcr_recon.core.tip import tube_end, visible_sectors
 
@@ -809,6 +813,84 @@ def test_quality_tells_a_tube_cut_short_by_the_crop_box_from_one_that_ends_insid
     assert "short of the robot's length" in on_face and "crop box's face z = 0.0 mm" in on_face
     inside = warnings_for([0.0, 0.0, 0.03])
     assert "short of the robot's length" in inside and "crop box" not in inside
+
+
+def test_the_surface_depth_nearest_a_camera_is_the_axis_less_the_ring_it_turns_to_the_camera():
+    looking_down_x = np.eye(4)
+    looking_down_x[:3, :3] = [[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]]  # optical z = base -x
+    looking_down_x[:3, 3] = [0.08, 0.0, 0.0]
+    axis = np.array([[0.0, 0.0, 0.01], [0.0, 0.0, 0.01], [0.0, 0.0, 0.01]])
+    tangents = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [math.sqrt(0.5), 0.0, math.sqrt(0.5)]])
+    depth = surface_depth(axis, tangents, looking_down_x, R_O)
+    print(f"\nside-on, end-on, at 45 deg: {depth * 1e3} mm")
+    # side-on the near wall, end-on the end cap's disc (at the axis's depth), at 45 deg its rim
+    assert depth == pytest.approx([0.08 - R_O, 0.08, 0.08 - R_O * math.sqrt(0.5)], abs=1e-9)
+
+
+def test_a_tube_seen_part_way_is_continued_on_its_last_bend():
+    shape = TubeShape.from_bend_angle(GEOMETRY, math.radians(90.0))
+    truth = true_centerline(shape)
+    beyond = np.linspace(0.0, shape.length - 38e-3, 50)
+    positions, tangents = extended_at_last_bend(truth, 38e-3, 2 * GEOMETRY.notch_pitch, beyond)
+    true_positions, true_frames = shape.centerline(38e-3 + beyond)
+    straight_on = truth.frames_at(np.array([38e-3]))[0][0] + beyond[-1] * truth.frames_at(np.array([38e-3]))[1][0]
+    error = np.linalg.norm(positions - true_positions, axis=1).max()
+    print(f"\n{beyond[-1] * 1e3:.1f} mm continued: {error * 1e3:.2f} mm off the true arc "
+          f"(straight on: {np.linalg.norm(straight_on - true_positions[-1]) * 1e3:.1f} mm)")
+    # the robot's last spine and tip are straight, where the arc bends on: within half a millimetre at its end
+    assert error < 0.6e-3 and np.linalg.norm(straight_on - true_positions[-1]) > 2e-3
+    assert np.einsum("ij,ij->i", tangents, true_frames[:, :, 2]).min() > math.cos(math.radians(5.0))
+    straight = straight_centerline(30e-3)
+    on, _ = extended_at_last_bend(straight, 30e-3, 2 * GEOMETRY.notch_pitch, np.array([5e-3]))
+    assert on[0] == pytest.approx([0.0, 0.0, 35e-3], abs=1e-9)
+
+
+def test_a_stretch_nearer_a_camera_than_any_depth_it_returned_is_named_as_the_reason_it_went_unseen():
+    """A robot bent 90 deg towards cam_a of a 90 mm rig (matrix row bend90_toward_cam_a_90mm): its distal part
+    comes within 60 mm of cam_a, which sees nothing nearer than 70 mm (here, than 70.5). Seen by cam_b alone
+    there, or cut short where cam_a's view ends, the warning says why; bent away from cam_a, it does not."""
+    from ntcr_recon.sim.camera import facing_pair
+
+    cameras = facing_pair(0.09)
+    extrinsics = {}
+    for pose in cameras:
+        extrinsics[pose.name] = np.eye(4)
+        extrinsics[pose.name][:3, :3], extrinsics[pose.name][:3, 3] = pose.rotation, pose.translation
+
+    def warned(towards_deg, tip_s=None):
+        """The warnings of a robot bent 90 deg towards the camera at towards_deg (-90: cam_a, 90: cam_b) seen
+        up to tip_s, cam_a's points only where the tube is 70 mm from it or more and short of 40 mm along it."""
+        shape = TubeShape.from_bend_angle(dataclasses.replace(GEOMETRY, notch_side=math.radians(towards_deg)),
+                                          math.radians(90.0))
+        tip_s = shape.length if tip_s is None else tip_s
+        sample = shape.sample_surface_parts(0.2e-3)
+        by_a = (cameras[0].to_camera(sample.points)[:, 2] >= 0.07) & (sample.s < 40e-3)
+        xyz = np.concatenate([sample.points[by_a], sample.points])
+        camera = np.concatenate([np.zeros(np.count_nonzero(by_a)), np.ones(len(sample.points))]).astype(int)
+        reach = camera_reach(true_centerline(shape), tip_s, shape.length, 2 * GEOMETRY.notch_pitch, R_O, FOOTPRINT,
+                             extrinsics, xyz, camera)
+        s = np.concatenate([sample.s[by_a], sample.s])
+        quality, warnings = assess(
+            geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=[], coords_s=s, camera=camera,
+            tip_s=tip_s, total_bend=math.radians(90.0 * tip_s / shape.length), footprint=FOOTPRINT,
+            wall_residual=0.0, notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0,
+            depth_steps={}, reach=reach)
+        return quality, " ".join(warnings)
+
+    quality, seen_alone = warned(-90.0)
+    print(f"\n{seen_alone}\nnearest returned {quality['camera_nearest_depth_mm']}, "
+          f"tube's nearest {quality['tube_nearest_depth_mm']}")
+    assert "seen by cam_b alone (it comes within 60 mm of cam_a, which returned no depth nearer than 71 mm)" \
+        in seen_alone
+    assert quality["camera_nearest_depth_mm"]["cam_a"] == pytest.approx(70.5, abs=0.3)
+    assert quality["tube_nearest_depth_mm"]["cam_a"] == pytest.approx(59.9, abs=0.3)
+    _, cut_short = warned(-90.0, tip_s=38e-3)  # the tube's end found where cam_a stops seeing it
+    print(cut_short)
+    assert "continued at its last bend, it would come within 60 mm of cam_a" in cut_short
+    # bent away from cam_a, whatever hid the distal part from it, it was not nearness: no reason given
+    _, away = warned(90.0)
+    print(away)
+    assert "seen by cam_b alone: the tube's far side" in away and "within" not in away
 
 
 def test_quality_measures_a_wall_that_reads_deeper_between_the_notches_than_on_the_plain_tube():

@@ -182,6 +182,12 @@ def test_simulate_warns_when_the_robot_is_nearer_than_the_d405_sees(tmp_path, ca
     assert cli.main(["simulate", str(tmp_path / "far"), "--camera-distance", "0.08", "--frames", "1",
                      "--no-progress"]) == 0
     assert "minimum depth" not in capsys.readouterr().err
+    # from 90 mm, bent 90 deg towards cam_a, the distal part comes within 60 mm of it
+    assert cli.main(["simulate", str(tmp_path / "bent"), "--bend-deg", "90", "--notch-side", "facing", "--frames",
+                     "1", "--no-progress"]) == 0
+    error = capsys.readouterr().err
+    print(error)
+    assert "comes within 59.9 mm of cam_a (at 51.1 mm along it)" in error and "minimum depth (70 mm)" in error
 
 
 def test_render_command_draws_a_png(written, tmp_path):

@@ -111,11 +111,11 @@ def main(args: argparse.Namespace) -> int:
     except (ValueError, ConfigError, FileExistsError, StagingError) as error:
         print(f"ntcr-recon simulate: {error}", file=sys.stderr)
         return 2
-    near = min(simulation.camera_distances or (args.camera_distance,)) - simulation.shape.geometry.outer_radius
-    if near < D405Intrinsics.min_depth:
-        print(f"ntcr-recon simulate: warning: the robot's near side is {near * 1e3:.1f} mm from the cameras, nearer "
-              f"than the D405's minimum depth at 848x480 ({D405Intrinsics.min_depth * 1e3:.0f} mm): it reads no "
-              "depth there", file=sys.stderr)
+    camera, near, where = simulation.nearest_approach()
+    if near < simulation.intrinsics.min_depth:
+        print(f"ntcr-recon simulate: warning: the robot comes within {near * 1e3:.1f} mm of {camera} (at "
+              f"{where * 1e3:.1f} mm along it), nearer than the simulated D405's minimum depth "
+              f"({simulation.intrinsics.min_depth * 1e3:.0f} mm): it reads no depth there", file=sys.stderr)
     tip, _ = simulation.shape.tip_pose()
     print(f"wrote {path}: {simulation.frame_count} frames x {len(simulation.cameras)} cameras, "
           f"bend {math.degrees(simulation.shape.notch_bend.sum()):.1f} deg, tip at "

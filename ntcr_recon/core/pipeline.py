@@ -38,6 +38,7 @@ from ntcr_recon.core.icp import icp, mesh_reference, posed_reference, relocate_o
 from ntcr_recon.core.notches import Notch, calibrate_and_check, detect_notches, measure_notch_side, spine_wall
 from ntcr_recon.core.quality import (
     assess,
+    camera_reach,
     cameras_looking_into_slots,
     centerline_uncertainty,
     depth_step,
@@ -352,7 +353,10 @@ class Reconstructor:
             cross_view_spread=cross_view.spread, distal_cross_view=cross_view.distal,
             unsupported=cross_view.unsupported, backbone_shift=backbone_shift, misread_widths=misread,
             held_shift=None if alignment is None else (alignment.end_shift, alignment.held_from),
-            unchecked=unchecked)
+            unchecked=unchecked, reach=camera_reach(
+                centerline, tip_s, geometry.bent_length(total_bend), 2 * geometry.notch_pitch, geometry.outer_radius,
+                footprint, {name: self.config.cameras[name].extrinsic for name in self.config.camera_names},
+                cloud.xyz, seen_by))
         quality = {**quality, "tip_refinement": refinement,
                    "centerline_backbone_shift_mm": None if backbone_shift is None else backbone_shift * 1e3,
                    # None: the side could not be measured (or did not settle): the configured one is kept

@@ -2,7 +2,8 @@
 
 `assess` looks only at the data and the configuration (never at ground truth): notches found of expected
 and by which signal, the share of the robot's length each camera saw (and a distal stretch seen by one
-camera alone), the wall fit's residual, the measured notch side against the configured one, the centreline
+camera alone, or a tube ending short, with the camera it came nearer than any depth that camera returned:
+`camera_reach`), the wall fit's residual, the measured notch side against the configured one, the centreline
 bias the alignment removed and how uncertain the centreline still is, the tip against the robot's known
 length, the pixel footprint against the tube, the depth quantisation seen in the frames, each notch's width
 against the width its measured bend implies (and the notches it could not be checked for), how far the tip's
@@ -16,6 +17,7 @@ is in the unit its key names; the warnings are sentences a user can act on. relo
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.ndimage import uniform_filter1d
@@ -67,6 +69,84 @@ def camera_coverage(s: np.ndarray, camera: np.ndarray | None, camera_names: tupl
         mine_beyond = seen[i, last_other:]
         alone[name] = float(np.count_nonzero(mine_beyond) * cell) if np.any(mine_beyond) else 0.0
     return share, alone
+
+
+def surface_depth(positions: np.ndarray, tangents: np.ndarray, extrinsic: np.ndarray, radius: float) -> np.ndarray:
+    """Per axis point, the depth (m, along the camera's optical axis) of the tube's surface nearest the camera:
+    the axis's depth less the radius times the sine between the tangent and the optical axis (the ring about
+    the axis there reaches that far towards the camera; an end cap seen end-on, as far). extrinsic: the
+    camera's optical frame in the base frame (4x4)."""
+    axis = extrinsic[:3, 2]
+    along = np.clip(np.asarray(tangents, float) @ axis, -1.0, 1.0)
+    return (np.asarray(positions, float) - extrinsic[:3, 3]) @ axis - radius * np.sqrt(1.0 - along**2)
+
+
+def extended_at_last_bend(centerline, end_s: float, span: float, beyond: np.ndarray
+                          ) -> tuple[np.ndarray, np.ndarray]:
+    """Positions and tangents `beyond` (m, >= 0) past end_s, the centreline continued on the arc it turned over
+    its last `span` (straight where it did not turn): where a tube seen only so far would go on."""
+    (start, end), (first, last) = (part for part in centerline.frames_at(np.array([end_s - span, end_s]))[:2])
+    axis = np.cross(first, last)
+    sine = float(np.linalg.norm(axis))
+    beyond = np.asarray(beyond, float)[:, None]
+    if sine < 1e-9:
+        return end + beyond * last, np.repeat(last[None], len(beyond), axis=0)
+    towards = np.cross(axis / sine, last)  # where the tangent turns next
+    curvature = math.atan2(sine, float(first @ last)) / span
+    angle = curvature * beyond
+    positions = end + (np.sin(angle) * last + (1.0 - np.cos(angle)) * towards) / curvature
+    return positions, np.cos(angle) * last + np.sin(angle) * towards
+
+
+@dataclass(frozen=True)
+class CameraReach:
+    """How near the tube comes to each camera along it (its surface's nearest depth, `surface_depth`, at each
+    sampled s; past the tip seen, continued at its last bend up to the robot's length), and the nearest depth of
+    any point each camera returned: a stretch nearer a camera than all it returned is one its stereo matching
+    could not reach (a D405 at 848x480 sees nothing nearer than about 70 mm)."""
+
+    s: np.ndarray
+    depth: dict[str, np.ndarray]
+    nearest_returned: dict[str, float]
+
+    def too_near(self, name: str, start: float, end: float) -> float | None:
+        """The stretch [start, end]'s nearest depth to camera `name` (m) when it is nearer than any the camera
+        returned, else None."""
+        inside = (self.s >= start) & (self.s <= end)
+        if name not in self.depth or name not in self.nearest_returned or not np.any(inside):
+            return None
+        nearest = float(self.depth[name][inside].min())
+        return nearest if nearest < self.nearest_returned[name] else None
+
+    def why_unseen(self, names: list[str], start: float, end: float, continued: bool = False) -> str:
+        """The clause naming the cameras the stretch [start, end] comes nearer than they returned depth ('' for
+        none); continued: the stretch is the tube continued at its last bend, not seen."""
+        reasons = [f"{'continued at its last bend, it would come' if continued else 'it comes'} within "
+                   f"{near * 1e3:.0f} mm of {name}, which returned no depth nearer than "
+                   f"{self.nearest_returned[name] * 1e3:.0f} mm"
+                   for name in names if (near := self.too_near(name, start, end)) is not None]
+        return "; ".join(reasons)
+
+
+def camera_reach(centerline, tip_s: float, length: float, span: float, radius: float, step: float,
+                 extrinsics: dict[str, np.ndarray], xyz: np.ndarray, camera: np.ndarray | None) -> CameraReach:
+    """The CameraReach of a tube seen up to tip_s of a robot `length` long (m): its axis sampled every `step`,
+    continued past tip_s on the arc of its last `span`; the points `xyz` returned by the cameras (by index into
+    extrinsics' order, `camera`), none known without it."""
+    seen = np.append(np.arange(0.0, tip_s, step), tip_s)
+    positions, tangents = centerline.frames_at(seen)[:2]
+    if length > tip_s:
+        beyond = np.arange(step, length - tip_s + step, step)
+        more_positions, more_tangents = extended_at_last_bend(centerline, tip_s, min(span, tip_s), beyond)
+        seen, positions, tangents = (np.concatenate(parts) for parts in (
+            (seen, tip_s + beyond), (positions, more_positions), (tangents, more_tangents)))
+    depth, nearest = {}, {}
+    for index, (name, extrinsic) in enumerate(extrinsics.items()):
+        depth[name] = surface_depth(positions, tangents, extrinsic, radius)
+        mine = xyz[camera == index] if camera is not None else xyz[:0]
+        if len(mine):
+            nearest[name] = float(((mine - extrinsic[:3, 3]) @ extrinsic[:3, 2]).min())
+    return CameraReach(seen, depth, nearest)
 
 
 def notched_thinning(offset: np.ndarray, s: np.ndarray, cuts: np.ndarray, tip_s: float, gate: float,
@@ -125,8 +205,8 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
            cross_view_spread: float | None = None, distal_cross_view: float | None = None, tip_along=None,
            backbone_shift: float | None = None, held_shift: tuple[float, float] | None = None,
            unsupported: tuple[tuple[float, float], ...] = (),
-           misread_widths: dict[int, float] | None = None, unchecked: list[int] | None = None
-           ) -> tuple[dict, list[str]]:
+           misread_widths: dict[int, float] | None = None, unchecked: list[int] | None = None,
+           reach: CameraReach | None = None) -> tuple[dict, list[str]]:
     """The `quality` document and the warnings (see the module docstring). tip_uncertainty: how well the tip's
     refinement placed it along the tube, when it measured the erosion it gave back (else the erosion itself
     counts as uncertain, and half a footprint). tip_position, crop_box: where the tip is and the box the points
@@ -144,7 +224,8 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     notches.calibrate_and_check found misread was read at (by index), now its bend's; unchecked: the notches it
     could not check (CheckedNotches.unchecked). held_shift: (how far the alignment moved the end, the s beyond
     which it held that shift unmeasured) (m; alignment.Alignment's end_shift and held_from), an uncertainty of the
-    tip across the tube of its own: the fit's lean there was measured no nearer the tip."""
+    tip across the tube of its own: the fit's lean there was measured no nearer the tip. reach: how near the tube
+    comes to each camera, to name a camera too near a stretch it did not see (CameraReach)."""
     warnings: list[str] = []
     r_o, diameter = geometry.outer_radius, geometry.outer_diameter
     found = sorted(n.index for n in notches)
@@ -221,9 +302,11 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     share, alone = camera_coverage(coords_s, camera, camera_names, tip_s, cell, pool=diameter)
     for name, length in alone.items():
         if length > ONE_CAMERA_RUN_DIAMETERS * diameter:
-            warnings.append(f"the distal {length * 1e3:.0f} mm is seen by {name} alone: the tube's far side "
-                            "there is inferred, not measured, and the centreline there rests on one side, the tip "
-                            "with it: no second view checked where it lies across the tube")
+            why = "" if reach is None else reach.why_unseen([n for n in camera_names if n != name],
+                                                            tip_s - length, tip_s)
+            warnings.append(f"the distal {length * 1e3:.0f} mm is seen by {name} alone{f' ({why})' if why else ''}: "
+                            "the tube's far side there is inferred, not measured, and the centreline there rests on "
+                            "one side, the tip with it: no second view checked where it lies across the tube")
     for name, fraction in share.items():
         if fraction < 0.5:
             warnings.append(f"{name} saw only {fraction:.0%} of the robot's length")
@@ -247,6 +330,10 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
                 warning += (f"; it ends on the crop box's face {'xyz'[edge[0]]} = {edge[1] * 1e3:.1f} mm: the robot "
                             "may go on outside the box (filters.crop_box_min / crop_box_max; below the base plane, "
                             "filters.clamp_radius lets the automatic box reach there)")
+        why = "" if reach is None or short < 0 else reach.why_unseen(list(camera_names), tip_s, expected_length,
+                                                                     continued=True)
+        if why:
+            warning += f"; {why}: the rest may be too near to be seen"
         warnings.append(warning)
     side_off = math.degrees(math.remainder(notch_side - configured_side, 2 * math.pi))
     if side_unsettled is not None:
@@ -306,6 +393,10 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
         "centerline_cross_view_at_tip_mm": None if distal_cross_view is None else distal_cross_view * 1e3,
         "centerline_uncertainty_mm": None if uncertainty is None else uncertainty * 1e3,
         "centerline_unsupported_mm": [[start * 1e3, end * 1e3] for start, end in unsupported],
+        # per camera the nearest depth it returned, and the tube seen's nearest to it (its surface, optical axis)
+        "camera_nearest_depth_mm": {} if reach is None else {k: v * 1e3 for k, v in reach.nearest_returned.items()},
+        "tube_nearest_depth_mm": {} if reach is None else {
+            k: float(v[reach.s <= tip_s].min()) * 1e3 for k, v in reach.depth.items()},
     }
     return quality, warnings
 

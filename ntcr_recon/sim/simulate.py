@@ -5,6 +5,7 @@ Public API:
     Simulation.frames(progress=False) -> iterator of bag.CameraFrame (camera by camera, frame by frame)
     Simulation.rig_parameters() -> dict             # the ROS parameter file written as <bag>/rig.yaml
     Simulation.truth() -> dict                      # the ground-truth document (<bag>/ground_truth.json)
+    Simulation.nearest_approach() -> (camera, depth, s)  # where the robot comes nearest a camera
     Simulation.write_bag(out_dir, overwrite=False, progress=True) -> Path
     notch_side_angle("side-on" | "facing" | degrees) -> radians
 """
@@ -21,6 +22,7 @@ import numpy as np
 import yaml
 
 from ntcr_recon.core.kinematics import TubeShape
+from ntcr_recon.core.quality import surface_depth
 from ntcr_recon.sim.bag import BagContents, CameraFrame, write_rig_bag
 from ntcr_recon.sim.camera import CameraPose, D405Intrinsics, facing_pair
 from ntcr_recon.sim.scene import ExactFrame, RigProps, Scene
@@ -130,6 +132,20 @@ class Simulation:
         if self.shape.centerline(s)[0][:, 2].min() < radius:
             parameters["filters"] = {"clamp_radius": self.props.post_radius + CLAMP_EDGE_MARGIN}
         return {"/**": {"ros__parameters": parameters}}
+
+    def nearest_approach(self) -> tuple[str, float, float]:
+        """The camera the robot comes nearest, the depth (m, along its optical axis) of the robot's surface
+        nearest it, and where along the robot (s, m): bent, a robot may come nearer a camera than it stands."""
+        s = np.linspace(0.0, self.shape.length, 1024)
+        positions, frames = self.shape.centerline(s)
+        nearest = []
+        for camera in self.cameras:
+            extrinsic = np.eye(4)
+            extrinsic[:3, :3], extrinsic[:3, 3] = camera.rotation, camera.translation
+            depth = surface_depth(positions, frames[:, :, 2], extrinsic, self.shape.geometry.outer_radius)
+            nearest.append((float(depth.min()), camera.name, float(s[np.argmin(depth)])))
+        depth, name, where = min(nearest)
+        return name, depth, where
 
     def truth(self) -> dict:
         extra = {"emulation": {**self.emulation.to_dict(), "color_noise": self.color_noise,
