@@ -852,10 +852,7 @@ def test_a_stretch_nearer_a_camera_than_any_depth_it_returned_is_named_as_the_re
     from ntcr_recon.sim.camera import facing_pair
 
     cameras = facing_pair(0.09)
-    extrinsics = {}
-    for pose in cameras:
-        extrinsics[pose.name] = np.eye(4)
-        extrinsics[pose.name][:3, :3], extrinsics[pose.name][:3, 3] = pose.rotation, pose.translation
+    extrinsics = {pose.name: pose.extrinsic for pose in cameras}
 
     def warned(towards_deg, tip_s=None):
         """The warnings of a robot bent 90 deg towards the camera at towards_deg (-90: cam_a, 90: cam_b) seen

@@ -85,7 +85,7 @@ def extended_at_last_bend(centerline, end_s: float, span: float, beyond: np.ndar
                           ) -> tuple[np.ndarray, np.ndarray]:
     """Positions and tangents `beyond` (m, >= 0) past end_s, the centreline continued on the arc it turned over
     its last `span` (straight where it did not turn): where a tube seen only so far would go on."""
-    (start, end), (first, last) = (part for part in centerline.frames_at(np.array([end_s - span, end_s]))[:2])
+    (_, end), (first, last) = centerline.frames_at(np.array([end_s - span, end_s]))[:2]
     axis = np.cross(first, last)
     sine = float(np.linalg.norm(axis))
     beyond = np.asarray(beyond, float)[:, None]

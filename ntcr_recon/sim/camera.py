@@ -65,6 +65,13 @@ class CameraPose:
         """(x, y, z, w)."""
         return matrix_to_quaternion(self.rotation)
 
+    @property
+    def extrinsic(self) -> np.ndarray:
+        """4x4 transform taking points of the optical frame into the base frame (CameraConfig.extrinsic)."""
+        matrix = np.eye(4)
+        matrix[:3, :3], matrix[:3, 3] = self.rotation, self.translation
+        return matrix
+
     def to_camera(self, points_base: np.ndarray) -> np.ndarray:
         return (np.asarray(points_base) - self.translation) @ self.rotation
 

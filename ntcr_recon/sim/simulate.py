@@ -140,9 +140,7 @@ class Simulation:
         positions, frames = self.shape.centerline(s)
         nearest = []
         for camera in self.cameras:
-            extrinsic = np.eye(4)
-            extrinsic[:3, :3], extrinsic[:3, 3] = camera.rotation, camera.translation
-            depth = surface_depth(positions, frames[:, :, 2], extrinsic, self.shape.geometry.outer_radius)
+            depth = surface_depth(positions, frames[:, :, 2], camera.extrinsic, self.shape.geometry.outer_radius)
             nearest.append((float(depth.min()), camera.name, float(s[np.argmin(depth)])))
         depth, name, where = min(nearest)
         return name, depth, where
