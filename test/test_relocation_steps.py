@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 
 import numpy as np
 import pytest
@@ -848,7 +849,8 @@ def test_a_tube_seen_part_way_is_continued_on_its_last_bend():
 def test_a_stretch_nearer_a_camera_than_any_depth_it_returned_is_named_as_the_reason_it_went_unseen():
     """A robot bent 90 deg towards cam_a of a 90 mm rig (matrix row bend90_toward_cam_a_90mm): its distal part
     comes within 60 mm of cam_a, which sees nothing nearer than 70 mm (here, than 70.5). Seen by cam_b alone
-    there, or cut short where cam_a's view ends, the warning says why; bent away from cam_a, it does not."""
+    there, or cut short where cam_a's view ends, the warning says why; bent away from cam_a along its line of
+    sight, it names that; bent side-on, it gives no reason."""
     from ntcr_recon.sim.camera import facing_pair
 
     cameras = facing_pair(0.09)
@@ -884,10 +886,14 @@ def test_a_stretch_nearer_a_camera_than_any_depth_it_returned_is_named_as_the_re
     _, cut_short = warned(-90.0, tip_s=38e-3)  # the tube's end found where cam_a stops seeing it
     print(cut_short)
     assert "continued at its last bend, it would come within 60 mm of cam_a" in cut_short
-    # bent away from cam_a, whatever hid the distal part from it, it was not nearness: no reason given
+    # bent towards cam_b, away from cam_a along its line of sight: cam_a sees the distal wall nearly edge-on
     _, away = warned(90.0)
     print(away)
-    assert "seen by cam_b alone: the tube's far side" in away and "within" not in away
+    assert re.search(r"seen by cam_b alone \(it points within \d+ deg of cam_a's line of sight", away)
+    # bent side-on, whatever hid the distal part from cam_a, it was neither: no reason given
+    _, side_on = warned(0.0)
+    print(side_on)
+    assert "seen by cam_b alone: the tube's far side" in side_on and "within" not in side_on
 
 
 def test_quality_measures_a_wall_that_reads_deeper_between_the_notches_than_on_the_plain_tube():

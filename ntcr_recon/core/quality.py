@@ -2,8 +2,8 @@
 
 `assess` looks only at the data and the configuration (never at ground truth): notches found of expected
 and by which signal, the share of the robot's length each camera saw (and a distal stretch seen by one
-camera alone, or a tube ending short, with the camera it came nearer than any depth that camera returned:
-`camera_reach`), the wall fit's residual, the measured notch side against the configured one, the centreline
+camera alone, or a tube ending short, with the camera it came nearer than any depth that camera returned or
+pointed at: `camera_reach`), the wall fit's residual, the measured notch side against the configured one, the centreline
 bias the alignment removed and how uncertain the centreline still is, the tip against the robot's known
 length, the pixel footprint against the tube, the depth quantisation seen in the frames, each notch's width
 against the width its measured bend implies (and the notches it could not be checked for), how far the tip's
@@ -34,6 +34,9 @@ TIP_SHORT_DIAMETERS = 0.5          # tip this many diameters short of (or past) 
 FOOTPRINT_RADIUS_FRACTION = 1 / 7  # pixel footprint above this fraction of r_o: too few pixels across
 QUANTISATION_RADIUS_FRACTION = 1 / 8   # depth step above this fraction of r_o: the tube's roundness is lost
 BIAS_WARN_FOOTPRINTS = 0.5         # a lean into the slots above this many footprints: warn
+# A tube whose axis lies this near a camera's line of sight shows it its wall 60 deg or more from facing it:
+# a thin band of pixels, matched poorly (core.tip.GRAZING: past 80 deg none) - named as why that camera missed it.
+END_ON_DEG = 30.0
 # The project's floors (issue 9): a figure whose uncertainty exceeds its floor is worth a warning.
 TIP_FLOOR = 0.15e-3
 CENTERLINE_FLOOR = 0.08e-3
@@ -101,13 +104,15 @@ def extended_at_last_bend(centerline, end_s: float, span: float, beyond: np.ndar
 @dataclass(frozen=True)
 class CameraReach:
     """How near the tube comes to each camera along it (its surface's nearest depth, `surface_depth`, at each
-    sampled s; past the tip seen, continued at its last bend up to the robot's length), and the nearest depth of
-    any point each camera returned: a stretch nearer a camera than all it returned is one its stereo matching
-    could not reach (a D405 at 848x480 sees nothing nearer than about 70 mm)."""
+    sampled s; past the tip seen, continued at its last bend up to the robot's length) and how its axis lies to
+    the camera's line of sight, and the nearest depth of any point each camera returned: a stretch nearer a
+    camera than all it returned is one its stereo matching could not reach (a D405 at 848x480 sees nothing
+    nearer than about 70 mm); one pointing at it, one whose wall it sees nearly edge-on."""
 
     s: np.ndarray
     depth: dict[str, np.ndarray]
     nearest_returned: dict[str, float]
+    sight_angle: dict[str, np.ndarray]  # per camera, the angle (rad, 0-90 deg) between the axis and its line of sight
 
     def too_near(self, name: str, start: float, end: float) -> float | None:
         """The stretch [start, end]'s nearest depth to camera `name` (m) when it is nearer than any the camera
@@ -118,14 +123,31 @@ class CameraReach:
         nearest = float(self.depth[name][inside].min())
         return nearest if nearest < self.nearest_returned[name] else None
 
+    def end_on(self, name: str, start: float, end: float) -> float | None:
+        """The smallest angle (rad) between the stretch [start, end]'s axis and camera `name`'s line of sight,
+        when under END_ON_DEG, else None."""
+        inside = (self.s >= start) & (self.s <= end)
+        if name not in self.sight_angle or not np.any(inside):
+            return None
+        angle = float(self.sight_angle[name][inside].min())
+        return angle if angle < math.radians(END_ON_DEG) else None
+
     def why_unseen(self, names: list[str], start: float, end: float, continued: bool = False) -> str:
-        """The clause naming the cameras the stretch [start, end] comes nearer than they returned depth ('' for
-        none); continued: the stretch is the tube continued at its last bend, not seen."""
-        reasons = [f"{'continued at its last bend, it would come' if continued else 'it comes'} within "
-                   f"{near * 1e3:.0f} mm of {name}, which returned no depth nearer than "
-                   f"{self.nearest_returned[name] * 1e3:.0f} mm"
-                   for name in names if (near := self.too_near(name, start, end)) is not None]
-        return "; ".join(reasons)
+        """The clause naming, of `names`, the cameras the stretch [start, end] comes nearer than any depth they
+        returned, or points at (END_ON_DEG) ('' for none); continued: the stretch is the tube continued at its
+        last bend, not seen."""
+        verb = "" if continued else "s"
+        reasons = []
+        for name in names:
+            if (near := self.too_near(name, start, end)) is not None:
+                reasons.append(f"come{verb} within {near * 1e3:.0f} mm of {name}, which returned no depth nearer "
+                               f"than {self.nearest_returned[name] * 1e3:.0f} mm")
+            elif (angle := self.end_on(name, start, end)) is not None:
+                reasons.append(f"point{verb} within {math.degrees(angle):.0f} deg of {name}'s line of sight, which "
+                               "sees its wall nearly edge-on")
+        if not reasons:
+            return ""
+        return f"{'continued at its last bend, it would' if continued else 'it'} {'; and '.join(reasons)}"
 
 
 def camera_reach(centerline, tip_s: float, length: float, span: float, radius: float, step: float,
@@ -140,13 +162,16 @@ def camera_reach(centerline, tip_s: float, length: float, span: float, radius: f
         more_positions, more_tangents = extended_at_last_bend(centerline, tip_s, min(span, tip_s), beyond)
         seen, positions, tangents = (np.concatenate(parts) for parts in (
             (seen, tip_s + beyond), (positions, more_positions), (tangents, more_tangents)))
-    depth, nearest = {}, {}
+    depth, nearest, sight = {}, {}, {}
     for index, (name, extrinsic) in enumerate(extrinsics.items()):
         depth[name] = surface_depth(positions, tangents, extrinsic, radius)
+        towards = positions - extrinsic[:3, 3]
+        cosine = np.abs(np.einsum("ij,ij->i", towards, tangents)) / np.linalg.norm(towards, axis=1)
+        sight[name] = np.arccos(np.clip(cosine, 0.0, 1.0))
         mine = xyz[camera == index] if camera is not None else xyz[:0]
         if len(mine):
             nearest[name] = float(((mine - extrinsic[:3, 3]) @ extrinsic[:3, 2]).min())
-    return CameraReach(seen, depth, nearest)
+    return CameraReach(seen, depth, nearest, sight)
 
 
 def notched_thinning(offset: np.ndarray, s: np.ndarray, cuts: np.ndarray, tip_s: float, gate: float,
@@ -333,7 +358,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
         why = "" if reach is None or short < 0 else reach.why_unseen(list(camera_names), tip_s, expected_length,
                                                                      continued=True)
         if why:
-            warning += f"; {why}: the rest may be too near to be seen"
+            warning += f"; {why}: that may hide the rest"
         warnings.append(warning)
     side_off = math.degrees(math.remainder(notch_side - configured_side, 2 * math.pi))
     if side_unsettled is not None:
