@@ -846,7 +846,7 @@ def test_a_tube_seen_part_way_is_continued_on_its_last_bend():
     assert on[0] == pytest.approx([0.0, 0.0, 35e-3], abs=1e-9)
 
 
-def test_a_stretch_nearer_a_camera_than_any_depth_it_returned_is_named_as_the_reason_it_went_unseen():
+def test_a_camera_that_missed_a_stretch_is_named_with_why_too_near_or_end_on():
     """A robot bent 90 deg towards cam_a of a 90 mm rig (matrix row bend90_toward_cam_a_90mm): its distal part
     comes within 60 mm of cam_a, which sees nothing nearer than 70 mm (here, than 70.5). Seen by cam_b alone
     there, or cut short where cam_a's view ends, the warning says why; bent away from cam_a along its line of
