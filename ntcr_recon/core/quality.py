@@ -114,23 +114,25 @@ class CameraReach:
     nearest_returned: dict[str, float]
     sight_angle: dict[str, np.ndarray]  # per camera, the angle (rad, 0-90 deg) between the axis and its line of sight
 
+    def _least(self, per_camera: dict[str, np.ndarray], name: str, start: float, end: float) -> float | None:
+        """The least of camera `name`'s samples over the stretch [start, end] (None: none there, or no such
+        camera)."""
+        inside = (self.s >= start) & (self.s <= end)
+        if name not in per_camera or not np.any(inside):
+            return None
+        return float(per_camera[name][inside].min())
+
     def too_near(self, name: str, start: float, end: float) -> float | None:
         """The stretch [start, end]'s nearest depth to camera `name` (m) when it is nearer than any the camera
         returned, else None."""
-        inside = (self.s >= start) & (self.s <= end)
-        if name not in self.depth or name not in self.nearest_returned or not np.any(inside):
-            return None
-        nearest = float(self.depth[name][inside].min())
-        return nearest if nearest < self.nearest_returned[name] else None
+        nearest, returned = self._least(self.depth, name, start, end), self.nearest_returned.get(name)
+        return nearest if nearest is not None and returned is not None and nearest < returned else None
 
     def end_on(self, name: str, start: float, end: float) -> float | None:
         """The smallest angle (rad) between the stretch [start, end]'s axis and camera `name`'s line of sight,
         when under END_ON_DEG, else None."""
-        inside = (self.s >= start) & (self.s <= end)
-        if name not in self.sight_angle or not np.any(inside):
-            return None
-        angle = float(self.sight_angle[name][inside].min())
-        return angle if angle < math.radians(END_ON_DEG) else None
+        angle = self._least(self.sight_angle, name, start, end)
+        return angle if angle is not None and angle < math.radians(END_ON_DEG) else None
 
     def why_unseen(self, names: list[str], start: float, end: float, continued: bool = False) -> str:
         """The clause naming, of `names`, the cameras the stretch [start, end] comes nearer than any depth they
