@@ -115,6 +115,8 @@ class Reconstructor:
         self._roi_count = 0
         # optical centre of each camera in the base frame, by camera index (viewing rays for relocation)
         self._camera_origins = config.camera_origins
+        # each camera's optical frame in the base frame (4x4), by name in camera_names' order (the self-check)
+        self._extrinsics = {name: config.cameras[name].extrinsic for name in config.camera_names}
         self.timings_ms: dict[str, float] = {}
         self._depth_steps: dict[str, float] = {}  # per camera, the depth quantisation seen in its first frame
         # per camera, the band its matcher spoils at depth edges (core.tip.edge_band) over its focal length
@@ -355,8 +357,7 @@ class Reconstructor:
             held_shift=None if alignment is None else (alignment.end_shift, alignment.held_from),
             unchecked=unchecked, reach=camera_reach(
                 centerline, tip_s, geometry.bent_length(total_bend), 2 * geometry.notch_pitch, geometry.outer_radius,
-                footprint, {name: self.config.cameras[name].extrinsic for name in self.config.camera_names},
-                cloud.xyz, seen_by))
+                footprint, self._extrinsics, cloud.xyz, seen_by))
         quality = {**quality, "tip_refinement": refinement,
                    "centerline_backbone_shift_mm": None if backbone_shift is None else backbone_shift * 1e3,
                    # None: the side could not be measured (or did not settle): the configured one is kept
