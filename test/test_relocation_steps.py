@@ -18,7 +18,7 @@ from ntcr_recon.core.comb import cut_intervals, expected_centres, inside_interva
 from ntcr_recon.core.config import RelocationConfig
 from ntcr_recon.core.geometry import TubeGeometry
 from ntcr_recon.core.kinematics import TubeShape
-from ntcr_recon.core.notches import detect_notches
+from ntcr_recon.core.notches import Notch, detect_notches
 from ntcr_recon.core.quality import (
     assess,
     camera_coverage,
@@ -29,6 +29,7 @@ from ntcr_recon.core.quality import (
     extended_at_last_bend,
     notched_thinning,
     surface_depth,
+    where_notches_went_unseen,
 )
 from ntcr_recon.core.tip import tube_end, visible_sectors
 
@@ -873,7 +874,7 @@ def test_a_camera_that_missed_a_stretch_is_named_with_why_too_near_or_end_on():
             geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=[], coords_s=s, camera=camera,
             tip_s=tip_s, total_bend=math.radians(90.0 * tip_s / shape.length), footprint=FOOTPRINT,
             wall_residual=0.0, notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0,
-            depth_steps={}, reach=reach)
+            depth_steps={}, reach=reach, notch_centres=expected_centres(shape.geometry, true_centerline(shape)))
         return quality, " ".join(warnings)
 
     quality, seen_alone = warned(-90.0)
@@ -883,9 +884,13 @@ def test_a_camera_that_missed_a_stretch_is_named_with_why_too_near_or_end_on():
         in seen_alone
     assert quality["camera_nearest_depth_mm"]["cam_a"] == pytest.approx(70.5, abs=0.3)
     assert quality["tube_nearest_depth_mm"]["cam_a"] == pytest.approx(59.9, abs=0.3)
+    # no notch was found (none given): those past 40 mm, where cam_a's points stop, are named with why
+    assert re.search(r"notches 12-15 lie where cam_a did not see the tube \(it comes within 6\d mm of cam_a",
+                     seen_alone)
     _, cut_short = warned(-90.0, tip_s=38e-3)  # the tube's end found where cam_a stops seeing it
     print(cut_short)
     assert "continued at its last bend, it would come within 60 mm of cam_a" in cut_short
+    assert "notches 12-15 lie beyond the end seen (38.0 mm along the tube)" in cut_short
     # bent towards cam_b, away from cam_a along its line of sight: cam_a sees the distal wall nearly edge-on
     _, away = warned(90.0)
     print(away)
@@ -894,6 +899,32 @@ def test_a_camera_that_missed_a_stretch_is_named_with_why_too_near_or_end_on():
     _, side_on = warned(0.0)
     print(side_on)
     assert "seen by cam_b alone: the tube's far side" in side_on and "within" not in side_on
+
+
+def test_missing_notches_are_placed_beyond_the_end_seen_or_where_a_camera_did_not_see_the_tube():
+    """Both cameras see the tube to 40 mm, cam_b alone beyond; the end is seen at 45 mm. Of the notches missing,
+    one both cameras saw is given no place; those past 40 mm are where cam_a did not see the tube (the one whose
+    cut straddles the end seen too); those whose cut lies past 45 mm are beyond the end seen."""
+    s = np.linspace(0.0, 50e-3, 5000)
+    camera = np.where(s < 40e-3, np.arange(len(s)) % 2, 1).astype(np.int8)
+    centres = GEOMETRY.notch_centers_s  # 5.75, 8.75, ..., 41.75, 44.75, 47.75, 50.75 mm
+    missing = [3, 12, 13, 14, 15]
+    beyond, unseen = where_notches_went_unseen(missing, centres, GEOMETRY.notch_width / 2, s, camera,
+                                               ("cam_a", "cam_b"), 45e-3, 0.25e-3, pool=3.5e-3)
+    assert beyond == [14, 15] and unseen == {"cam_a": [12, 13]}
+    width = GEOMETRY.notch_width
+    found = [Notch(i, c, c - width / 2, c + width / 2, width, 0.0) for i, c in enumerate(centres) if i not in missing]
+    quality, warnings = assess(
+        geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=found,
+        coords_s=s, camera=camera, tip_s=45e-3, total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.0,
+        notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0, depth_steps={},
+        notch_centres=centres)
+    print("\n" + warnings[0])
+    assert warnings[0] == ("11 of 16 notches found (missing: 3, 12, 13, 14, 15): their widths are unknown; notches 12 "
+                           "and 13 lie where cam_a did not see the tube; notches 14 and 15 lie beyond the end seen "
+                           "(45.0 mm along the tube)")
+    assert quality["notches_missing_beyond_end"] == [14, 15]
+    assert quality["notches_missing_unseen_by"] == {"cam_a": [12, 13]}
 
 
 def test_quality_measures_a_wall_that_reads_deeper_between_the_notches_than_on_the_plain_tube():

@@ -47,6 +47,19 @@ FREE_END_FACTOR = math.sqrt(3.0)
 DISTAL_CROSS_VIEW_FACTOR = 2.0
 
 
+def _seen_cells(s: np.ndarray, camera: np.ndarray, cameras: int, tip_s: float, cell: float,
+                pool: float) -> np.ndarray:
+    """(cameras, cells) whether each camera saw each cell of [0, tip] (see camera_coverage)."""
+    cells = max(int(np.ceil(tip_s / cell)), 1)
+    counts = np.zeros((cameras, cells))
+    inside = (s >= 0) & (s < tip_s)
+    index = np.minimum((s[inside] / cell).astype(np.intp), cells - 1)
+    np.add.at(counts, (camera[inside].astype(np.intp), index), 1.0)
+    pooled = uniform_filter1d(counts, size=max(int(round(pool / cell)), 1), axis=1, mode="nearest")
+    typical = np.percentile(pooled, 90, axis=1, keepdims=True)
+    return (counts > 0) & (pooled >= SEEN_DENSITY_FRACTION * typical)
+
+
 def camera_coverage(s: np.ndarray, camera: np.ndarray | None, camera_names: tuple[str, ...], tip_s: float,
                     cell: float, pool: float) -> tuple[dict[str, float], dict[str, float]]:
     """Per camera the share of [0, tip] (in cells) it saw, and the length (m) of the distal stretch that camera
@@ -56,14 +69,7 @@ def camera_coverage(s: np.ndarray, camera: np.ndarray | None, camera_names: tupl
     depth) are no view of it."""
     if camera is None:
         return {}, {}
-    cells = max(int(np.ceil(tip_s / cell)), 1)
-    counts = np.zeros((len(camera_names), cells))
-    inside = (s >= 0) & (s < tip_s)
-    index = np.minimum((s[inside] / cell).astype(np.intp), cells - 1)
-    np.add.at(counts, (camera[inside].astype(np.intp), index), 1.0)
-    pooled = uniform_filter1d(counts, size=max(int(round(pool / cell)), 1), axis=1, mode="nearest")
-    typical = np.percentile(pooled, 90, axis=1, keepdims=True)
-    seen = (counts > 0) & (pooled >= SEEN_DENSITY_FRACTION * typical)
+    seen = _seen_cells(s, camera, len(camera_names), tip_s, cell, pool)
     share = {name: float(seen[i].mean()) for i, name in enumerate(camera_names)}
     alone = {}
     for i, name in enumerate(camera_names):
@@ -72,6 +78,41 @@ def camera_coverage(s: np.ndarray, camera: np.ndarray | None, camera_names: tupl
         mine_beyond = seen[i, last_other:]
         alone[name] = float(np.count_nonzero(mine_beyond) * cell) if np.any(mine_beyond) else 0.0
     return share, alone
+
+
+def where_notches_went_unseen(missing: list[int], centres: np.ndarray, half_width: float, s: np.ndarray,
+                              camera: np.ndarray | None, camera_names: tuple[str, ...], seen_end: float,
+                              cell: float, pool: float) -> tuple[list[int], dict[str, list[int]]]:
+    """Of the `missing` notches (indices into the comb's `centres`, m along s), those lying beyond the end seen,
+    and per camera those it did not see: under half the cells of the notch's cut (centre +- half_width) seen by
+    it (camera_coverage's criterion). A notch a camera did not see may have opened towards it alone."""
+    beyond = [i for i in missing if centres[i] - half_width >= seen_end]
+    if camera is None:
+        return beyond, {}
+    seen = _seen_cells(s, camera, len(camera_names), seen_end, cell, pool)
+    unseen: dict[str, list[int]] = {}
+    for i in missing:
+        if i in beyond:
+            continue
+        first = max(int((centres[i] - half_width) / cell), 0)
+        stop = min(int(np.ceil((centres[i] + half_width) / cell)), seen.shape[1])
+        for k, name in enumerate(camera_names):
+            if stop <= first or seen[k, first:stop].mean() < 0.5:
+                unseen.setdefault(name, []).append(i)
+    return beyond, unseen
+
+
+def _notches_lie(indices: list[int]) -> str:
+    """'notch 7 lies', 'notches 12, 14 and 15 lie', 'notches 13-19 lie': runs of three or more as first-last."""
+    runs, start = [], 0
+    for k in range(1, len(indices) + 1):
+        if k == len(indices) or indices[k] != indices[k - 1] + 1:
+            run = indices[start:k]
+            runs += [f"{run[0]}-{run[-1]}"] if len(run) >= 3 else [str(i) for i in run]
+            start = k
+    if len(indices) == 1:
+        return f"notch {indices[0]} lies"
+    return f"notches {runs[0] if len(runs) == 1 else ', '.join(runs[:-1]) + ' and ' + runs[-1]} lie"
 
 
 def surface_depth(positions: np.ndarray, tangents: np.ndarray, extrinsic: np.ndarray, radius: float) -> np.ndarray:
@@ -233,7 +274,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
            backbone_shift: float | None = None, held_shift: tuple[float, float] | None = None,
            unsupported: tuple[tuple[float, float], ...] = (),
            misread_widths: dict[int, float] | None = None, unchecked: list[int] | None = None,
-           reach: CameraReach | None = None) -> tuple[dict, list[str]]:
+           reach: CameraReach | None = None, notch_centres: np.ndarray | None = None) -> tuple[dict, list[str]]:
     """The `quality` document and the warnings (see the module docstring). tip_uncertainty: how well the tip's
     refinement placed it along the tube, when it measured the erosion it gave back (else the erosion itself
     counts as uncertain, and half a footprint). tip_position, crop_box: where the tip is and the box the points
@@ -252,7 +293,8 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     could not check (CheckedNotches.unchecked). held_shift: (how far the alignment moved the end, the s beyond
     which it held that shift unmeasured) (m; alignment.Alignment's end_shift and held_from), an uncertainty of the
     tip across the tube of its own: the fit's lean there was measured no nearer the tip. reach: how near the tube
-    comes to each camera, to name a camera too near a stretch it did not see (CameraReach)."""
+    comes to each camera, to name a camera too near a stretch it did not see (CameraReach). notch_centres: the
+    comb's notch centres along s (comb.expected_centres), to say where the missing notches lie."""
     warnings: list[str] = []
     r_o, diameter = geometry.outer_radius, geometry.outer_diameter
     found = sorted(n.index for n in notches)
@@ -260,9 +302,23 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     by_signal: dict[str, int] = {}
     for notch in notches:
         by_signal[notch.signal] = by_signal.get(notch.signal, 0) + 1
+    cell = max(footprint, r_o / 8)
+    seen_end = tip_s if tip_along is None else tip_along.seen_s
+    beyond, unseen = [], {}
     if missing:
-        warnings.append(f"{len(found)} of {geometry.notch_count} notches found (missing: "
-                        f"{', '.join(str(i) for i in missing)}): their widths are unknown")
+        warning = (f"{len(found)} of {geometry.notch_count} notches found (missing: "
+                   f"{', '.join(str(i) for i in missing)}): their widths are unknown")
+        if notch_centres is not None:  # where the comb puts them: past the end seen, or out of a camera's view
+            half = geometry.notch_width / 2
+            beyond, unseen = where_notches_went_unseen(missing, notch_centres, half, coords_s, camera, camera_names,
+                                                       seen_end, cell, pool=diameter)
+            for name, indices in unseen.items():
+                why = "" if reach is None else reach.why_unseen(
+                    [name], notch_centres[indices[0]] - half, min(notch_centres[indices[-1]] + half, seen_end))
+                warning += f"; {_notches_lie(indices)} where {name} did not see the tube{f' ({why})' if why else ''}"
+            if beyond:
+                warning += f"; {_notches_lie(beyond)} beyond the end seen ({seen_end * 1e3:.1f} mm along the tube)"
+        warnings.append(warning)
     dips = sorted(n.index for n in notches if n.signal == "dip")
     if dips:
         warnings.append(f"notches {', '.join(str(i) for i in dips)} show only as a shallow dip of the wall's coverage "
@@ -292,9 +348,9 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     # refinement measured it
     measured = tip_uncertainty is not None
     tip_uncertainty = tip_uncertainty if measured else abs(tip_erosion) + footprint / 2
-    seen_end, weighed = tip_s, ""
+    weighed = ""
     if tip_along is not None:
-        seen_end, tip_uncertainty = tip_along.seen_s, tip_along.uncertainty
+        tip_uncertainty = tip_along.uncertainty
         weighed = " (the robot's known length weighed in)" if tip_along.length_weighed else ""
     # pooled over two cameras, a deficit one of them carries alone reads half: the lean may reach twice it
     lean = 2.0 * notched_thinning if notched_thinning is not None and looking_into_slots else 0.0
@@ -325,7 +381,6 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
         warnings.append(f"the tip rests on a stereo-eroded rim ({tip_erosion * 1e3:.2f} mm given back{how}): "
                         f"its position is uncertain by about {tip_uncertainty * 1e3:.2f} mm along the tube{weighed}"
                         f"{across}")
-    cell = max(footprint, r_o / 8)
     share, alone = camera_coverage(coords_s, camera, camera_names, tip_s, cell, pool=diameter)
     for name, length in alone.items():
         if length > ONE_CAMERA_RUN_DIAMETERS * diameter:
@@ -398,6 +453,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
                         f"with the slot floors): {consequence}")
     quality = {
         "notches_found": len(found), "notches_expected": geometry.notch_count, "notches_missing": missing,
+        "notches_missing_beyond_end": beyond, "notches_missing_unseen_by": unseen,
         "notches_by_signal": by_signal,
         "notch_signal": {str(n.index): n.signal for n in sorted(notches, key=lambda n: n.index)},
         "length_seen_share": share, "distal_one_camera_mm": {k: v * 1e3 for k, v in alone.items()},
