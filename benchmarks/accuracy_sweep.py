@@ -10,7 +10,8 @@ reconstructed and measured as a matrix row (accuracy_matrix.run_row), and one ro
 
 The summary counts the scenes meeting every floor, the misses no warning speaks of (silent: the worst failure
 this package can have), and the scenes meeting every floor that raised a centreline warning anyway (its
-uncertainty over-stated: the price of never understating it). About 3 s a scene.
+uncertainty over-stated: the price of never understating it), and in how many scenes each error lies within the
+uncertainty the result stated for it. About 3 s a scene.
 """
 
 from __future__ import annotations
@@ -66,6 +67,7 @@ def main() -> int:
           f"{', '.join(silent) if silent else 'none'}")
     print(f"  centreline: {len(centreline_missed)} scenes over its floor; "
           f"{len(over_stated)} of {len(results) - len(centreline_missed)} within it warned all the same")
+    matrix.print_bounded(results)
     # a tip over its floor is mostly the centreline's free end off across the tube, not the end placed along it
     tip_missed = [r for r in results if "tip" in r["misses"] and abs(r["tip_along"]) < 10 * matrix.FLOORS["tip"]]
     across = sum(r["tip_across"] > matrix.FLOORS["tip"] for r in tip_missed)

@@ -62,3 +62,21 @@ def test_a_rig_file_rolled_20_degrees_off_reports_the_side_the_notches_open_to()
           + f"\nside uncertainty stated: {figures['side_uncertainty_deg']:.1f} deg")
     assert figures["found"] == figures["expected"] and figures["spurious"] == 0
     assert abs(figures["side_deg"] - 0.0) <= min(5.0, figures["side_uncertainty_deg"])
+
+
+def test_the_summary_counts_the_errors_within_the_uncertainty_each_result_stated():
+    """A result's stated uncertainty is judged against its error, figure by figure; a tube the result says ends
+    short is not judged (its warning already puts the tip that far off)."""
+    def result(centerline, along, across, stated, warnings=()):
+        return {"centerline": centerline, "tip_along": along, "tip_across": across, "warnings": list(warnings),
+                "stated": dict(zip(("centerline", "tip_along", "tip_across"), stated, strict=True))}
+
+    results = [result(0.05e-3, -0.08e-3, 0.1e-3, (0.06e-3, 0.1e-3, 0.2e-3)),  # all within
+               result(0.2e-3, 0.12e-3, 0.3e-3, (0.1e-3, 0.1e-3, 0.15e-3)),    # all understated
+               result(0.05e-3, -9e-3, 2e-3, (0.06e-3, 0.5e-3, 0.1e-3), ["the tube ends 9.0 mm short of ..."])]
+    judged, bounded = accuracy_matrix.bounded_by_stated(results)
+    assert judged == 2
+    assert bounded == {"centerline": 1, "tip_along": 1, "tip_across": 1}
+    figures = accuracy_matrix.run_row(ROWS["cameras75"], frames=2)
+    print(f"\nstated {figures['stated']}")
+    assert figures["stated"]["tip_along"] > 0  # the tip is always known only so well: the key is read
