@@ -284,6 +284,7 @@ HEADER = (f"{'row':<22} notch  sp  wMAE   wMax    centre  tip    along   surf   
 
 
 def print_bounded(results: list[dict]) -> None:
+    """The summary's line of bounded_by_stated (the matrix's and the sweep's)."""
     judged, bounded = bounded_by_stated(results)
     if judged:
         print(f"  the error within the uncertainty the result stated ({judged} not cut short): "
