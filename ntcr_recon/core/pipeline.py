@@ -275,6 +275,7 @@ class Reconstructor:
             (centerline, coords), rays, measured, found = turned, turned_rays, turned_measured, again
             frames = (frames[0], frames[1], *_rolled_axes(frames[2], frames[3], roll))
         notches = found
+        comb_centres = expected_centres(geometry, centerline)  # where the robot's notches lie on the final frame
         # 5. tip, refined: the rim the stereo matcher erodes at depth edges given back
         eroded_end, refinement, tip_uncertainty, from_cap = tip_s, "coarse end (no camera seen)", None, False
         # where a camera looks onto the end cap - wider in its image than 4 pixels, more than a matcher's
@@ -297,7 +298,7 @@ class Reconstructor:
             rim = rim_tip(coords, seen_by, self._camera_origins, centerline, tip_s, geometry.outer_radius,
                           settings.gate, footprint, options.notch_kernel_px * footprint, bands,
                           ~inside_intervals(coords.s, intervals), 2 * geometry.notch_pitch,
-                          last_notch_s=float(np.max(expected_centres(geometry, centerline))))
+                          last_notch_s=float(np.max(comb_centres)))
             if rim is not None:
                 eroded_end, tip_s, tip_uncertainty = rim
                 refinement = "half-density end + edge band measured in the depth images"
@@ -357,7 +358,7 @@ class Reconstructor:
             held_shift=None if alignment is None else (alignment.end_shift, alignment.held_from),
             unchecked=unchecked, reach=camera_reach(
                 centerline, tip_s, geometry.bent_length(total_bend), 2 * geometry.notch_pitch, geometry.outer_radius,
-                footprint, self._extrinsics, cloud.xyz, seen_by), notch_centres=expected_centres(geometry, centerline))
+                footprint, self._extrinsics, cloud.xyz, seen_by), notch_centres=comb_centres)
         quality = {**quality, "tip_refinement": refinement,
                    "centerline_backbone_shift_mm": None if backbone_shift is None else backbone_shift * 1e3,
                    # None: the side could not be measured (or did not settle): the configured one is kept
