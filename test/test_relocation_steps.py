@@ -974,9 +974,13 @@ def test_quality_gives_the_centreline_an_uncertainty_and_warns_above_its_floor()
     assert centerline_uncertainty(0.06e-3, 0.04e-3, ("cam_a",)) == pytest.approx(0.1e-3)
     assert centerline_uncertainty(None, None) is None
 
-    def assessed(spread, thinning, looking=(), at_end=None, held=None):
+    def assessed(spread, thinning, looking=(), at_end=None, held=None, cam_b_up_to=None, wall_level=None):
+        s, seen_by = np.linspace(0.0, 50e-3, 1000), np.zeros(1000, np.int8)
+        if cam_b_up_to is not None:  # cam_a sees the whole tube, cam_b up to there
+            s = np.concatenate([s, np.linspace(0.0, cam_b_up_to, 750)])
+            seen_by = np.concatenate([seen_by, np.ones(750, np.int8)])
         return assess(geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=[],
-                      coords_s=np.linspace(0.0, 50e-3, 1000), camera=np.zeros(1000, np.int8), tip_s=50e-3,
+                      coords_s=s, camera=seen_by, tip_s=50e-3, wall_level=wall_level,
                       total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.0, notch_side=0.0, configured_side=0.0,
                       bias_notch_side=0.1e-3, bias_binormal=0.0, depth_steps={}, notched_thinning=thinning,
                       looking_into_slots=looking, cross_view_spread=spread, distal_cross_view=at_end,
@@ -1017,6 +1021,20 @@ def test_quality_gives_the_centreline_an_uncertainty_and_warns_above_its_floor()
     looking_quality, looking = assessed(0.03e-3, 0.04e-3, looking=("cam_a",))
     assert looking_quality["centerline_uncertainty_mm"] == pytest.approx(math.hypot(0.03, 0.08))
     assert any("the centreline is uncertain by about 0.09 mm" in warning for warning in looking)
+    # over a distal stretch one camera alone saw, the axis along its view rests on the wall's level, which no
+    # second view checks: a quarter of the length at -0.16 mm adds 0.08 mm in quadrature (as an RMS over the
+    # length), and 0.05 mm become 0.094 mm, over the floor
+    assert centerline_uncertainty(0.03e-3, 0.04e-3, one_sided=(0.25, -0.16e-3)) == pytest.approx(
+        math.sqrt(0.03 ** 2 + 0.04 ** 2 + 0.25 * 0.16 ** 2) * 1e-3)
+    one_quality, one = assessed(0.03e-3, 0.04e-3, cam_b_up_to=37.5e-3, wall_level=-0.16e-3)
+    alone = one_quality["distal_one_camera_mm"]["cam_a"] / 50.0
+    assert alone == pytest.approx(0.25, abs=0.02) and one_quality["wall_level_mm"] == pytest.approx(-0.16)
+    assert one_quality["centerline_uncertainty_mm"] == pytest.approx(math.sqrt(0.05 ** 2 + alone * 0.16 ** 2))
+    assert any(warning.startswith("the centreline is uncertain by about 0.09 mm") and "seen by one camera alone, "
+               "the wall's level (-0.16 mm, the flattening of the views)" in warning for warning in one)
+    # both cameras seeing the whole tube, the level adds nothing
+    both_quality, _ = assessed(0.03e-3, 0.04e-3, cam_b_up_to=50e-3, wall_level=-0.16e-3)
+    assert both_quality["centerline_uncertainty_mm"] == pytest.approx(0.05)
 
 
 def test_a_camera_looks_into_the_slots_when_its_line_of_sight_through_them_meets_their_floor():

@@ -358,7 +358,7 @@ class Reconstructor:
             held_shift=None if alignment is None else (alignment.end_shift, alignment.held_from),
             unchecked=unchecked, reach=camera_reach(
                 centerline, tip_s, geometry.bent_length(total_bend), 2 * geometry.notch_pitch, geometry.outer_radius,
-                footprint, self._extrinsics, cloud.xyz, seen_by), notch_centres=comb_centres)
+                footprint, self._extrinsics, cloud.xyz, seen_by), notch_centres=comb_centres, wall_level=level)
         quality = {**quality, "tip_refinement": refinement,
                    "centerline_backbone_shift_mm": None if backbone_shift is None else backbone_shift * 1e3,
                    # None: the side could not be measured (or did not settle): the configured one is kept

@@ -274,7 +274,8 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
            backbone_shift: float | None = None, held_shift: tuple[float, float] | None = None,
            unsupported: tuple[tuple[float, float], ...] = (),
            misread_widths: dict[int, float] | None = None, unchecked: list[int] | None = None,
-           reach: CameraReach | None = None, notch_centres: np.ndarray | None = None) -> tuple[dict, list[str]]:
+           reach: CameraReach | None = None, notch_centres: np.ndarray | None = None,
+           wall_level: float | None = None) -> tuple[dict, list[str]]:
     """The `quality` document and the warnings (see the module docstring). tip_uncertainty: how well the tip's
     refinement placed it along the tube, when it measured the erosion it gave back (else the erosion itself
     counts as uncertain, and half a footprint). tip_position, crop_box: where the tip is and the box the points
@@ -294,7 +295,9 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     which it held that shift unmeasured) (m; alignment.Alignment's end_shift and held_from), an uncertainty of the
     tip across the tube of its own: the fit's lean there was measured no nearer the tip. reach: how near the tube
     comes to each camera, to name a camera too near a stretch it did not see (CameraReach). notch_centres: the
-    comb's notch centres along s (comb.expected_centres), to say where the missing notches lie."""
+    comb's notch centres along s (comb.expected_centres), to say where the missing notches lie. wall_level: the
+    outer wall's level about the r_o circle (m, wall.surface_band of all points), on which the axis rests where
+    one camera alone saw the tube (centerline_uncertainty)."""
     warnings: list[str] = []
     r_o, diameter = geometry.outer_radius, geometry.outer_diameter
     found = sorted(n.index for n in notches)
@@ -355,7 +358,12 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     # pooled over two cameras, a deficit one of them carries alone reads half: the lean may reach twice it
     lean = 2.0 * notched_thinning if notched_thinning is not None and looking_into_slots else 0.0
     levelled = bool(backbone_shift)
-    uncertainty = centerline_uncertainty(cross_view_spread, notched_thinning, looking_into_slots, levelled)
+    share, alone = camera_coverage(coords_s, camera, camera_names, tip_s, cell, pool=diameter)
+    one_sided = {name: length for name, length in alone.items() if length > ONE_CAMERA_RUN_DIAMETERS * diameter}
+    one_sided_share = min(sum(one_sided.values()) / max(seen_end, cell), 1.0)
+    uncertainty = centerline_uncertainty(cross_view_spread, notched_thinning, looking_into_slots, levelled,
+                                         one_sided=(one_sided_share, wall_level)
+                                         if one_sided and wall_level is not None else None)
     # the tip sits on the centreline's free end, where an error growing along the tube is sqrt(3) its RMS, with
     # the shift the alignment measured last and held unchecked to the tip (the fit's lean it corrected there may
     # differ beyond); and where the cameras disagree in the last window, their own axes' distance apart
@@ -381,14 +389,11 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
         warnings.append(f"the tip rests on a stereo-eroded rim ({tip_erosion * 1e3:.2f} mm given back{how}): "
                         f"its position is uncertain by about {tip_uncertainty * 1e3:.2f} mm along the tube{weighed}"
                         f"{across}")
-    share, alone = camera_coverage(coords_s, camera, camera_names, tip_s, cell, pool=diameter)
-    for name, length in alone.items():
-        if length > ONE_CAMERA_RUN_DIAMETERS * diameter:
-            why = "" if reach is None else reach.why_unseen([n for n in camera_names if n != name],
-                                                            tip_s - length, tip_s)
-            warnings.append(f"the distal {length * 1e3:.0f} mm is seen by {name} alone{f' ({why})' if why else ''}: "
-                            "the tube's far side there is inferred, not measured, and the centreline there rests on "
-                            "one side, the tip with it: no second view checked where it lies across the tube")
+    for name, length in one_sided.items():
+        why = "" if reach is None else reach.why_unseen([n for n in camera_names if n != name], tip_s - length, tip_s)
+        warnings.append(f"the distal {length * 1e3:.0f} mm is seen by {name} alone{f' ({why})' if why else ''}: "
+                        "the tube's far side there is inferred, not measured, and the centreline there rests on "
+                        "one side, the tip with it: no second view checked where it lies across the tube")
     for name, fraction in share.items():
         if fraction < 0.5:
             warnings.append(f"{name} saw only {fraction:.0%} of the robot's length")
@@ -436,7 +441,11 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
                         f"the notches moves the wall it sees (the cameras place the axis "
                         f"{(cross_view_spread or 0.0) * 1e3:.2f} mm apart across their views, and the wall between "
                         f"the notches reads {(notched_thinning or 0.0) * 1e3:+.2f} mm deeper than the plain tube); "
-                        f"{abs(bias_notch_side) * 1e3:.2f} mm of lean towards the notch side was removed")
+                        f"{abs(bias_notch_side) * 1e3:.2f} mm of lean towards the notch side was removed"
+                        + (f"; over the distal {sum(one_sided.values()) * 1e3:.0f} mm seen by one camera alone, the "
+                           f"wall's level ({wall_level * 1e3:+.2f} mm, the flattening of the views) places the axis "
+                           "along that camera's view, and no second view checked it"
+                           if one_sided and wall_level is not None else ""))
     if unsupported:
         listed = ", ".join(f"{start * 1e3:.0f}-{end * 1e3:.0f}" for start, end in unsupported)
         to_tip = " (and the tip with it)" if unsupported[-1][1] >= tip_s - geometry.notch_pitch else ""
@@ -458,6 +467,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
         "notch_signal": {str(n.index): n.signal for n in sorted(notches, key=lambda n: n.index)},
         "length_seen_share": share, "distal_one_camera_mm": {k: v * 1e3 for k, v in alone.items()},
         "fit_residual_mm": wall_residual * 1e3,
+        "wall_level_mm": None if wall_level is None else wall_level * 1e3,
         "notch_side_deg": math.degrees(notch_side), "notch_side_configured_deg": math.degrees(configured_side),
         "notch_side_unsettled_deg": None if side_unsettled is None else [math.degrees(a) for a in side_unsettled],
         "centerline_bias_mm": {"notch_side": bias_notch_side * 1e3, "binormal": bias_binormal * 1e3},
@@ -485,7 +495,8 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
 
 
 def centerline_uncertainty(cross_view_spread: float | None, notched_thinning: float | None,
-                           looking_into_slots: tuple[str, ...] = (), levelled: bool = False) -> float | None:
+                           looking_into_slots: tuple[str, ...] = (), levelled: bool = False,
+                           one_sided: tuple[float, float] | None = None) -> float | None:
     """How far the centreline may be off (m), from what the data show of stereo's bias beside the notches;
     None when neither could be measured.
 
@@ -494,13 +505,18 @@ def centerline_uncertainty(cross_view_spread: float | None, notched_thinning: fl
     cameras' levels decide, and a matcher whose window averages the spines with the slots reads the wall between
     the notches deeper than the plain tube (notched_thinning), a deficit no fit can place: a lean of about as
     much, twice it when a camera looks into the slots (carried by that camera alone, it reads half pooled) unless
-    a camera facing the backbone placed the axis along the views (levelled). The two are orthogonal: added in
-    quadrature.
+    a camera facing the backbone placed the axis along the views (levelled). one_sided: (the share of the length
+    seen by one camera alone, the outer wall's level about the r_o circle, m): there the axis along that camera's
+    view rests on the level the fit gives its one side, which no second view checks and which stereo's
+    flattening changes with the distance and the view (up to the level itself: none at all seen face-on and
+    near), so as much again over that share. The three are orthogonal: added in quadrature (the share as
+    weight, as the RMS over the length).
     """
     if cross_view_spread is None and notched_thinning is None:
         return None
     along_views = (2.0 if looking_into_slots and not levelled else 1.0) * (notched_thinning or 0.0)
-    return float(np.hypot(cross_view_spread or 0.0, along_views))
+    share, level = one_sided if one_sided is not None else (0.0, 0.0)
+    return float(np.sqrt((cross_view_spread or 0.0) ** 2 + along_views ** 2 + share * level ** 2))
 
 
 def _nearest_box_face(point: np.ndarray, box: tuple[np.ndarray, np.ndarray]) -> tuple[int, float, float]:
