@@ -508,9 +508,8 @@ def centerline_uncertainty(cross_view_spread: float | None, notched_thinning: fl
     a camera facing the backbone placed the axis along the views (levelled). one_sided: (the share of the length
     seen by one camera alone, the outer wall's level about the r_o circle, m): there the axis along that camera's
     view rests on the level the fit gives its one side, which no second view checks and which stereo's
-    flattening changes with the distance and the view (up to the level itself: none at all seen face-on and
-    near), so as much again over that share. The three are orthogonal: added in quadrature (the share as
-    weight, as the RMS over the length).
+    flattening changes with distance and view angle by up to the level itself: that much again over that share.
+    The three are orthogonal: added in quadrature (the share as weight, as the RMS over the length).
     """
     if cross_view_spread is None and notched_thinning is None:
         return None
