@@ -360,10 +360,11 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     levelled = bool(backbone_shift)
     share, alone = camera_coverage(coords_s, camera, camera_names, tip_s, cell, pool=diameter)
     one_sided = {name: length for name, length in alone.items() if length > ONE_CAMERA_RUN_DIAMETERS * diameter}
-    one_sided_share = min(sum(one_sided.values()) / max(seen_end, cell), 1.0)
+    # (the share of the length one camera alone saw, the wall's level the axis rests on there), when both are known
+    resting_on_level = ((min(sum(one_sided.values()) / max(seen_end, cell), 1.0), wall_level)
+                        if one_sided and wall_level is not None else None)
     uncertainty = centerline_uncertainty(cross_view_spread, notched_thinning, looking_into_slots, levelled,
-                                         one_sided=(one_sided_share, wall_level)
-                                         if one_sided and wall_level is not None else None)
+                                         one_sided=resting_on_level)
     # the tip sits on the centreline's free end, where an error growing along the tube is sqrt(3) its RMS, with
     # the shift the alignment measured last and held unchecked to the tip (the fit's lean it corrected there may
     # differ beyond); and where the cameras disagree in the last window, their own axes' distance apart
@@ -444,8 +445,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
                         f"{abs(bias_notch_side) * 1e3:.2f} mm of lean towards the notch side was removed"
                         + (f"; over the distal {sum(one_sided.values()) * 1e3:.0f} mm seen by one camera alone, the "
                            f"wall's level ({wall_level * 1e3:+.2f} mm, the flattening of the views) places the axis "
-                           "along that camera's view, and no second view checked it"
-                           if one_sided and wall_level is not None else ""))
+                           "along that camera's view, and no second view checked it" if resting_on_level else ""))
     if unsupported:
         listed = ", ".join(f"{start * 1e3:.0f}-{end * 1e3:.0f}" for start, end in unsupported)
         to_tip = " (and the tip with it)" if unsupported[-1][1] >= tip_s - geometry.notch_pitch else ""
