@@ -216,8 +216,9 @@ def same_mesh(out: dict):
 def test_a_mesh_arrives_and_is_written(replay):
     out, output, *_ = replay
     assert out["mesh"] and out["mesh_raw"], replay[4]
-    assert same_mesh(out) is not None, (len(out["mesh"][-1].points), [len(m.triangles) for m in out["mesh_raw"]])
-    marker, raw = same_mesh(out)
+    pair = same_mesh(out)
+    assert pair is not None, (len(out["mesh"][-1].points), [len(m.triangles) for m in out["mesh_raw"]])
+    marker, raw = pair
     assert marker.type == Marker.TRIANGLE_LIST and marker.header.frame_id == "ntcr_base"
     vertices, triangles = mesh_from_msg(raw)
     assert len(triangles) > 1000
