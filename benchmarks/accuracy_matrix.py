@@ -1,6 +1,7 @@
 """Accuracy of the reconstruction over a grid of robots and rigs it was not developed on (issue 9).
 
     .venv/bin/python benchmarks/accuracy_matrix.py [--frames 2] [--rows NAME,NAME...] [--method centerline|icp|both]
+        [--simulate '--no-left-right-check']
 
 Each row is rendered by the simulator exactly as `ntcr-recon simulate OUT <row's options>` renders it (the
 same argument parser and `build_simulation`, in process, without writing the bag), reconstructed as
@@ -17,6 +18,9 @@ misses a floor must have raised a warning that speaks of what it missed (SPOKEN_
 The summary also counts the rows whose centreline, tip along and tip across errors lie within the uncertainty
 their result stated for each (STATED): a warning that says 0.1 mm where the error is 0.3 still understates.
 
+`--simulate OPTIONS` adds `ntcr-recon simulate` options to every row (after its own, so they win): the same grid
+under another stereo matcher than the one the method was developed with (`--no-left-right-check`, `--window 7`).
+
 test/test_accuracy_matrix.py runs a few rows of this grid and asserts the floors on them.
 """
 
@@ -24,10 +28,11 @@ from __future__ import annotations
 
 import argparse
 import math
+import shlex
 import sys
 import tempfile
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -86,6 +91,12 @@ ROWS = [
     Row("ideal_straight", ("--bend-deg", "0", "--ideal")),
     Row("depth_unit_1mm", ("--bend-deg", "45", "--depth-unit", "0.001")),
 ]
+
+
+def with_simulate_options(row: Row, options: str) -> Row:
+    """The row with more `ntcr-recon simulate` options (a shell-quoted string) after its own."""
+    extra = tuple(shlex.split(options))
+    return replace(row, args=row.args + extra) if extra else row
 
 
 def simulation_for(row: Row, seed: int, frames: int):
@@ -299,9 +310,11 @@ def main() -> int:
     parser.add_argument("--method", default="", help="relocation.method to use (default: the configured default; "
                                                      "'both': centerline and icp side by side)")
     parser.add_argument("--warnings", action="store_true", help="print each row's warnings")
+    parser.add_argument("--simulate", default="", metavar="OPTIONS",
+                        help="more `ntcr-recon simulate` options for every row, e.g. '--no-left-right-check'")
     args = parser.parse_args()
     wanted = {name for name in args.rows.split(",") if name}
-    rows = [row for row in ROWS if not wanted or row.name in wanted]
+    rows = [with_simulate_options(row, args.simulate) for row in ROWS if not wanted or row.name in wanted]
     if wanted - {row.name for row in rows}:
         print(f"unknown rows: {sorted(wanted - {row.name for row in rows})}", file=sys.stderr)
         return 2

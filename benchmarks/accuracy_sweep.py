@@ -1,6 +1,6 @@
 """Random robots, poses and rigs: how often the floors hold, and whether a miss is ever silent (issue 9).
 
-    .venv/bin/python benchmarks/accuracy_sweep.py [--count 40] [--seed 1000]
+    .venv/bin/python benchmarks/accuracy_sweep.py [--count 40] [--seed 1000] [--simulate '--no-left-right-check']
 
 The accuracy matrix's grid is fixed, and a fixed grid is what a method gets tuned to. Each scene here is drawn at
 random: a robot of the matrix's layouts (3.5 mm default, 2.5 and 4.0 mm, 10 and 20 notches, 1.8 mm notches), a
@@ -48,11 +48,13 @@ def main() -> int:
     parser.add_argument("--count", type=int, default=40, help="scenes (default 40)")
     parser.add_argument("--seed", type=int, default=1000, help="index of the first scene (default 1000)")
     parser.add_argument("--warnings", action="store_true", help="print each scene's warnings")
+    parser.add_argument("--simulate", default="", metavar="OPTIONS",
+                        help="more `ntcr-recon simulate` options for every scene, e.g. '--no-left-right-check'")
     args = parser.parse_args()
     print(matrix.HEADER)
     results = []
     for index in range(args.seed, args.seed + args.count):
-        figures = matrix.run_row(random_row(index), seed=index)
+        figures = matrix.run_row(matrix.with_simulate_options(random_row(index), args.simulate), seed=index)
         results.append(figures)
         print(matrix.format_row(figures), flush=True)
         if args.warnings:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
@@ -20,6 +21,18 @@ def test_rows_meet_the_floors(name):
     print("\n" + accuracy_matrix.HEADER + "\n" + accuracy_matrix.format_row(figures))
     assert figures["floors_apply"]
     assert figures["misses"] == []
+
+
+def test_extra_simulate_options_render_a_row_under_another_matcher():
+    """--simulate '--no-left-right-check' keeps the row's own options and takes the matcher's left-right check
+    away: the occlusion shadows beside the robot, invalid on a D405, then read a depth."""
+    own = ROWS["straight"]
+    row = accuracy_matrix.with_simulate_options(own, "--no-left-right-check")
+    assert row.name == own.name and row.args == (*own.args, "--no-left-right-check")
+    checked, unchecked = (accuracy_matrix.simulation_for(r, seed=1, frames=1) for r in (own, row))
+    assert checked.emulation.occlusion_check and not unchecked.emulation.occlusion_check
+    valid = [np.count_nonzero(next(iter(simulation.frames())).depth_raw) for simulation in (checked, unchecked)]
+    assert valid[1] > valid[0], valid
 
 
 def test_a_row_that_misses_says_so():

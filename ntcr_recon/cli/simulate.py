@@ -43,6 +43,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--depth-unit", type=float, default=None, metavar="M",
                         help="metres per raw depth unit (default 0.0001, the D405's; realsense-ros uses 0.001)")
     parser.add_argument("--window", type=int, default=None, help="stereo matching window, odd px (default 9)")
+    parser.add_argument("--no-left-right-check", action="store_true",
+                        help="a stereo matcher without the D405's left-right consistency check: surfaces the right "
+                        "imager cannot see keep a depth instead of reading invalid (another matcher to judge the "
+                        "reconstruction on than the one it was developed with)")
     parser.add_argument("--seed", type=int, default=1, help="random seed (default 1): same seed, same bag")
     parser.add_argument("--frames", type=int, default=3, help="frames per camera (default 3)")
     parser.add_argument("--noise", type=float, default=1.0, help="stereo depth noise level: sigma_d = "
@@ -76,6 +80,8 @@ def build_simulation(args: argparse.Namespace) -> Simulation:
     emulation = StereoEmulation.ideal() if args.ideal else StereoEmulation().scaled_noise(args.noise)
     if args.window is not None:
         emulation = dataclasses.replace(emulation, window=args.window)
+    if args.no_left_right_check:
+        emulation = dataclasses.replace(emulation, occlusion_check=False)
     intrinsics = D405Intrinsics()
     if args.intrinsics:
         width, height, fx, fy, cx, cy = _numbers("--intrinsics", args.intrinsics, 6)
