@@ -1,7 +1,7 @@
 """Accuracy of the reconstruction over a grid of robots and rigs it was not developed on (issue 9).
 
     .venv/bin/python benchmarks/accuracy_matrix.py [--frames 2] [--rows NAME,NAME...] [--method centerline|icp|both]
-        [--simulate '--no-left-right-check']
+        [--simulate='--no-left-right-check']
 
 Each row is rendered by the simulator exactly as `ntcr-recon simulate OUT <row's options>` renders it (the
 same argument parser and `build_simulation`, in process, without writing the bag), reconstructed as
@@ -18,7 +18,7 @@ misses a floor must have raised a warning that speaks of what it missed (SPOKEN_
 The summary also counts the rows whose centreline, tip along and tip across errors lie within the uncertainty
 their result stated for each (STATED): a warning that says 0.1 mm where the error is 0.3 still understates.
 
-`--simulate OPTIONS` adds `ntcr-recon simulate` options to every row (after its own, so they win): the same grid
+`--simulate='OPTIONS'` adds `ntcr-recon simulate` options to every row (after its own, so they win): the same grid
 under another stereo matcher than the one the method was developed with (`--no-left-right-check`, `--window 7`).
 
 test/test_accuracy_matrix.py runs a few rows of this grid and asserts the floors on them.
@@ -311,7 +311,8 @@ def main() -> int:
                                                      "'both': centerline and icp side by side)")
     parser.add_argument("--warnings", action="store_true", help="print each row's warnings")
     parser.add_argument("--simulate", default="", metavar="OPTIONS",
-                        help="more `ntcr-recon simulate` options for every row, e.g. '--no-left-right-check'")
+                        help="more `ntcr-recon simulate` options for every row, e.g. "
+                        "--simulate='--no-left-right-check' (with '=', as the value starts with --)")
     args = parser.parse_args()
     wanted = {name for name in args.rows.split(",") if name}
     rows = [with_simulate_options(row, args.simulate) for row in ROWS if not wanted or row.name in wanted]

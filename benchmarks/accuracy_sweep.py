@@ -1,6 +1,6 @@
 """Random robots, poses and rigs: how often the floors hold, and whether a miss is ever silent (issue 9).
 
-    .venv/bin/python benchmarks/accuracy_sweep.py [--count 40] [--seed 1000] [--simulate '--no-left-right-check']
+    .venv/bin/python benchmarks/accuracy_sweep.py [--count 40] [--seed 1000] [--simulate='--no-left-right-check']
 
 The accuracy matrix's grid is fixed, and a fixed grid is what a method gets tuned to. Each scene here is drawn at
 random: a robot of the matrix's layouts (3.5 mm default, 2.5 and 4.0 mm, 10 and 20 notches, 1.8 mm notches), a
@@ -49,7 +49,8 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=1000, help="index of the first scene (default 1000)")
     parser.add_argument("--warnings", action="store_true", help="print each scene's warnings")
     parser.add_argument("--simulate", default="", metavar="OPTIONS",
-                        help="more `ntcr-recon simulate` options for every scene, e.g. '--no-left-right-check'")
+                        help="more `ntcr-recon simulate` options for every scene, e.g. "
+                        "--simulate='--no-left-right-check' (with '=', as the value starts with --)")
     args = parser.parse_args()
     print(matrix.HEADER)
     results = []
