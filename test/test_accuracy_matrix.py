@@ -24,7 +24,7 @@ def test_rows_meet_the_floors(name):
 
 
 def test_extra_simulate_options_render_a_row_under_another_matcher():
-    """--simulate '--no-left-right-check' keeps the row's own options and takes the matcher's left-right check
+    """--simulate='--no-left-right-check' keeps the row's own options and takes the matcher's left-right check
     away: the occlusion shadows beside the robot, invalid on a D405, then read a depth."""
     own = ROWS["straight"]
     row = accuracy_matrix.with_simulate_options(own, "--no-left-right-check")
