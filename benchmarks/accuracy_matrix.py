@@ -99,6 +99,13 @@ def with_simulate_options(row: Row, options: str) -> Row:
     return replace(row, args=row.args + extra) if extra else row
 
 
+def add_simulate_option(parser: argparse.ArgumentParser) -> None:
+    """The matrix's and the sweep's --simulate (what with_simulate_options adds to each scene)."""
+    parser.add_argument("--simulate", default="", metavar="OPTIONS",
+                        help="more `ntcr-recon simulate` options for every scene, e.g. "
+                        "--simulate='--no-left-right-check' (with '=', as the value starts with --)")
+
+
 def simulation_for(row: Row, seed: int, frames: int):
     """The row's Simulation, built by `ntcr-recon simulate`'s own parser and builder."""
     from ntcr_recon.cli import simulate as simulate_command
@@ -310,9 +317,7 @@ def main() -> int:
     parser.add_argument("--method", default="", help="relocation.method to use (default: the configured default; "
                                                      "'both': centerline and icp side by side)")
     parser.add_argument("--warnings", action="store_true", help="print each row's warnings")
-    parser.add_argument("--simulate", default="", metavar="OPTIONS",
-                        help="more `ntcr-recon simulate` options for every row, e.g. "
-                        "--simulate='--no-left-right-check' (with '=', as the value starts with --)")
+    add_simulate_option(parser)
     args = parser.parse_args()
     wanted = {name for name in args.rows.split(",") if name}
     rows = [with_simulate_options(row, args.simulate) for row in ROWS if not wanted or row.name in wanted]

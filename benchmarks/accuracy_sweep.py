@@ -48,9 +48,7 @@ def main() -> int:
     parser.add_argument("--count", type=int, default=40, help="scenes (default 40)")
     parser.add_argument("--seed", type=int, default=1000, help="index of the first scene (default 1000)")
     parser.add_argument("--warnings", action="store_true", help="print each scene's warnings")
-    parser.add_argument("--simulate", default="", metavar="OPTIONS",
-                        help="more `ntcr-recon simulate` options for every scene, e.g. "
-                        "--simulate='--no-left-right-check' (with '=', as the value starts with --)")
+    matrix.add_simulate_option(parser)
     args = parser.parse_args()
     print(matrix.HEADER)
     results = []
