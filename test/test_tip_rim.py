@@ -16,14 +16,7 @@ from ntcr_recon.core.centerline import Centerline
 from ntcr_recon.core.geometry import TubeGeometry
 from ntcr_recon.core.pipeline import Reconstructor
 from ntcr_recon.core.quality import assess
-from ntcr_recon.core.tip import (
-    edge_band,
-    half_density_end,
-    length_tolerance_on_fit,
-    rim_erosion,
-    rim_tip,
-    with_known_length,
-)
+from ntcr_recon.core.tip import edge_band, half_density_end, rim_erosion, rim_tip, with_known_length
 
 UNIT = 1e-4
 R_O = 1.75e-3
@@ -168,30 +161,6 @@ def test_a_camera_whose_wall_stops_at_the_last_notch_is_not_heard_on_the_tip():
     assert both == pytest.approx(length, abs=FOOTPRINT / 2)
     alone = tip(camera == 1)
     assert alone == pytest.approx(length - 1.5e-3 + band, abs=FOOTPRINT / 2)
-
-
-def test_the_robots_length_on_a_leaning_centreline_is_known_no_better_than_the_lean_times_the_bend():
-    """A tube bent by 60 deg on a 40 mm radius, and a fitted curve lying 0.15 mm towards the inside of the bend: at the
-    true tip's angle the fitted curve is 0.157 mm (0.15 mm x pi/3) shorter, so the robot's length reaches that much
-    past the tip along it. The tolerance of the length on the fit holds that part beside the length's own
-    (0.1 mm) and the bend's; a straight robot's has no lean part, and an unknown length stays unknown."""
-    bend, radius, lean = math.radians(60.0), 40e-3, 0.15e-3
-    angle = np.linspace(0.0, bend, 2001)
-
-    def arc(r):
-        points = np.stack([r * (1 - np.cos(angle)), np.zeros_like(angle), r * np.sin(angle)], axis=1)
-        return Centerline.from_points(points, np.array([0.0, 1.0, 0.0]), 0.05e-3)
-
-    shortened = arc(radius).length - arc(radius - lean).length
-    print(f"\nthe leaning curve is {shortened * 1e3:.4f} mm shorter")
-    assert shortened == pytest.approx(lean * bend, rel=1e-3)
-    geometry = TubeGeometry()
-    bend_part = geometry.neutral_axis_offset * lean / geometry.notch_pitch
-    tolerance = length_tolerance_on_fit(0.1e-3, geometry.neutral_axis_offset, geometry.notch_pitch, lean, -bend)
-    assert tolerance == pytest.approx(math.sqrt(0.1e-3**2 + bend_part**2 + shortened**2), rel=1e-3)
-    straight = length_tolerance_on_fit(0.1e-3, geometry.neutral_axis_offset, geometry.notch_pitch, lean, 0.0)
-    assert straight == pytest.approx(math.hypot(0.1e-3, bend_part))
-    assert length_tolerance_on_fit(None, geometry.neutral_axis_offset, geometry.notch_pitch, lean, bend) is None
 
 
 def test_the_tip_weighs_the_end_seen_against_the_robots_known_length():

@@ -52,7 +52,6 @@ from ntcr_recon.core.tip import (
     edge_band_angle,
     end_cap_plane,
     give_back_erosion,
-    length_tolerance_on_fit,
     rim_tip,
     tube_end,
     with_known_length,
@@ -321,11 +320,11 @@ class Reconstructor:
         looking = tuple(cameras_looking_into_slots(centerline, geometry, self._camera_origins,
                                                    self.config.camera_names))
         centreline_off = centerline_uncertainty(cross_view.spread, thinning, looking, bool(backbone_shift)) or 0.0
-        # the robot's own length, at the bend measured, is a measurement of the tip too (core.tip), known on the
-        # fitted curve as well as its bend and its lean allow
+        # the robot's own length, at the bend measured, is a measurement of the tip too (core.tip); the bend is
+        # known as well as the centreline's turn over a notch pitch
         total_bend = float(centerline.bend_angle(0.0, tip_s))
-        length_known = length_tolerance_on_fit(geometry.length_tolerance, geometry.neutral_axis_offset,
-                                               geometry.notch_pitch, centreline_off, total_bend)
+        length_known = None if geometry.length_tolerance is None else float(np.hypot(
+            geometry.length_tolerance, geometry.neutral_axis_offset * centreline_off / geometry.notch_pitch))
         along = with_known_length(tip_s, seen_uncertainty, geometry.bent_length(total_bend), length_known)
         tip_erosion, tip_s = tip_s - eroded_end, along.s
         # the rims the matcher moves (over the cut faces the cameras see), against the spines' known length; a

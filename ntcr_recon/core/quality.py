@@ -406,9 +406,8 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
         warnings.append(f"the end seen lies {abs(short) * 1e3:.2f} mm {'short of' if short > 0 else 'past'} the "
                         f"robot's length at this bend ({expected_length * 1e3:.2f} mm), more than both are known to "
                         f"({tip_along.seen_uncertainty * 1e3:.2f} and {tip_along.tolerance * 1e3:.2f} mm, "
-                        "robot.length_tolerance with the bend's and the centreline's lean): the tip is where the "
-                        "end was seen; check the robot's notch layout, its base position along it and "
-                        "robot.length_tolerance")
+                        "robot.length_tolerance with the bend's): the tip is where the end was seen; check the robot's "
+                        "notch layout, its base position along it and robot.length_tolerance")
     if abs(short) > TIP_SHORT_DIAMETERS * diameter:
         where = "short of" if short > 0 else "past"
         warning = (f"the tube ends {abs(short) * 1e3:.1f} mm {where} the robot's length "

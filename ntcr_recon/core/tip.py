@@ -21,10 +21,9 @@ tip loses (a silhouette's mixed pixels move along the wall, not off it).
 The robot's own length is a measurement of the tip too: the reference the cloud is relocated onto is the
 configured robot, its centreline as long as the notch layout makes it, shortened by the bend
 (`TubeGeometry.bent_length`). `with_known_length` puts the tip between the end seen and that length, each
-weighed by its uncertainty (the length's on the fitted curve, `length_tolerance_on_fit`, holds the centreline's
-lean times the bend: a curve lying inside the bend is shorter than the tube's axis), where the two agree within
-their uncertainties; where they do not, the end seen stands (a tube cut short by the view is not stretched, a
-mis-configured length does not move the tip) and the result says so.
+weighed by its uncertainty, where the two agree within their uncertainties; where they do not, the end seen
+stands (a tube cut short by the view is not stretched, a mis-configured length does not move the tip) and the
+result says so.
 """
 
 from __future__ import annotations
@@ -382,20 +381,6 @@ class TipAlongTube:
         if self.tolerance is None:
             return 0.0
         return (self.expected_s - self.seen_s) / float(np.hypot(self.seen_uncertainty, self.tolerance))
-
-
-def length_tolerance_on_fit(length_tolerance: float | None, neutral_axis_offset: float, notch_pitch: float,
-                            centreline_uncertainty: float, total_bend: float) -> float | None:
-    """How well the robot's length at its bend is known as an arc length of the fitted centreline (m); None when
-    the robot's length is not known. Three parts: the length's own tolerance; the bend's, through the neutral
-    axis (a notch's turn is known to the centreline's uncertainty over a pitch); and the centreline's lean - a
-    curve lying d towards the inside of a bend of theta is d theta shorter than the tube's axis (arcs of radius
-    R - d and R over theta), so the robot's length reaches d theta further along it, and past the tip."""
-    if length_tolerance is None:
-        return None
-    bend_part = neutral_axis_offset * centreline_uncertainty / notch_pitch
-    lean_part = centreline_uncertainty * abs(total_bend)
-    return float(np.sqrt(length_tolerance**2 + bend_part**2 + lean_part**2))
 
 
 def with_known_length(seen_s: float, seen_uncertainty: float, expected_s: float,
