@@ -1,7 +1,7 @@
 """Accuracy of the reconstruction over a grid of robots and rigs it was not developed on (issue 9).
 
     .venv/bin/python benchmarks/accuracy_matrix.py [--frames 2] [--rows NAME,NAME...] [--method centerline|icp|both]
-        [--simulate='--no-left-right-check']
+        [--simulate='--no-left-right-check'] [--warnings] [--stated]
 
 Each row is rendered by the simulator exactly as `ntcr-recon simulate OUT <row's options>` renders it (the
 same argument parser and `build_simulation`, in process, without writing the bag), reconstructed as
@@ -16,7 +16,8 @@ and a summary of the floors (issue 9, cameras <= 110 mm): all notches and none s
 <= 0.08 mm and max <= 0.20 mm, centreline <= 0.08 mm, tip <= 0.15 mm, surface <= 0.06 mm. A row that
 misses a floor must have raised a warning that speaks of what it missed (SPOKEN_OF; "silent miss" otherwise).
 The summary also counts the rows whose centreline, tip along and tip across errors lie within the uncertainty
-their result stated for each (STATED): a warning that says 0.1 mm where the error is 0.3 still understates.
+their result stated for each (STATED): a warning that says 0.1 mm where the error is 0.3 still understates;
+`--stated` prints those pairs under each row.
 
 `--simulate='OPTIONS'` adds `ntcr-recon simulate` options to every row (after its own, so they win): the same grid
 under another stereo matcher than the one the method was developed with (`--no-left-right-check`, `--window 7`).
@@ -104,6 +105,22 @@ def add_simulate_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--simulate", default="", metavar="OPTIONS",
                         help="more `ntcr-recon simulate` options for every scene, e.g. "
                         "--simulate='--no-left-right-check' (with '=', as the value starts with --)")
+
+
+def add_detail_options(parser: argparse.ArgumentParser, item: str) -> None:
+    """The matrix's and the sweep's --warnings and --stated (what print_details prints under each `item`)."""
+    parser.add_argument("--warnings", action="store_true", help=f"print each {item}'s warnings")
+    parser.add_argument("--stated", action="store_true",
+                        help=f"print each {item}'s errors against the uncertainties its result stated (STATED)")
+
+
+def print_details(figures: dict, args: argparse.Namespace) -> None:
+    """Under a row: its warnings (--warnings) and its errors against what it stated (--stated)."""
+    if args.warnings:
+        for warning in figures["warnings"]:
+            print(f"    ! {warning}")
+    if args.stated and "stated" in figures:
+        print(f"    stated: {format_stated(figures)}")
 
 
 def simulation_for(row: Row, seed: int, frames: int):
@@ -251,6 +268,12 @@ def bounded_by_stated(results: list[dict]) -> tuple[int, dict[str, int]]:
     return len(judged), {figure: sum(abs(r[figure]) <= r["stated"][figure] for r in judged) for figure in STATED}
 
 
+def format_stated(figures: dict) -> str:
+    """Each STATED figure's error / the uncertainty the result stated (mm), 'OVER' where the error exceeds it."""
+    return ", ".join(f"{figure} {abs(figures[figure]) * 1e3:.3f}/{figures['stated'][figure] * 1e3:.3f}"
+                     + (" OVER" if abs(figures[figure]) > figures["stated"][figure] else "") for figure in STATED)
+
+
 def silent_misses(results: list[dict]) -> list[str]:
     """Each result with a silent miss, as 'name (the floors no warning spoke of)'."""
     return [f"{r['row']} ({','.join(missed)})" for r in results if (missed := unwarned(r))]
@@ -316,7 +339,7 @@ def main() -> int:
     parser.add_argument("--rows", default="", help="comma-separated row names (default: all)")
     parser.add_argument("--method", default="", help="relocation.method to use (default: the configured default; "
                                                      "'both': centerline and icp side by side)")
-    parser.add_argument("--warnings", action="store_true", help="print each row's warnings")
+    add_detail_options(parser, "row")
     add_simulate_option(parser)
     args = parser.parse_args()
     wanted = {name for name in args.rows.split(",") if name}
@@ -334,9 +357,7 @@ def main() -> int:
                 figures["row"] = f"{row.name}[{method}]"
             results.append(figures)
             print(format_row(figures), flush=True)
-            if args.warnings:
-                for warning in figures["warnings"]:
-                    print(f"    ! {warning}")
+            print_details(figures, args)
     floored = [r for r in results if r["floors_apply"]]
     meeting = [r for r in floored if not r["misses"]]
     silent = silent_misses(results)

@@ -1,6 +1,7 @@
 """Random robots, poses and rigs: how often the floors hold, and whether a miss is ever silent (issue 9).
 
     .venv/bin/python benchmarks/accuracy_sweep.py [--count 40] [--seed 1000] [--simulate='--no-left-right-check']
+        [--warnings] [--stated]
 
 The accuracy matrix's grid is fixed, and a fixed grid is what a method gets tuned to. Each scene here is drawn at
 random: a robot of the matrix's layouts (3.5 mm default, 2.5 and 4.0 mm, 10 and 20 notches, 1.8 mm notches), a
@@ -47,7 +48,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--count", type=int, default=40, help="scenes (default 40)")
     parser.add_argument("--seed", type=int, default=1000, help="index of the first scene (default 1000)")
-    parser.add_argument("--warnings", action="store_true", help="print each scene's warnings")
+    matrix.add_detail_options(parser, "scene")
     matrix.add_simulate_option(parser)
     args = parser.parse_args()
     print(matrix.HEADER)
@@ -56,9 +57,7 @@ def main() -> int:
         figures = matrix.run_row(matrix.with_simulate_options(random_row(index), args.simulate), seed=index)
         results.append(figures)
         print(matrix.format_row(figures), flush=True)
-        if args.warnings:
-            for warning in figures["warnings"]:
-                print(f"    ! {warning}")
+        matrix.print_details(figures, args)
     meeting = [r for r in results if not r["misses"]]
     silent = matrix.silent_misses(results)
     centreline_missed = [r for r in results if "centerline" in r["misses"]]

@@ -93,3 +93,12 @@ def test_the_summary_counts_the_errors_within_the_uncertainty_each_result_stated
     figures = accuracy_matrix.run_row(ROWS["cameras75"], frames=2)
     print(f"\nstated {figures['stated']}")
     assert figures["stated"]["tip_along"] > 0  # the tip is always known only so well: the key is read
+
+
+def test_stated_detail_names_each_figure_whose_error_exceeds_what_its_result_stated():
+    """--stated prints each row's errors against its stated uncertainties (mm), OVER where one understates."""
+    figures = {"centerline": 0.034e-3, "tip_along": -0.024e-3, "tip_across": 0.160e-3, "warnings": [],
+               "stated": {"centerline": 0.026e-3, "tip_along": 0.092e-3, "tip_across": 0.137e-3}}
+    line = accuracy_matrix.format_stated(figures)
+    print("\n" + line)
+    assert line == ("centerline 0.034/0.026 OVER, tip_along 0.024/0.092, tip_across 0.160/0.137 OVER")
