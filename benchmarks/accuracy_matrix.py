@@ -260,18 +260,23 @@ STATED = {"centerline": "centerline_uncertainty_mm", "tip_along": "tip_uncertain
           "tip_across": "tip_across_uncertainty_mm"}
 
 
+def within_stated(figures: dict, figure: str) -> bool:
+    """Whether a STATED figure's error lies within the uncertainty the result stated for it."""
+    return abs(figures[figure]) <= figures["stated"][figure]
+
+
 def bounded_by_stated(results: list[dict]) -> tuple[int, dict[str, int]]:
     """Of the results whose tube was not cut short (their warning puts the tip that far off already): how many, and
     per figure in how many the error lies within the uncertainty the result itself stated - whether a result that
     says it is good to 0.1 mm is."""
     judged = [r for r in results if "stated" in r and not any(w.startswith("the tube ends") for w in r["warnings"])]
-    return len(judged), {figure: sum(abs(r[figure]) <= r["stated"][figure] for r in judged) for figure in STATED}
+    return len(judged), {figure: sum(within_stated(r, figure) for r in judged) for figure in STATED}
 
 
 def format_stated(figures: dict) -> str:
     """Each STATED figure's error / the uncertainty the result stated (mm), 'OVER' where the error exceeds it."""
     return ", ".join(f"{figure} {abs(figures[figure]) * 1e3:.3f}/{figures['stated'][figure] * 1e3:.3f}"
-                     + (" OVER" if abs(figures[figure]) > figures["stated"][figure] else "") for figure in STATED)
+                     + ("" if within_stated(figures, figure) else " OVER") for figure in STATED)
 
 
 def silent_misses(results: list[dict]) -> list[str]:
