@@ -77,6 +77,20 @@ def test_a_rig_file_rolled_20_degrees_off_reports_the_side_the_notches_open_to()
     assert abs(figures["side_deg"] - 0.0) <= min(5.0, figures["side_uncertainty_deg"])
 
 
+def test_a_last_notch_beyond_where_the_coarse_end_stopped_is_found_once_the_end_is_refined():
+    """1.8 mm notches on a robot bent 84 degrees: the distal spines are thinly seen, and the ring the last cut
+    leaves is too little for the coarse end's sector count, which stops at that cut (51.5 of 54.6 mm). The end
+    refined on each camera's rim reaches past it, and the notches are looked for again up to there (notch 15 was
+    reported missing when only the coarse end bounded the search)."""
+    row = accuracy_matrix.Row("last_notch_past_the_coarse_end",
+                              ("--bend-deg", "83.7", "--notch-side", "133.4", "--camera-distance", "0.090"),
+                              robot={"notch_width": 0.0018, "notch_pitch": 0.0032})
+    figures = accuracy_matrix.run_row(row, frames=2, seed=3016)
+    print("\n" + accuracy_matrix.format_row(figures) + "\n" + "\n".join(figures["warnings"]))
+    assert (figures["found"], figures["spurious"]) == (figures["expected"], 0) == (16, 0)
+    assert not any("notches found (missing" in warning for warning in figures["warnings"])
+
+
 def test_the_summary_counts_the_errors_within_the_uncertainty_each_result_stated():
     """A result's stated uncertainty is judged against its error, figure by figure; a tube the result says ends
     short is not judged (its warning already puts the tip that far off)."""

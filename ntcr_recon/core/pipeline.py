@@ -274,7 +274,7 @@ class Reconstructor:
             notch_side += roll
             (centerline, coords), rays, measured, found = turned, turned_rays, turned_measured, again
             frames = (frames[0], frames[1], *_rolled_axes(frames[2], frames[3], roll))
-        notches = found
+        notches, coarse_end = found, tip_s
         comb_centres = expected_centres(geometry, centerline)  # where the robot's notches lie on the final frame
         # 5. tip, refined: the rim the stereo matcher erodes at depth edges given back
         eroded_end, refinement, tip_uncertainty, from_cap = tip_s, "coarse end (no camera seen)", None, False
@@ -309,6 +309,12 @@ class Reconstructor:
                                           [(n.start_s, n.end_s) for n in notches], footprint)
             else:
                 refinement = "coarse end (the end turns towards a camera; no edge band measured)"
+        # the coarse end may stop at the last cut, where little of a thinly seen ring is left: notches the refined
+        # end now reaches past are looked for again (kept if more are found)
+        if any(coarse_end <= centre + geometry.notch_width / 2 < tip_s for centre in comb_centres):
+            again = detect_notches(measured, centerline, geometry, settings.gate, footprint, options.notch_kernel_px,
+                                   options.min_notch_width_fraction, tip_s, observed=coords, wall=wall)
+            notches = again if len(again) > len(notches) else notches
         # a tip left at the coarse end is known as well as the band the matcher spoils there, not given back
         # (assess is told no uncertainty then: nothing measured the erosion given back)
         seen_uncertainty = (tip_uncertainty if tip_uncertainty is not None
