@@ -903,8 +903,9 @@ def test_a_camera_that_missed_a_stretch_is_named_with_why_too_near_or_end_on():
 
 def test_missing_notches_are_placed_beyond_the_end_seen_or_where_a_camera_did_not_see_the_tube():
     """Both cameras see the tube to 40 mm, cam_b alone beyond; the end is seen at 45 mm. Of the notches missing,
-    one both cameras saw is given no place; those past 40 mm are where cam_a did not see the tube (the one whose
-    cut straddles the end seen too); those whose cut lies past 45 mm are beyond the end seen."""
+    one both cameras saw is named unmarked, with what a depth pixel is against its cut; those past 40 mm are where
+    cam_a did not see the tube (the one whose cut straddles the end seen too); those whose cut lies past 45 mm are
+    beyond the end seen."""
     s = np.linspace(0.0, 50e-3, 5000)
     camera = np.where(s < 40e-3, np.arange(len(s)) % 2, 1).astype(np.int8)
     centres = GEOMETRY.notch_centers_s  # 5.75, 8.75, ..., 41.75, 44.75, 47.75, 50.75 mm
@@ -922,8 +923,11 @@ def test_missing_notches_are_placed_beyond_the_end_seen_or_where_a_camera_did_no
     print("\n" + warnings[0])
     assert warnings[0] == ("11 of 16 notches found (missing: 3, 12, 13, 14, 15): their widths are unknown; notches 12 "
                            "and 13 lie where cam_a did not see the tube; notches 14 and 15 lie beyond the end seen "
-                           "(45.0 mm along the tube)")
-    assert quality["notches_missing_beyond_end"] == [14, 15]
+                           f"(45.0 mm along the tube); notch 3 lies where the cameras saw the tube, yet no gap or "
+                           f"dip of the wall marks it (a 1.5 mm cut spans {1.5e-3 / FOOTPRINT:.0f} px in the depth "
+                           "images there: a stereo matcher's window that wide or wider fills it; or it opens to a "
+                           "side no camera saw)")
+    assert quality["notches_missing_beyond_end"] == [14, 15] and quality["notches_missing_unmarked"] == [3]
     assert quality["notches_missing_unseen_by"] == {"cam_a": [12, 13]}
 
 

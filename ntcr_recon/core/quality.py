@@ -307,7 +307,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
         by_signal[notch.signal] = by_signal.get(notch.signal, 0) + 1
     cell = max(footprint, r_o / 8)
     seen_end = tip_s if tip_along is None else tip_along.seen_s
-    beyond, unseen = [], {}
+    beyond, unseen, unmarked = [], {}, []
     if missing:
         warning = (f"{len(found)} of {geometry.notch_count} notches found (missing: "
                    f"{', '.join(str(i) for i in missing)}): their widths are unknown")
@@ -321,6 +321,13 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
                 warning += f"; {_notches_lie(indices)} where {name} did not see the tube{f' ({why})' if why else ''}"
             if beyond:
                 warning += f"; {_notches_lie(beyond)} beyond the end seen ({seen_end * 1e3:.1f} mm along the tube)"
+            unmarked = [i for i in missing if i not in beyond and not any(i in v for v in unseen.values())]
+            if unmarked:  # seen, yet not found: what a depth pixel there is against the cut
+                them = "it" if len(unmarked) == 1 else "them"
+                warning += (f"; {_notches_lie(unmarked)} where the cameras saw the tube, yet no gap or dip of the wall "
+                            f"marks {them} (a {geometry.notch_width * 1e3:.1f} mm cut spans "
+                            f"{geometry.notch_width / footprint:.0f} px in the depth images there: a stereo matcher's "
+                            f"window that wide or wider fills it; or it opens to a side no camera saw)")
         warnings.append(warning)
     dips = sorted(n.index for n in notches if n.signal == "dip")
     if dips:
@@ -463,6 +470,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     quality = {
         "notches_found": len(found), "notches_expected": geometry.notch_count, "notches_missing": missing,
         "notches_missing_beyond_end": beyond, "notches_missing_unseen_by": unseen,
+        "notches_missing_unmarked": unmarked,
         "notches_by_signal": by_signal,
         "notch_signal": {str(n.index): n.signal for n in sorted(notches, key=lambda n: n.index)},
         "length_seen_share": share, "distal_one_camera_mm": {k: v * 1e3 for k, v in alone.items()},
