@@ -321,8 +321,9 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
                 warning += f"; {_notches_lie(indices)} where {name} did not see the tube{f' ({why})' if why else ''}"
             if beyond:
                 warning += f"; {_notches_lie(beyond)} beyond the end seen ({seen_end * 1e3:.1f} mm along the tube)"
-            unmarked = [i for i in missing if i not in beyond and not any(i in v for v in unseen.values())]
-            if unmarked:  # seen, yet not found: what a depth pixel there is against the cut
+            if camera is not None:  # seen, yet not found: what a depth pixel there is against the cut
+                unmarked = [i for i in missing if i not in beyond and not any(i in v for v in unseen.values())]
+            if unmarked:
                 them = "it" if len(unmarked) == 1 else "them"
                 warning += (f"; {_notches_lie(unmarked)} where the cameras saw the tube, yet no gap or dip of the wall "
                             f"marks {them} (a {geometry.notch_width * 1e3:.1f} mm cut spans "
