@@ -21,6 +21,7 @@ on every side); a frame whose robot is not found whole there is fused again from
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass, field, replace
@@ -239,8 +240,11 @@ class Reconstructor:
         # the spines and the wall band on them, where the notches are found and their side is measured (the
         # turned frame below has the same s and radii: the same spines and band)
         wall = spine_wall(coords, centerline, geometry, settings.gate, footprint)
-        found = detect_notches(measured, centerline, geometry, settings.gate, footprint, options.notch_kernel_px,
-                               options.min_notch_width_fraction, tip_s, observed=coords, wall=wall)
+        # the same detection, in the configured or turned frame and up to the coarse or refined end
+        notches_up_to = functools.partial(detect_notches, geometry=geometry, gate=settings.gate, footprint=footprint,
+                                          kernel_px=options.notch_kernel_px,
+                                          min_width_fraction=options.min_notch_width_fraction, wall=wall)
+        found = notches_up_to(measured, centerline, tip_s=tip_s, observed=coords)
         # the robot's roll in its clamp is never exact: the side the notches open to, measured; where it is
         # off the configured one the tube frame turns to it and the notches are found again in that frame
         notch_side, unsettled, side_uncertainty = geometry.notch_side, None, None
@@ -265,9 +269,7 @@ class Reconstructor:
             turned = centerline.rolled(roll), coords.rolled(roll)
             turned_rays = None if rays is None else (rays[0].rolled(roll), rays[1])
             turned_measured = turned[1] if turned_rays is None else turned_rays[0]
-            again = detect_notches(turned_measured, turned[0], geometry, settings.gate, footprint,
-                                   options.notch_kernel_px, options.min_notch_width_fraction, tip_s,
-                                   observed=turned[1], wall=wall)
+            again = notches_up_to(turned_measured, turned[0], tip_s=tip_s, observed=turned[1])
             if len(again) < len(found):
                 side_uncertainty = None
                 break  # the turned frame explains the data worse: the measurement was not to be trusted
@@ -312,8 +314,7 @@ class Reconstructor:
         # the coarse end may stop at the last cut, where little of a thinly seen ring is left: notches the refined
         # end now reaches past are looked for again (kept if more are found)
         if any(coarse_end <= centre + geometry.notch_width / 2 < tip_s for centre in comb_centres):
-            again = detect_notches(measured, centerline, geometry, settings.gate, footprint, options.notch_kernel_px,
-                                   options.min_notch_width_fraction, tip_s, observed=coords, wall=wall)
+            again = notches_up_to(measured, centerline, tip_s=tip_s, observed=coords)
             notches = again if len(again) > len(notches) else notches
         # a tip left at the coarse end is known as well as the band the matcher spoils there, not given back
         # (assess is told no uncertainty then: nothing measured the erosion given back)
