@@ -91,6 +91,18 @@ def test_a_last_notch_beyond_where_the_coarse_end_stopped_is_found_once_the_end_
     assert not any("notches found (missing" in warning for warning in figures["warnings"])
 
 
+def test_the_backbone_across_the_cuts_is_trusted_wall_for_the_alignment():
+    """Cameras 102 mm away, the notches opening 135 deg round from cam_b: the wall cam_b faces across each cut is
+    the backbone, which the cut leaves whole. Left out with the cuts' whole length, the alignment rested on half
+    the wall points it has, and the centreline missed its floor (0.122 mm); trusted, it meets it."""
+    row = accuracy_matrix.Row("backbone_across_the_cuts",
+                              ("--bend-deg", "40.4", "--notch-side", "-134.9", "--camera-distance", "0.102"))
+    figures = accuracy_matrix.run_row(row, frames=2, seed=4011)
+    print("\n" + accuracy_matrix.format_row(figures) + "\n" + "\n".join(figures["warnings"]))
+    assert figures["centerline"] <= accuracy_matrix.FLOORS["centerline"]
+    assert figures["misses"] == []
+
+
 def test_the_summary_counts_the_errors_within_the_uncertainty_each_result_stated():
     """A result's stated uncertainty is judged against its error, figure by figure; a tube the result says ends
     short is not judged (its warning already puts the tip that far off)."""

@@ -14,7 +14,7 @@ import pytest
 from ntcr_recon.core import alignment
 from ntcr_recon.core.alignment import align_to_trusted_wall, cross_view_spread, level_by_backbone
 from ntcr_recon.core.centerline import Centerline, estimate_centerline, settings_for
-from ntcr_recon.core.comb import cut_intervals, expected_centres, inside_intervals
+from ntcr_recon.core.comb import clear_of_cuts, cut_intervals, expected_centres, inside_intervals
 from ntcr_recon.core.config import RelocationConfig
 from ntcr_recon.core.geometry import TubeGeometry
 from ntcr_recon.core.kinematics import TubeShape
@@ -89,6 +89,20 @@ def test_comb_lies_on_the_configured_notches_of_a_straight_tube_and_shortens_wit
     inside = inside_intervals(np.array([centre, centre + GEOMETRY.notch_width / 2 + 0.05e-3,
                                         centre + GEOMETRY.notch_pitch / 2]), intervals)
     assert inside.tolist() == [True, True, False]
+
+
+def test_the_wall_is_clear_of_a_cut_on_the_spines_and_on_the_backbone_across_it():
+    """A cut opens the outer wall within the gap's half-angle of the notch side; opposite it the backbone is whole
+    wall, which the alignment may trust; beside it (within the margin, either way) it is not."""
+    straight = straight_centerline(GEOMETRY.length)
+    centre, margin, half = GEOMETRY.notch_centers_s[3], 0.1e-3, GEOMETRY.gap_half_angle
+    beside = half + 0.5 * margin / R_O  # round the tube past the cut's edge, within the margin
+    places = [(centre, 0.0), (centre, half - 0.01), (centre, beside), (centre, half + 2 * margin / R_O),
+              (centre, math.pi), (centre + GEOMETRY.notch_width / 2 + 0.05e-3, 0.0),
+              (centre + GEOMETRY.notch_pitch / 2, 0.0)]
+    xyz = np.array([[R_O * math.cos(angle), R_O * math.sin(angle), s] for s, angle in places])
+    clear = clear_of_cuts(straight.project(xyz), GEOMETRY, straight, margin)
+    assert clear.tolist() == [False, False, False, True, True, False, True]
 
 
 def test_tip_of_a_straight_tube_is_its_end_and_never_past_the_robot():

@@ -12,9 +12,10 @@ so the fitted axis drifts towards the notches: 0.07-0.2 mm, more with a larger p
 Trusted are the wall points within the gate given (the pipeline's: the outer wall's band measured on the spines, so
 that pixels a matcher mixed with the background behind stay out) that face their camera, `silhouette_margin_px`
 pixel footprints or more inside the tube's silhouette in its image (a view angle a with r (1 - sin a) above the
-margin, never beyond `max_view_angle`), on spines away from the cuts (the expected notches grown by `cut_margin_px`)
-and as far from the base and the tube's end (depth edges too). The criterion is in pixels, so it follows the
-footprint: on a rig twice as far the facing zone narrows to what the matcher leaves unbiased. Along the robot, in
+margin, never beyond `max_view_angle`), clear of the cuts (the expected notches grown by `cut_margin_px`, over the
+angles where they open the wall: the backbone opposite a cut is whole wall; comb.clear_of_cuts) and as far from the
+base and the tube's end (depth edges too). The criterion is in pixels, so it follows the footprint: on a rig twice
+as far the facing zone narrows to what the matcher leaves unbiased. Along the robot, in
 windows of a notch pitch, the shift of the reference tube (of the known radius, at the wall's level per window) that
 best fits those points is solved by least squares (offset = c_x cos(phi) + c_y sin(phi) + level, the level scaled
 per point by its camera's squared distance from the robot's base: cameras at different distances see the wall
@@ -33,7 +34,7 @@ import numpy as np
 import scipy.linalg
 
 from ntcr_recon.core.centerline import Centerline, TubeCoordinates, unit_direction
-from ntcr_recon.core.comb import cut_intervals, inside_intervals
+from ntcr_recon.core.comb import clear_of_cuts, cut_intervals
 from ntcr_recon.core.compiled import jit
 from ntcr_recon.core.geometry import TubeGeometry
 from ntcr_recon.core.wall import median
@@ -200,7 +201,7 @@ def align_to_trusted_wall(centerline: Centerline, coords: TubeCoordinates, frame
     and selects and solves again; bias and shifts add up over the passes.
     """
     cut_margin = cut_margin_px * footprint
-    away_from_cuts = ~inside_intervals(coords.s, cut_intervals(geometry, centerline, cut_margin))
+    away_from_cuts = clear_of_cuts(coords, geometry, centerline, cut_margin)
     viewpoints = np.ascontiguousarray(viewpoints, dtype=float)
     margin, least_cosine = _trust_limits(geometry, footprint, silhouette_margin_px, max_view_angle)
     bias, end_move = np.zeros(2), np.zeros(3)
@@ -208,7 +209,7 @@ def align_to_trusted_wall(centerline: Centerline, coords: TubeCoordinates, frame
     for done in range(max(passes, 1)):
         if done:  # the moved axis: its points' coordinates, and its comb (the cuts move with its bends)
             coords, frames = centerline.project_with_frames(xyz, coords.s)
-            away_from_cuts = ~inside_intervals(coords.s, cut_intervals(geometry, centerline, cut_margin))
+            away_from_cuts = clear_of_cuts(coords, geometry, centerline, cut_margin)
         result = _align_once(centerline, coords, frames, viewpoints, away_from_cuts, geometry, gate, margin, end_s,
                              least_cosine, smoothing, minimum_points)
         bias += (result.bias_notch_side, result.bias_binormal)
@@ -277,7 +278,7 @@ def cross_view_spread(centerline: Centerline, coords: TubeCoordinates, frames: t
     tip is known across the tube no better than the cameras agree there.
     """
     window = geometry.notch_pitch
-    away_from_cuts = ~inside_intervals(coords.s, cut_intervals(geometry, centerline, cut_margin_px * footprint))
+    away_from_cuts = clear_of_cuts(coords, geometry, centerline, cut_margin_px * footprint)
     sums = _camera_window_sums(centerline, coords, frames, viewpoints, camera, cameras, geometry, gate, footprint,
                                end_s, silhouette_margin_px, max_view_angle, away_from_cuts, window)
     count, sine, sine2, offset, sine_offset = np.moveaxis(sums[:, :, :5], 2, 0)
@@ -380,7 +381,7 @@ def level_by_backbone(centerline: Centerline, coords: TubeCoordinates, frames: t
     """
     window = geometry.notch_pitch
     cuts = cut_intervals(geometry, centerline, cut_margin_px * footprint)
-    away_from_cuts = ~inside_intervals(coords.s, cuts)
+    away_from_cuts = clear_of_cuts(coords, geometry, centerline, cut_margin_px * footprint)
     cameras = len(origins)
 
     def sums(selected, width):

@@ -29,6 +29,15 @@ def cut_intervals(geometry: TubeGeometry, centerline, margin: float) -> np.ndarr
     return np.stack([centres - half, centres + half], axis=1)
 
 
+def clear_of_cuts(coords, geometry: TubeGeometry, centerline, margin: float) -> np.ndarray:
+    """(N,) bool: the point (TubeCoordinates, x towards the notch side) lies where no expected cut opens the
+    outer wall: outside every notch grown by `margin` along s (cut_intervals), or round the tube from the notch
+    side beyond the gap's half-angle grown by as much, on the backbone a cut leaves whole."""
+    near_cut = inside_intervals(coords.s, cut_intervals(geometry, centerline, margin))
+    opening = np.abs(coords.angle) < geometry.gap_half_angle + margin / geometry.outer_radius
+    return ~(near_cut & opening)
+
+
 def inside_intervals(s: np.ndarray, intervals: np.ndarray) -> np.ndarray:
     """(N,) bool: s lies in one of the (K, 2) [start, end] intervals (ends included)."""
     s = np.asarray(s, dtype=float)
