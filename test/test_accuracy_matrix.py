@@ -103,6 +103,21 @@ def test_the_backbone_across_the_cuts_is_trusted_wall_for_the_alignment():
     assert figures["misses"] == []
 
 
+def test_a_side_that_one_edge_of_the_notches_window_placed_is_stated_as_uncertain_as_the_matcher_smears_it():
+    """A rig file rolled 15 deg off, notches opening 45 deg towards cam_a from 104 mm: neither camera sees both
+    edges of the notches' open window, and the matcher smears the one edge seen by its edge band (0.5 mm round
+    a 1.75 mm radius: 16 deg), which no second edge cancels. The side the result states must say so (it claimed
+    +-8 deg while 13 deg off)."""
+    row = accuracy_matrix.Row("side_by_one_edge",
+                              ("--bend-deg", "87.6", "--notch-side", "-44.6", "--camera-distance", "0.104",
+                               "--camera-yaw-deg=-1.3,2.0", "--camera-pitch-deg=-1.1,-0.9"), side_error_deg=-15.0)
+    figures = accuracy_matrix.run_row(row, frames=2, seed=4026)
+    error = abs((figures["side_deg"] + 44.6 + 180.0) % 360.0 - 180.0)
+    print(f"\nside {figures['side_deg']:.1f} deg (true -44.6): {error:.1f} deg off, stated "
+          f"+-{figures['side_uncertainty_deg']:.1f}")
+    assert error <= figures["side_uncertainty_deg"]
+
+
 def test_the_summary_counts_the_errors_within_the_uncertainty_each_result_stated():
     """A result's stated uncertainty is judged against its error, figure by figure; a tube the result says ends
     short is not judged (its warning already puts the tip that far off)."""

@@ -804,6 +804,16 @@ def test_quality_says_what_is_doubtful():
     assert "depth of cam_a is quantised in 1 mm steps" in text and "cam_b is quantised" not in text
     assert quality["notches_found"] == 0 and quality["notch_side_deg"] == pytest.approx(20.0)
     assert "crop box" not in text
+    assert "the robot is rolled in its clamp" in text
+    # a side measured +20 deg off yet known only to +-25 deg (one edge of the window placed it) is no proof of a roll
+    for known_deg, said in ((5.0, "(known to +-5 deg): the robot is rolled in its clamp"),
+                            (25.0, "(known to +-25 deg): the robot may be rolled in its clamp")):
+        side_warnings = assess(
+            geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=notches, coords_s=s, camera=camera,
+            tip_s=50e-3, total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.05e-3, notch_side=math.radians(20),
+            configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0, depth_steps={},
+            side_uncertainty=math.radians(known_deg))[1]
+        assert any(said in warning for warning in side_warnings), side_warnings
     cap_warnings = assess(
         geometry=GEOMETRY, camera_names=("cam_a",), notches=[], coords_s=s,
         camera=np.zeros(len(s), np.int8), tip_s=50e-3, total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.0,

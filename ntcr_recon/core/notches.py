@@ -358,6 +358,7 @@ class SideMeasurement(NamedTuple):
     roll: float         # rad, how far the notches open from the frame's x axis (the configured side)
     uncertainty: float  # rad: half the spread of the window's two edges where both placed it, else half the
                         # range of sides the sectors allow alike, plus half a sector
+    by_edges: bool = False  # both window edges placed it (the matcher's smear of each edge cancels in their mean)
 
 
 def measure_notch_side(observed: TubeCoordinates, notches: list[Notch], geometry: TubeGeometry, centerline: Centerline,
@@ -404,7 +405,7 @@ def measure_notch_side(observed: TubeCoordinates, notches: list[Notch], geometry
     if located:
         low, high = allowed[0] - width / 2, allowed[1] + width / 2  # what the sectors allow
         return SideMeasurement(float(np.clip(np.mean(located), low, high)),
-                               max(abs(located[0] - located[1]) / 2, np.radians(1.0)))
+                               max(abs(located[0] - located[1]) / 2, np.radians(1.0)), by_edges=True)
     # an edge that falls where nothing is seen: the sectors at the border of what is seen (grazing views thin
     # the wall there unevenly, which reads as the window's edge) may have placed the window; judged without
     # them as well, the smaller turn of the two stands (a side no edge placed moves no further than it must)

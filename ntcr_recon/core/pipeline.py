@@ -28,7 +28,13 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ntcr_recon.core.alignment import CrossView, align_to_trusted_wall, cross_view_spread, level_by_backbone
+from ntcr_recon.core.alignment import (
+    SILHOUETTE_MARGIN_PX,
+    CrossView,
+    align_to_trusted_wall,
+    cross_view_spread,
+    level_by_backbone,
+)
 from ntcr_recon.core.centerline import Centerline, TubeCoordinates, estimate_centerline, settings_for
 from ntcr_recon.core.cloud import Cloud
 from ntcr_recon.core.comb import cut_intervals, expected_centres, inside_intervals
@@ -171,6 +177,17 @@ class Reconstructor:
                 self._edge_bands[name] = angle
         return self._edge_bands.get(name, np.nan)
 
+    def _edge_reach(self, footprint: float, centerline: Centerline) -> float:
+        """How far (m) round the tube the cameras' matchers move a depth edge on it: their edge bands measured in
+        the depth images, at their distances from the robot's base (the mean over the cameras); without one, half
+        a matcher's window (SILHOUETTE_MARGIN_PX pixel footprints)."""
+        bands = np.array([self._edge_band(name) for name in self.config.camera_names])
+        distances = np.linalg.norm(self._camera_origins - centerline.points[0], axis=1)
+        measured = np.isfinite(bands)
+        if not np.any(measured):
+            return SILHOUETTE_MARGIN_PX * footprint
+        return float(np.mean(bands[measured] * distances[measured]))
+
     def note_edge_band(self, camera: str, angle: float) -> None:
         """A camera's edge band (rad, `core.tip.edge_band_angle`) measured where its depth images are: in the
         graph by camera_node, as this process sees clouds only. ValueError for an unknown camera or a band
@@ -256,7 +273,9 @@ class Reconstructor:
                                                wall=wall)
             if side_measured is None:
                 break
-            roll, side_uncertainty = side_measured
+            roll, side_uncertainty, by_edges = side_measured
+            if not by_edges:  # one edge or none placed the window: the matcher's smear of it is not cancelled
+                side_uncertainty += self._edge_reach(footprint, centerline) / geometry.outer_radius
             if abs(roll) <= ROLL_TO_REFRAME:
                 notch_side += roll  # reported as measured; too small a turn to find the notches again for
                 break
@@ -360,6 +379,7 @@ class Reconstructor:
             tip_erosion=tip_erosion, tip_uncertainty=tip_uncertainty, tip_position=tip, tip_along=along,
             crop_box=self.config.crop_box(),
             notched_thinning=thinning, looking_into_slots=looking, tip_from_cap=from_cap, side_unsettled=unsettled,
+            side_uncertainty=side_uncertainty,
             cross_view_spread=cross_view.spread, distal_cross_view=cross_view.distal,
             unsupported=cross_view.unsupported, backbone_shift=backbone_shift, misread_widths=misread,
             held_shift=None if alignment is None else (alignment.end_shift, alignment.held_from),

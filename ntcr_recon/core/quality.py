@@ -270,6 +270,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
            crop_box: tuple[np.ndarray, np.ndarray] | None = None,
            notched_thinning: float | None = None, looking_into_slots: tuple[str, ...] = (),
            tip_from_cap: bool = False, side_unsettled: tuple[float, float] | None = None,
+           side_uncertainty: float | None = None,
            cross_view_spread: float | None = None, distal_cross_view: float | None = None, tip_along=None,
            backbone_shift: float | None = None, held_shift: tuple[float, float] | None = None,
            unsupported: tuple[tuple[float, float], ...] = (),
@@ -283,7 +284,8 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     figure, when it could be measured; looking_into_slots: `cameras_looking_into_slots`; tip_from_cap: the tip is
     the end cap's plane (tip.end_cap_plane), tip_uncertainty the smear of its points; side_unsettled: the notch
     side measured off the configured one, then off again in the frame turned to it (rad), when the configured
-    one was kept for it. tip_along: the tip between the end seen and the robot's length (tip.TipAlongTube);
+    one was kept for it; side_uncertainty: how well the side measured is known (rad; None: not measured).
+    tip_along: the tip between the end seen and the robot's length (tip.TipAlongTube);
     its uncertainty is the tip's then, and the end seen is what is judged against the robot's length.
     backbone_shift: how far alignment.level_by_backbone moved the axis (m; None or 0: no camera faced the
     backbone), which then places it along the views, not the slots' lean. unsupported: the stretches of s
@@ -438,8 +440,11 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
                         f"{then:+.0f} deg more in the frame turned to it: no consistent measurement, the configured "
                         "side is kept (check the robot's roll in its clamp)")
     if abs(side_off) > SIDE_OFF_DEG:
-        warnings.append(f"the notches open {side_off:+.0f} deg from the configured robot.notch_side: the robot "
-                        "is rolled in its clamp (measured side used)")
+        known = "" if side_uncertainty is None else f" (known to +-{math.degrees(side_uncertainty):.0f} deg)"
+        rolled = ("is rolled in its clamp" if side_uncertainty is None or abs(side_off) > math.degrees(side_uncertainty)
+                  else "may be rolled in its clamp: the offset is within what the side is known to")
+        warnings.append(f"the notches open {side_off:+.0f} deg from the configured robot.notch_side{known}: the robot "
+                        f"{rolled} (measured side used)")
     if footprint > FOOTPRINT_RADIUS_FRACTION * r_o:
         warnings.append(f"a depth pixel covers {footprint * 1e3:.2f} mm, the tube is only "
                         f"{diameter / footprint:.0f} px across: expect errors above 0.1 mm (move the cameras "
