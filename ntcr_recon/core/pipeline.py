@@ -177,11 +177,10 @@ class Reconstructor:
                 self._edge_bands[name] = angle
         return self._edge_bands.get(name, np.nan)
 
-    def _edge_reach(self, footprint: float, centerline: Centerline) -> float:
-        """How far (m) round the tube the cameras' matchers move a depth edge on it: their edge bands measured in
-        the depth images, at their distances from the robot's base (the mean over the cameras); without one, half
-        a matcher's window (SILHOUETTE_MARGIN_PX pixel footprints)."""
-        bands = np.array([self._edge_band(name) for name in self.config.camera_names])
+    def _edge_reach(self, bands: np.ndarray, footprint: float, centerline: Centerline) -> float:
+        """How far (m) round the tube the cameras' matchers move a depth edge on it: their edge bands (per camera,
+        `_edge_band`) at their distances from the robot's base (the mean over the cameras that measured one);
+        without one, half a matcher's window (SILHOUETTE_MARGIN_PX pixel footprints)."""
         distances = np.linalg.norm(self._camera_origins - centerline.points[0], axis=1)
         measured = np.isfinite(bands)
         if not np.any(measured):
@@ -265,6 +264,9 @@ class Reconstructor:
         # the robot's roll in its clamp is never exact: the side the notches open to, measured; where it is
         # off the configured one the tube frame turns to it and the notches are found again in that frame
         notch_side, unsettled, side_uncertainty = geometry.notch_side, None, None
+        # per camera the band its matcher spoils at depth edges (an angle; NaN: not measured): what smears a notch
+        # window's edge round the tube, and what the tip's rim refinement gives back
+        bands = np.array([self._edge_band(name) for name in self.config.camera_names])
         configured = centerline, coords, rays, measured, found, frames
         for turn in range(2):  # the second pass measures in the turned frame (the window fits better there)
             # a dip is found where the comb puts it, not where its cut opens: no evidence of the side
@@ -275,7 +277,7 @@ class Reconstructor:
                 break
             roll, side_uncertainty, by_edges = side_measured
             if not by_edges:  # one edge or none placed the window: the matcher's smear of it is not cancelled
-                side_uncertainty += self._edge_reach(footprint, centerline) / geometry.outer_radius
+                side_uncertainty += self._edge_reach(bands, footprint, centerline) / geometry.outer_radius
             if abs(roll) <= ROLL_TO_REFRAME:
                 notch_side += roll  # reported as measured; too small a turn to find the notches again for
                 break
@@ -315,7 +317,6 @@ class Reconstructor:
             # edges, measured in its depth images, as far as it reaches into the end's outline in its image
             # (where the end turns towards a camera, the cap makes that outline; core.tip)
             intervals = np.array([(n.start_s - 2 * footprint, n.end_s + 2 * footprint) for n in notches])
-            bands = np.array([self._edge_band(name) for name in self.config.camera_names])
             rim = rim_tip(coords, seen_by, self._camera_origins, centerline, tip_s, geometry.outer_radius,
                           settings.gate, footprint, options.notch_kernel_px * footprint, bands,
                           ~inside_intervals(coords.s, intervals), 2 * geometry.notch_pitch,
