@@ -53,7 +53,9 @@ def test_notch_side_of_a_rolled_robot_is_measured_within_a_degree(roll_deg):
     print(f"\nnotches open {roll_deg:+.1f} deg from the configured side: measured {math.degrees(measured.roll):+.2f} "
           f"+- {math.degrees(measured.uncertainty):.2f} deg")
     assert abs(math.degrees(measured.roll) - roll_deg) <= 1.0
-    assert measured.by_edges and math.degrees(measured.uncertainty) <= 2.0  # both window edges placed it
+    # both window edges placed it, each between two sectors' centres: known to half a 10-deg sector, not to the
+    # degree this exact wall gives (on rendered scenes both edges agreed within 1-2 deg and the side was 3-4 off)
+    assert measured.by_edges and math.degrees(measured.uncertainty) == pytest.approx(5.0)
 
 
 def test_notch_side_is_not_claimed_when_no_notch_edge_is_seen():

@@ -356,8 +356,8 @@ def _measure(gaps: list[tuple[float, float]], indices: list[int], signals: list[
 
 class SideMeasurement(NamedTuple):
     roll: float         # rad, how far the notches open from the frame's x axis (the configured side)
-    uncertainty: float  # rad: half the spread of the window's two edges where both placed it, else half the
-                        # range of sides the sectors allow alike, plus half a sector
+    uncertainty: float  # rad: half the spread of the window's two edges where both placed it (never under half a
+                        # sector), else half the range of sides the sectors allow alike, plus half a sector
     by_edges: bool = False  # both window edges placed it (the matcher's smear of each edge cancels in their mean)
 
 
@@ -404,8 +404,10 @@ def measure_notch_side(observed: TubeCoordinates, notches: list[Notch], geometry
     located = _window_edges(ratio, seen, centres, width, side, geometry.gap_half_angle, outside)
     if located:
         low, high = allowed[0] - width / 2, allowed[1] + width / 2  # what the sectors allow
+        # the edges' spread shows a matcher smearing them unevenly inwards, not one edge smeared in and the other
+        # out (which shifts both alike): each edge is placed between two sectors' centres, to half a sector
         return SideMeasurement(float(np.clip(np.mean(located), low, high)),
-                               max(abs(located[0] - located[1]) / 2, np.radians(1.0)), by_edges=True)
+                               max(abs(located[0] - located[1]) / 2, width / 2), by_edges=True)
     # an edge that falls where nothing is seen: the sectors at the border of what is seen (grazing views thin
     # the wall there unevenly, which reads as the window's edge) may have placed the window; judged without
     # them as well, the smaller turn of the two stands (a side no edge placed moves no further than it must)
