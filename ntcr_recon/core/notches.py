@@ -358,7 +358,7 @@ class SideMeasurement(NamedTuple):
     roll: float         # rad, how far the notches open from the frame's x axis (the configured side)
     uncertainty: float  # rad: half the spread of the window's two edges where both placed it (never under half a
                         # sector), else half the range of sides the sectors allow alike, plus half a sector
-    by_edges: bool = False  # both window edges placed it (the matcher's smear of each edge cancels in their mean)
+    by_edges: bool = False  # both window edges placed it (a matcher's even smear of the two cancels in their mean)
 
 
 def measure_notch_side(observed: TubeCoordinates, notches: list[Notch], geometry: TubeGeometry, centerline: Centerline,
