@@ -19,6 +19,7 @@ from ntcr_recon.core.config import RelocationConfig
 from ntcr_recon.core.geometry import TubeGeometry
 from ntcr_recon.core.kinematics import TubeShape
 from ntcr_recon.core.notches import Notch, detect_notches
+from ntcr_recon.core.outline import outline_offset
 from ntcr_recon.core.quality import (
     assess,
     camera_coverage,
@@ -629,6 +630,29 @@ def test_cross_view_spread_is_how_far_each_camera_alone_puts_the_axis_across_its
     assert seen_edge_on.unsupported[0] == pytest.approx((margin, length - margin))
 
 
+def test_the_outline_check_finds_an_axis_moved_across_the_views_not_along_them():
+    """Opposed cameras at -y and +y see a straight tube's wall, each its own half: the middle of each camera's outline
+    (its points' extent along x, across its view) lies on the true axis; an axis 0.3 mm off along x lies 0.3 mm from
+    both middles, one 0.3 mm off along y (along the views) on them. Seen end-on (the cameras on the tube's axis) no
+    outline checks it; nor where the extent is not the tube's diameter (the wall's half cut away)."""
+    length = 30e-3
+    geometry, points, camera, viewpoints, centerline = opposed_cameras_on_a_straight_tube(length)
+
+    def offset(shift, kept=slice(None), at=viewpoints):
+        moved = Centerline.from_points(centerline.points + shift, np.array([0.0, 1.0, 0.0]), 0.1e-3)
+        coords, frames = moved.project_with_frames(points[kept])
+        return outline_offset(coords, frames, points[kept], at[kept], camera[kept], geometry, 0.8e-3, length)
+
+    on_axis, across, along = offset([0.0, 0.0, 0.0]), offset([0.3e-3, 0.0, 0.0]), offset([0.0, 0.3e-3, 0.0])
+    print(f"\noutline offset: axis on the tube {on_axis * 1e6:.1f} um, 0.3 mm across the views {across * 1e6:.1f} um, "
+          f"0.3 mm along them {along * 1e6:.1f} um")
+    assert on_axis < 10e-6 and along < 10e-6
+    assert across == pytest.approx(0.3e-3, abs=10e-6)
+    end_on = np.tile([0.0, 0.0, 0.12], (len(points), 1))
+    assert offset([0.3e-3, 0.0, 0.0], at=end_on) is None
+    assert offset([0.3e-3, 0.0, 0.0], kept=points[:, 0] > 0) is None
+
+
 def test_a_stretch_where_no_camera_sees_its_wall_facing_it_is_reported_unsupported():
     """Past s = 21 mm of a 30 mm tube, both cameras see only its wall edge-on (as where a matcher spoils every pixel
     whose window meets the background): the windows there hold no trusted point, and the stretch from 21 mm to the
@@ -1001,8 +1025,12 @@ def test_quality_gives_the_centreline_an_uncertainty_and_warns_above_its_floor()
     assert centerline_uncertainty(None, 0.05e-3) == pytest.approx(0.05e-3)
     assert centerline_uncertainty(0.06e-3, 0.04e-3, ("cam_a",)) == pytest.approx(0.1e-3)
     assert centerline_uncertainty(None, None) is None
+    # an axis the outline check found astray is known no better than its offset from the outlines' middles
+    assert centerline_uncertainty(0.06e-3, 0.08e-3, astray=0.5e-3) == pytest.approx(0.5e-3)
+    assert centerline_uncertainty(None, None, astray=0.5e-3) == pytest.approx(0.5e-3)
 
-    def assessed(spread, thinning, looking=(), at_end=None, held=None, cam_b_up_to=None, wall_level=None):
+    def assessed(spread, thinning, looking=(), at_end=None, held=None, cam_b_up_to=None, wall_level=None,
+                 outline=None):
         s, seen_by = np.linspace(0.0, 50e-3, 1000), np.zeros(1000, np.int8)
         if cam_b_up_to is not None:  # cam_a sees the whole tube, cam_b up to there
             s = np.concatenate([s, np.linspace(0.0, cam_b_up_to, 750)])
@@ -1012,7 +1040,7 @@ def test_quality_gives_the_centreline_an_uncertainty_and_warns_above_its_floor()
                       total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.0, notch_side=0.0, configured_side=0.0,
                       bias_notch_side=0.1e-3, bias_binormal=0.0, depth_steps={}, notched_thinning=thinning,
                       looking_into_slots=looking, cross_view_spread=spread, distal_cross_view=at_end,
-                      held_shift=held)
+                      held_shift=held, outline_offset=outline)
 
     quality, warnings = assessed(0.06e-3, 0.08e-3)
     print("\n" + "\n".join(warnings))
@@ -1063,6 +1091,17 @@ def test_quality_gives_the_centreline_an_uncertainty_and_warns_above_its_floor()
     # both cameras seeing the whole tube, the level adds nothing
     both_quality, _ = assessed(0.03e-3, 0.04e-3, cam_b_up_to=50e-3, wall_level=-0.16e-3)
     assert both_quality["centerline_uncertainty_mm"] == pytest.approx(0.05)
+    # the axis 1.25 footprints from the middle of the tube's outline is within what a sound one shows: reported, no
+    # more; 2.5 footprints (0.5 mm) away it went astray with the wall it rests on, and is known no better than that
+    sound_quality, sound = assessed(0.03e-3, 0.04e-3, outline=0.25e-3)
+    assert sound_quality["centerline_outline_offset_mm"] == pytest.approx(0.25)
+    assert sound_quality["centerline_uncertainty_mm"] == pytest.approx(0.05)
+    assert not any(warning.startswith("the centreline is uncertain") for warning in sound)
+    astray_quality, astray = assessed(0.03e-3, 0.04e-3, outline=0.5e-3)
+    print("\n".join(w for w in astray if w.startswith("the centreline")))
+    assert astray_quality["centerline_uncertainty_mm"] == pytest.approx(0.5)
+    assert any(warning.startswith("the centreline is uncertain by about 0.50 mm") and "the axis lies 0.50 mm (RMS) "
+               "from the middle of the tube's outline in the cameras' views, 2.5 px" in warning for warning in astray)
 
 
 def test_a_camera_looks_into_the_slots_when_its_line_of_sight_through_them_meets_their_floor():

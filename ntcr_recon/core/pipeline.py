@@ -43,6 +43,7 @@ from ntcr_recon.core.filters import filter_cloud
 from ntcr_recon.core.fusion import FramePair, fuse
 from ntcr_recon.core.icp import icp, mesh_reference, posed_reference, relocate_onto_reference
 from ntcr_recon.core.notches import Notch, calibrate_and_check, detect_notches, measure_notch_side, spine_wall
+from ntcr_recon.core.outline import outline_offset
 from ntcr_recon.core.quality import (
     assess,
     camera_reach,
@@ -225,7 +226,7 @@ class Reconstructor:
         # would shift the curve once more, and results would depend on what came before)
         fitted = centerline
         # 2. alignment: the reference tube shifted onto the wall points stereo measures without bias
-        alignment, cross_view, backbone_shift = None, CrossView(None), None
+        alignment, cross_view, backbone_shift, outline = None, CrossView(None), None, None
         if viewpoints is not None:
             end = tube_end(coords, geometry.outer_radius, settings.gate, footprint, max_s=geometry.reach)
             # trusted wall lies within the wall's band on the spines: the fit's gate, a millimetre wide, lets in
@@ -245,6 +246,8 @@ class Reconstructor:
             # what each camera alone says about the axis across its view: the fused axis is known no better
             cross_view = cross_view_spread(centerline, coords, frames, viewpoints, seen_by,
                                            len(self._camera_origins), geometry, trusted_gate, footprint, end)
+            # the axis against the middle of the tube's outline in each camera's view (depth errors lie along the rays)
+            outline = outline_offset(coords, frames, cloud.xyz, viewpoints, seen_by, geometry, settings.gate, end)
         # each point as its camera saw it: along its viewing ray onto the wall (core.relocation)
         rays = None if viewpoints is None else along_rays(coords, frames, viewpoints, geometry.outer_radius,
                                                           settings.gate)
@@ -381,7 +384,7 @@ class Reconstructor:
             crop_box=self.config.crop_box(),
             notched_thinning=thinning, looking_into_slots=looking, tip_from_cap=from_cap, side_unsettled=unsettled,
             side_uncertainty=side_uncertainty,
-            cross_view_spread=cross_view.spread, distal_cross_view=cross_view.distal,
+            cross_view_spread=cross_view.spread, distal_cross_view=cross_view.distal, outline_offset=outline,
             unsupported=cross_view.unsupported, backbone_shift=backbone_shift, misread_widths=misread,
             held_shift=None if alignment is None else (alignment.end_shift, alignment.held_from),
             unchecked=unchecked, reach=camera_reach(

@@ -9,7 +9,8 @@ length, the pixel footprint against the tube, the depth quantisation seen in the
 against the width its measured bend implies (and the notches it could not be checked for), how far the tip's
 position rests on the rim erosion given back (and, across the tube, on the alignment's last shift held to it),
 how much deeper the wall reads between the notches than on the plain tube (a lean no fit can see), and the
-stretches where no camera saw the wall facing it (where the centreline's error was not measured). Every figure
+stretches where no camera saw the wall facing it (where the centreline's error was not measured), and how far the
+axis lies from the middle of the tube's outline in the cameras' views (core.outline). Every figure
 is in the unit its key names; the warnings are sentences a user can act on. relocation_node puts them on
 /diagnostics, the CLI prints them.
 """
@@ -23,6 +24,7 @@ import numpy as np
 from scipy.ndimage import uniform_filter1d
 
 from ntcr_recon.core.comb import expected_centres, inside_intervals
+from ntcr_recon.core.outline import OUTLINE_TOLERANCE_PX
 from ntcr_recon.core.tip import LENGTH_AGREEMENT_SIGMAS
 from ntcr_recon.core.wall import median, surface_band
 
@@ -271,7 +273,8 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
            notched_thinning: float | None = None, looking_into_slots: tuple[str, ...] = (),
            tip_from_cap: bool = False, side_unsettled: tuple[float, float] | None = None,
            side_uncertainty: float | None = None,
-           cross_view_spread: float | None = None, distal_cross_view: float | None = None, tip_along=None,
+           cross_view_spread: float | None = None, distal_cross_view: float | None = None,
+           outline_offset: float | None = None, tip_along=None,
            backbone_shift: float | None = None, held_shift: tuple[float, float] | None = None,
            unsupported: tuple[tuple[float, float], ...] = (),
            misread_widths: dict[int, float] | None = None, unchecked: list[int] | None = None,
@@ -299,7 +302,9 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     comes to each camera, to name a camera too near a stretch it did not see (CameraReach). notch_centres: the
     comb's notch centres along s (comb.expected_centres), to say where the missing notches lie. wall_level: the
     outer wall's level about the r_o circle (m, wall.surface_band of all points), on which the axis rests where
-    one camera alone saw the tube (centerline_uncertainty)."""
+    one camera alone saw the tube (centerline_uncertainty). outline_offset: how far the axis lies from the middle
+    of the tube's outline in the cameras' views (m, RMS; outline.outline_offset): beyond OUTLINE_TOLERANCE_PX
+    footprints the axis went astray with the wall it rests on, and is known no better than that."""
     warnings: list[str] = []
     r_o, diameter = geometry.outer_radius, geometry.outer_diameter
     found = sorted(n.index for n in notches)
@@ -373,8 +378,10 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     # (the share of the length one camera alone saw, the wall's level the axis rests on there), when both are known
     resting_on_level = ((min(sum(one_sided.values()) / max(seen_end, cell), 1.0), wall_level)
                         if one_sided and wall_level is not None else None)
+    astray = (outline_offset if outline_offset is not None and outline_offset > OUTLINE_TOLERANCE_PX * footprint
+              else None)
     uncertainty = centerline_uncertainty(cross_view_spread, notched_thinning, looking_into_slots, levelled,
-                                         one_sided=resting_on_level)
+                                         one_sided=resting_on_level, astray=astray)
     # the tip sits on the centreline's free end, where an error growing along the tube is sqrt(3) its RMS, with
     # the shift the alignment measured last and held unchecked to the tip (the fit's lean it corrected there may
     # differ beyond); and where the cameras disagree in the last window, their own axes' distance apart
@@ -458,7 +465,11 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
                         f"{abs(bias_notch_side) * 1e3:.2f} mm of lean towards the notch side was removed"
                         + (f"; over the distal {sum(one_sided.values()) * 1e3:.0f} mm seen by one camera alone, the "
                            f"wall's level ({wall_level * 1e3:+.2f} mm, the flattening of the views) places the axis "
-                           "along that camera's view, and no second view checked it" if resting_on_level else ""))
+                           "along that camera's view, and no second view checked it" if resting_on_level else "")
+                        + (f"; the axis lies {astray * 1e3:.2f} mm (RMS) from the middle of the tube's outline in "
+                           f"the cameras' views, {astray / footprint:.1f} px where a sound one lies within "
+                           f"{OUTLINE_TOLERANCE_PX:g}: the fit and the alignment followed a wall stereo moved that far"
+                           if astray is not None else ""))
     if unsupported:
         listed = ", ".join(f"{start * 1e3:.0f}-{end * 1e3:.0f}" for start, end in unsupported)
         to_tip = " (and the tip with it)" if unsupported[-1][1] >= tip_s - geometry.notch_pitch else ""
@@ -498,6 +509,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
         "cameras_looking_into_slots": list(looking_into_slots),
         "centerline_cross_view_mm": None if cross_view_spread is None else cross_view_spread * 1e3,
         "centerline_cross_view_at_tip_mm": None if distal_cross_view is None else distal_cross_view * 1e3,
+        "centerline_outline_offset_mm": None if outline_offset is None else outline_offset * 1e3,
         "centerline_uncertainty_mm": None if uncertainty is None else uncertainty * 1e3,
         "centerline_unsupported_mm": [[start * 1e3, end * 1e3] for start, end in unsupported],
         # per camera the nearest depth it returned, and the tube seen's nearest to it (its surface, optical axis)
@@ -510,7 +522,8 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
 
 def centerline_uncertainty(cross_view_spread: float | None, notched_thinning: float | None,
                            looking_into_slots: tuple[str, ...] = (), levelled: bool = False,
-                           one_sided: tuple[float, float] | None = None) -> float | None:
+                           one_sided: tuple[float, float] | None = None, astray: float | None = None
+                           ) -> float | None:
     """How far the centreline may be off (m), from what the data show of stereo's bias beside the notches;
     None when neither could be measured.
 
@@ -523,13 +536,15 @@ def centerline_uncertainty(cross_view_spread: float | None, notched_thinning: fl
     seen by one camera alone, the outer wall's level about the r_o circle, m): there the axis along that camera's
     view rests on the level the fit gives its one side, which no second view checks and which stereo's
     flattening changes with distance and view angle by up to the level itself: that much again over that share.
-    The three are orthogonal: added in quadrature (the share as weight, as the RMS over the length).
+    The three are orthogonal: added in quadrature (the share as weight, as the RMS over the length). astray:
+    how far the axis lies from the middle of the tube's outline where that shows it went astray (m): the wall
+    the three are measured on moved with it, and the axis is known no better than that.
     """
     if cross_view_spread is None and notched_thinning is None:
-        return None
+        return astray
     along_views = (2.0 if looking_into_slots and not levelled else 1.0) * (notched_thinning or 0.0)
     share, level = one_sided if one_sided is not None else (0.0, 0.0)
-    return float(np.sqrt((cross_view_spread or 0.0) ** 2 + along_views ** 2 + share * level ** 2))
+    return max(float(np.sqrt((cross_view_spread or 0.0) ** 2 + along_views ** 2 + share * level ** 2)), astray or 0.0)
 
 
 def _nearest_box_face(point: np.ndarray, box: tuple[np.ndarray, np.ndarray]) -> tuple[int, float, float]:
