@@ -41,6 +41,13 @@ def test_a_row_that_misses_says_so():
     print("\n" + accuracy_matrix.format_row(figures) + "\n" + "\n".join(figures["warnings"]))
     assert figures["misses"], "this row was expected to miss a floor; if it no longer does, pick another"
     assert any("quantised in 1 mm steps" in warning for warning in figures["warnings"])
+    # the alignment followed the quantised wall across the views (0.41 mm off); the fit, which the outline bears
+    # out, places the axis across them instead (0.20 mm off), and the error stays within what the result states
+    moved = [warning for warning in figures["warnings"] if warning.startswith("the alignment moved the axis")]
+    assert moved, "the alignment was expected to go astray from the outline here"
+    astray = float(moved[0].split("moved the axis ")[1].split(" mm")[0]) * 1e-3
+    assert figures["centerline"] < 0.6 * astray
+    assert figures["centerline"] <= figures["stated"]["centerline"]
 
 
 def test_a_camera_looking_into_the_notches_from_afar_is_overruled_by_the_one_facing_the_backbone():

@@ -19,7 +19,7 @@ from ntcr_recon.core.config import RelocationConfig
 from ntcr_recon.core.geometry import TubeGeometry
 from ntcr_recon.core.kinematics import TubeShape
 from ntcr_recon.core.notches import Notch, detect_notches
-from ntcr_recon.core.outline import outline_offset
+from ntcr_recon.core.outline import across_views_from, outline_offset
 from ntcr_recon.core.quality import (
     assess,
     camera_coverage,
@@ -653,6 +653,28 @@ def test_the_outline_check_finds_an_axis_moved_across_the_views_not_along_them()
     assert offset([0.3e-3, 0.0, 0.0], kept=points[:, 0] > 0) is None
 
 
+def test_the_fit_places_the_axis_across_the_views_and_the_alignment_along_them():
+    """A straight axis along z and a reference 0.2 mm off it along x, 0.1 mm along y. Opposed cameras at -y and +y
+    (both views along y, across them x): the axis takes the reference's x and keeps its own y, and the alignment
+    moved to it reports that move as its lean and its end's move. Cameras at -y and +x (views 90 deg apart): what
+    is along one view is across the other, and the axis takes the reference's place whole."""
+    z = np.linspace(0.0, 30e-3, 301)
+    axis = Centerline.from_points(np.stack([0 * z, 0 * z, z], axis=1), np.array([0.0, 1.0, 0.0]), 0.1e-3)
+    offset = np.array([0.2e-3, 0.1e-3, 0.0])
+    reference = Centerline.from_points(axis.points + offset, np.array([0.0, 1.0, 0.0]), 0.1e-3)
+    opposed = across_views_from(reference, axis, np.array([[0.0, -0.09, 15e-3], [0.0, 0.09, 15e-3]]))
+    crossed = across_views_from(reference, axis, np.array([[0.0, -0.09, 15e-3], [0.09, 0.0, 15e-3]]))
+    print(f"\nmoved by (um): opposed cameras {np.round(np.mean(opposed.points - axis.points, axis=0) * 1e6, 2)}, "
+          f"cameras 90 deg apart {np.round(np.mean(crossed.points - axis.points, axis=0) * 1e6, 2)}")
+    np.testing.assert_allclose(opposed.points - axis.points, np.tile([0.2e-3, 0.0, 0.0], (len(axis.s), 1)),
+                               atol=1e-9)
+    np.testing.assert_allclose(crossed.points - axis.points, np.tile(offset, (len(axis.s), 1)), atol=1e-9)
+    moved = alignment.Alignment(axis, 0.0, 0.0, 0).moved_to(opposed, axis)
+    assert moved.centerline is opposed and moved.end_shift == pytest.approx(0.2e-3)
+    # the axis's normal (towards the notch side) is x here: the fit leaned 0.2 mm away from it
+    assert moved.bias_notch_side == pytest.approx(-0.2e-3) and moved.bias_binormal == pytest.approx(0.0, abs=1e-12)
+
+
 def test_a_stretch_where_no_camera_sees_its_wall_facing_it_is_reported_unsupported():
     """Past s = 21 mm of a 30 mm tube, both cameras see only its wall edge-on (as where a matcher spoils every pixel
     whose window meets the background): the windows there hold no trusted point, and the stretch from 21 mm to the
@@ -1030,7 +1052,7 @@ def test_quality_gives_the_centreline_an_uncertainty_and_warns_above_its_floor()
     assert centerline_uncertainty(None, None, astray=0.5e-3) == pytest.approx(0.5e-3)
 
     def assessed(spread, thinning, looking=(), at_end=None, held=None, cam_b_up_to=None, wall_level=None,
-                 outline=None):
+                 outline=None, across_from_fit=None):
         s, seen_by = np.linspace(0.0, 50e-3, 1000), np.zeros(1000, np.int8)
         if cam_b_up_to is not None:  # cam_a sees the whole tube, cam_b up to there
             s = np.concatenate([s, np.linspace(0.0, cam_b_up_to, 750)])
@@ -1040,7 +1062,7 @@ def test_quality_gives_the_centreline_an_uncertainty_and_warns_above_its_floor()
                       total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.0, notch_side=0.0, configured_side=0.0,
                       bias_notch_side=0.1e-3, bias_binormal=0.0, depth_steps={}, notched_thinning=thinning,
                       looking_into_slots=looking, cross_view_spread=spread, distal_cross_view=at_end,
-                      held_shift=held, outline_offset=outline)
+                      held_shift=held, outline_offset=outline, across_from_fit=across_from_fit)
 
     quality, warnings = assessed(0.06e-3, 0.08e-3)
     print("\n" + "\n".join(warnings))
@@ -1102,6 +1124,16 @@ def test_quality_gives_the_centreline_an_uncertainty_and_warns_above_its_floor()
     assert astray_quality["centerline_uncertainty_mm"] == pytest.approx(0.5)
     assert any(warning.startswith("the centreline is uncertain by about 0.50 mm") and "the axis lies 0.50 mm (RMS) "
                "from the middle of the tube's outline in the cameras' views, 2.5 px" in warning for warning in astray)
+    # the alignment astray (2.5 px) and the fit not (0.5 px): the fit placed the axis across the views, and the
+    # result says so; the axis it gave (0.25 mm from the outline) is within what a sound one shows
+    replaced_quality, replaced = assessed(0.03e-3, 0.04e-3, outline=0.25e-3, across_from_fit=(0.5e-3, 0.1e-3))
+    assert replaced_quality["centerline_aligned_outline_offset_mm"] == pytest.approx(0.5)
+    assert sound_quality["centerline_aligned_outline_offset_mm"] is None
+    assert replaced_quality["centerline_uncertainty_mm"] == pytest.approx(0.05)
+    assert any(warning.startswith("the alignment moved the axis 0.50 mm (RMS) from the middle of the tube's outline")
+               and "(2.5 px, where a sound axis lies within 1.5)" in warning and "the axis is the fit's, which lies "
+               "0.5 px from that middle" in warning for warning in replaced)
+    assert not any(warning.startswith("the alignment moved the axis") for warning in sound)
 
 
 def test_a_camera_looks_into_the_slots_when_its_line_of_sight_through_them_meets_their_floor():

@@ -28,6 +28,7 @@ moved. The fit's lean towards the notch side (minus the mean shift) is reported 
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -72,6 +73,16 @@ class Alignment:
     # lean: the shift there is held to the tube's end, and end_shift (m) is how far it moved the end
     held_from: float | None = None
     end_shift: float = 0.0
+
+    def moved_to(self, centerline: Centerline, fit: Centerline) -> Alignment:
+        """This alignment with its axis replaced by `centerline` (outline.across_views_from): the lean removed and
+        the end's move as that axis has them against the fit (the lean: the mean shift over its samples)."""
+        position, _, normal, binormal = fit.frames_at(centerline.s)
+        shift = centerline.points - position
+        return dataclasses.replace(self, centerline=centerline,
+                                   bias_notch_side=-float(np.mean(np.einsum("ij,ij->i", shift, normal))),
+                                   bias_binormal=-float(np.mean(np.einsum("ij,ij->i", shift, binormal))),
+                                   end_shift=float(np.linalg.norm(shift[-1])))
 
 
 @jit

@@ -8,13 +8,18 @@ tube's diameter, centred on the axis whatever their depth: its middle is a secon
 the view. It is coarser than the wall's depth (edge pixels are mixed with the background; a cut at the outline
 narrows it): on a sound axis its RMS offset stays within a pixel footprint. It is used as a check, not to place
 the axis: an axis further from it than OUTLINE_TOLERANCE_PX footprints went astray by about that much.
+
+The alignment rests on the wall facing each camera, which places the axis across the view only by the wall's
+slope (weakly: the facing points lie within about 25 deg of the line of sight); the fit's circles rest on the whole
+wall seen, its sides included. Where the aligned axis went astray and the fit did not, the fit's placement across
+the views is taken (across_views_from), and the alignment's along them kept.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ntcr_recon.core.centerline import TubeCoordinates
+from ntcr_recon.core.centerline import Centerline, TubeCoordinates
 from ntcr_recon.core.compiled import jit
 from ntcr_recon.core.geometry import TubeGeometry
 
@@ -33,6 +38,40 @@ WIDTH_TOLERANCE_RADII = 0.5
 
 # The tube lies across a camera's view where its axis is at least this far from the camera's line of sight.
 LEAST_CROSSING = np.radians(45.0)
+
+
+# A camera adds its direction across its view to those of the cameras before it when that direction lies more than
+# 30 deg from theirs (opposed cameras share one: their views' depth stays the alignment's).
+LEAST_NEW_DIRECTION = np.sin(np.radians(30.0))
+
+
+def went_astray(offset: float | None, footprint: float) -> bool:
+    """Whether an axis whose outline offset (m, outline_offset) is `offset` went astray."""
+    return offset is not None and offset > OUTLINE_TOLERANCE_PX * footprint
+
+
+def across_views_from(reference: Centerline, centerline: Centerline, origins: np.ndarray) -> Centerline:
+    """The centreline placed across the cameras' views where the reference is, and left along them where it was.
+
+    Per sample, its offset to the reference's point at the same s is projected onto the directions across the
+    cameras' views (tangent x the direction to the camera, orthonormalised in the cameras' order; LEAST_NEW_DIRECTION)
+    and added. origins: the cameras' optical centres."""
+    points, tangents = centerline.points, centerline.tangents
+    offset = reference.frames_at(centerline.s)[0] - points
+    basis: list[np.ndarray] = []
+    moved = np.zeros_like(points)
+    for origin in np.asarray(origins, float):
+        view = origin - points
+        view -= tangents * np.einsum("ij,ij->i", view, tangents)[:, None]
+        across = np.cross(tangents, view / np.maximum(np.linalg.norm(view, axis=1), 1e-12)[:, None])
+        for direction in basis:
+            across -= direction * np.einsum("ij,ij->i", across, direction)[:, None]
+        length = np.linalg.norm(across, axis=1)
+        across = np.where((length > LEAST_NEW_DIRECTION)[:, None], across / np.maximum(length, 1e-12)[:, None], 0.0)
+        basis.append(across)
+        moved += across * np.einsum("ij,ij->i", offset, across)[:, None]
+    step = float(centerline.s[1] - centerline.s[0])
+    return Centerline.from_points(points + moved, centerline.binormals[0], step)
 
 
 def outline_offset(coords: TubeCoordinates, frames: tuple, xyz: np.ndarray, viewpoints: np.ndarray,

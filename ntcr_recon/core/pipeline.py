@@ -43,7 +43,7 @@ from ntcr_recon.core.filters import filter_cloud
 from ntcr_recon.core.fusion import FramePair, fuse
 from ntcr_recon.core.icp import icp, mesh_reference, posed_reference, relocate_onto_reference
 from ntcr_recon.core.notches import Notch, calibrate_and_check, detect_notches, measure_notch_side, spine_wall
-from ntcr_recon.core.outline import outline_offset
+from ntcr_recon.core.outline import across_views_from, outline_offset, went_astray
 from ntcr_recon.core.quality import (
     assess,
     camera_reach,
@@ -226,7 +226,7 @@ class Reconstructor:
         # would shift the curve once more, and results would depend on what came before)
         fitted = centerline
         # 2. alignment: the reference tube shifted onto the wall points stereo measures without bias
-        alignment, cross_view, backbone_shift, outline = None, CrossView(None), None, None
+        alignment, cross_view, backbone_shift, outline, across_from_fit = None, CrossView(None), None, None, None
         if viewpoints is not None:
             end = tube_end(coords, geometry.outer_radius, settings.gate, footprint, max_s=geometry.reach)
             # trusted wall lies within the wall's band on the spines: the fit's gate, a millimetre wide, lets in
@@ -235,8 +235,20 @@ class Reconstructor:
             # which points face their camera depends on where the axis is: selected again about the moved axis
             alignment = align_to_trusted_wall(centerline, coords, frames, viewpoints, geometry, trusted_gate,
                                               footprint, end, xyz=cloud.xyz, passes=ALIGNMENT_PASSES)
+            fit_projection = coords, frames
             centerline = alignment.centerline
             coords, frames = centerline.project_with_frames(cloud.xyz, alignment.arc_lengths)
+            # the alignment against the middle of the tube's outline in each camera's view: where it followed a wall
+            # stereo moved across the views and the fit did not, the fit places the axis across them (core.outline)
+            outline_of = functools.partial(outline_offset, xyz=cloud.xyz, viewpoints=viewpoints, camera=seen_by,
+                                           geometry=geometry, gate=settings.gate, end_s=end)
+            aligned_outline = outline_of(coords, frames)
+            fit_outline = outline_of(*fit_projection) if went_astray(aligned_outline, footprint) else None
+            if fit_outline is not None and not went_astray(fit_outline, footprint):
+                centerline = across_views_from(fitted, centerline, self._camera_origins)
+                alignment = alignment.moved_to(centerline, fitted)
+                coords, frames = centerline.project_with_frames(cloud.xyz, coords.s)
+                across_from_fit = aligned_outline, fit_outline
             # the cameras facing the backbone place the axis along their views by the plain tube's level
             leveled, backbone_shift = level_by_backbone(centerline, coords, frames, viewpoints, seen_by,
                                                         self._camera_origins, geometry, trusted_gate, footprint, end)
@@ -247,7 +259,7 @@ class Reconstructor:
             cross_view = cross_view_spread(centerline, coords, frames, viewpoints, seen_by,
                                            len(self._camera_origins), geometry, trusted_gate, footprint, end)
             # the axis against the middle of the tube's outline in each camera's view (depth errors lie along the rays)
-            outline = outline_offset(coords, frames, cloud.xyz, viewpoints, seen_by, geometry, settings.gate, end)
+            outline = outline_of(coords, frames)
         # each point as its camera saw it: along its viewing ray onto the wall (core.relocation)
         rays = None if viewpoints is None else along_rays(coords, frames, viewpoints, geometry.outer_radius,
                                                           settings.gate)
@@ -385,6 +397,7 @@ class Reconstructor:
             notched_thinning=thinning, looking_into_slots=looking, tip_from_cap=from_cap, side_unsettled=unsettled,
             side_uncertainty=side_uncertainty,
             cross_view_spread=cross_view.spread, distal_cross_view=cross_view.distal, outline_offset=outline,
+            across_from_fit=across_from_fit,
             unsupported=cross_view.unsupported, backbone_shift=backbone_shift, misread_widths=misread,
             held_shift=None if alignment is None else (alignment.end_shift, alignment.held_from),
             unchecked=unchecked, reach=camera_reach(

@@ -274,7 +274,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
            tip_from_cap: bool = False, side_unsettled: tuple[float, float] | None = None,
            side_uncertainty: float | None = None,
            cross_view_spread: float | None = None, distal_cross_view: float | None = None,
-           outline_offset: float | None = None, tip_along=None,
+           outline_offset: float | None = None, across_from_fit: tuple[float, float] | None = None, tip_along=None,
            backbone_shift: float | None = None, held_shift: tuple[float, float] | None = None,
            unsupported: tuple[tuple[float, float], ...] = (),
            misread_widths: dict[int, float] | None = None, unchecked: list[int] | None = None,
@@ -304,7 +304,9 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     outer wall's level about the r_o circle (m, wall.surface_band of all points), on which the axis rests where
     one camera alone saw the tube (centerline_uncertainty). outline_offset: how far the axis lies from the middle
     of the tube's outline in the cameras' views (m, RMS; outline.outline_offset): beyond OUTLINE_TOLERANCE_PX
-    footprints the axis went astray with the wall it rests on, and is known no better than that."""
+    footprints the axis went astray with the wall it rests on, and is known no better than that. across_from_fit:
+    (the aligned axis's outline offset, the fit's; m) when the alignment went astray, the fit did not, and the fit
+    placed the axis across the cameras' views (outline.across_views_from)."""
     warnings: list[str] = []
     r_o, diameter = geometry.outer_radius, geometry.outer_diameter
     found = sorted(n.index for n in notches)
@@ -470,6 +472,12 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
                            f"the cameras' views, {astray / footprint:.1f} px where a sound one lies within "
                            f"{OUTLINE_TOLERANCE_PX:g}: the fit and the alignment followed a wall stereo moved that far"
                            if astray is not None else ""))
+    if across_from_fit is not None:
+        aligned, fit = across_from_fit
+        warnings.append(f"the alignment moved the axis {aligned * 1e3:.2f} mm (RMS) from the middle of the tube's "
+                        f"outline in the cameras' views ({aligned / footprint:.1f} px, where a sound axis lies within "
+                        f"{OUTLINE_TOLERANCE_PX:g}): it followed a wall stereo moved across the views, and across them "
+                        f"the axis is the fit's, which lies {fit / footprint:.1f} px from that middle")
     if unsupported:
         listed = ", ".join(f"{start * 1e3:.0f}-{end * 1e3:.0f}" for start, end in unsupported)
         to_tip = " (and the tip with it)" if unsupported[-1][1] >= tip_s - geometry.notch_pitch else ""
@@ -510,6 +518,8 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
         "centerline_cross_view_mm": None if cross_view_spread is None else cross_view_spread * 1e3,
         "centerline_cross_view_at_tip_mm": None if distal_cross_view is None else distal_cross_view * 1e3,
         "centerline_outline_offset_mm": None if outline_offset is None else outline_offset * 1e3,
+        # the aligned axis's offset, when it went astray and the fit placed the axis across the views instead
+        "centerline_aligned_outline_offset_mm": None if across_from_fit is None else across_from_fit[0] * 1e3,
         "centerline_uncertainty_mm": None if uncertainty is None else uncertainty * 1e3,
         "centerline_unsupported_mm": [[start * 1e3, end * 1e3] for start, end in unsupported],
         # per camera the nearest depth it returned, and the tube seen's nearest to it (its surface, optical axis)
