@@ -24,7 +24,7 @@ import numpy as np
 from scipy.ndimage import uniform_filter1d
 
 from ntcr_recon.core.comb import expected_centres, inside_intervals
-from ntcr_recon.core.outline import OUTLINE_TOLERANCE_PX
+from ntcr_recon.core.outline import OUTLINE_TOLERANCE_PX, went_astray
 from ntcr_recon.core.tip import LENGTH_AGREEMENT_SIGMAS
 from ntcr_recon.core.wall import median, surface_band
 
@@ -380,8 +380,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     # (the share of the length one camera alone saw, the wall's level the axis rests on there), when both are known
     resting_on_level = ((min(sum(one_sided.values()) / max(seen_end, cell), 1.0), wall_level)
                         if one_sided and wall_level is not None else None)
-    astray = (outline_offset if outline_offset is not None and outline_offset > OUTLINE_TOLERANCE_PX * footprint
-              else None)
+    astray = outline_offset if went_astray(outline_offset, footprint) else None
     uncertainty = centerline_uncertainty(cross_view_spread, notched_thinning, looking_into_slots, levelled,
                                          one_sided=resting_on_level, astray=astray)
     # the tip sits on the centreline's free end, where an error growing along the tube is sqrt(3) its RMS, with
