@@ -166,7 +166,9 @@ def test_a_camera_whose_wall_stops_at_the_last_notch_is_not_heard_on_the_tip():
 def test_the_tip_weighs_the_end_seen_against_the_robots_known_length():
     """The end seen 0.2 mm past the robot's length, known to 0.2 and 0.1 mm: the tip lies between them, by their
     inverse variances (30.04 mm), known better than either (0.089 mm). 1 mm short, 4.5 combined uncertainties
-    off: they disagree, the end seen stands and the result says so; with no tolerance the length is not used."""
+    off: they disagree, the end seen stands and the result says so; with no tolerance the length is not used.
+    An end cap's points, which only ever lie short of the cap, are a lower bound: the length beyond them is the
+    tip."""
     agreed = with_known_length(30.2e-3, 0.2e-3, 30.0e-3, 0.1e-3)
     assert agreed.length_weighed
     assert agreed.s == pytest.approx(30.04e-3) and agreed.uncertainty == pytest.approx(1 / math.sqrt(125) * 1e-3)
@@ -176,15 +178,23 @@ def test_the_tip_weighs_the_end_seen_against_the_robots_known_length():
     assert apart.disagreement == pytest.approx(1.0 / math.hypot(0.2, 0.1))
     unknown = with_known_length(29.9e-3, 0.2e-3, 30.0e-3, None)
     assert not unknown.length_weighed and unknown.s == 29.9e-3
+    # an end cap's points the matcher only ever moved towards the base bound the tip from below: a length 0.3 mm
+    # beyond them is the tip, known as well as the length; a length short of them is weighed as any end seen
+    bounded = with_known_length(29.7e-3, 0.2e-3, 30.0e-3, 0.1e-3, lower_bound=True)
+    assert bounded.beyond_seen and bounded.length_weighed
+    assert bounded.s == 30.0e-3 and bounded.uncertainty == 0.1e-3 and bounded.seen_s == 29.7e-3
+    past = with_known_length(30.2e-3, 0.2e-3, 30.0e-3, 0.1e-3, lower_bound=True)
+    assert not past.beyond_seen and past.s == pytest.approx(agreed.s)
+    assert not with_known_length(29.0e-3, 0.2e-3, 30.0e-3, 0.1e-3, lower_bound=True).length_weighed  # disagree
 
     geometry = TubeGeometry()  # 53 mm straight
 
-    def warnings_for(along):
+    def warnings_for(along, **more):
         return assess(geometry=geometry, camera_names=("cam_a", "cam_b"), notches=[],
                       coords_s=np.linspace(0.0, along.s, 100), camera=np.arange(100) % 2, tip_s=along.s,
                       total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.0, notch_side=0.0, configured_side=0.0,
                       bias_notch_side=0.0, bias_binormal=0.0, depth_steps={}, tip_uncertainty=along.seen_uncertainty,
-                      tip_along=along)
+                      tip_along=along, **more)
 
     quality, warnings = warnings_for(with_known_length(52.0e-3, 0.2e-3, geometry.length, 0.1e-3))
     print("\n" + "\n".join(warnings))
@@ -193,6 +203,14 @@ def test_the_tip_weighs_the_end_seen_against_the_robots_known_length():
     quality, warnings = warnings_for(with_known_length(53.1e-3, 0.12e-3, geometry.length, 0.1e-3))
     assert quality["tip_length_weighed"] and quality["tip_s_mm"] == pytest.approx(53.041, abs=1e-3)
     assert not any("the end seen" in w or w.startswith("the tip") for w in warnings)
+    # the tip the robot's length beyond the cap's points: said so (0.1 mm along, with the centreline's 0.1 mm
+    # at the free end across, is over the tip's floor)
+    _, warnings = warnings_for(with_known_length(52.7e-3, 0.2e-3, geometry.length, 0.1e-3, lower_bound=True),
+                               tip_from_cap=True, cross_view_spread=0.1e-3)
+    print("\n".join(warnings))
+    assert any(w.startswith("the end cap's points stop 0.30 mm short of the robot's length at this bend (smeared "
+                            "over 0.20 mm") and "the tip is that length, uncertain by about 0.10 mm" in w
+               for w in warnings)
 
 
 @pytest.mark.parametrize("bend_deg, notch_side_deg, noise_at_90mm", [(30.0, 0.0, 2e-5), (40.0, 90.0, 2e-5),

@@ -367,7 +367,9 @@ class Reconstructor:
         total_bend = float(centerline.bend_angle(0.0, tip_s))
         length_known = None if geometry.length_tolerance is None else float(np.hypot(
             geometry.length_tolerance, geometry.neutral_axis_offset * centreline_off / geometry.notch_pitch))
-        along = with_known_length(tip_s, seen_uncertainty, geometry.bent_length(total_bend), length_known)
+        # the cap's points only ever lie short of it (the matcher mixes its ring with the bore behind): a lower bound
+        along = with_known_length(tip_s, seen_uncertainty, geometry.bent_length(total_bend), length_known,
+                                  lower_bound=from_cap)
         tip_erosion, tip_s = tip_s - eroded_end, along.s
         # the rims the matcher moves (over the cut faces the cameras see), against the spines' known length; a
         # notch whose width its bend rules out was misread, and is given its bend's

@@ -374,6 +374,7 @@ class TipAlongTube:
     expected_s: float           # the robot's length at its bend
     tolerance: float | None     # how well that length is known (None: not known)
     length_weighed: bool = False  # the robot's length was weighed in (the two agreed)
+    beyond_seen: bool = False     # the end seen bounds the tip from below, and the tip is the robot's length beyond it
 
     @property
     def disagreement(self) -> float:
@@ -384,13 +385,20 @@ class TipAlongTube:
 
 
 def with_known_length(seen_s: float, seen_uncertainty: float, expected_s: float,
-                      tolerance: float | None) -> TipAlongTube:
+                      tolerance: float | None, lower_bound: bool = False) -> TipAlongTube:
     """The tip along the tube: the end seen and the robot's length at its bend (`expected_s`, known to
     `tolerance`) weighed by their inverse variances, where they agree within LENGTH_AGREEMENT_SIGMAS of their
-    combined uncertainty; else (or with no tolerance) the end seen."""
+    combined uncertainty; else (or with no tolerance) the end seen.
+
+    lower_bound: the end seen is one the matcher only ever moved towards the base (an end cap whose ring it mixed
+    with the bore behind: end_cap_plane), so it says the tip lies no nearer the base; a length beyond it that
+    agrees is the tip, known as well as the length (the end seen says nothing more of it)."""
     seen = TipAlongTube(seen_s, seen_uncertainty, seen_s, seen_uncertainty, expected_s, tolerance)
     if tolerance is None or abs(seen.disagreement) > LENGTH_AGREEMENT_SIGMAS or seen_uncertainty <= 0.0:
         return seen
+    if lower_bound and expected_s >= seen_s:
+        return TipAlongTube(expected_s, tolerance, seen_s, seen_uncertainty, expected_s, tolerance,
+                            length_weighed=True, beyond_seen=True)
     weight_seen, weight_length = 1.0 / seen_uncertainty**2, 1.0 / tolerance**2
     s = (weight_seen * seen_s + weight_length * expected_s) / (weight_seen + weight_length)
     return TipAlongTube(float(s), float(1.0 / np.sqrt(weight_seen + weight_length)), seen_s, seen_uncertainty,
