@@ -23,7 +23,8 @@ configured robot, its centreline as long as the notch layout makes it, shortened
 (`TubeGeometry.bent_length`). `with_known_length` puts the tip between the end seen and that length, each
 weighed by its uncertainty, where the two agree within their uncertainties; where they do not, the end seen
 stands (a tube cut short by the view is not stretched, a mis-configured length does not move the tip) and the
-result says so.
+result says so. An end cap's plane only bounds the tip from below (the matcher moves the cap's points towards
+the base only): a length beyond it is the tip.
 """
 
 from __future__ import annotations
