@@ -399,16 +399,17 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
         why = "the centreline's, at its free end"
     across = f", and by {tip_across * 1e3:.2f} mm across it ({why})" if tip_across else ""
     tip_total = math.hypot(tip_uncertainty, tip_across)
-    if tip_total > TIP_FLOOR and tip_from_cap and tip_along is not None and tip_along.beyond_seen:
-        warnings.append(f"the end cap's points stop {(tip_along.expected_s - tip_along.seen_s) * 1e3:.2f} mm short of "
-                        f"the robot's length at this bend (smeared over {tip_along.seen_uncertainty * 1e3:.2f} mm: "
-                        "the stereo matcher mixes the cap's ring with the bore behind it, and only ever moves them "
-                        f"towards the base): the tip is that length, uncertain by about {tip_uncertainty * 1e3:.2f} "
-                        f"mm along the tube{across}")
-    elif tip_total > TIP_FLOOR and tip_from_cap:
-        warnings.append(f"the tip is the end cap's plane, whose points the stereo matcher smeared over "
-                        f"{tip_uncertainty * 1e3:.2f} mm towards the bore behind its ring: its position is uncertain "
-                        f"by about {tip_uncertainty * 1e3:.2f} mm along the tube{weighed}{across}")
+    if tip_total > TIP_FLOOR and tip_from_cap:
+        if tip_along is not None and tip_along.beyond_seen:
+            warnings.append(f"the end cap's points stop {(tip_along.expected_s - tip_along.seen_s) * 1e3:.2f} mm short "
+                            f"of the robot's length at this bend (smeared over {tip_along.seen_uncertainty * 1e3:.2f} "
+                            "mm: the stereo matcher mixes the cap's ring with the bore behind it, and only ever moves "
+                            f"them towards the base): the tip is that length, uncertain by about "
+                            f"{tip_uncertainty * 1e3:.2f} mm along the tube{across}")
+        else:
+            warnings.append(f"the tip is the end cap's plane, whose points the stereo matcher smeared over "
+                            f"{tip_uncertainty * 1e3:.2f} mm towards the bore behind its ring: its position is "
+                            f"uncertain by about {tip_uncertainty * 1e3:.2f} mm along the tube{weighed}{across}")
     elif tip_total > TIP_FLOOR:
         how = ", as the edge band measured in the depth images" if measured else ""
         warnings.append(f"the tip rests on a stereo-eroded rim ({tip_erosion * 1e3:.2f} mm given back{how}): "
