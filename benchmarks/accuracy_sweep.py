@@ -68,6 +68,7 @@ def main() -> int:
     print(f"  centreline: {len(centreline_missed)} scenes over its floor; "
           f"{len(over_stated)} of {len(results) - len(centreline_missed)} within it warned all the same")
     matrix.print_bounded(results)
+    matrix.print_centerline_by_view(results)
     # a tip over its floor is mostly the centreline's free end off across the tube, not the end placed along it
     tip_missed = [r for r in results if "tip" in r["misses"] and abs(r["tip_along"]) < 10 * matrix.FLOORS["tip"]]
     across = sum(r["tip_across"] > matrix.FLOORS["tip"] for r in tip_missed)

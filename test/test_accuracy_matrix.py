@@ -21,6 +21,9 @@ def test_rows_meet_the_floors(name):
     print("\n" + accuracy_matrix.HEADER + "\n" + accuracy_matrix.format_row(figures))
     assert figures["floors_apply"]
     assert figures["misses"] == []
+    # the centreline's error split along and across the cameras' views adds up to it
+    split = np.hypot(figures["centerline_along_views"], figures["centerline_across_views"])
+    assert split == pytest.approx(figures["centerline"], rel=0.02)
 
 
 def test_extra_simulate_options_render_a_row_under_another_matcher():
@@ -33,6 +36,23 @@ def test_extra_simulate_options_render_a_row_under_another_matcher():
     assert checked.emulation.occlusion_check and not unchecked.emulation.occlusion_check
     valid = [np.count_nonzero(next(iter(simulation.frames())).depth_raw) for simulation in (checked, unchecked)]
     assert valid[1] > valid[0], valid
+
+
+def test_a_row_renders_without_flying_pixels():
+    """--simulate='--no-flying-pixels' keeps the matcher's other artefacts but mixes no pixel at a depth edge with
+    the surface behind: far fewer of the robot's pixels read a millimetre or more off its surface."""
+    from ntcr_recon.sim.scene import LABEL_ROBOT
+
+    own = ROWS["straight"]
+    flying = []
+    for row in (own, accuracy_matrix.with_simulate_options(own, "--no-flying-pixels")):
+        simulation = accuracy_matrix.simulation_for(row, seed=1, frames=1)
+        frame = next(iter(simulation.frames()))
+        exact = simulation.exact[frame.camera.name]
+        depth = frame.depth_raw * simulation.intrinsics.depth_unit
+        off_surface = (depth > 0) & (np.abs(depth - exact.depth) > 1e-3)
+        flying.append(np.count_nonzero(off_surface & (exact.label == LABEL_ROBOT)))
+    assert flying[1] < 0.3 * flying[0], flying
 
 
 def test_a_row_that_misses_says_so():

@@ -47,6 +47,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a stereo matcher without the D405's left-right consistency check: surfaces the right "
                         "imager cannot see keep a depth instead of reading invalid (another matcher to judge the "
                         "reconstruction on than the one it was developed with)")
+    parser.add_argument("--no-flying-pixels", action="store_true",
+                        help="a stereo matcher whose pixels at depth edges are dropped or kept, never mixed with the "
+                        "surface behind (no flying pixels): to tell what they cost the reconstruction")
     parser.add_argument("--seed", type=int, default=1, help="random seed (default 1): same seed, same bag")
     parser.add_argument("--frames", type=int, default=3, help="frames per camera (default 3)")
     parser.add_argument("--noise", type=float, default=1.0, help="stereo depth noise level: sigma_d = "
@@ -82,6 +85,8 @@ def build_simulation(args: argparse.Namespace) -> Simulation:
         emulation = dataclasses.replace(emulation, window=args.window)
     if args.no_left_right_check:
         emulation = dataclasses.replace(emulation, occlusion_check=False)
+    if args.no_flying_pixels:
+        emulation = dataclasses.replace(emulation, silhouette_mixing=0.0)
     intrinsics = D405Intrinsics()
     if args.intrinsics:
         width, height, fx, fy, cx, cy = _numbers("--intrinsics", args.intrinsics, 6)

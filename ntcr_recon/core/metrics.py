@@ -5,6 +5,8 @@ Public API:
                                                    of `voxel` (0.5 mm in the paper): mean, std, std / mean
     centerline_rmse(estimated (M,3), truth (K,3)) -> m   RMS distance of the estimate's samples to the true
                                                    polyline (densified so its sampling does not count)
+    centerline_error_by_view(estimated, truth, viewpoints) -> (along, across) m   the same error split: along the
+                                                   cameras' views (depth) and across them (silhouettes only)
     notch_width_errors(notches, truth_notches) -> (detected, widths m, true widths m)
 """
 
@@ -32,6 +34,31 @@ def centerline_rmse(estimated: np.ndarray, truth: np.ndarray, step: float = 5e-6
     _, dense = resample_polyline(np.asarray(truth, float), step)  # so the truth's own sampling does not count
     distance, _ = cKDTree(dense).query(np.asarray(estimated, float))
     return float(np.sqrt(np.mean(distance**2)))
+
+
+def centerline_error_by_view(estimated: np.ndarray, truth: np.ndarray, viewpoints: np.ndarray,
+                             step: float = 5e-6) -> tuple[float, float]:
+    """RMS of the estimated centreline's error split in each true cross-section: along the cameras' views (what
+    stereo depth measures) and across them (what only the tube's silhouettes place), the latter the direction of
+    the cross-section the cameras' viewing directions span least (for two opposed cameras: across both views).
+    The two add up in quadrature to centerline_rmse. viewpoints: (C, 3) the cameras' optical centres."""
+    _, dense = resample_polyline(np.asarray(truth, float), step)
+    _, index = cKDTree(dense).query(np.asarray(estimated, float))
+    error = np.asarray(estimated, float) - dense[index]
+    tangent = np.gradient(dense, axis=0)[index]
+    tangent /= np.linalg.norm(tangent, axis=1)[:, None]
+    spread = np.zeros((len(index), 3, 3))
+    for origin in np.asarray(viewpoints, float):
+        view = origin - dense[index]
+        view -= tangent * np.einsum("ij,ij->i", view, tangent)[:, None]
+        view /= np.maximum(np.linalg.norm(view, axis=1), 1e-12)[:, None]
+        spread += np.einsum("ij,ik->ijk", view, view)
+    # the tangent is no direction of the cross-section: it goes last, the least seen direction within it first
+    spread += 2.0 * len(viewpoints) * np.einsum("ij,ik->ijk", tangent, tangent)
+    least_seen = np.linalg.eigh(spread)[1][:, :, 0]
+    across = np.einsum("ij,ij->i", error, least_seen)
+    along = np.einsum("ij,ij->i", error, np.cross(tangent, least_seen))
+    return float(np.sqrt(np.mean(along**2))), float(np.sqrt(np.mean(across**2)))
 
 
 def notch_width_errors(notches, truth_notches: list[dict]) -> tuple[int, np.ndarray, np.ndarray]:
