@@ -29,11 +29,18 @@ def pdc(xyz: np.ndarray, voxel: float) -> dict[str, float]:
     return {"mu": mu, "sigma": sigma, "lambda": sigma / mu}
 
 
+def _nearest_true(estimated: np.ndarray, truth: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
+    """The true centreline densified to `step` (so its own sampling does not count) and, per estimated sample, the
+    index of its nearest dense point."""
+    _, dense = resample_polyline(np.asarray(truth, float), step)
+    _, index = cKDTree(dense).query(np.asarray(estimated, float))
+    return dense, index
+
+
 def centerline_rmse(estimated: np.ndarray, truth: np.ndarray, step: float = 5e-6) -> float:
     """RMS of the distances of the estimated centreline's samples to the true centreline."""
-    _, dense = resample_polyline(np.asarray(truth, float), step)  # so the truth's own sampling does not count
-    distance, _ = cKDTree(dense).query(np.asarray(estimated, float))
-    return float(np.sqrt(np.mean(distance**2)))
+    dense, index = _nearest_true(estimated, truth, step)
+    return float(np.sqrt(np.mean(np.sum((np.asarray(estimated, float) - dense[index]) ** 2, axis=1))))
 
 
 def centerline_error_by_view(estimated: np.ndarray, truth: np.ndarray, viewpoints: np.ndarray,
@@ -42,8 +49,7 @@ def centerline_error_by_view(estimated: np.ndarray, truth: np.ndarray, viewpoint
     stereo depth measures) and across them (what only the tube's silhouettes place), the latter the direction of
     the cross-section the cameras' viewing directions span least (for two opposed cameras: across both views).
     The two add up in quadrature to centerline_rmse. viewpoints: (C, 3) the cameras' optical centres."""
-    _, dense = resample_polyline(np.asarray(truth, float), step)
-    _, index = cKDTree(dense).query(np.asarray(estimated, float))
+    dense, index = _nearest_true(estimated, truth, step)
     error = np.asarray(estimated, float) - dense[index]
     tangent = np.gradient(dense, axis=0)[index]
     tangent /= np.linalg.norm(tangent, axis=1)[:, None]
