@@ -714,10 +714,12 @@ def estimate_centerline(xyz: np.ndarray, geometry: TubeGeometry, settings: Cente
         previous = centerline
         centerline = Centerline.from_points(updated, binormal_hint, step)
         # the change of the curve's shape, not of its parametrisation: distance of the new samples from
-        # the previous curve, away from the tip where the extent itself may still move
+        # the previous curve, away from the tip where the extent itself may still move; and the extent, to a
+        # slab (a cold start's march runs on over what lies past the end - an end cap, the bore - and bends
+        # there: the curve is settled only once the slabs the tube's end leaves have been fitted again)
         settled = min(previous.length, centerline.length) - 2 * settings.smoothing_length - 3 * step
         interior = centerline.points[centerline.s < settled]
         moved = float(np.sqrt(np.mean(previous.project(interior).radius ** 2))) if len(interior) else 0.0
-        if moved < settings.tolerance:
+        if moved < settings.tolerance and abs(centerline.length - previous.length) <= step:
             return previous, iterations, (coordinates, frames, True)
     return centerline, iterations, (coordinates, frames, False)
