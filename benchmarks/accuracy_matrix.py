@@ -297,23 +297,30 @@ def silent_misses(results: list[dict]) -> list[str]:
 
 def run_row(row: Row, frames: int = 2, seed: int = 1, method: str | None = None) -> dict:
     """Render, reconstruct and measure one row; the figures, the misses and the result's warnings."""
+    simulation = simulation_for(row, seed, frames)
+    return reconstruct_and_measure(row.name, simulation.shape, rig_config(simulation, row.side_error_deg, method),
+                                   frame_pairs(simulation), max(simulation.camera_distances
+                                                                or (simulation.camera_distance,)))
+
+
+def reconstruct_and_measure(name: str, shape, config, pairs: list, distance: float) -> dict:
+    """Reconstruct a rendered scene (its true `shape`, the rig `config` it is reconstructed with, its frame pairs,
+    the farthest camera's distance) and measure it: the figures, the misses and the result's warnings. The
+    simulator's rows and the sweep's second renderer alike."""
     from ntcr_recon.core.pipeline import ReconstructionError
 
-    simulation = simulation_for(row, seed, frames)
-    config = rig_config(simulation, row.side_error_deg, method)
-    pairs = frame_pairs(simulation)
-    distance = max(simulation.camera_distances or (simulation.camera_distance,))
     started = time.perf_counter()
     try:
         relocation = reconstruct(config, pairs)
     except ReconstructionError as error:
-        return {"row": row.name, "error": str(error), "warnings": [str(error)], "misses": ["failed"],
+        return {"row": name, "error": str(error), "warnings": [str(error)], "misses": ["failed"],
                 "floors_apply": distance <= FLOOR_CAMERA_DISTANCE + 1e-9}
-    figures = measure(simulation.shape, relocation, np.array([camera.translation for camera in simulation.cameras]))
+    viewpoints = np.array([config.cameras[camera].extrinsic[:3, 3] for camera in config.camera_names])
+    figures = measure(shape, relocation, viewpoints)
     quality = getattr(relocation, "quality", None) or {}
     # what the result says of its own errors (mm -> m; not stated: 0, nothing owned up to)
     stated = {figure: (quality.get(key) or 0.0) * 1e-3 for figure, key in STATED.items()}
-    figures.update(row=row.name, warnings=list(getattr(relocation, "warnings", ()) or ()), stated=stated,
+    figures.update(row=name, warnings=list(getattr(relocation, "warnings", ()) or ()), stated=stated,
                    side_deg=quality.get("notch_side_deg"),
                    side_uncertainty_deg=quality.get("notch_side_uncertainty_deg"),
                    seconds=time.perf_counter() - started,

@@ -18,30 +18,86 @@ uncertainty the result stated for it. About 3 s a scene.
 from __future__ import annotations
 
 import argparse
+import math
 import random
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "test"))
 import accuracy_matrix as matrix  # noqa: E402
 
 ROBOTS = {"default": {}, "od2.5": matrix.THIN, "od4.0": matrix.THICK, "notches10": matrix.TEN,
           "notches20": matrix.TWENTY, "width1.8": matrix.WIDE}
 
 
-def random_row(index: int) -> matrix.Row:
+@dataclass(frozen=True)
+class SceneDraw:
+    """What a scene index draws: the robot, its pose and the rig (angles in degrees, distance in metres)."""
+    index: int
+    robot: str
+    bend_deg: float
+    side_deg: float
+    distance: float
+    tilts_deg: tuple[tuple[float, float], tuple[float, float]] | None  # per camera (yaw, pitch), or untilted
+    side_error_deg: float
+
+    @property
+    def name(self) -> str:
+        return (f"{self.index}_{self.robot}_b{self.bend_deg:.0f}_s{self.side_deg:.0f}_d{self.distance * 1e3:.0f}"
+                + (f"_e{self.side_error_deg:+.0f}" if self.side_error_deg else ""))
+
+
+def draw_scene(index: int) -> SceneDraw:
     """Scene `index`: the same scene for the same index on every machine."""
     draw = random.Random(index)
     robot = draw.choice(list(ROBOTS))
     bend, side, distance = draw.uniform(0.0, 100.0), draw.uniform(-180.0, 180.0), draw.uniform(0.075, 0.110)
-    args = ["--bend-deg", f"{bend:.1f}", "--notch-side", f"{side:.1f}", "--camera-distance", f"{distance:.3f}"]
+    tilts = None
     if draw.random() < 1 / 3:
-        yaw, pitch = ([f"{draw.uniform(-2.0, 2.0):.1f}" for _ in range(2)] for _ in range(2))
-        args += [f"--camera-yaw-deg={','.join(yaw)}", f"--camera-pitch-deg={','.join(pitch)}"]
+        yaw, pitch = ([round(draw.uniform(-2.0, 2.0), 1) for _ in range(2)] for _ in range(2))
+        tilts = ((yaw[0], pitch[0]), (yaw[1], pitch[1]))
     side_error = draw.choice([0.0, 0.0, 15.0, -15.0])
-    name = f"{index}_{robot}_b{bend:.0f}_s{side:.0f}_d{distance * 1e3:.0f}" + (f"_e{side_error:+.0f}"
-                                                                                if side_error else "")
-    return matrix.Row(name, tuple(args), ROBOTS[robot], side_error_deg=side_error)
+    return SceneDraw(index, robot, bend, side, distance, tilts, side_error)
+
+
+def random_row(index: int) -> matrix.Row:
+    """Scene `index` as a matrix row (`ntcr-recon simulate` options)."""
+    scene = draw_scene(index)
+    args = ["--bend-deg", f"{scene.bend_deg:.1f}", "--notch-side", f"{scene.side_deg:.1f}",
+            "--camera-distance", f"{scene.distance:.3f}"]
+    if scene.tilts_deg:
+        (yaw_a, pitch_a), (yaw_b, pitch_b) = scene.tilts_deg
+        args += [f"--camera-yaw-deg={yaw_a},{yaw_b}", f"--camera-pitch-deg={pitch_a},{pitch_b}"]
+    return matrix.Row(scene.name, tuple(args), ROBOTS[scene.robot], side_error_deg=scene.side_error_deg)
+
+
+def run_views_scene(index: int, frames: int = 2) -> dict:
+    """Scene `index` rendered by the tests' own renderer (test/synthetic_views.py: a z-buffer blurred by a box
+    window, not the simulator's stereo matcher), with its own artefacts drawn per scene - the window (3-7 px),
+    the noise (1-3 x 0.02 mm at 90 mm) and a backdrop 50 mm behind the robot or none - then reconstructed and
+    measured as a matrix row."""
+    from synthetic_views import render_pair, rig_mapping
+
+    from ntcr_recon.core.config import rig_config_from_mapping
+    from ntcr_recon.core.kinematics import TubeShape
+
+    scene = draw_scene(index)
+    draw = random.Random(f"views-{index}")
+    window, noise, backdrop = draw.choice([3, 5, 7]), draw.uniform(1.0, 3.0), draw.random() < 0.5
+    robot = {**ROBOTS[scene.robot], "notch_side": math.radians(scene.side_deg)}
+    tilts = tuple((math.radians(y), math.radians(p)) for y, p in scene.tilts_deg or ((0, 0), (0, 0)))
+    truth = rig_config_from_mapping(rig_mapping(robot, distance=scene.distance, tilts=tilts))
+    shape = TubeShape.from_bend_angle(truth.robot, math.radians(scene.bend_deg))
+    pairs = [render_pair(shape, truth, seed=index * 10 + k, blur_px=window, noise_at_90mm=noise * 2e-5,
+                         stamp_ns=k * 33_000_000, backdrop=scene.distance + 0.05 if backdrop else None)
+             for k in range(frames)]
+    # the rig file's notch side may be off the robot's true roll in its clamp
+    robot["notch_side"] += math.radians(scene.side_error_deg)
+    config = rig_config_from_mapping(rig_mapping(robot, distance=scene.distance, tilts=tilts))
+    name = f"{scene.name}_w{window}_n{noise:.1f}" + ("_wall" if backdrop else "")
+    return matrix.reconstruct_and_measure(name, shape, config, pairs, scene.distance)
 
 
 def main() -> int:
@@ -50,11 +106,19 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=1000, help="index of the first scene (default 1000)")
     matrix.add_detail_options(parser, "scene")
     matrix.add_simulate_option(parser)
+    parser.add_argument("--renderer", choices=("simulator", "views"), default="simulator",
+                        help="render each scene with `ntcr-recon simulate` (default) or with the tests' own "
+                        "renderer, test/synthetic_views.py (the same robots, poses and rigs; its own artefacts)")
     args = parser.parse_args()
+    if args.renderer == "views" and args.simulate:
+        parser.error("--simulate sets the simulator's options; --renderer views does not use the simulator")
     print(matrix.HEADER)
     results = []
     for index in range(args.seed, args.seed + args.count):
-        figures = matrix.run_row(matrix.with_simulate_options(random_row(index), args.simulate), seed=index)
+        if args.renderer == "views":
+            figures = run_views_scene(index)
+        else:
+            figures = matrix.run_row(matrix.with_simulate_options(random_row(index), args.simulate), seed=index)
         results.append(figures)
         print(matrix.format_row(figures), flush=True)
         matrix.print_details(figures, args)
