@@ -1,7 +1,7 @@
 """Random robots, poses and rigs: how often the floors hold, and whether a miss is ever silent (issue 9).
 
     .venv/bin/python benchmarks/accuracy_sweep.py [--count 40] [--seed 1000] [--simulate='--no-left-right-check']
-        [--warnings] [--stated]
+        [--renderer views] [--warnings] [--stated]
 
 The accuracy matrix's grid is fixed, and a fixed grid is what a method gets tuned to. Each scene here is drawn at
 random: a robot of the matrix's layouts (3.5 mm default, 2.5 and 4.0 mm, 10 and 20 notches, 1.8 mm notches), a
@@ -13,6 +13,10 @@ The summary counts the scenes meeting every floor, the misses no warning speaks 
 this package can have), and the scenes meeting every floor that raised a centreline warning anyway (its
 uncertainty over-stated: the price of never understating it), and in how many scenes each error lies within the
 uncertainty the result stated for it. About 3 s a scene.
+
+`--renderer views` renders each drawn scene with the tests' own renderer instead (test/synthetic_views.py, with
+its window, noise and backdrop drawn per scene: run_views_scene), so the method is judged on depth made by other
+means than the simulator it was developed with. About 1.5 s a scene.
 """
 
 from __future__ import annotations
