@@ -964,7 +964,8 @@ def test_a_camera_that_missed_a_stretch_is_named_with_why_too_near_or_end_on():
     """A robot bent 90 deg towards cam_a of a 90 mm rig (matrix row bend90_toward_cam_a_90mm): its distal part
     comes within 60 mm of cam_a, which sees nothing nearer than 70 mm (here, than 70.5). Seen by cam_b alone
     there, or cut short where cam_a's view ends, the warning says why; bent away from cam_a along its line of
-    sight, it names that; bent side-on, it gives no reason."""
+    sight, it names that; bent side-on, it gives no reason. Bent 90 deg along the cameras' lines of sight, its
+    distal part points within 30 deg of both: every camera sees that wall edge-on, and the result says so."""
     from ntcr_recon.sim.camera import facing_pair
 
     cameras = facing_pair(0.09)
@@ -1009,9 +1010,31 @@ def test_a_camera_that_missed_a_stretch_is_named_with_why_too_near_or_end_on():
     print(away)
     assert re.search(r"seen by cam_b alone \(it points within \d+ deg of cam_a's line of sight", away)
     # bent side-on, whatever hid the distal part from cam_a, it was neither: no reason given
-    _, side_on = warned(0.0)
+    side_on_quality, side_on = warned(0.0)
     print(side_on)
     assert "seen by cam_b alone: the tube's far side" in side_on and "within" not in side_on
+    # along the lines of sight, the last ~20 deg of the bend lie within 30 deg of both (notch pitch 3.2 mm)
+    assert 8.0 < quality["distal_end_on_mm"] < 16.0 and side_on_quality["distal_end_on_mm"] == 0.0
+    assert re.search(rf"the distal {quality['distal_end_on_mm']:.0f} mm points within \d+ deg of cam_a's and \d+ deg "
+                     "of cam_b's line of sight: every camera sees its wall nearly edge-on there", seen_alone)
+    assert "every camera sees its wall" not in side_on
+
+
+def test_the_distal_stretch_every_camera_sees_end_on_is_measured_from_the_tip_back():
+    """Sight angles sampled along s: cam_a's axis turns within 30 deg of its line of sight from 30 mm on, cam_b's
+    from 25 mm on, and back out of it past 45 mm. Seen to 40 mm, the distal 10 mm is end-on to both (least angles
+    20 and 10 deg); seen to 50 mm, the tube ends outside it: none."""
+    from ntcr_recon.core.quality import CameraReach
+
+    s = np.arange(0.0, 50.25e-3, 0.25e-3)
+    past = s > 45e-3
+    sight = {"cam_a": np.radians(np.where((s >= 30e-3) & ~past, 20.0, 60.0)),
+             "cam_b": np.radians(np.where((s >= 25e-3) & ~past, 10.0, 60.0))}
+    reach = CameraReach(s, {name: np.full_like(s, 0.09) for name in sight}, {}, sight)
+    length, angles = reach.end_on_to_every_camera(40e-3)
+    assert length == pytest.approx(10e-3) and angles == pytest.approx({"cam_a": np.radians(20.0),
+                                                                       "cam_b": np.radians(10.0)})
+    assert reach.end_on_to_every_camera(50e-3) == (0.0, {})
 
 
 def test_missing_notches_are_placed_beyond_the_end_seen_or_where_a_camera_did_not_see_the_tube():

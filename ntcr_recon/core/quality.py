@@ -39,6 +39,7 @@ BIAS_WARN_FOOTPRINTS = 0.5         # a lean into the slots above this many footp
 # A tube whose axis lies this near a camera's line of sight shows it its wall 60 deg or more from facing it:
 # a thin band of pixels, matched poorly (core.tip.GRAZING: past 80 deg none) - named as why that camera missed it.
 END_ON_DEG = 30.0
+END_ON_PITCHES = 2.0  # a distal stretch this many notch pitches long that every camera sees end-on: warn
 # The project's floors (issue 9): a figure whose uncertainty exceeds its floor is worth a warning.
 TIP_FLOOR = 0.15e-3
 CENTERLINE_FLOOR = 0.08e-3
@@ -176,6 +177,21 @@ class CameraReach:
         when under END_ON_DEG, else None."""
         angle = self._least(self.sight_angle, name, start, end)
         return angle if angle is not None and angle < math.radians(END_ON_DEG) else None
+
+    def end_on_to_every_camera(self, tip_s: float) -> tuple[float, dict[str, float]]:
+        """The distal stretch, ending at the tip seen, whose axis lies within END_ON_DEG of every camera's line of
+        sight (each sees its wall nearly edge-on): its length (m; 0 for none) and per camera the least angle (rad)
+        between axis and line of sight over it."""
+        inside = self.s <= tip_s
+        s = self.s[inside]
+        angles = {name: angle[inside] for name, angle in self.sight_angle.items()}
+        if not len(s) or not angles:
+            return 0.0, {}
+        end_on = np.all([angle < math.radians(END_ON_DEG) for angle in angles.values()], axis=0)
+        first = len(end_on) - int(np.argmin(end_on[::-1])) if not end_on.all() else 0
+        if first == len(end_on):
+            return 0.0, {}
+        return float(tip_s - s[first]), {name: float(angle[first:].min()) for name, angle in angles.items()}
 
     def why_unseen(self, names: list[str], start: float, end: float, continued: bool = False) -> str:
         """The clause naming, of `names`, the cameras the stretch [start, end] comes nearer than any depth they
@@ -490,6 +506,14 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
         warnings.append(f"over s = {listed} mm no camera saw the tube's wall facing it on the tube's radius: the "
                         f"centreline there{to_tip} follows points off the wall (pixels a matcher mixed with the "
                         "background, a wall seen edge-on), and how far off it is was not measured")
+    # a distal stretch every camera sees nearly end-on: no camera's view of its wall faces it, and nothing placed
+    # the axis there across the tube as well as elsewhere (in the sweeps, most such tips missed their floor)
+    end_on, end_on_angles = (0.0, {}) if reach is None else reach.end_on_to_every_camera(tip_s)
+    if end_on >= END_ON_PITCHES * geometry.notch_pitch:
+        angles = " and ".join(f"{math.degrees(angle):.0f} deg of {name}'s" for name, angle in end_on_angles.items())
+        warnings.append(f"the distal {end_on * 1e3:.0f} mm points within {angles} line of sight: every camera sees its "
+                        "wall nearly edge-on there, and the centreline there and the tip with it rest on that wall: "
+                        "how far off across the tube they are was not measured")
     if lean > BIAS_WARN_FOOTPRINTS * footprint:
         names = " and ".join(looking_into_slots)
         consequence = (f"a camera facing the backbone placed the axis along its line of sight instead, by its level on "
@@ -528,6 +552,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
         "centerline_aligned_outline_offset_mm": None if across_from_fit is None else across_from_fit[0] * 1e3,
         "centerline_uncertainty_mm": None if uncertainty is None else uncertainty * 1e3,
         "centerline_unsupported_mm": [[start * 1e3, end * 1e3] for start, end in unsupported],
+        "distal_end_on_mm": end_on * 1e3,
         # per camera the nearest depth it returned, and the tube seen's nearest to it (its surface, optical axis)
         "camera_nearest_depth_mm": {} if reach is None else {k: v * 1e3 for k, v in reach.nearest_returned.items()},
         "tube_nearest_depth_mm": {} if reach is None else {
