@@ -971,7 +971,7 @@ def test_a_camera_that_missed_a_stretch_is_named_with_why_too_near_or_end_on():
     cameras = facing_pair(0.09)
     extrinsics = {pose.name: pose.extrinsic for pose in cameras}
 
-    def warned(towards_deg, tip_s=None):
+    def warned(towards_deg, tip_s=None, unsupported=()):
         """The warnings of a robot bent 90 deg towards the camera at towards_deg (-90: cam_a, 90: cam_b) seen
         up to tip_s, cam_a's points only where the tube is 70 mm from it or more and short of 40 mm along it."""
         shape = TubeShape.from_bend_angle(dataclasses.replace(GEOMETRY, notch_side=math.radians(towards_deg)),
@@ -988,7 +988,8 @@ def test_a_camera_that_missed_a_stretch_is_named_with_why_too_near_or_end_on():
             geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=[], coords_s=s, camera=camera,
             tip_s=tip_s, total_bend=math.radians(90.0 * tip_s / shape.length), footprint=FOOTPRINT,
             wall_residual=0.0, notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0,
-            depth_steps={}, reach=reach, notch_centres=expected_centres(shape.geometry, true_centerline(shape)))
+            depth_steps={}, reach=reach, notch_centres=expected_centres(shape.geometry, true_centerline(shape)),
+            unsupported=unsupported)
         return quality, " ".join(warnings)
 
     quality, seen_alone = warned(-90.0)
@@ -1018,6 +1019,10 @@ def test_a_camera_that_missed_a_stretch_is_named_with_why_too_near_or_end_on():
     assert re.search(rf"the distal {quality['distal_end_on_mm']:.0f} mm points within \d+ deg of cam_a's and \d+ deg "
                      "of cam_b's line of sight: every camera sees its wall nearly edge-on there", seen_alone)
     assert "every camera sees its wall" not in side_on
+    # where a stretch without trusted wall reaches the tip, its warning says as much: not said twice
+    _, unsupported = warned(-90.0, unsupported=((42e-3, 50e-3),))
+    assert "(and the tip with it) follows points off the wall" in unsupported
+    assert "every camera sees its wall" not in unsupported
 
 
 def test_the_distal_stretch_every_camera_sees_end_on_is_measured_from_the_tip_back():

@@ -500,16 +500,18 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
                         f"outline in the cameras' views ({aligned / footprint:.1f} px, where a sound axis lies within "
                         f"{OUTLINE_TOLERANCE_PX:g}): it followed a wall stereo moved across the views, and across them "
                         f"the axis is the fit's, which lies {fit / footprint:.1f} px from that middle")
+    unsupported_to_tip = bool(unsupported) and unsupported[-1][1] >= tip_s - geometry.notch_pitch
     if unsupported:
         listed = ", ".join(f"{start * 1e3:.0f}-{end * 1e3:.0f}" for start, end in unsupported)
-        to_tip = " (and the tip with it)" if unsupported[-1][1] >= tip_s - geometry.notch_pitch else ""
+        to_tip = " (and the tip with it)" if unsupported_to_tip else ""
         warnings.append(f"over s = {listed} mm no camera saw the tube's wall facing it on the tube's radius: the "
                         f"centreline there{to_tip} follows points off the wall (pixels a matcher mixed with the "
                         "background, a wall seen edge-on), and how far off it is was not measured")
     # a distal stretch every camera sees nearly end-on: no camera's view of its wall faces it, and nothing placed
-    # the axis there across the tube as well as elsewhere (in the sweeps, most such tips missed their floor)
+    # the axis there across the tube as well as elsewhere (in the sweeps, most such tips missed their floor); said
+    # unless an unsupported stretch reaching the tip says as much already
     end_on, end_on_angles = (0.0, {}) if reach is None else reach.end_on_to_every_camera(tip_s)
-    if end_on >= END_ON_PITCHES * geometry.notch_pitch:
+    if end_on >= END_ON_PITCHES * geometry.notch_pitch and not unsupported_to_tip:
         angles = " and ".join(f"{math.degrees(angle):.0f} deg of {name}'s" for name, angle in end_on_angles.items())
         warnings.append(f"the distal {end_on * 1e3:.0f} mm points within {angles} line of sight: every camera sees its "
                         "wall nearly edge-on there, and the centreline there and the tip with it rest on that wall: "
