@@ -9,8 +9,9 @@ length, the pixel footprint against the tube, the depth quantisation seen in the
 against the width its measured bend implies (and the notches it could not be checked for), how far the tip's
 position rests on the rim erosion given back (and, across the tube, on the alignment's last shift held to it),
 how much deeper the wall reads between the notches than on the plain tube (a lean no fit can see), and the
-stretches where no camera saw the wall facing it (where the centreline's error was not measured), and how far the
-axis lies from the middle of the tube's outline in the cameras' views (core.outline). Every figure
+stretches where no camera saw the wall facing it (where the centreline's error was not measured), or where every
+camera sees the distal wall nearly edge-on, and how far the axis lies from the middle of the tube's outline in the
+cameras' views (core.outline). Every figure
 is in the unit its key names; the warnings are sentences a user can act on. relocation_node puts them on
 /diagnostics, the CLI prints them.
 """
@@ -188,7 +189,8 @@ class CameraReach:
         if not len(s) or not angles:
             return 0.0, {}
         end_on = np.all([angle < math.radians(END_ON_DEG) for angle in angles.values()], axis=0)
-        first = len(end_on) - int(np.argmin(end_on[::-1])) if not end_on.all() else 0
+        off = np.flatnonzero(~end_on)
+        first = int(off[-1]) + 1 if len(off) else 0  # the first sample of the end-on run that ends at the tip
         if first == len(end_on):
             return 0.0, {}
         return float(tip_s - s[first]), {name: float(angle[first:].min()) for name, angle in angles.items()}
