@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.ndimage import uniform_filter
+from scipy.spatial.transform import Rotation
 
 from ntcr_recon.core.config import rig_config_from_mapping
 from ntcr_recon.core.deproject import Intrinsics
@@ -22,35 +23,27 @@ INTRINSICS = Intrinsics(848, 480, 430.0, 430.0, 424.0, 240.0)
 DEPTH_UNIT = 1e-4
 
 
-def _turn(axis: int, angle: float) -> np.ndarray:
-    """Rotation by `angle` about coordinate axis `axis` (0 x, 1 y, 2 z)."""
-    c, s = np.cos(angle), np.sin(angle)
-    i, j = [k for k in range(3) if k != axis]
-    turn = np.eye(3)
-    turn[i, i], turn[i, j], turn[j, i], turn[j, j] = c, -s, s, c
-    return turn
-
-
-def camera_poses(distance: float | tuple[float, float], height: float, yaw: float = 0.0,
+def camera_poses(distance: float, height: float, yaw: float = 0.0,
                  tilts: tuple[tuple[float, float], ...] = ((0.0, 0.0), (0.0, 0.0))) -> dict[str, tuple[list, list]]:
-    """Two cameras on the base frame's +-y axis (rotated by yaw about z), looking at each other, `distance` away
-    (one for both, or cam_a's and cam_b's); `tilts` turns each in place by (yaw, pitch) about its own image axes
-    (radians), as a camera mounted a little off its nominal pose."""
+    """Two cameras on the base frame's +-y axis (rotated by yaw about z), looking at each other; `tilts` turns
+    each in place by (yaw, pitch) about its own image axes (radians), as a camera mounted a little off its
+    nominal pose."""
     poses = {}
-    distances = (distance, distance) if np.isscalar(distance) else distance
-    for name, side, camera_distance, (tilt_yaw, tilt_pitch) in zip(("cam_a", "cam_b"), (-1.0, 1.0), distances,
-                                                                    tilts, strict=True):
-        z_axis = -_turn(2, yaw) @ np.array([0.0, side, 0.0])  # optical axis, towards the robot
-        y_axis = np.array([0.0, 0.0, -1.0])                   # image down = against the robot's axis
+    turn = Rotation.from_euler("z", yaw).as_matrix()
+    for name, side, (tilt_yaw, tilt_pitch) in zip(("cam_a", "cam_b"), (-1.0, 1.0), tilts, strict=True):
+        z_axis = -turn @ np.array([0.0, side, 0.0])          # optical axis, towards the robot
+        y_axis = np.array([0.0, 0.0, -1.0])                  # image down = against the robot's axis
         x_axis = np.cross(y_axis, z_axis)
-        position = -z_axis * camera_distance + np.array([0.0, 0.0, height])
-        rotation = np.stack([x_axis, y_axis, z_axis], axis=1) @ _turn(1, tilt_yaw) @ _turn(0, tilt_pitch)
+        position = -z_axis * distance + np.array([0.0, 0.0, height])
+        # intrinsic rotations: about the camera's own y (image down), then its x
+        rotation = np.stack([x_axis, y_axis, z_axis], axis=1) @ Rotation.from_euler(
+            "YX", [tilt_yaw, tilt_pitch]).as_matrix()
         poses[name] = (position.tolist(), matrix_to_quaternion(rotation).tolist())
     return poses
 
 
-def rig_mapping(geometry_mapping: dict, distance: float | tuple[float, float] = 0.09, height: float = 0.025,
-                yaw: float = 0.0, tilts: tuple[tuple[float, float], ...] = ((0.0, 0.0), (0.0, 0.0))) -> dict:
+def rig_mapping(geometry_mapping: dict, distance: float = 0.09, height: float = 0.025, yaw: float = 0.0,
+                tilts: tuple[tuple[float, float], ...] = ((0.0, 0.0), (0.0, 0.0))) -> dict:
     mapping = {"base_frame": "ntcr_base", "camera_names": ["cam_a", "cam_b"], "robot": dict(geometry_mapping)}
     for name, (translation, rotation) in camera_poses(distance, height, yaw, tilts).items():
         mapping[name] = {"width": INTRINSICS.width, "height": INTRINSICS.height, "fps": 30, "depth_unit": DEPTH_UNIT,
