@@ -496,6 +496,14 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
                            f"the cameras' views, {astray / footprint:.1f} px where a sound one lies within "
                            f"{OUTLINE_TOLERANCE_PX:g}: the fit and the alignment followed a wall stereo moved that far"
                            if astray is not None else ""))
+    if camera is not None and outline_offset is None:
+        # the check ran (points carry their camera) and no window's outline spanned the tube's diameter: the
+        # matcher spoiled the silhouettes (a wide window over a near backdrop); in the sweeps only such scenes,
+        # half of them over the centreline's floor, most of those beyond what the cameras' spread stated
+        warnings.append("no camera's view showed the tube's outline whole (across each view its wall points spanned "
+                        "no diameter: the matcher spoiled the silhouettes' pixels): the centreline was not checked "
+                        "against the middle of the outline, and across the views it may lie further off than the "
+                        "cameras' spread says")
     if across_from_fit is not None:
         aligned, fit = across_from_fit
         warnings.append(f"the alignment moved the axis {aligned * 1e3:.2f} mm (RMS) from the middle of the tube's "
