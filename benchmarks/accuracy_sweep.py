@@ -22,6 +22,7 @@ means than the simulator it was developed with. About 1.5 s a scene.
 from __future__ import annotations
 
 import argparse
+import functools
 import math
 import random
 import sys
@@ -31,9 +32,15 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "test"))
 import accuracy_matrix as matrix  # noqa: E402
+import synthetic_views as views  # noqa: E402
+
+from ntcr_recon.core.deproject import Intrinsics  # noqa: E402
 
 ROBOTS = {"default": {}, "od2.5": matrix.THIN, "od4.0": matrix.THICK, "notches10": matrix.TEN,
           "notches20": matrix.TWENTY, "width1.8": matrix.WIDE}
+# the second renderer's cameras: a D405 at 848x480, 640x480 and 1280x720 (about its field of view at each)
+VIEWS_INTRINSICS = (views.INTRINSICS, Intrinsics(640, 480, 385.0, 385.0, 320.0, 240.0),
+                    Intrinsics(1280, 720, 645.0, 645.0, 640.0, 360.0))
 
 
 @dataclass(frozen=True)
@@ -80,27 +87,28 @@ def random_row(index: int) -> matrix.Row:
 def run_views_scene(index: int, frames: int = 2) -> dict:
     """Scene `index` rendered by the tests' own renderer (test/synthetic_views.py: a z-buffer blurred by a box
     window, not the simulator's stereo matcher), with its own artefacts drawn per scene - the window (3-7 px),
-    the noise (1-3 x 0.02 mm at 90 mm) and a backdrop 50 mm behind the robot or none - then reconstructed and
-    measured as a matrix row."""
-    from synthetic_views import render_pair, rig_mapping
-
+    the noise (1-3 x 0.02 mm at 90 mm), a backdrop 50 mm behind the robot or none, and the camera's resolution
+    (VIEWS_INTRINSICS) - then reconstructed and measured as a matrix row."""
     from ntcr_recon.core.config import rig_config_from_mapping
     from ntcr_recon.core.kinematics import TubeShape
 
     scene = draw_scene(index)
     draw = random.Random(f"views-{index}")
     window, noise, backdrop = draw.choice([3, 5, 7]), draw.uniform(1.0, 3.0), draw.random() < 0.5
+    intrinsics = draw.choice(VIEWS_INTRINSICS)
     robot = {**ROBOTS[scene.robot], "notch_side": math.radians(scene.side_deg)}
     tilts = tuple((math.radians(y), math.radians(p)) for y, p in scene.tilts_deg or ((0, 0), (0, 0)))
-    truth = rig_config_from_mapping(rig_mapping(robot, distance=scene.distance, tilts=tilts))
+    rig = functools.partial(views.rig_mapping, distance=scene.distance, tilts=tilts, intrinsics=intrinsics)
+    truth = rig_config_from_mapping(rig(robot))
     shape = TubeShape.from_bend_angle(truth.robot, math.radians(scene.bend_deg))
-    pairs = [render_pair(shape, truth, seed=index * 10 + k, blur_px=window, noise_at_90mm=noise * 2e-5,
-                         stamp_ns=k * 33_000_000, backdrop=scene.distance + 0.05 if backdrop else None)
-             for k in range(frames)]
+    pairs = [views.render_pair(shape, truth, seed=index * 10 + k, blur_px=window, noise_at_90mm=noise * 2e-5,
+                         stamp_ns=k * 33_000_000, backdrop=scene.distance + 0.05 if backdrop else None,
+                         intrinsics=intrinsics) for k in range(frames)]
     # the rig file's notch side may be off the robot's true roll in its clamp
     robot["notch_side"] += math.radians(scene.side_error_deg)
-    config = rig_config_from_mapping(rig_mapping(robot, distance=scene.distance, tilts=tilts))
-    name = f"{scene.name}_w{window}_n{noise:.1f}" + ("_wall" if backdrop else "")
+    config = rig_config_from_mapping(rig(robot))
+    name = (f"{scene.name}_w{window}_n{noise:.1f}" + ("_wall" if backdrop else "")
+            + ("" if intrinsics == views.INTRINSICS else f"_{intrinsics.width}px"))
     return matrix.reconstruct_and_measure(name, shape, config, pairs, scene.distance)
 
 

@@ -43,10 +43,11 @@ def camera_poses(distance: float, height: float, yaw: float = 0.0,
 
 
 def rig_mapping(geometry_mapping: dict, distance: float = 0.09, height: float = 0.025, yaw: float = 0.0,
-                tilts: tuple[tuple[float, float], ...] = ((0.0, 0.0), (0.0, 0.0))) -> dict:
+                tilts: tuple[tuple[float, float], ...] = ((0.0, 0.0), (0.0, 0.0)),
+                intrinsics: Intrinsics = INTRINSICS) -> dict:
     mapping = {"base_frame": "ntcr_base", "camera_names": ["cam_a", "cam_b"], "robot": dict(geometry_mapping)}
     for name, (translation, rotation) in camera_poses(distance, height, yaw, tilts).items():
-        mapping[name] = {"width": INTRINSICS.width, "height": INTRINSICS.height, "fps": 30, "depth_unit": DEPTH_UNIT,
+        mapping[name] = {"width": intrinsics.width, "height": intrinsics.height, "fps": 30, "depth_unit": DEPTH_UNIT,
                          "frame_id": f"{name}_optical_frame", "translation": translation, "rotation": rotation}
     return mapping
 
@@ -68,7 +69,7 @@ def post_surface(radius: float, height: float, spacing: float) -> tuple[np.ndarr
 
 def render_pair(shape, config, seed: int = 0, blur_px: int = 3, noise_at_90mm: float = 2e-5,
                 spacing: float = 0.03e-3, stamp_ns: int = 0, backdrop: float | None = None,
-                post_radius: float | None = None) -> FramePair:
+                post_radius: float | None = None, intrinsics: Intrinsics = INTRINSICS) -> FramePair:
     """backdrop: depth (m) of a wall perpendicular to each camera's optical axis behind the robot, or none (the
     robot alone has depth). With a wall, the blur mixes its depth into the robot's edge pixels and the robot's
     into the wall's: each side of an edge spoils by about half the blur window. post_radius: a post of that
@@ -91,10 +92,10 @@ def render_pair(shape, config, seed: int = 0, blur_px: int = 3, noise_at_90mm: f
         # z-buffer at 3x resolution, then each pixel keeps its centre sub-pixel: a ray through the pixel
         # centre, as a ray caster would (plain splatting would fatten every silhouette by half a pixel)
         fine = 3
-        u = np.floor(fine * (INTRINSICS.fx * points[:, 0] / z + INTRINSICS.cx + 0.5)).astype(int)
-        v = np.floor(fine * (INTRINSICS.fy * points[:, 1] / z + INTRINSICS.cy + 0.5)).astype(int)
-        inside = (u >= 0) & (u < fine * INTRINSICS.width) & (v >= 0) & (v < fine * INTRINSICS.height)
-        depth = np.full((fine * INTRINSICS.height, fine * INTRINSICS.width), np.inf)
+        u = np.floor(fine * (intrinsics.fx * points[:, 0] / z + intrinsics.cx + 0.5)).astype(int)
+        v = np.floor(fine * (intrinsics.fy * points[:, 1] / z + intrinsics.cy + 0.5)).astype(int)
+        inside = (u >= 0) & (u < fine * intrinsics.width) & (v >= 0) & (v < fine * intrinsics.height)
+        depth = np.full((fine * intrinsics.height, fine * intrinsics.width), np.inf)
         np.minimum.at(depth, (v[inside], u[inside]), z[inside])
         depth = depth[fine // 2::fine, fine // 2::fine]
         if backdrop is not None:
@@ -110,8 +111,8 @@ def render_pair(shape, config, seed: int = 0, blur_px: int = 3, noise_at_90mm: f
         sigma = noise_at_90mm * (depth / 0.09) ** 2
         depth = np.where(depth > 0, depth + rng.normal(size=depth.shape) * sigma, 0.0)
         raw = np.round(depth / DEPTH_UNIT).astype(np.uint16)
-        color = np.full((INTRINSICS.height, INTRINSICS.width, 3), 180, np.uint8)
-        frames[name] = CameraFrame(name, stamp_ns, depth=raw, intrinsics=INTRINSICS, color=color)
+        color = np.full((intrinsics.height, intrinsics.width, 3), 180, np.uint8)
+        frames[name] = CameraFrame(name, stamp_ns, depth=raw, intrinsics=intrinsics, color=color)
     return FramePair(stamp_ns, frames)
 
 
