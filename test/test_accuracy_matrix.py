@@ -188,3 +188,15 @@ def test_the_sweep_renders_its_scenes_by_the_tests_own_renderer_too():
     assert figures["row"].startswith(scene.name)
     assert figures["misses"] == []
     assert figures["tip"] < 0.1e-3 and figures["centerline"] < 0.02e-3  # before the fix: 0.56 and 0.075 mm
+
+
+def test_stated_detail_gives_where_the_notches_were_placed_along_the_tube(capsys):
+    """--stated also prints the notch centres' error along the tube (not a floor, but /ntcr/notches publishes
+    them): their mean and the worst, signed."""
+    import argparse
+
+    figures = {"centerline": 0.03e-3, "tip_along": 0.02e-3, "tip_across": 0.04e-3, "warnings": [],
+               "stated": {"centerline": 0.05e-3, "tip_along": 0.1e-3, "tip_across": 0.1e-3},
+               "centre_errors": [-0.05e-3, 0.02e-3, -0.12e-3]}
+    accuracy_matrix.print_details(figures, argparse.Namespace(warnings=False, stated=True))
+    assert "notch centres along the tube: mean -0.050, worst -0.120 (mm, + towards the tip)" in capsys.readouterr().out
