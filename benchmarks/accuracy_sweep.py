@@ -15,8 +15,8 @@ uncertainty over-stated: the price of never understating it), and in how many sc
 uncertainty the result stated for it. About 3 s a scene.
 
 `--renderer views` renders each drawn scene with the tests' own renderer instead (test/synthetic_views.py, with
-its window, noise and backdrop drawn per scene: run_views_scene), so the method is judged on depth made by other
-means than the simulator it was developed with. About 1.5 s a scene.
+its window, noise, backdrop and resolution drawn per scene: run_views_scene), so the method is judged on depth
+made by other means than the simulator it was developed with. About 1.5 s a scene.
 """
 
 from __future__ import annotations
@@ -102,8 +102,8 @@ def run_views_scene(index: int, frames: int = 2) -> dict:
     truth = rig_config_from_mapping(rig(robot))
     shape = TubeShape.from_bend_angle(truth.robot, math.radians(scene.bend_deg))
     pairs = [views.render_pair(shape, truth, seed=index * 10 + k, blur_px=window, noise_at_90mm=noise * 2e-5,
-                         stamp_ns=k * 33_000_000, backdrop=scene.distance + 0.05 if backdrop else None,
-                         intrinsics=intrinsics) for k in range(frames)]
+                               stamp_ns=k * 33_000_000, backdrop=scene.distance + 0.05 if backdrop else None,
+                               intrinsics=intrinsics) for k in range(frames)]
     # the rig file's notch side may be off the robot's true roll in its clamp
     robot["notch_side"] += math.radians(scene.side_error_deg)
     config = rig_config_from_mapping(rig(robot))

@@ -11,7 +11,7 @@ position rests on the rim erosion given back (and, across the tube, on the align
 how much deeper the wall reads between the notches than on the plain tube (a lean no fit can see), and the
 stretches where no camera saw the wall facing it (where the centreline's error was not measured), or where every
 camera sees the distal wall nearly edge-on, and how far the axis lies from the middle of the tube's outline in the
-cameras' views (core.outline). Every figure
+cameras' views (core.outline; or that no view showed the outline whole to check it). Every figure
 is in the unit its key names; the warnings are sentences a user can act on. relocation_node puts them on
 /diagnostics, the CLI prints them.
 """
@@ -184,16 +184,15 @@ class CameraReach:
         sight (each sees its wall nearly edge-on): its length (m; 0 for none) and per camera the least angle (rad)
         between axis and line of sight over it."""
         inside = self.s <= tip_s
-        s = self.s[inside]
-        angles = {name: angle[inside] for name, angle in self.sight_angle.items()}
-        if not len(s) or not angles:
+        if not np.any(inside) or not self.sight_angle:
             return 0.0, {}
-        end_on = np.all([angle < math.radians(END_ON_DEG) for angle in angles.values()], axis=0)
+        end_on = np.all([angle[inside] < math.radians(END_ON_DEG) for angle in self.sight_angle.values()], axis=0)
         off = np.flatnonzero(~end_on)
         first = int(off[-1]) + 1 if len(off) else 0  # the first sample of the end-on run that ends at the tip
         if first == len(end_on):
             return 0.0, {}
-        return float(tip_s - s[first]), {name: float(angle[first:].min()) for name, angle in angles.items()}
+        start = float(self.s[inside][first])
+        return tip_s - start, {name: self._least(self.sight_angle, name, start, tip_s) for name in self.sight_angle}
 
     def why_unseen(self, names: list[str], start: float, end: float, continued: bool = False) -> str:
         """The clause naming, of `names`, the cameras the stretch [start, end] comes nearer than any depth they
@@ -499,7 +498,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     if camera is not None and outline_offset is None:
         # the check ran (points carry their camera) and no window's outline spanned the tube's diameter: the
         # matcher spoiled the silhouettes (a wide window over a near backdrop); in the sweeps only such scenes,
-        # half of them over the centreline's floor, most of those beyond what the cameras' spread stated
+        # 10 of 26 on the second renderer over the centreline's floor, 2 of them beyond what the spread stated
         warnings.append("no camera's view showed the tube's outline whole (across each view its wall points spanned "
                         "no diameter: the matcher spoiled the silhouettes' pixels): the centreline was not checked "
                         "against the middle of the outline, and across the views it may lie further off than the "
