@@ -13,7 +13,7 @@ import pytest
 
 from ntcr_recon.core import alignment
 from ntcr_recon.core.alignment import align_to_trusted_wall, cross_view_spread, level_by_backbone
-from ntcr_recon.core.centerline import Centerline, estimate_centerline, settings_for
+from ntcr_recon.core.centerline import Centerline, estimate_centerline, settings_for, turn_from_base
 from ntcr_recon.core.comb import clear_of_cuts, cut_intervals, expected_centres, inside_intervals
 from ntcr_recon.core.config import RelocationConfig
 from ntcr_recon.core.geometry import TubeGeometry
@@ -74,6 +74,25 @@ def test_a_bend_past_half_a_turn_is_read_whole(bend_deg):
     # the turn between two places past the base, and from a later place back to an earlier one
     assert np.degrees(curve.bend_angle(curve.s[200], curve.s[-1])) == pytest.approx(turn[-1] - turn[200], abs=1e-6)
     assert np.degrees(curve.bend_angle(curve.s[-1], curve.s[200])) == pytest.approx(turn[200] - turn[-1], abs=1e-6)
+
+
+def test_the_bend_is_counted_from_the_clamps_axis_not_from_the_curves_leaning_start():
+    """A smoothed curve's start leans with the first notches' bend spread back over the straight proximal part;
+    the robot's bend (and with it its length, which places the tip) is counted from the configured base axis."""
+    shape = TubeShape.from_bend_angle(GEOMETRY, math.radians(250))
+    s = np.linspace(0.0, shape.length, 4000)
+    points, frames = shape.centerline(s)
+    # the start bent 3 deg back from the notch side (+x here), rejoining the true curve tangentially at 4 mm
+    rejoin, lean = 4e-3, math.radians(3.0)
+    before = np.clip(rejoin - s, 0.0, None)
+    points = points + (lean / (2 * rejoin) * before**2)[:, None] * frames[:, :, 0]
+    leaning = Centerline.from_points(points, frames[0, :, 1], 0.1e-3)
+    curve_turn = math.degrees(leaning.bend_angle(0.0, leaning.length))
+    from_base = math.degrees(turn_from_base(leaning, GEOMETRY, leaning.length))
+    print(f"\n250 deg bend, start leaning 3 deg: the curve turns {curve_turn:.2f} deg, from the base axis "
+          f"{from_base:.2f}")
+    assert curve_turn == pytest.approx(253.0, abs=0.3)
+    assert from_base == pytest.approx(250.0, abs=0.3)
 
 
 def test_comb_lies_on_the_configured_notches_of_a_straight_tube_and_shortens_with_bend():

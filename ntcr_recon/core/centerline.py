@@ -21,6 +21,7 @@ previous frame's centreline, a still or slowly moving robot) needs one or two it
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -593,6 +594,18 @@ def _smoothing_system_kernel(nodes, tangents, targets, information, anchor, smoo
             bands[10, 5 * (m + 1) + 3 + k] += steady
             bands[5, 5 * (m + 1) + 3 + k] -= steady
     return bands, rhs
+
+
+def turn_from_base(centerline: Centerline, geometry: TubeGeometry, s: float) -> float:
+    """The robot's bend from its base to arc length s (rad, + towards the notch side): the curve's turn from its
+    start, plus the tilt of its start from the base axis the rig configures. A smoothed curve's end tangent leans
+    with the bend beside it (the first notches' curvature spreads back over the straight proximal part), so the
+    clamp's axis is the better start: on the robot's largest bend the curve's own start tilts 3 deg back."""
+    _, axis, binormal = base_pose(geometry)
+    start = centerline.frames_at(np.zeros(1))[1][0]
+    notch_side = np.cross(binormal, axis)
+    tilt = math.atan2(float(start @ notch_side), float(start @ axis))
+    return float(centerline.bend_angle(0.0, s)) + tilt
 
 
 def _march(xyz: np.ndarray, geometry: TubeGeometry, settings: CenterlineSettings) -> np.ndarray:

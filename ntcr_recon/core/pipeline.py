@@ -35,7 +35,13 @@ from ntcr_recon.core.alignment import (
     cross_view_spread,
     level_by_backbone,
 )
-from ntcr_recon.core.centerline import Centerline, TubeCoordinates, estimate_centerline, settings_for
+from ntcr_recon.core.centerline import (
+    Centerline,
+    TubeCoordinates,
+    estimate_centerline,
+    settings_for,
+    turn_from_base,
+)
 from ntcr_recon.core.cloud import Cloud
 from ntcr_recon.core.comb import cut_intervals, expected_centres, inside_intervals
 from ntcr_recon.core.config import RigConfig
@@ -364,7 +370,7 @@ class Reconstructor:
         centreline_off = centerline_uncertainty(cross_view.spread, thinning, looking, bool(backbone_shift)) or 0.0
         # the robot's own length, at the bend measured, is a measurement of the tip too (core.tip); the bend is
         # known as well as the centreline's turn over a notch pitch
-        total_bend = float(centerline.bend_angle(0.0, tip_s))
+        total_bend = turn_from_base(centerline, geometry, tip_s)
         length_known = None if geometry.length_tolerance is None else float(np.hypot(
             geometry.length_tolerance, geometry.neutral_axis_offset * centreline_off / geometry.notch_pitch))
         # the cap's points only ever lie short of it (the matcher mixes its ring with the bore behind): a lower bound
