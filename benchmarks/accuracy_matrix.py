@@ -72,6 +72,10 @@ ROWS = [
     Row("side180_bend30", ("--bend-deg", "30", "--notch-side", "180")),
     Row("bend90", ("--bend-deg", "90")),
     Row("bend_largest", ("--bend-deg", "largest")),
+    # bends that differ notch to notch: a tendon's friction (falling from 9 deg at the base to 2 at the tip) and a
+    # contact pressing on one notch (12 deg there, 2 elsewhere)
+    Row("bends_falling", ("--notch-bends-deg", ",".join(f"{bend:.2f}" for bend in np.linspace(9.0, 2.0, 16)))),
+    Row("bend_kink", ("--notch-bends-deg", ",".join("12" if notch == 7 else "2" for notch in range(16)))),
     # the tip comes 30 mm nearer cam_a: at 110 mm it stays beyond the D405's 70 mm minimum depth, at 90 mm
     # it does not (cam_a sees nothing of the distal part there: the result must say so)
     Row("bend90_toward_cam_a", ("--bend-deg", "90", "--notch-side", "facing", "--camera-distance", "0.110")),

@@ -15,7 +15,7 @@ import accuracy_matrix  # noqa: E402
 ROWS = {row.name: row for row in accuracy_matrix.ROWS}
 
 
-@pytest.mark.parametrize("name", ["side45_bend30", "cameras75"])
+@pytest.mark.parametrize("name", ["side45_bend30", "cameras75", "bend_largest", "bends_falling"])
 def test_rows_meet_the_floors(name):
     figures = accuracy_matrix.run_row(ROWS[name], frames=2)
     print("\n" + accuracy_matrix.HEADER + "\n" + accuracy_matrix.format_row(figures))

@@ -373,7 +373,9 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
                            for n in notches if n.index in misread_widths)
         warnings.append(f"notches whose edges read a width their bends rule out: {listed}; their rims were misread "
                         "(a slot seen through over a narrow run, a rim merged with a cut face), and their widths are "
-                        "what their measured bends imply (a robot whose cuts are off its drawing would read so too)")
+                        "what their measured bends imply (a robot whose cuts are off its drawing would read so too, "
+                        "and so would a notch bent much sharper than its neighbours, whose bend the smoothed "
+                        "centreline spreads over them: there the width read may be the right one)")
     # a notch whose next one is missing where the tube seen ends within a pitch: its bend is a chord that may run
     # into a tube cut short, so its width, as read, was checked against nothing
     unchecked = list(unchecked or ())
