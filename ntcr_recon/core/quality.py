@@ -503,8 +503,8 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
         # 10 of 26 on the second renderer over the centreline's floor, 2 of them beyond what the spread stated
         warnings.append("no camera's view showed the tube's outline whole (across each view its wall points spanned "
                         "no diameter: the matcher spoiled the silhouettes' pixels): the centreline was not checked "
-                        "against the middle of the outline, and across the views it may lie further off than the "
-                        "cameras' spread says")
+                        "against the middle of the outline, and across the views it, and the tip at its free end, "
+                        "may lie further off than the cameras' spread says")
     if across_from_fit is not None:
         aligned, fit = across_from_fit
         warnings.append(f"the alignment moved the axis {aligned * 1e3:.2f} mm (RMS) from the middle of the tube's "
