@@ -15,8 +15,10 @@ from ntcr_recon.core.metrics import centerline_rmse
 from ntcr_recon.core.pipeline import ReconstructionError, Reconstructor
 
 SCENES = {
-    # name: (robot mapping, total bend in degrees, camera distance m, camera height m)
+    # name: (robot mapping, total bend in degrees or each notch's, camera distance m, camera height m)
     "default_bend30": ({}, 30.0, 0.09, 0.025),
+    # a tendon's friction: the notches bend less the farther they lie from the base (9 to 2 deg)
+    "default_bends_falling": ({}, tuple(np.linspace(9.0, 2.0, 16)), 0.09, 0.025),
     "thin_robot_bend60_near": ({"outer_diameter": 2.8e-3, "inner_diameter": 2.0e-3, "notch_count": 10,
                                 "notch_width": 1.2e-3, "notch_pitch": 2.6e-3, "proximal_length": 4e-3,
                                 "distal_length": 2e-3}, 60.0, 0.07, 0.02),
@@ -27,7 +29,8 @@ SCENES = {
 def scene(request):
     robot, bend_deg, distance, height = SCENES[request.param]
     config = make_config(robot, distance=distance, height=height)
-    shape = TubeShape.from_bend_angle(config.robot, np.radians(bend_deg))
+    shape = (TubeShape.from_notch_bends(config.robot, np.radians(bend_deg)) if isinstance(bend_deg, tuple)
+             else TubeShape.from_bend_angle(config.robot, np.radians(bend_deg)))
     pair = render_pair(shape, config, seed=7)
     reconstructor = Reconstructor(config)
     result = reconstructor.process(pair, with_mesh=True)
