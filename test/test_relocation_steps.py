@@ -230,6 +230,34 @@ def test_a_slot_the_matcher_filled_is_found_by_its_dip_and_given_its_bends_width
     assert found[0.85] == [] and DIP_PEAK > 1 - 0.85
 
 
+def test_a_dips_width_is_its_bend_taken_with_its_neighbours_not_one_chords_wobble():
+    """A robot bent 3.75 deg at each notch whose centreline wobbles 0.1 mm across the spine between notches 9 and
+    10 (where its support changes from two cameras to one): that spine's chord turns 3.8 deg, notch 9 reads 7.6
+    deg and notch 10 0 deg. Notch 9 is a dip (the matcher filled its slot: no edges), so its width is the one its
+    bend implies: with its own chord's bend 0.2 mm narrow, with the median of its own and its neighbours' true."""
+    from ntcr_recon.core.notches import _measure
+
+    geometry = GEOMETRY
+    shape = TubeShape.from_bend_angle(geometry, math.radians(60))
+    table = shape.notch_table()
+    s = np.linspace(0.0, shape.length, 4000)
+    points, frames = shape.centerline(s)
+    spine_middle = (table[9]["end_s"] + table[10]["start_s"]) / 2
+    ramp = 0.1e-3 / (1 + np.exp(-(s - spine_middle) / 0.15e-3))  # across the spine, none over the notches
+    wobbly = Centerline.from_points(points + ramp[:, None] * frames[:, :, 0], frames[0, :, 1], 0.1e-3)
+    gaps = [(n["start_s"], n["end_s"]) for n in table]
+    signals = ["dip" if n["index"] == 9 else "coverage" for n in table]
+    measured = _measure(gaps, list(range(geometry.notch_count)), signals, wobbly, geometry,
+                        np.array([n["center_s"] for n in table]), shape.length)
+    by_index = {n.index: n for n in measured}
+    bends = {i: math.degrees(by_index[i].bend) for i in (8, 10)}
+    print(f"\nwobbling chord: notch 9 (a dip) {by_index[9].width * 1e3:.3f} mm, true {table[9]['width'] * 1e3:.3f};"
+          f" notches 10 and 8 read bends {bends[10]:.2f}, {bends[8]:.2f} deg")
+    assert abs(math.degrees(by_index[10].bend) - 3.75) > 2.0  # the wobble turns the chords either side of it
+    assert by_index[9].signal == "dip"
+    assert by_index[9].width == pytest.approx(table[9]["width"], abs=0.03e-3)
+
+
 def _comb_tube(shift_of_notch_5: float = 0.0, window_unseen_from: float = np.inf, rng=None,
                notch_5_filled: float = 0.0):
     """A straight robot's outer wall with every notch open where the comb puts it (notch 5 moved along s by

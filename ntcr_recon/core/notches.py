@@ -16,7 +16,7 @@ Width (the documented definition): the gap on the outer surface line facing the 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import numpy as np
@@ -350,8 +350,12 @@ def _measure(gaps: list[tuple[float, float]], indices: list[int], signals: list[
     widths = np.maximum((end - start) - bends * r_o, 0.0)  # s_n (1 - kappa r_o) with kappa s_n = theta
     measured = [Notch(index, float((a + b) / 2), float(a), float(b), float(width), float(bend), signal)
                 for index, signal, a, b, width, bend in zip(indices, signals, start, end, widths, bends, strict=True)]
-    # a dip has no edges measured: the arc and gap its bend implies, about the comb's place
-    return [bend_implied(n, geometry, "dip") if n.signal == "dip" else n for n in measured]
+    # a dip has no edges measured: the arc and gap its bend implies, about the comb's place; its bend the median of
+    # its own and its found neighbours' (one chord's wobble, where the curve's support changes, is not its width)
+    by_index = {n.index: n.bend for n in measured}
+    return [bend_implied(replace(n, bend=float(np.median([by_index[i] for i in (n.index - 1, n.index, n.index + 1)
+                                                               if i in by_index]))), geometry, "dip")
+            if n.signal == "dip" else n for n in measured]
 
 
 class SideMeasurement(NamedTuple):
