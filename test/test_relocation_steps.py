@@ -520,6 +520,33 @@ def test_a_notch_read_at_a_width_its_bend_rules_out_is_given_its_bends_and_its_n
     assert f"6 ({misread[6] * 1e3:.2f} mm read, {width * 1e3:.2f} implied)" in text
 
 
+def test_a_misread_notch_is_given_the_width_of_its_bend_taken_with_its_neighbours():
+    """A robot bent 6 deg at each notch whose centreline wobbles at notch 6's far spine: notch 6 reads a bend of
+    4 deg and notch 7 one of 8 (one chord turned, the two notches it joins off opposite ways). Notch 6's rims are
+    misread (only the middle 0.3 mm of its slot seen through): the width it is given is the one the median of its
+    own and its neighbours' bends implies, the true one, not its own bend's (0.1 mm wide)."""
+    from ntcr_recon.core.notches import Notch, calibrate_and_check
+
+    geometry = TubeGeometry()
+    bend = math.radians(6.0)
+    arc, width = geometry.notch_arc_at_bend(bend), geometry.notch_width_at_bend(bend)
+    centres = geometry.notch_centers_s - np.arange(geometry.notch_count) * geometry.neutral_axis_offset * bend
+    read_bends = np.full(geometry.notch_count, bend)
+    read_bends[6:8] = np.radians([4.0, 8.0])
+    notches = [Notch(i, c, c - arc / 2, c + arc / 2, width, float(read_bends[i]), "coverage")
+               for i, c in enumerate(centres)]
+    notches[6] = Notch(6, centres[6], centres[6] - 0.15e-3, centres[6] + 0.15e-3, 0.3e-3, float(read_bends[6]),
+                       "coverage")
+    checked, misread, _ = calibrate_and_check(notches, geometry)
+    given = next(n for n in checked if n.index == 6)
+    own = geometry.notch_width_at_bend(read_bends[6])
+    print(f"\nnotch 6 misread: given {given.width * 1e3:.3f} mm (true {width * 1e3:.3f}, its own bend's "
+          f"{own * 1e3:.3f})")
+    assert set(misread) == {6} and given.signal == "bend"
+    assert given.width == pytest.approx(width, abs=1e-9)
+    assert own - width > 0.1e-3
+
+
 def test_centreline_of_a_known_arc():
     """The fit reaches the tube's end and runs on a slab or so past it (the pipeline cuts it at the tip it
     finds), never past the robot's reach; up to the robot's length it lies on the arc."""

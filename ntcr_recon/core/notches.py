@@ -560,10 +560,10 @@ def calibrate_and_check(notches: list[Notch], geometry: TubeGeometry, centerline
     to tip_s a pitch past where it should be: a spine running to a tube cut short is no chord of it) and
     whose calibrated width is off what its bend implies by more than MISREAD_WIDTH_FRACTION of the cut width was
     misread (a rim lost where only a narrow run of the slot was seen through, a rim merged with a face): it is
-    given the arc and width its bend implies, about its centre (signal "bend"), and the rims are calibrated again
-    without it, so that no spine it bounds shares its error with a neighbour; so on, the farthest off first,
-    until no measured notch is off its bend that far. Those whose bends were not so measured are listed
-    unchecked."""
+    given the arc and width its bend (the median of its own and its neighbours') implies, about its centre
+    (signal "bend"), and the rims are calibrated again without it, so that no spine it bounds shares its error
+    with a neighbour; so on, the farthest off first, until no measured notch is off its bend that far. Those
+    whose bends were not so measured are listed unchecked."""
     misread: dict[int, float] = {}
     limit = MISREAD_WIDTH_FRACTION * geometry.notch_width
     checked = _bends_measured(notches, geometry, tip_s)
@@ -577,7 +577,12 @@ def calibrate_and_check(notches: list[Notch], geometry: TubeGeometry, centerline
                                   sorted(n.index for n in calibrated if n.edges_measured and n.index not in checked))
         read = next(n for n in calibrated if n.index == worst)
         misread[worst] = read.width
-        notches = [bend_implied(read, geometry, "bend") if n.index == worst else n for n in notches]
+        # its bend with its neighbours' (the median), as a dip's (_measure): one spine's chord wobbling turns the
+        # two notches it joins opposite ways
+        bends = {n.index: n.bend for n in notches if n.bend is not None}
+        steady = float(np.median([bends[i] for i in (worst - 1, worst, worst + 1) if i in bends]))
+        notches = [bend_implied(replace(read, bend=steady), geometry, "bend") if n.index == worst else n
+                   for n in notches]
 
 
 def _bends_measured(notches: list[Notch], geometry: TubeGeometry, tip_s: float) -> set[int]:
