@@ -350,12 +350,19 @@ def _measure(gaps: list[tuple[float, float]], indices: list[int], signals: list[
     widths = np.maximum((end - start) - bends * r_o, 0.0)  # s_n (1 - kappa r_o) with kappa s_n = theta
     measured = [Notch(index, float((a + b) / 2), float(a), float(b), float(width), float(bend), signal)
                 for index, signal, a, b, width, bend in zip(indices, signals, start, end, widths, bends, strict=True)]
-    # a dip has no edges measured: the arc and gap its bend implies, about the comb's place; its bend the median of
-    # its own and its found neighbours' (one chord's wobble, where the curve's support changes, is not its width)
-    by_index = {n.index: n.bend for n in measured}
-    return [bend_implied(replace(n, bend=float(np.median([by_index[i] for i in (n.index - 1, n.index, n.index + 1)
-                                                               if i in by_index]))), geometry, "dip")
-            if n.signal == "dip" else n for n in measured]
+    # a dip has no edges measured: the arc and gap its steady bend implies, about the comb's place
+    bends = {n.index: n.bend for n in measured}
+    return [bend_implied(replace(n, bend=steady_bend(bends, n.index)), geometry, "dip") if n.signal == "dip" else n
+            for n in measured]
+
+
+def steady_bend(bends: dict[int, float | None], index: int) -> float:
+    """The bend of notch `index` (rad) taken with its found neighbours' (`bends` by index): the median of the
+    three. A spine's chord on the smoothed centreline that wobbles (where the curve's support changes, as a stretch
+    becomes seen by one camera alone) turns the two notches it joins opposite ways; where a notch's width is the one
+    its bend implies (its edges not measured, or misread), one chord's wobble is not its width."""
+    known = [bend for i in (index - 1, index, index + 1) if (bend := bends.get(i)) is not None]
+    return float(np.median(known)) if known else 0.0
 
 
 class SideMeasurement(NamedTuple):
@@ -577,10 +584,7 @@ def calibrate_and_check(notches: list[Notch], geometry: TubeGeometry, centerline
                                   sorted(n.index for n in calibrated if n.edges_measured and n.index not in checked))
         read = next(n for n in calibrated if n.index == worst)
         misread[worst] = read.width
-        # its bend with its neighbours' (the median), as a dip's (_measure): one spine's chord wobbling turns the
-        # two notches it joins opposite ways
-        bends = {n.index: n.bend for n in notches if n.bend is not None}
-        steady = float(np.median([bends[i] for i in (worst - 1, worst, worst + 1) if i in bends]))
+        steady = steady_bend({n.index: n.bend for n in notches}, worst)
         notches = [bend_implied(replace(read, bend=steady), geometry, "bend") if n.index == worst else n
                    for n in notches]
 
