@@ -102,7 +102,7 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
     coverage that is the half-plateau level: each depth pixel stands for a cell of one footprint), centred
     within the comb's notch (a run centred farther off is not that notch). Where neither gives a run, a dip of
     the coverage at the comb's place (_dip_at) finds the notch without edges ("dip": placed by the comb, its
-    width what its measured bend implies, geometry.notch_width_at_bend). A rim the matcher mixed with the
+    width what its bend with its neighbours' implies, steady_bend). A rim the matcher mixed with the
     floor behind it is measured where its viewing rays put it (_rim_gaps). Where no camera sees the window
     (its plateau under UNSEEN_PLATEAU_FRACTION of the tube's) no notch is found, nor one reaching into it.
 
