@@ -63,6 +63,14 @@ def true_centerline(shape: TubeShape, samples: int = 2000) -> Centerline:
     return Centerline(s, points, frames[:, :, 2], frames[:, :, 0], frames[:, :, 1])
 
 
+def displaced_centerline(shape: TubeShape, towards_notches) -> Centerline:
+    """The shape's centreline with each sample moved towards the notch side by towards_notches(s) (m): a fitted
+    curve's local error, on a known robot."""
+    s = np.linspace(0.0, shape.length, 4000)
+    points, frames = shape.centerline(s)
+    return Centerline.from_points(points + towards_notches(s)[:, None] * frames[:, :, 0], frames[0, :, 1], 0.1e-3)
+
+
 @pytest.mark.parametrize("bend_deg", [100, 179, 181, 250, 280])
 def test_a_bend_past_half_a_turn_is_read_whole(bend_deg):
     shape = TubeShape.from_bend_angle(GEOMETRY, math.radians(bend_deg))
@@ -80,13 +88,9 @@ def test_the_bend_is_counted_from_the_clamps_axis_not_from_the_curves_leaning_st
     """A smoothed curve's start leans with the first notches' bend spread back over the straight proximal part;
     the robot's bend (and with it its length, which places the tip) is counted from the configured base axis."""
     shape = TubeShape.from_bend_angle(GEOMETRY, math.radians(250))
-    s = np.linspace(0.0, shape.length, 4000)
-    points, frames = shape.centerline(s)
     # the start bent 3 deg back from the notch side (+x here), rejoining the true curve tangentially at 4 mm
     rejoin, lean = 4e-3, math.radians(3.0)
-    before = np.clip(rejoin - s, 0.0, None)
-    points = points + (lean / (2 * rejoin) * before**2)[:, None] * frames[:, :, 0]
-    leaning = Centerline.from_points(points, frames[0, :, 1], 0.1e-3)
+    leaning = displaced_centerline(shape, lambda s: lean / (2 * rejoin) * np.clip(rejoin - s, 0.0, None) ** 2)
     curve_turn = math.degrees(leaning.bend_angle(0.0, leaning.length))
     from_base = math.degrees(turn_from_base(leaning, GEOMETRY, leaning.length))
     print(f"\n250 deg bend, start leaning 3 deg: the curve turns {curve_turn:.2f} deg, from the base axis "
@@ -240,11 +244,9 @@ def test_a_dips_width_is_its_bend_taken_with_its_neighbours_not_one_chords_wobbl
     geometry = GEOMETRY
     shape = TubeShape.from_bend_angle(geometry, math.radians(60))
     table = shape.notch_table()
-    s = np.linspace(0.0, shape.length, 4000)
-    points, frames = shape.centerline(s)
     spine_middle = (table[9]["end_s"] + table[10]["start_s"]) / 2
-    ramp = 0.1e-3 / (1 + np.exp(-(s - spine_middle) / 0.15e-3))  # across the spine, none over the notches
-    wobbly = Centerline.from_points(points + ramp[:, None] * frames[:, :, 0], frames[0, :, 1], 0.1e-3)
+    # a ramp across the spine, none over the notches
+    wobbly = displaced_centerline(shape, lambda s: 0.1e-3 / (1 + np.exp(-(s - spine_middle) / 0.15e-3)))
     gaps = [(n["start_s"], n["end_s"]) for n in table]
     signals = ["dip" if n["index"] == 9 else "coverage" for n in table]
     measured = _measure(gaps, list(range(geometry.notch_count)), signals, wobbly, geometry,
@@ -459,6 +461,20 @@ def test_each_spine_is_given_its_known_length_its_two_rims_sharing_what_it_reads
     assert calibrated[7].end_s == pytest.approx(ends[7]) and calibrated[9].start_s == pytest.approx(starts[9])
 
 
+def read_notch(geometry: TubeGeometry, index: int, start: float, end: float, bend: float,
+              signal: str = "coverage") -> Notch:
+    """A notch read between rims at start and end (m) on a robot bent `bend` there (its width the gap on the outer
+    wall: the arc less bend x outer radius)."""
+    return Notch(index, (start + end) / 2, start, end, end - start - bend * geometry.outer_radius, bend, signal)
+
+
+def read_evenly_bent(geometry: TubeGeometry, bend: float) -> list[Notch]:
+    """Every notch of a robot bent `bend` at each, read exactly where the bend puts it."""
+    arc = geometry.notch_arc_at_bend(bend)
+    centres = geometry.notch_centers_s - np.arange(geometry.notch_count) * geometry.neutral_axis_offset * bend
+    return [read_notch(geometry, i, c - arc / 2, c + arc / 2, bend) for i, c in enumerate(centres)]
+
+
 def test_a_notch_read_at_a_width_its_bend_rules_out_is_given_its_bends_and_its_neighbours_are_not_spoiled():
     """A robot bent 6 deg at each notch, its rims read exactly but notch 6's: only the middle 0.3 mm of its slot
     was seen through (a narrow run of coverage). Calibrated as measured, its error spreads to the spines it bounds
@@ -466,18 +482,14 @@ def test_a_notch_read_at_a_width_its_bend_rules_out_is_given_its_bends_and_its_n
     about its centre (signal "bend", the width read reported), and every other width is exact; not where its next
     notch is missing near the tube's end (a warning names it unchecked). A notch read 0.1 mm wide - under a
     tenth of the cut width off its bend, a reading a robot could hold - is kept as measured."""
-    from ntcr_recon.core.notches import MISREAD_WIDTH_FRACTION, Notch, calibrate_and_check, calibrate_rims
+    from ntcr_recon.core.notches import MISREAD_WIDTH_FRACTION, calibrate_and_check, calibrate_rims
 
-    geometry = TubeGeometry()
-    bend = math.radians(6.0)
+    geometry, bend = TubeGeometry(), math.radians(6.0)
     arc, width = geometry.notch_arc_at_bend(bend), geometry.notch_width_at_bend(bend)
     centres = geometry.notch_centers_s - np.arange(geometry.notch_count) * geometry.neutral_axis_offset * bend
-
-    def read(index, start, end, signal="coverage"):
-        return Notch(index, (start + end) / 2, start, end, end - start - bend * geometry.outer_radius, bend, signal)
-
-    exact = [read(i, c - arc / 2, c + arc / 2) for i, c in enumerate(centres)]
-    narrow = [read(6, centres[6] - 0.15e-3, centres[6] + 0.15e-3) if n.index == 6 else n for n in exact]
+    exact = read_evenly_bent(geometry, bend)
+    narrow = [read_notch(geometry, 6, centres[6] - 0.15e-3, centres[6] + 0.15e-3, bend) if n.index == 6 else n
+              for n in exact]
     spoiled = np.array([n.width for n in calibrate_rims(narrow, geometry)]) - width
     assert abs(spoiled[5]) > 0.1e-3 and abs(spoiled[7]) > 0.1e-3  # the misread rims shared with its neighbours
 
@@ -505,7 +517,7 @@ def test_a_notch_read_at_a_width_its_bend_rules_out_is_given_its_bends_and_its_n
     assert quality["notches_unchecked"] == [6]
     assert any(w.startswith("widths not checked against their bends, as read: notches 6 (") for w in said)
 
-    wide = [read(6, n.start_s - 0.05e-3, n.end_s + 0.05e-3) if n.index == 6 else n for n in exact]
+    wide = [read_notch(geometry, 6, n.start_s - 0.05e-3, n.end_s + 0.05e-3, bend) if n.index == 6 else n for n in exact]
     assert MISREAD_WIDTH_FRACTION * geometry.notch_width > 0.1e-3
     kept, none, _ = calibrate_and_check(wide, geometry)
     assert none == {} and {n.signal for n in kept} == {"coverage"}
@@ -525,18 +537,15 @@ def test_a_misread_notch_is_given_the_width_of_its_bend_taken_with_its_neighbour
     4 deg and notch 7 one of 8 (one chord turned, the two notches it joins off opposite ways). Notch 6's rims are
     misread (only the middle 0.3 mm of its slot seen through): the width it is given is the one the median of its
     own and its neighbours' bends implies, the true one, not its own bend's (0.1 mm wide)."""
-    from ntcr_recon.core.notches import Notch, calibrate_and_check
+    from ntcr_recon.core.notches import calibrate_and_check
 
-    geometry = TubeGeometry()
-    bend = math.radians(6.0)
-    arc, width = geometry.notch_arc_at_bend(bend), geometry.notch_width_at_bend(bend)
-    centres = geometry.notch_centers_s - np.arange(geometry.notch_count) * geometry.neutral_axis_offset * bend
+    geometry, bend = TubeGeometry(), math.radians(6.0)
+    width = geometry.notch_width_at_bend(bend)
     read_bends = np.full(geometry.notch_count, bend)
     read_bends[6:8] = np.radians([4.0, 8.0])
-    notches = [Notch(i, c, c - arc / 2, c + arc / 2, width, float(read_bends[i]), "coverage")
-               for i, c in enumerate(centres)]
-    notches[6] = Notch(6, centres[6], centres[6] - 0.15e-3, centres[6] + 0.15e-3, 0.3e-3, float(read_bends[6]),
-                       "coverage")
+    notches = [dataclasses.replace(n, bend=float(read_bends[n.index])) for n in read_evenly_bent(geometry, bend)]
+    centre = notches[6].center_s
+    notches[6] = dataclasses.replace(notches[6], start_s=centre - 0.15e-3, end_s=centre + 0.15e-3, width=0.3e-3)
     checked, misread, _ = calibrate_and_check(notches, geometry)
     given = next(n for n in checked if n.index == 6)
     own = geometry.notch_width_at_bend(read_bends[6])
