@@ -13,7 +13,13 @@ import pytest
 
 from ntcr_recon.core import alignment
 from ntcr_recon.core.alignment import align_to_trusted_wall, cross_view_spread, level_by_backbone
-from ntcr_recon.core.centerline import Centerline, estimate_centerline, settings_for, turn_from_base
+from ntcr_recon.core.centerline import (
+    Centerline,
+    continued_bend,
+    estimate_centerline,
+    settings_for,
+    turn_from_base,
+)
 from ntcr_recon.core.comb import clear_of_cuts, cut_intervals, expected_centres, inside_intervals
 from ntcr_recon.core.config import RelocationConfig
 from ntcr_recon.core.geometry import TubeGeometry
@@ -97,6 +103,36 @@ def test_the_bend_is_counted_from_the_clamps_axis_not_from_the_curves_leaning_st
           f"{from_base:.2f}")
     assert curve_turn == pytest.approx(253.0, abs=0.3)
     assert from_base == pytest.approx(250.0, abs=0.3)
+
+
+@pytest.mark.parametrize("bend_deg", [60, 200])
+def test_a_curve_that_stops_short_of_the_last_notch_carries_on_bending_over_it_to_the_tip(bend_deg):
+    """The fit reaches only as far as the wall is seen whole; over a last notch seen thinly the curve is carried on
+    to the tip. Along its end tangent it misses that notch's bend; at the steady bend per notch, over each notch past
+    its end, it lands on the tip. Past the last notch (the distal ring) it goes on straight."""
+    shape = TubeShape.from_bend_angle(GEOMETRY, math.radians(bend_deg))
+    table = shape.notch_table()
+    centres = np.array([n["center_s"] for n in table])
+    true_tip = shape.centerline(np.array([shape.length]))[0][0]
+
+    def tip_error(stop_s: float) -> tuple[float, float]:
+        s = np.arange(0.0, stop_s, 0.1e-3)
+        points, frames = shape.centerline(s)
+        cut = Centerline(s, points, frames[:, :, 2], frames[:, :, 0], frames[:, :, 1])
+        carried = continued_bend(cut, shape.length, centres, GEOMETRY.notch_width, GEOMETRY.notch_pitch)
+        along_tangent = cut.frames_at(np.array([shape.length]))[0][0]
+        landed = carried.frames_at(np.array([shape.length]))[0][0]
+        assert np.allclose(carried.points[: len(s)], cut.points)  # the curve itself is unchanged
+        return float(np.linalg.norm(along_tangent - true_tip)), float(np.linalg.norm(landed - true_tip))
+
+    before_last = tip_error(table[-1]["start_s"] - 0.3e-3)
+    on_the_ring = tip_error(table[-1]["end_s"] + 0.2e-3)
+    print(f"\n{bend_deg} deg, the curve stopped before the last notch: the tip along its end tangent "
+          f"{before_last[0] * 1e3:.3f} mm off, carried on bending {before_last[1] * 1e3:.3f} mm; stopped on the distal "
+          f"ring: {on_the_ring[0] * 1e3:.4f} and {on_the_ring[1] * 1e3:.4f} mm")
+    assert before_last[0] > 0.08e-3
+    assert before_last[1] < 0.005e-3
+    assert on_the_ring[1] == pytest.approx(on_the_ring[0], abs=1e-9) and on_the_ring[1] < 0.005e-3
 
 
 def test_comb_lies_on_the_configured_notches_of_a_straight_tube_and_shortens_with_bend():

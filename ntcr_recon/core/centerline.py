@@ -608,6 +608,51 @@ def turn_from_base(centerline: Centerline, geometry: TubeGeometry, s: float) -> 
     return float(centerline.bend_angle(0.0, s)) + tilt
 
 
+def continued_bend(centerline: Centerline, to_s: float, notch_centres: np.ndarray, notch_width: float,
+                   notch_pitch: float) -> Centerline:
+    """The curve carried on from its end to arc length `to_s` as the robot bends: over each notch the fit did not
+    reach (its centre past the curve's end) it turns by the steady bend per notch (the turn over the curve's last two
+    pitches, halved, about the tangents' common normal), spread over the notch's width (what of it lies past the
+    end); straight along the spines between and beyond the last notch. The curve itself is unchanged."""
+    length = centerline.length
+    step = float(centerline.s[1] - centerline.s[0])
+    if to_s <= length + 1e-12:
+        return centerline
+    extra = np.arange(1, int(np.ceil((to_s - length) / step - 1e-9)) + 1) * step  # (samples stay uniform)
+    start = max(length - 2 * notch_pitch, 0.0)
+    position, tangents_at, normal, binormal = centerline.frames_at(np.array([start, length]))
+    first_tangent, tangent = tangents_at
+    position, normal, binormal = position[1], normal[1], binormal[1]
+    axis = np.cross(first_tangent, tangent)
+    turn = math.atan2(float(np.linalg.norm(axis)), float(first_tangent @ tangent))
+    per_notch = turn * notch_pitch / (length - start) if length > start else 0.0
+    axis = axis / np.linalg.norm(axis) if turn > 1e-9 else binormal
+    # the tangent's turn along the extension, integrated finely (the notches' arcs are a few samples long)
+    fine = np.linspace(0.0, extra[-1], 16 * len(extra) + 1)
+    beyond = np.asarray(notch_centres, float)
+    beyond = beyond[beyond > length]
+    arc_starts = np.maximum(beyond - notch_width / 2, length)
+    arc_lengths = np.maximum(beyond + notch_width / 2 - arc_starts, 1e-12)
+    progress = np.clip((length + fine[:, None] - arc_starts) / arc_lengths, 0.0, 1.0)
+    angle = per_notch * progress.sum(axis=1)
+    side = np.cross(axis, tangent)
+    directions = np.cos(angle)[:, None] * tangent + np.sin(angle)[:, None] * side
+    travelled = np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * (directions[1:] + directions[:-1])
+                                                           * np.diff(fine)[:, None], axis=0)])
+    picked = np.searchsorted(fine, extra - 1e-12)
+    cos_a, sin_a = np.cos(angle[picked])[:, None], np.sin(angle[picked])[:, None]
+
+    def turned(v: np.ndarray) -> np.ndarray:  # Rodrigues about `axis`
+        along = float(v @ axis) * axis
+        return along + cos_a * (v - along) + sin_a * np.cross(axis, v)
+
+    return Centerline(np.concatenate([centerline.s, length + extra]),
+                      np.concatenate([centerline.points, position + travelled[picked]]),
+                      np.concatenate([centerline.tangents, turned(tangent)]),
+                      np.concatenate([centerline.normals, turned(normal)]),
+                      np.concatenate([centerline.binormals, turned(binormal)]))
+
+
 def _march(xyz: np.ndarray, geometry: TubeGeometry, settings: CenterlineSettings) -> np.ndarray:
     """Cold start: from the base along its axis, fit one slab ahead at a time; returns polyline nodes."""
     base, axis, binormal = base_pose(geometry)

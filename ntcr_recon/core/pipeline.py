@@ -38,6 +38,7 @@ from ntcr_recon.core.alignment import (
 from ntcr_recon.core.centerline import (
     Centerline,
     TubeCoordinates,
+    continued_bend,
     estimate_centerline,
     settings_for,
     turn_from_base,
@@ -368,6 +369,10 @@ class Reconstructor:
         looking = tuple(cameras_looking_into_slots(centerline, geometry, self._camera_origins,
                                                    self.config.camera_names))
         centreline_off = centerline_uncertainty(cross_view.spread, thinning, looking, bool(backbone_shift)) or 0.0
+        # the fit reaches as far as the tube's wall is seen whole; the tip may lie beyond, over a last notch seen
+        # thinly: the curve carries on bending there as the notches before it did
+        centerline = continued_bend(centerline, geometry.reach, comb_centres, geometry.notch_width,
+                                    geometry.notch_pitch)
         # the robot's own length, at the bend measured, is a measurement of the tip too (core.tip); the bend is
         # known as well as the centreline's turn over a notch pitch
         total_bend = turn_from_base(centerline, geometry, tip_s)
