@@ -515,8 +515,9 @@ def test_a_notch_read_at_a_width_its_bend_rules_out_is_given_its_bends_and_its_n
     """A robot bent 6 deg at each notch, its rims read exactly but notch 6's: only the middle 0.3 mm of its slot
     was seen through (a narrow run of coverage). Calibrated as measured, its error spreads to the spines it bounds
     (notches 5 and 7 read off); checked against the bends, notch 6 is given the arc and width its bend implies
-    about its centre (signal "bend", the width read reported), and every other width is exact; not where its next
-    notch is missing near the tube's end (a warning names it unchecked). A notch read 0.1 mm wide - under a
+    about its centre (signal "bend", the width read reported), and every other width is exact; where its next
+    notch is missing near the tube's end, by the bend of the two notches before it, and with those missing too not
+    at all (a warning names it unchecked). A notch read 0.1 mm wide - under a
     tenth of the cut width off its bend, a reading a robot could hold - is kept as measured."""
     from ntcr_recon.core.notches import MISREAD_WIDTH_FRACTION, calibrate_and_check, calibrate_rims
 
@@ -538,10 +539,15 @@ def test_a_notch_read_at_a_width_its_bend_rules_out_is_given_its_bends_and_its_n
     assert by_index[6].end_s - by_index[6].start_s == pytest.approx(arc, abs=1e-12)
     assert np.allclose([n.width for n in checked], width, atol=1e-9)
     # its next notch not found and the tube seen to just past it: the spine after it may run to a tube cut short,
-    # its bend is not trusted to check it; seen a pitch beyond, it is
+    # its own bend is not trusted to check it, the bend of the two notches before it is; seen a pitch beyond, its own
     without_7 = [n for n in narrow if n.index != 7]
     assert 6 in calibrate_and_check(without_7, geometry, tip_s=centres[8]).misread
-    unchecked, flagged, not_checked = calibrate_and_check(without_7, geometry, tip_s=centres[7])
+    by_earlier, flagged, not_checked = calibrate_and_check(without_7, geometry, tip_s=centres[7])
+    assert set(flagged) == {6} and not_checked == []
+    assert next(n for n in by_earlier if n.index == 6).width == pytest.approx(width, abs=1e-12)
+    # ... and with neither (notches 4 and 5 not found either), it is left as read
+    alone = [n for n in narrow if n.index not in (4, 5, 7)]
+    unchecked, flagged, not_checked = calibrate_and_check(alone, geometry, tip_s=centres[7])
     assert 6 not in flagged and next(n for n in unchecked if n.index == 6).signal == "coverage"
     assert not_checked == [6]
     # ... and the result says its width was checked against nothing
@@ -566,6 +572,30 @@ def test_a_notch_read_at_a_width_its_bend_rules_out_is_given_its_bends_and_its_n
     text = " ".join(warnings)
     print("\n" + text)
     assert f"6 ({misread[6] * 1e3:.2f} mm read, {width * 1e3:.2f} implied)" in text
+
+
+def test_the_last_notch_found_is_checked_against_the_bend_of_the_notches_before_it():
+    """Where the tube seen thins out past the last notch found (its next one unseen, the end within a pitch), that
+    notch's distal rim reads late (0.25-0.4 mm in the sweeps) and no whole spine beyond measures its own bend (its
+    chord runs into a tube cut short: here it reads 4 deg for 2). Checked against the bend of the two notches before
+    it, it is given the true width, not its own chord's bend's."""
+    from ntcr_recon.core.notches import calibrate_and_check
+
+    geometry, bend = TubeGeometry(), math.radians(2.0)
+    width = geometry.notch_width_at_bend(bend)
+    notches = read_evenly_bent(geometry, bend)[:9]  # notches 9-15 unseen
+    last = notches[8]
+    notches[8] = dataclasses.replace(last, end_s=last.end_s + 0.37e-3, width=last.width + 0.37e-3,
+                                     bend=math.radians(4.0))
+    tip_s = last.end_s + geometry.notch_pitch  # the tube seen ends within a pitch past the spine after it
+    checked, misread, unchecked = calibrate_and_check(notches, geometry, tip_s=tip_s)
+    given = next(n for n in checked if n.index == 8)
+    own_chords = geometry.notch_width_at_bend(math.radians(4.0))
+    print(f"\nthe last notch found, read {misread.get(8, given.width) * 1e3:.3f} mm: given {given.width * 1e3:.3f} "
+          f"(true {width * 1e3:.3f}; its own chord's bend implies {own_chords * 1e3:.3f})")
+    assert set(misread) == {8} and unchecked == [] and given.signal == "bend"
+    assert given.width == pytest.approx(width, abs=1e-9)
+    assert width - own_chords > 0.1e-3
 
 
 def test_a_misread_notch_is_given_the_width_of_its_bend_taken_with_its_neighbours():

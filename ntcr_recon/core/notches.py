@@ -569,22 +569,29 @@ def calibrate_and_check(notches: list[Notch], geometry: TubeGeometry, centerline
     misread (a rim lost where only a narrow run of the slot was seen through, a rim merged with a face): it is
     given the arc and width its bend (the median of its own and its neighbours') implies, about its centre
     (signal "bend"), and the rims are calibrated again without it, so that no spine it bounds shares its error
-    with a neighbour; so on, the farthest off first, until no measured notch is off its bend that far. Those
-    whose bends were not so measured are listed unchecked."""
+    with a neighbour; so on, the farthest off first, until no measured notch is off its bend that far. One whose
+    bend was not so measured (the last found: its distal rim, where the tube seen thins out, is the rim most often
+    read far off, 0.25-0.4 mm in the sweeps) is checked against, and if misread given, the median bend of the two
+    notches before it whose bends were; those with neither are listed unchecked."""
     misread: dict[int, float] = {}
     limit = MISREAD_WIDTH_FRACTION * geometry.notch_width
     checked = _bends_measured(notches, geometry, tip_s)
+    # a notch whose own bend no whole spine beyond measured (the last one found, its distal rim where the tube seen
+    # thins out: the rim most often read far off) is checked against the bend of the measured notches before it
+    measured_bends = {n.index: n.bend for n in notches if n.index in checked and n.bend is not None}
+    before = {n.index: float(np.median(earlier)) for n in notches if n.index not in checked
+              and (earlier := [measured_bends[i] for i in (n.index - 2, n.index - 1) if i in measured_bends])}
     while True:  # one at a time, the farthest off first: a misread rim shared over a spine puts its neighbour off too
         calibrated = calibrate_rims(notches, geometry, centerline, camera_origins)
-        off = {n.index: abs(n.width - geometry.notch_width_at_bend(n.bend or 0.0))
-               for n in calibrated if n.edges_measured and n.index in checked}
+        off = {n.index: abs(n.width - geometry.notch_width_at_bend(before.get(n.index, n.bend) or 0.0))
+               for n in calibrated if n.edges_measured and (n.index in checked or n.index in before)}
         worst = max(off, key=off.get, default=None)
         if worst is None or off[worst] <= limit:
-            return CheckedNotches(calibrated, misread,
-                                  sorted(n.index for n in calibrated if n.edges_measured and n.index not in checked))
+            return CheckedNotches(calibrated, misread, sorted(n.index for n in calibrated if n.edges_measured
+                                                              and n.index not in checked and n.index not in before))
         read = next(n for n in calibrated if n.index == worst)
         misread[worst] = read.width
-        steady = steady_bend({n.index: n.bend for n in notches}, worst)
+        steady = before[worst] if worst in before else steady_bend({n.index: n.bend for n in notches}, worst)
         notches = [bend_implied(replace(read, bend=steady), geometry, "bend") if n.index == worst else n
                    for n in notches]
 

@@ -372,17 +372,19 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
         listed = ", ".join(f"{n.index} ({misread_widths[n.index] * 1e3:.2f} mm read, {n.width * 1e3:.2f} implied)"
                            for n in notches if n.index in misread_widths)
         warnings.append(f"notches whose edges read a width their bends rule out: {listed}; their rims were misread "
-                        "(a slot seen through over a narrow run, a rim merged with a cut face), and their widths are "
-                        "what their measured bends imply (a robot whose cuts are off its drawing would read so too, "
+                        "(a slot seen through over a narrow run, a rim merged with a cut face, the last notch's distal "
+                        "rim where the tube seen thins out), and their widths are what their measured bends imply (the "
+                        "last notch found, whose own bend no whole spine beyond measures: the bend of the two before "
+                        "it) (a robot whose cuts are off its drawing would read so too, "
                         "and so would a notch bent much sharper than its neighbours, whose bend the smoothed "
                         "centreline spreads over them: there the width read may be the right one)")
     # a notch whose next one is missing where the tube seen ends within a pitch: its bend is a chord that may run
-    # into a tube cut short, so its width, as read, was checked against nothing
+    # into a tube cut short; with no measured notch before it either, its width, as read, was checked against nothing
     unchecked = list(unchecked or ())
     if unchecked:
         warnings.append(f"widths not checked against their bends, as read: notches {', '.join(map(str, unchecked))} "
                         "(the next notch was not found and the tube seen ends within a pitch: no whole spine beyond "
-                        "measures the bend)")
+                        "measures the bend, and no notch before it whose bend was measured)")
     # the tip's rim is a depth edge: it rests on the erosion given back, known to about that much unless the
     # refinement measured it
     measured = tip_uncertainty is not None
