@@ -571,8 +571,8 @@ def calibrate_and_check(notches: list[Notch], geometry: TubeGeometry, centerline
     (signal "bend"), and the rims are calibrated again without it, so that no spine it bounds shares its error
     with a neighbour; so on, the farthest off first, until no measured notch is off its bend that far. One whose
     bend was not so measured (the last found: its distal rim, where the tube seen thins out, is the rim most often
-    read far off, 0.25-0.4 mm in the sweeps) is checked against, and if misread given, the median bend of the two
-    notches before it whose bends were; those with neither are listed unchecked."""
+    read far off, 0.25-0.4 mm in the sweeps) is checked against, and if misread given, the median of the bends of
+    the one or two notches before it whose bends were; those with neither are listed unchecked."""
     misread: dict[int, float] = {}
     limit = MISREAD_WIDTH_FRACTION * geometry.notch_width
     checked = _bends_measured(notches, geometry, tip_s)

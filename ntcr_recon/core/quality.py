@@ -373,9 +373,9 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
                            for n in notches if n.index in misread_widths)
         warnings.append(f"notches whose edges read a width their bends rule out: {listed}; their rims were misread "
                         "(a slot seen through over a narrow run, a rim merged with a cut face, the last notch's distal "
-                        "rim where the tube seen thins out), and their widths are what their measured bends imply (the "
-                        "last notch found, whose own bend no whole spine beyond measures: the bend of the two before "
-                        "it) (a robot whose cuts are off its drawing would read so too, "
+                        "rim where the tube seen thins out), and their widths are what their measured bends imply (for "
+                        "the last notch found, whose own bend no whole spine beyond measures, the bend of the two "
+                        "before it; a robot whose cuts are off its drawing would read so too, "
                         "and so would a notch bent much sharper than its neighbours, whose bend the smoothed "
                         "centreline spreads over them: there the width read may be the right one)")
     # a notch whose next one is missing where the tube seen ends within a pitch: its bend is a chord that may run
