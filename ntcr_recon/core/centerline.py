@@ -290,6 +290,14 @@ class Centerline:
         tangents, normals, binormals = _untwisted_frames_kernel(s, resampled, np.array(binormal_hint, dtype=float))
         return cls(s, resampled, tangents, normals, binormals)
 
+    def up_to(self, s: float) -> Centerline:
+        """The curve from the base to arc length s (extended along the end tangent when s lies beyond)."""
+        step = float(self.s[1] - self.s[0])  # (a Centerline has at least two samples)
+        count = max(int(np.ceil(s / step)), 1) + 1
+        samples = np.linspace(0.0, s, count)
+        position, tangent, normal, binormal = self.frames_at(samples)
+        return Centerline(samples, position, tangent, normal, binormal)
+
     def rolled(self, angle: float) -> Centerline:
         """The same curve with its frame turned by `angle` about the tangent (the notch side measured)."""
         c, s = np.cos(angle), np.sin(angle)
@@ -608,32 +616,39 @@ def turn_from_base(centerline: Centerline, geometry: TubeGeometry, s: float) -> 
     return float(centerline.bend_angle(0.0, s)) + tilt
 
 
-def continued_bend(centerline: Centerline, to_s: float, notch_centres: np.ndarray, notch_width: float,
-                   notch_pitch: float) -> Centerline:
-    """The curve carried on from its end to arc length `to_s` as the robot bends: over each notch the fit did not
-    reach (its centre past the curve's end) it turns by the steady bend per notch (the turn over the curve's last two
-    pitches, halved, about the tangents' common normal), spread over the notch's width (what of it lies past the
-    end); straight along the spines between and beyond the last notch. The curve itself is unchanged."""
+def continued_bend(centerline: Centerline, to_s: float, notch_centres: np.ndarray, geometry: TubeGeometry
+                   ) -> Centerline:
+    """The curve carried on from its end to arc length `to_s` as the robot bends: over what of each notch lies past
+    the curve's end it turns by the steady bend per notch (the curve's turn over its last two pitches, about the
+    tangents' common normal, shared by the notches in them), spread over the notch's arc at that bend about its
+    centre (notch_centres: the comb's); straight along the spines between and beyond the last notch. The curve
+    itself is unchanged."""
     length = centerline.length
     step = float(centerline.s[1] - centerline.s[0])
     if to_s <= length + 1e-12:
         return centerline
     extra = np.arange(1, int(np.ceil((to_s - length) / step - 1e-9)) + 1) * step  # (samples stay uniform)
-    start = max(length - 2 * notch_pitch, 0.0)
+    start = max(length - 2 * geometry.notch_pitch, 0.0)
     position, tangents_at, normal, binormal = centerline.frames_at(np.array([start, length]))
     first_tangent, tangent = tangents_at
     position, normal, binormal = position[1], normal[1], binormal[1]
     axis = np.cross(first_tangent, tangent)
     turn = math.atan2(float(np.linalg.norm(axis)), float(first_tangent @ tangent))
-    per_notch = turn * notch_pitch / (length - start) if length > start else 0.0
     axis = axis / np.linalg.norm(axis) if turn > 1e-9 else binormal
-    # the tangent's turn along the extension, integrated finely (the notches' arcs are a few samples long)
+    centres = np.asarray(notch_centres, float)
+    # the turn shared by the notches' arcs within it: the arc a notch spans shrinks with its bend (twice suffices)
+    arc, per_notch = geometry.notch_width, 0.0
+    for _ in range(2):
+        spanned = float(np.sum(np.clip((np.minimum(centres + arc / 2, length) - np.maximum(centres - arc / 2, start))
+                                       / arc, 0.0, 1.0)))
+        per_notch = turn / spanned if spanned > 0 else 0.0
+        arc = max(geometry.notch_arc_at_bend(per_notch), 1e-9)
+    # the tangent's turn along the extension, integrated finely (the notches' arcs are a few samples long); each
+    # notch's share of its bend past the curve's end (the curve turned through what of it lies before)
     fine = np.linspace(0.0, extra[-1], 16 * len(extra) + 1)
-    beyond = np.asarray(notch_centres, float)
-    beyond = beyond[beyond > length]
-    arc_starts = np.maximum(beyond - notch_width / 2, length)
-    arc_lengths = np.maximum(beyond + notch_width / 2 - arc_starts, 1e-12)
-    progress = np.clip((length + fine[:, None] - arc_starts) / arc_lengths, 0.0, 1.0)
+    arc_starts = centres[centres + arc / 2 > length] - arc / 2
+    turned_by = np.clip((length - arc_starts) / arc, 0.0, 1.0)
+    progress = np.clip((length + fine[:, None] - arc_starts) / arc, 0.0, 1.0) - turned_by
     angle = per_notch * progress.sum(axis=1)
     side = np.cross(axis, tangent)
     directions = np.cos(angle)[:, None] * tangent + np.sin(angle)[:, None] * side

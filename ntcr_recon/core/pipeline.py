@@ -371,15 +371,15 @@ class Reconstructor:
         centreline_off = centerline_uncertainty(cross_view.spread, thinning, looking, bool(backbone_shift)) or 0.0
         # the fit reaches as far as the tube's wall is seen whole; the tip may lie beyond, over a last notch seen
         # thinly: the curve carries on bending there as the notches before it did
-        centerline = continued_bend(centerline, geometry.reach, comb_centres, geometry.notch_width,
-                                    geometry.notch_pitch)
+        centerline = continued_bend(centerline, geometry.reach, comb_centres, geometry)
         # the robot's own length, at the bend measured, is a measurement of the tip too (core.tip); the bend is
         # known as well as the centreline's turn over a notch pitch
         total_bend = turn_from_base(centerline, geometry, tip_s)
+        expected_length = geometry.bent_length(total_bend)
         length_known = None if geometry.length_tolerance is None else float(np.hypot(
             geometry.length_tolerance, geometry.neutral_axis_offset * centreline_off / geometry.notch_pitch))
         # the cap's points only ever lie short of it (the matcher mixes its ring with the bore behind): a lower bound
-        along = with_known_length(tip_s, seen_uncertainty, geometry.bent_length(total_bend), length_known,
+        along = with_known_length(tip_s, seen_uncertainty, expected_length, length_known,
                                   lower_bound=from_cap)
         tip_erosion, tip_s = tip_s - eroded_end, along.s
         # the rims the matcher moves (over the cut faces the cameras see), against the spines' known length; a
@@ -414,8 +414,9 @@ class Reconstructor:
             unsupported=cross_view.unsupported, backbone_shift=backbone_shift, misread_widths=misread,
             held_shift=None if alignment is None else (alignment.end_shift, alignment.held_from),
             unchecked=unchecked, reach=camera_reach(
-                centerline, tip_s, geometry.bent_length(total_bend), 2 * geometry.notch_pitch, geometry.outer_radius,
-                footprint, self._extrinsics, cloud.xyz, seen_by), notch_centres=comb_centres, wall_level=level)
+                continued_bend(centerline.up_to(tip_s), expected_length, comb_centres, geometry), tip_s,
+                expected_length, geometry.outer_radius, footprint, self._extrinsics, cloud.xyz, seen_by),
+            notch_centres=comb_centres, wall_level=level)
         quality = {**quality, "tip_refinement": refinement,
                    "centerline_backbone_shift_mm": None if backbone_shift is None else backbone_shift * 1e3,
                    # None: the side could not be measured (or did not settle): the configured one is kept
@@ -425,7 +426,7 @@ class Reconstructor:
         self._prior = fitted
         self._update_roi(relocated)
         self._timed("relocate", start)
-        return RelocationResult(_cut(centerline, tip_s), tip, notches, relocated, moved.normals, moved.rejected, coords,
+        return RelocationResult(centerline.up_to(tip_s), tip, notches, relocated, moved.normals, moved.rejected, coords,
                           iterations, moved.part, moved.coordinates, quality, tuple(warnings), notch_side)
 
     def _unrefined_tip_uncertainty(self, centerline: Centerline, tip_s: float, footprint: float) -> float:
@@ -521,10 +522,3 @@ def _rolled_axes(normal: np.ndarray, binormal: np.ndarray, angle: float) -> tupl
     return c * normal + s * binormal, c * binormal - s * normal
 
 
-def _cut(centerline: Centerline, tip_s: float) -> Centerline:
-    """The centreline from the base to the tip (extended along the end tangent when the tip lies beyond)."""
-    step = float(centerline.s[1] - centerline.s[0])  # (a Centerline has at least two samples)
-    count = max(int(np.ceil(tip_s / step)), 1) + 1
-    s = np.linspace(0.0, tip_s, count)
-    position, tangent, normal, binormal = centerline.frames_at(s)
-    return Centerline(s, position, tangent, normal, binormal)

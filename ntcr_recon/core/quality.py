@@ -129,30 +129,13 @@ def surface_depth(positions: np.ndarray, tangents: np.ndarray, extrinsic: np.nda
     return (np.asarray(positions, float) - extrinsic[:3, 3]) @ axis - radius * np.sqrt(1.0 - along**2)
 
 
-def extended_at_last_bend(centerline, end_s: float, span: float, beyond: np.ndarray
-                          ) -> tuple[np.ndarray, np.ndarray]:
-    """Positions and tangents `beyond` (m, >= 0) past end_s, the centreline continued on the arc it turned over
-    its last `span` (straight where it did not turn): where a tube seen only so far would go on."""
-    (_, end), (first, last) = centerline.frames_at(np.array([end_s - span, end_s]))[:2]
-    axis = np.cross(first, last)
-    sine = float(np.linalg.norm(axis))
-    beyond = np.asarray(beyond, float)[:, None]
-    if sine < 1e-9:
-        return end + beyond * last, np.repeat(last[None], len(beyond), axis=0)
-    towards = np.cross(axis / sine, last)  # where the tangent turns next
-    curvature = math.atan2(sine, float(first @ last)) / span
-    angle = curvature * beyond
-    positions = end + (np.sin(angle) * last + (1.0 - np.cos(angle)) * towards) / curvature
-    return positions, np.cos(angle) * last + np.sin(angle) * towards
-
-
 @dataclass(frozen=True)
 class CameraReach:
     """How near the tube comes to each camera along it (its surface's nearest depth, `surface_depth`, at each
-    sampled s; past the tip seen, continued at its last bend up to the robot's length) and how its axis lies to
-    the camera's line of sight, and the nearest depth of any point each camera returned: a stretch nearer a
-    camera than all it returned is one its stereo matching could not reach (a D405 at 848x480 sees nothing
-    nearer than about 70 mm); one pointing at it, one whose wall it sees nearly edge-on."""
+    sampled s; past the tip seen, carried on bending at its notches as before them, up to the robot's length) and
+    how its axis lies to the camera's line of sight, and the nearest depth of any point each camera returned: a
+    stretch nearer a camera than all it returned is one its stereo matching could not reach (a D405 at 848x480
+    sees nothing nearer than about 70 mm); one pointing at it, one whose wall it sees nearly edge-on."""
 
     s: np.ndarray
     depth: dict[str, np.ndarray]
@@ -212,18 +195,16 @@ class CameraReach:
         return f"{'continued at its last bend, it would' if continued else 'it'} {'; and '.join(reasons)}"
 
 
-def camera_reach(centerline, tip_s: float, length: float, span: float, radius: float, step: float,
+def camera_reach(carried, tip_s: float, length: float, radius: float, step: float,
                  extrinsics: dict[str, np.ndarray], xyz: np.ndarray, camera: np.ndarray | None) -> CameraReach:
-    """The CameraReach of a tube seen up to tip_s of a robot `length` long (m): its axis sampled every `step`,
-    continued past tip_s on the arc of its last `span`; the points `xyz` returned by the cameras (by index into
-    extrinsics' order, `camera`), none known without it."""
+    """The CameraReach of a tube seen up to tip_s of a robot `length` long (m): its axis sampled every `step` along
+    `carried`, the centreline up to tip_s carried on past it as the robot bends (centerline.continued_bend) to the
+    length; the points `xyz` returned by the cameras (by index into extrinsics' order, `camera`), none known
+    without it."""
     seen = np.append(np.arange(0.0, tip_s, step), tip_s)
-    positions, tangents = centerline.frames_at(seen)[:2]
     if length > tip_s:
-        beyond = np.arange(step, length - tip_s + step, step)
-        more_positions, more_tangents = extended_at_last_bend(centerline, tip_s, min(span, tip_s), beyond)
-        seen, positions, tangents = (np.concatenate(parts) for parts in (
-            (seen, tip_s + beyond), (positions, more_positions), (tangents, more_tangents)))
+        seen = np.concatenate([seen, tip_s + np.arange(step, length - tip_s + step, step)])
+    positions, tangents = carried.frames_at(seen)[:2]
     depth, nearest, sight = {}, {}, {}
     for index, (name, extrinsic) in enumerate(extrinsics.items()):
         depth[name] = surface_depth(positions, tangents, extrinsic, radius)
