@@ -1303,7 +1303,7 @@ def test_quality_gives_the_centreline_an_uncertainty_and_warns_above_its_floor()
     assert centerline_uncertainty(None, None, astray=0.5e-3) == pytest.approx(0.5e-3)
 
     def assessed(spread, thinning, looking=(), at_end=None, held=None, cam_b_up_to=None, wall_level=None,
-                 outline=None, across_from_fit=None):
+                 outline=None, across_from_fit=None, fitted_end=None):
         s, seen_by = np.linspace(0.0, 50e-3, 1000), np.zeros(1000, np.int8)
         if cam_b_up_to is not None:  # cam_a sees the whole tube, cam_b up to there
             s = np.concatenate([s, np.linspace(0.0, cam_b_up_to, 750)])
@@ -1313,7 +1313,8 @@ def test_quality_gives_the_centreline_an_uncertainty_and_warns_above_its_floor()
                       total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.0, notch_side=0.0, configured_side=0.0,
                       bias_notch_side=0.1e-3, bias_binormal=0.0, depth_steps={}, notched_thinning=thinning,
                       looking_into_slots=looking, cross_view_spread=spread, distal_cross_view=at_end,
-                      held_shift=held, outline_offset=outline, across_from_fit=across_from_fit)
+                      held_shift=held, outline_offset=outline, across_from_fit=across_from_fit,
+                      fitted_end=fitted_end, notch_centres=GEOMETRY.notch_centers_s)
 
     quality, warnings = assessed(0.06e-3, 0.08e-3)
     print("\n" + "\n".join(warnings))
@@ -1346,6 +1347,18 @@ def test_quality_gives_the_centreline_an_uncertainty_and_warns_above_its_floor()
     assert held_quality["tip_held_over_mm"] == pytest.approx(4.0)
     assert any("and by 0.15 mm across it (the alignment moved the axis 0.12 mm at the last wall it trusted, and "
                "held that shift unchecked over the 4.0 mm to the tip)" in warning for warning in held)
+    # the fit ended short of the tip (50 mm) and the centreline was carried on bending over the notches past its end
+    # (centres 44.75 and 47.75 mm, 1.5 mm wide): each one's bend known as well as the turn over a pitch (0.05 / 3 mm),
+    # its lever the rest to the tip: ended at 47.5 mm, two thirds of notch 14 at 2.25 mm add 0.025 mm in quadrature;
+    # ended at 44 mm, notch 13 too (5.25 mm) makes 0.125 mm, over the free end's and said
+    assert assessed(0.03e-3, 0.04e-3, fitted_end=50e-3)[0]["tip_carried_mm"] == 0.0
+    near, _ = assessed(0.03e-3, 0.04e-3, fitted_end=47.5e-3)
+    assert near["tip_carried_mm"] == pytest.approx(2.5)
+    assert near["tip_across_uncertainty_mm"] == pytest.approx(math.hypot(math.sqrt(3) * 0.05, 0.05 / 3 * 1.5))
+    short_quality, short = assessed(0.03e-3, 0.04e-3, fitted_end=44e-3)
+    assert short_quality["tip_across_uncertainty_mm"] == pytest.approx(math.hypot(math.sqrt(3) * 0.05, 0.125))
+    assert any("(the centreline carried on bending over the 6.0 mm past where its fit reached, at the bend of the "
+               "notches before)" in warning for warning in short)
     # looking into the slots, the deficit may lean the axis by twice it: 0.03 and 2 x 0.04 mm make 0.085 mm
     looking_quality, looking = assessed(0.03e-3, 0.04e-3, looking=("cam_a",))
     assert looking_quality["centerline_uncertainty_mm"] == pytest.approx(math.hypot(0.03, 0.08))

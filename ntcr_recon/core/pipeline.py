@@ -371,6 +371,7 @@ class Reconstructor:
         centreline_off = centerline_uncertainty(cross_view.spread, thinning, looking, bool(backbone_shift)) or 0.0
         # the fit reaches as far as the tube's wall is seen whole; the tip may lie beyond, over a last notch seen
         # thinly: the curve carries on bending there as the notches before it did
+        fitted_end = centerline.length
         centerline = continued_bend(centerline, geometry.reach, comb_centres, geometry)
         # the robot's own length, at the bend measured, is a measurement of the tip too (core.tip); the bend is
         # known as well as the centreline's turn over a notch pitch
@@ -416,7 +417,7 @@ class Reconstructor:
             unchecked=unchecked, reach=camera_reach(
                 continued_bend(centerline.up_to(tip_s), expected_length, comb_centres, geometry), tip_s,
                 expected_length, geometry.outer_radius, footprint, self._extrinsics, cloud.xyz, seen_by),
-            notch_centres=comb_centres, wall_level=level)
+            notch_centres=comb_centres, wall_level=level, fitted_end=fitted_end)
         quality = {**quality, "tip_refinement": refinement,
                    "centerline_backbone_shift_mm": None if backbone_shift is None else backbone_shift * 1e3,
                    # None: the side could not be measured (or did not settle): the configured one is kept

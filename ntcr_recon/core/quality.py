@@ -277,7 +277,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
            unsupported: tuple[tuple[float, float], ...] = (),
            misread_widths: dict[int, float] | None = None, unchecked: list[int] | None = None,
            reach: CameraReach | None = None, notch_centres: np.ndarray | None = None,
-           wall_level: float | None = None) -> tuple[dict, list[str]]:
+           wall_level: float | None = None, fitted_end: float | None = None) -> tuple[dict, list[str]]:
     """The `quality` document and the warnings (see the module docstring). tip_uncertainty: how well the tip's
     refinement placed it along the tube, when it measured the erosion it gave back (else the erosion itself
     counts as uncertain, and half a footprint). tip_position, crop_box: where the tip is and the box the points
@@ -304,7 +304,8 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     of the tube's outline in the cameras' views (m, RMS; outline.outline_offset): beyond OUTLINE_TOLERANCE_PX
     footprints the axis went astray with the wall it rests on, and is known no better than that. across_from_fit:
     (the aligned axis's outline offset, the fit's; m) when the alignment went astray, the fit did not, and the fit
-    placed the axis across the cameras' views (outline.across_views_from)."""
+    placed the axis across the cameras' views (outline.across_views_from). fitted_end: where the fitted curve ended
+    (m), past which the centreline was carried on bending to the tip (carried_to_tip)."""
     warnings: list[str] = []
     r_o, diameter = geometry.outer_radius, geometry.outer_diameter
     found = sorted(n.index for n in notches)
@@ -391,9 +392,13 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     end_spread = DISTAL_CROSS_VIEW_FACTOR * (distal_cross_view or 0.0)
     free_end = FREE_END_FACTOR * (uncertainty or 0.0)
     held, held_from = held_shift if held_shift is not None and held_shift[1] is not None else (0.0, tip_s)
-    tip_across = max(math.hypot(free_end, held), end_spread)
+    carried, carried_across = carried_to_tip(fitted_end, tip_s, notch_centres, geometry, uncertainty or 0.0)
+    tip_across = max(math.hypot(free_end, held, carried_across), end_spread)
     if end_spread >= tip_across:
         why = "the cameras' axes that far apart across their views at the end"
+    elif carried_across > max(free_end, held):
+        why = (f"the centreline carried on bending over the {carried * 1e3:.1f} mm past where its fit reached, at "
+               "the bend of the notches before")
     elif held > free_end:
         why = (f"the alignment moved the axis {held * 1e3:.2f} mm at the last wall it trusted, and held that shift "
                f"unchecked over the {max(tip_s - held_from, 0.0) * 1e3:.1f} mm to the tip")
@@ -535,6 +540,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
         "tip_uncertainty_mm": tip_uncertainty * 1e3,
         "tip_across_uncertainty_mm": None if uncertainty is None and not held else tip_across * 1e3,
         "tip_held_shift_mm": held * 1e3, "tip_held_over_mm": max(tip_s - held_from, 0.0) * 1e3,
+        "tip_carried_mm": carried * 1e3,
         "notch_width_vs_bend_mm": {str(i): d * 1e3 for i, d in sorted(off_model.items())},
         "notches_unchecked": unchecked,
         "pixel_footprint_mm": footprint * 1e3,
@@ -555,6 +561,20 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
             k: float(v[reach.s <= tip_s].min()) * 1e3 for k, v in reach.depth.items()},
     }
     return quality, warnings
+
+
+def carried_to_tip(fitted_end: float | None, tip_s: float, notch_centres: np.ndarray | None, geometry,
+                   centerline_off: float) -> tuple[float, float]:
+    """How far past the fitted curve's end the tip lies (m), and how far across the tube that leaves it uncertain
+    (m): there the centreline was carried on at the steady bend (centerline.continued_bend), each notch it bent over
+    known as well as the centreline's turn over a pitch (centerline_off / pitch), alike, its lever the rest of the
+    way to the tip. (0, 0) where the fit reached the tip, or its end or the comb is not known."""
+    if fitted_end is None or notch_centres is None or tip_s <= fitted_end:
+        return 0.0, 0.0
+    centres = np.asarray(notch_centres, float)
+    share = np.clip((centres + geometry.notch_width / 2 - fitted_end) / geometry.notch_width, 0.0, 1.0)
+    lever = float(np.sum(share * np.clip(tip_s - centres, 0.0, None)))
+    return tip_s - fitted_end, centerline_off / geometry.notch_pitch * lever
 
 
 def centerline_uncertainty(cross_view_spread: float | None, notched_thinning: float | None,
