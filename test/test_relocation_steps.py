@@ -37,7 +37,7 @@ from ntcr_recon.core.quality import (
     surface_depth,
     where_notches_went_unseen,
 )
-from ntcr_recon.core.tip import tube_end, visible_sectors
+from ntcr_recon.core.tip import TipAlongTube, carried_to_length, tube_end, visible_sectors
 
 GEOMETRY = TubeGeometry()   # 3.5 mm, 16 notches, straight along base +z, notches towards +x
 FOOTPRINT = 0.2e-3          # a D405 pixel at 90 mm
@@ -1139,6 +1139,57 @@ def test_a_tube_seen_part_way_is_carried_on_bending_at_its_notches():
     assert on.frames_at(np.array([35e-3]))[0][0] == pytest.approx([0.0, 0.0, 35e-3], abs=1e-9)
 
 
+def test_a_tip_hidden_from_every_camera_is_carried_on_to_the_robots_length():
+    """A 90 deg robot seen to 40 mm of its 51: the tip carried on bending to the robot's length lands on the true
+    tip (the seen end is 11 mm short of it); how far a straight hidden part would leave it across the tube is its
+    uncertainty there, and along it the length's, with what the straight part would leave it ahead or short."""
+    shape = TubeShape.from_bend_angle(GEOMETRY, math.radians(90.0))
+    truth = true_centerline(shape)
+    centres = np.array([n["center_s"] for n in shape.notch_table()])
+    carried = continued_bend(truth.up_to(40e-3), GEOMETRY.reach, centres, GEOMETRY)
+    seen = TipAlongTube(40e-3, 0.1e-3, 40e-3, 0.1e-3, shape.length, 0.1e-3)
+    tip = carried_to_length(seen, carried)
+    true_tip = shape.centerline(np.array([shape.length]))[0][0]
+    landed = np.linalg.norm(carried.frames_at(np.array([tip.s]))[0][0] - true_tip)
+    seen_off = np.linalg.norm(carried.frames_at(np.array([seen.s]))[0][0] - true_tip)
+    print(f"\ncarried {(tip.s - seen.s) * 1e3:.1f} mm: {landed * 1e3:.3f} mm off the true tip (the end seen "
+          f"{seen_off * 1e3:.1f}); stated {tip.uncertainty * 1e3:.2f} mm along, {tip.hidden_across * 1e3:.2f} across")
+    assert tip.s == shape.length and tip.beyond_seen and not tip.length_weighed
+    assert landed < 0.005e-3 and seen_off > 10e-3
+    # were the hidden 11 mm straight on along the end seen's tangent, the tip would lie this far off
+    position, tangent = (a[0] for a in truth.frames_at(np.array([40e-3]))[:2])
+    straight_off = position + (shape.length - 40e-3) * tangent - true_tip
+    true_tangent = shape.centerline(np.array([shape.length]))[1][0][:, 2]
+    ahead = straight_off @ true_tangent
+    assert tip.hidden_across == pytest.approx(np.linalg.norm(straight_off - ahead * true_tangent), rel=1e-3)
+    assert tip.uncertainty == pytest.approx(math.hypot(0.1e-3, ahead), rel=1e-3)
+    assert 1e-3 < tip.hidden_across < 11e-3
+
+
+def test_a_pile_up_on_the_wall_or_at_a_notch_face_is_no_end_cap():
+    """A tube pointing at a camera whose last 5 mm lie nearer it than its depth range: the wall stops at 25 mm
+    with its points piled up there (a ring at the wall's radius), and a notch's cut face turned to the camera piles
+    its points up on a half annulus at 23.5 mm. Neither is the cap: a cap fills the annulus, past the last notch."""
+    from ntcr_recon.core.tip import end_cap_plane
+
+    centerline = straight_centerline(35e-3)
+    rng = np.random.default_rng(7)
+    wall = wall_points(25e-3, spacing=0.4e-3)
+    angle = rng.uniform(-math.pi, math.pi, 400)
+    ring = np.stack([R_O * np.cos(angle), R_O * np.sin(angle), np.full(400, 25e-3)], axis=1)
+    coords = centerline.project(np.concatenate([wall, ring]))
+    assert end_cap_plane(coords, GEOMETRY.inner_radius, R_O, 25.3e-3, GEOMETRY.outer_diameter, FOOTPRINT) is None
+    radius = rng.uniform(GEOMETRY.inner_radius, R_O, 400)
+    half = rng.uniform(-math.pi / 2, math.pi / 2, 400)  # the notch side's half of the annulus
+    face = np.stack([radius * np.cos(half), radius * np.sin(half), np.full(400, 23.5e-3)], axis=1)
+    coords = centerline.project(np.concatenate([wall, face]))
+    found = end_cap_plane(coords, GEOMETRY.inner_radius, R_O, 25.3e-3, GEOMETRY.outer_diameter, FOOTPRINT)
+    assert found is not None and abs(found[0] - 23.5e-3) < FOOTPRINT  # the face, taken for the cap
+    last_cut = 23.5e-3  # the face is the last notch's far edge: the cap lies the distal ring past it
+    assert end_cap_plane(coords, GEOMETRY.inner_radius, R_O, 25.3e-3, GEOMETRY.outer_diameter, FOOTPRINT,
+                         after=last_cut + GEOMETRY.distal_length / 2) is None
+
+
 def test_a_camera_that_missed_a_stretch_is_named_with_why_too_near_or_end_on():
     """A robot bent 90 deg towards cam_a of a 90 mm rig (matrix row bend90_toward_cam_a_90mm): its distal part
     comes within 60 mm of cam_a, which sees nothing nearer than 70 mm (here, than 70.5). Seen by cam_b alone
@@ -1150,7 +1201,7 @@ def test_a_camera_that_missed_a_stretch_is_named_with_why_too_near_or_end_on():
     cameras = facing_pair(0.09)
     extrinsics = {pose.name: pose.extrinsic for pose in cameras}
 
-    def warned(towards_deg, tip_s=None, unsupported=()):
+    def warned(towards_deg, tip_s=None, unsupported=(), carried=False):
         """The warnings of a robot bent 90 deg towards the camera at towards_deg (-90: cam_a, 90: cam_b) seen
         up to tip_s, cam_a's points only where the tube is 70 mm from it or more and short of 40 mm along it."""
         shape = TubeShape.from_bend_angle(dataclasses.replace(GEOMETRY, notch_side=math.radians(towards_deg)),
@@ -1164,9 +1215,15 @@ def test_a_camera_that_missed_a_stretch_is_named_with_why_too_near_or_end_on():
         carried = continued_bend(true_centerline(shape).up_to(tip_s), shape.length, centres, GEOMETRY)
         reach = camera_reach(carried, tip_s, shape.length, R_O, FOOTPRINT, extrinsics, xyz, camera)
         s = np.concatenate([sample.s[by_a], sample.s])
+        total_bend, tip_along = math.radians(90.0 * tip_s / shape.length), None
+        if carried:  # to the robot's length, as the pipeline does where the rest is hidden
+            tip_along = carried_to_length(TipAlongTube(tip_s, 0.1e-3, tip_s, 0.1e-3, shape.length, 0.1e-3),
+                                          continued_bend(true_centerline(shape).up_to(tip_s), GEOMETRY.reach,
+                                                         centres, GEOMETRY))
+            tip_s, total_bend = tip_along.s, math.radians(90.0)
         quality, warnings = assess(
             geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=[], coords_s=s, camera=camera,
-            tip_s=tip_s, total_bend=math.radians(90.0 * tip_s / shape.length), footprint=FOOTPRINT,
+            tip_s=tip_s, total_bend=total_bend, footprint=FOOTPRINT, tip_along=tip_along,
             wall_residual=0.0, notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0,
             depth_steps={}, reach=reach, notch_centres=expected_centres(shape.geometry, true_centerline(shape)),
             unsupported=unsupported)
@@ -1186,6 +1243,17 @@ def test_a_camera_that_missed_a_stretch_is_named_with_why_too_near_or_end_on():
     print(cut_short)
     assert "continued at its last bend, it would come within 60 mm of cam_a" in cut_short
     assert "notches 12-15 lie beyond the end seen (38.0 mm along the tube)" in cut_short
+    # carried on to the robot's length past where cam_a was too near to see: the tip and the centreline's stated
+    # uncertainty count what a straight hidden part would leave them off, and the warning says where the tip is
+    carried_quality, carried = warned(-90.0, tip_s=38e-3, carried=True)
+    print(carried)
+    assert re.search(r"the tube seen ends 1\d\.\d mm short of the robot's length .*within 60 mm of cam_a.*: that "
+                     r"hides the rest, and the tip is carried on there", carried)
+    assert "notches 12-15 lie beyond the end seen (38.0 mm along the tube)" in carried
+    assert "stereo-eroded rim" not in carried  # (the tip is not where the end was seen)
+    assert carried_quality["tip_across_uncertainty_mm"] > 1.0 and carried_quality["tip_uncertainty_mm"] > 0.1
+    assert carried_quality["centerline_uncertainty_mm"] > 0.3
+    assert carried_quality["tip_seen_s_mm"] == pytest.approx(38.0)
     # bent towards cam_b, away from cam_a along its line of sight: cam_a sees the distal wall nearly edge-on
     _, away = warned(90.0)
     print(away)

@@ -62,8 +62,10 @@ from ntcr_recon.core.quality import (
 from ntcr_recon.core.relocation import RelocatedPoints, along_rays, relocate_points
 from ntcr_recon.core.tip import (
     EDGE_BAND_ATTEMPTS,
+    LENGTH_AGREEMENT_SIGMAS,
     MAX_EDGE_BAND_RAD,
     cap_faces_a_camera,
+    carried_to_length,
     edge_band_angle,
     end_cap_plane,
     give_back_erosion,
@@ -328,9 +330,11 @@ class Reconstructor:
         cap_seen = seen_by is not None and cap_faces_a_camera(centerline, tip_s, self._camera_origins,
                                                               min(2 * footprint / geometry.outer_radius, 1.0))
         if cap_seen and cap_faces_a_camera(centerline, tip_s, self._camera_origins, np.sin(CAP_PLANE_ANGLE)):
-            # the tube points at a camera: its thinly seen wall cannot place the end, the cap's own points can
+            # the tube points at a camera: its thinly seen wall cannot place the end, the cap's own points can; the
+            # cap lies the distal ring's length past the last notch (a pile-up nearer it is that notch's cut face)
+            last_cut = float(np.max(comb_centres)) + geometry.notch_width / 2
             cap = end_cap_plane(measured, geometry.inner_radius, geometry.outer_radius, tip_s,
-                                geometry.outer_diameter, footprint)
+                                geometry.outer_diameter, footprint, after=last_cut + geometry.distal_length / 2)
             if cap is not None:  # the matcher's smear of the cap's points bounds how well it placed it
                 tip_s, tip_uncertainty, from_cap = cap[0], max(cap[1], footprint / 2), True
             eroded_end, refinement = tip_s, "end cap" if cap is not None else "coarse end (no end cap found)"
@@ -382,11 +386,24 @@ class Reconstructor:
         # the cap's points only ever lie short of it (the matcher mixes its ring with the bore behind): a lower bound
         along = with_known_length(tip_s, seen_uncertainty, expected_length, length_known,
                                   lower_bound=from_cap)
+        # how near the tube comes to each camera, carried on past the end seen to the robot's length
+        reach = camera_reach(continued_bend(centerline.up_to(tip_s), expected_length, comb_centres, geometry),
+                             tip_s, expected_length, geometry.outer_radius, footprint, self._extrinsics, cloud.xyz,
+                             seen_by)
+        # an end seen far short of the robot's length where every camera was kept from seeing the rest (nearer than
+        # its depth range, pointing at it): the robot goes on there, bending as the notches seen did (two at least)
+        if (along.disagreement > LENGTH_AGREEMENT_SIGMAS and sum(n.edges_measured for n in notches) >= 2
+                and reach.why_unseen(list(self.config.camera_names), tip_s, expected_length, continued=True)):
+            for _ in range(2):  # the hidden notches' own bend shortens the centreline further
+                total_bend = turn_from_base(centerline, geometry, expected_length)
+                expected_length = geometry.bent_length(total_bend)
+            along = carried_to_length(replace(along, expected_s=expected_length), centerline)
         tip_erosion, tip_s = tip_s - eroded_end, along.s
         # the rims the matcher moves (over the cut faces the cameras see), against the spines' known length; a
         # notch whose width its bend rules out was misread, and is given its bend's
         notches, misread, unchecked = calibrate_and_check(notches, geometry, centerline,
-                                                          None if seen_by is None else self._camera_origins, tip_s)
+                                                          None if seen_by is None else self._camera_origins,
+                                                          along.seen_s if along.hidden_across is not None else tip_s)
         # 6. relocation: every point within the gate onto the reference surface (core.relocation)
         tip = centerline.frames_at(np.array([tip_s]))[0][0]
         if options.method == "icp":  # the paper's KD-tree + ICP onto a reference (core.icp)
@@ -414,9 +431,7 @@ class Reconstructor:
             across_from_fit=across_from_fit,
             unsupported=cross_view.unsupported, backbone_shift=backbone_shift, misread_widths=misread,
             held_shift=None if alignment is None else (alignment.end_shift, alignment.held_from),
-            unchecked=unchecked, reach=camera_reach(
-                continued_bend(centerline.up_to(tip_s), expected_length, comb_centres, geometry), tip_s,
-                expected_length, geometry.outer_radius, footprint, self._extrinsics, cloud.xyz, seen_by),
+            unchecked=unchecked, reach=reach,
             notch_centres=comb_centres, wall_level=level, fitted_end=fitted_end)
         quality = {**quality, "tip_refinement": refinement,
                    "centerline_backbone_shift_mm": None if backbone_shift is None else backbone_shift * 1e3,

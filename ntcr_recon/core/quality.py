@@ -393,9 +393,14 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     free_end = FREE_END_FACTOR * (uncertainty or 0.0)
     held, held_from = held_shift if held_shift is not None and held_shift[1] is not None else (0.0, tip_s)
     carried, carried_across = carried_to_tip(fitted_end, tip_s, notch_centres, geometry, uncertainty or 0.0)
-    tip_across = max(math.hypot(free_end, held, carried_across), end_spread)
+    # carried past an end hidden from every camera: the hidden notches may bend otherwise than the ones seen
+    hidden_across = 0.0 if tip_along is None or tip_along.hidden_across is None else tip_along.hidden_across
+    tip_across = max(math.hypot(free_end, held, carried_across, hidden_across), end_spread)
     if end_spread >= tip_across:
         why = "the cameras' axes that far apart across their views at the end"
+    elif hidden_across > max(free_end, held, carried_across):
+        why = (f"were the {(tip_s - seen_end) * 1e3:.1f} mm no camera saw straight, not bent as the notches seen, "
+               "the tip would lie that far off")
     elif carried_across > max(free_end, held):
         why = (f"the centreline carried on bending over the {carried * 1e3:.1f} mm past where its fit reached, at "
                "the bend of the notches before")
@@ -405,8 +410,15 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     else:
         why = "the centreline's, at its free end"
     across = f", and by {tip_across * 1e3:.2f} mm across it ({why})" if tip_across else ""
+    # the centreline runs on past the end seen to a carried tip: along that stretch a straight hidden part leaves it
+    # off by up to hidden_across, growing with the square of the distance carried (a fifth of its square in the
+    # mean): the RMS over the robot's length
+    stated_centreline = uncertainty
+    if hidden_across:
+        stated_centreline = math.sqrt((uncertainty or 0.0) ** 2 + (tip_s - seen_end) / tip_s * hidden_across**2 / 5)
     tip_total = math.hypot(tip_uncertainty, tip_across)
-    if tip_total > TIP_FLOOR and tip_from_cap:
+    # (a tip carried past the end seen is not where the cameras saw it: the warning of the tube ending short says so)
+    if tip_total > TIP_FLOOR and tip_from_cap and not hidden_across:
         if tip_along is not None and tip_along.beyond_seen:
             warnings.append(f"the end cap's points stop {(tip_along.expected_s - tip_along.seen_s) * 1e3:.2f} mm short "
                             f"of the robot's length at this bend (smeared over {tip_along.seen_uncertainty * 1e3:.2f} "
@@ -417,7 +429,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
             warnings.append(f"the tip is the end cap's plane, whose points the stereo matcher smeared over "
                             f"{tip_uncertainty * 1e3:.2f} mm towards the bore behind its ring: its position is "
                             f"uncertain by about {tip_uncertainty * 1e3:.2f} mm along the tube{weighed}{across}")
-    elif tip_total > TIP_FLOOR:
+    elif tip_total > TIP_FLOOR and not hidden_across:
         how = ", as the edge band measured in the depth images" if measured else ""
         warnings.append(f"the tip rests on a stereo-eroded rim ({tip_erosion * 1e3:.2f} mm given back{how}): "
                         f"its position is uncertain by about {tip_uncertainty * 1e3:.2f} mm along the tube{weighed}"
@@ -450,9 +462,15 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
                 warning += (f"; it ends on the crop box's face {'xyz'[edge[0]]} = {edge[1] * 1e3:.1f} mm: the robot "
                             "may go on outside the box (filters.crop_box_min / crop_box_max; below the base plane, "
                             "filters.clamp_radius lets the automatic box reach there)")
-        why = "" if reach is None or short < 0 else reach.why_unseen(list(camera_names), tip_s, expected_length,
+        why = "" if reach is None or short < 0 else reach.why_unseen(list(camera_names), seen_end, expected_length,
                                                                      continued=True)
-        if why:
+        if why and hidden_across:
+            warning = (f"the tube seen ends {short * 1e3:.1f} mm short of the robot's length ({expected_length * 1e3:.1f} "
+                       f"mm at this bend); {why}: that hides the rest, and the tip is carried on there, bending as the "
+                       f"notches seen did, to the robot's length: uncertain by about {tip_uncertainty * 1e3:.2f} mm "
+                       f"along the tube and {tip_across * 1e3:.2f} mm across it, the centreline with it by "
+                       f"{stated_centreline * 1e3:.2f} mm (RMS over the robot's length)")
+        elif why:
             warning += f"; {why}: that may hide the rest"
         warnings.append(warning)
     side_off = math.degrees(math.remainder(notch_side - configured_side, 2 * math.pi))
@@ -538,7 +556,8 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
         "tip_s_mm": tip_s * 1e3, "tip_seen_s_mm": seen_end * 1e3, "expected_length_mm": expected_length * 1e3,
         "tip_length_weighed": bool(tip_along is not None and tip_along.length_weighed),
         "tip_uncertainty_mm": tip_uncertainty * 1e3,
-        "tip_across_uncertainty_mm": None if uncertainty is None and not held else tip_across * 1e3,
+        "tip_across_uncertainty_mm": None if uncertainty is None and not held and not hidden_across
+        else tip_across * 1e3,
         "tip_held_shift_mm": held * 1e3, "tip_held_over_mm": max(tip_s - held_from, 0.0) * 1e3,
         "tip_carried_mm": carried * 1e3,
         "notch_width_vs_bend_mm": {str(i): d * 1e3 for i, d in sorted(off_model.items())},
@@ -552,13 +571,13 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
         "centerline_outline_offset_mm": None if outline_offset is None else outline_offset * 1e3,
         # the aligned axis's offset, when it went astray and the fit placed the axis across the views instead
         "centerline_aligned_outline_offset_mm": None if across_from_fit is None else across_from_fit[0] * 1e3,
-        "centerline_uncertainty_mm": None if uncertainty is None else uncertainty * 1e3,
+        "centerline_uncertainty_mm": None if stated_centreline is None else stated_centreline * 1e3,
         "centerline_unsupported_mm": [[start * 1e3, end * 1e3] for start, end in unsupported],
         "distal_end_on_mm": end_on * 1e3,
         # per camera the nearest depth it returned, and the tube seen's nearest to it (its surface, optical axis)
         "camera_nearest_depth_mm": {} if reach is None else {k: v * 1e3 for k, v in reach.nearest_returned.items()},
         "tube_nearest_depth_mm": {} if reach is None else {
-            k: float(v[reach.s <= tip_s].min()) * 1e3 for k, v in reach.depth.items()},
+            k: float(v[reach.s <= seen_end].min()) * 1e3 for k, v in reach.depth.items()},
     }
     return quality, warnings
 

@@ -29,7 +29,7 @@ the base only): a length beyond it is the tip.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -176,7 +176,7 @@ def cap_faces_a_camera(centerline: Centerline, tip_s: float, viewpoints: np.ndar
 
 
 def end_cap_plane(coords: TubeCoordinates, inner_radius: float, outer_radius: float, coarse_end: float,
-                  reach: float, cell: float) -> tuple[float, float] | None:
+                  reach: float, cell: float, after: float = -np.inf) -> tuple[float, float] | None:
     """Arc length of the end cap where a camera looks onto it, and how far its points smear away from it.
 
     The cap is a disc of the tube's cross-section, so its points pile up at one s (a peak of the points'
@@ -185,9 +185,15 @@ def end_cap_plane(coords: TubeCoordinates, inner_radius: float, outer_radius: fl
     it and only ever pulls the ring's depth away from the camera: the cap lies on the near (camera) side of the
     peak, where the points' density falls to half of it (on a cap the matcher resolves, about a kernel width of
     cell / 8 past the cap). The smear - that plane less the peak points' median - tells how much the matcher
-    mixed in. None when no such peak stands out within `reach` of the coarse end.
+    mixed in. None when no such peak stands out within `reach` of the coarse end and past `after`, or when the
+    peak's points lie on the wall rather than across the annulus.
+
+    after: where the cap may begin (m of s). A notch's cut face turned to the camera is a part of a disc too, and
+    piles its points up at one s: where the tube beyond the last notches is hidden (nearer the camera than its
+    depth range), that face's pile-up is the last one left, and would be taken for the cap (3 mm short in the
+    sweeps); the cap lies the distal ring's length past the last notch.
     """
-    near = (np.abs(coords.s - coarse_end) < reach) & (coords.radius > 0.5 * inner_radius)
+    near = (np.abs(coords.s - coarse_end) < reach) & (coords.s > after) & (coords.radius > 0.5 * inner_radius)
     near &= coords.radius < outer_radius + cell
     if np.count_nonzero(near) < 20:
         return None
@@ -198,6 +204,12 @@ def end_cap_plane(coords: TubeCoordinates, inner_radius: float, outer_radius: fl
     if counts[peak] < max(10, 4.0 * float(np.median(counts))):
         return None
     in_peak = (s >= edges[max(peak - 1, 0)]) & (s < edges[min(peak + 2, len(edges) - 1)])
+    # a disc's points fill the annulus (uniform over it, half lie within sqrt((r_i^2 + r_o^2) / 2)); a pile-up on
+    # the wall's radius is the wall cut off - nearer a camera than its depth range, or where a camera's view of it
+    # ends - not a cap
+    annulus_median = np.sqrt((inner_radius**2 + outer_radius**2) / 2.0)
+    if np.median(coords.radius[near][in_peak]) > (annulus_median + outer_radius) / 2.0:
+        return None
     kernel = cell / 8.0
     fine = np.arange(edges[max(peak - 4, 0)], edges[min(peak + 5, len(edges) - 1)] + kernel, kernel / 2)
     density = gaussian_filter1d(np.histogram(s, bins=fine)[0].astype(float), 2.0)
@@ -376,6 +388,8 @@ class TipAlongTube:
     tolerance: float | None     # how well that length is known (None: not known)
     length_weighed: bool = False  # the robot's length was weighed in (the two agreed)
     beyond_seen: bool = False     # the end seen bounds the tip from below, and the tip is the robot's length beyond it
+    hidden_across: float | None = None  # carried to the length past an end hidden from every camera (carried_to_length):
+    #                                     how far across the tube a straight hidden part would leave the tip (m)
 
     @property
     def disagreement(self) -> float:
@@ -404,3 +418,19 @@ def with_known_length(seen_s: float, seen_uncertainty: float, expected_s: float,
     s = (weight_seen * seen_s + weight_length * expected_s) / (weight_seen + weight_length)
     return TipAlongTube(float(s), float(1.0 / np.sqrt(weight_seen + weight_length)), seen_s, seen_uncertainty,
                         expected_s, tolerance, length_weighed=True)
+
+
+def carried_to_length(along: TipAlongTube, centerline: Centerline) -> TipAlongTube:
+    """The tip carried past the end seen to the robot's length along `centerline`, carried on bending there as the
+    notches before it bent (centerline.continued_bend): for a tube whose rest every camera was kept from seeing
+    (nearer than its depth range, pointing at it), so that the robot goes on where nothing was measured.
+
+    How well it is known there: along the tube, as well as the length and as far as a straight hidden part would
+    leave it ahead or short; across it, as far as that straight part would leave it off (hidden_across) - the
+    hidden notches may bend less or more than the ones seen, and no camera says which."""
+    seen_position, seen_tangent = (a[0] for a in centerline.frames_at(np.array([along.seen_s]))[:2])
+    position, tangent = (a[0] for a in centerline.frames_at(np.array([along.expected_s]))[:2])
+    off = seen_position + (along.expected_s - along.seen_s) * seen_tangent - position
+    ahead = float(off @ tangent)
+    return replace(along, s=along.expected_s, uncertainty=float(np.hypot(along.tolerance or 0.0, ahead)),
+                   beyond_seen=True, hidden_across=float(np.linalg.norm(off - ahead * tangent)))
