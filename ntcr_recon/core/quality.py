@@ -465,9 +465,10 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
         why = "" if reach is None or short < 0 else reach.why_unseen(list(camera_names), seen_end, expected_length,
                                                                      continued=True)
         if why and hidden_across:
-            warning = (f"the tube seen ends {short * 1e3:.1f} mm short of the robot's length ({expected_length * 1e3:.1f} "
-                       f"mm at this bend); {why}: that hides the rest, and the tip is carried on there, bending as the "
-                       f"notches seen did, to the robot's length: uncertain by about {tip_uncertainty * 1e3:.2f} mm "
+            warning = (f"the tube seen ends {short * 1e3:.1f} mm short of the robot's length "
+                       f"({expected_length * 1e3:.1f} mm at this bend); {why}: that hides the rest, and the tip is "
+                       "carried on there, bending as the notches seen did, to the robot's length: uncertain by about "
+                       f"{tip_uncertainty * 1e3:.2f} mm "
                        f"along the tube and {tip_across * 1e3:.2f} mm across it, the centreline with it by "
                        f"{stated_centreline * 1e3:.2f} mm (RMS over the robot's length)")
         elif why:

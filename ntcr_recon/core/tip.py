@@ -388,8 +388,9 @@ class TipAlongTube:
     tolerance: float | None     # how well that length is known (None: not known)
     length_weighed: bool = False  # the robot's length was weighed in (the two agreed)
     beyond_seen: bool = False     # the end seen bounds the tip from below, and the tip is the robot's length beyond it
-    hidden_across: float | None = None  # carried to the length past an end hidden from every camera (carried_to_length):
-    #                                     how far across the tube a straight hidden part would leave the tip (m)
+    # carried to the length past an end every camera was kept from seeing (carried_to_length): how far across the
+    # tube a straight hidden part would leave the tip (m); None: not carried
+    hidden_across: float | None = None
 
     @property
     def disagreement(self) -> float:
