@@ -365,6 +365,28 @@ def steady_bend(bends: dict[int, float | None], index: int) -> float:
     return float(np.median(known)) if known else 0.0
 
 
+def bends_that_explain(bends: dict[int, float | None], index: int) -> list[float]:
+    """The bends (rad) that may be notch `index`'s given the chord bends the smoothed centreline reads
+    (`bends` by index): its own chord's; and, where the steady bend about it is known (the median of the notches
+    two and three away, two of them at least), that steady bend, and its own with its two neighbours' excess over
+    it given back. The centreline spreads a notch bent much sharper than its neighbours (a kink: 12 deg among 2)
+    over three: its own chord reads about half its bend and its neighbours' read its excess. The kink's width
+    is its bend's with that excess given back, and its neighbours' the steady bend's. On a steady or steadily
+    changing bend all three agree, and one chord's wobble, turning two neighbours opposite ways, cancels in the
+    excess."""
+    own = bends.get(index)
+    explaining = [] if own is None else [own]
+    around = [bend for i in (index - 3, index - 2, index + 2, index + 3) if (bend := bends.get(i)) is not None]
+    if len(around) < 2:
+        return explaining
+    steady = float(np.median(around))
+    explaining.append(steady)
+    neighbours = [bends.get(i) for i in (index - 1, index + 1)]
+    if own is not None and None not in neighbours:
+        explaining.append(float(own + sum(bend - steady for bend in neighbours)))
+    return explaining
+
+
 class SideMeasurement(NamedTuple):
     roll: float         # rad, how far the notches open from the frame's x axis (the configured side)
     uncertainty: float  # rad: half the spread of the window's two edges where both placed it (never under half a
@@ -579,12 +601,17 @@ def calibrate_and_check(notches: list[Notch], geometry: TubeGeometry, centerline
     # a notch whose own bend no whole spine beyond measured (the last one found, its distal rim where the tube seen
     # thins out: the rim most often read far off) is checked against the bend of the measured notches before it
     measured_bends = {n.index: n.bend for n in notches if n.index in checked and n.bend is not None}
+    chord_bends = {n.index: n.bend for n in notches if n.edges_measured and n.index in checked}
     before = {n.index: float(np.median(earlier)) for n in notches if n.index not in checked
               and (earlier := [measured_bends[i] for i in (n.index - 2, n.index - 1) if i in measured_bends])}
     while True:  # one at a time, the farthest off first: a misread rim shared over a spine puts its neighbour off too
         calibrated = calibrate_rims(notches, geometry, centerline, camera_origins)
         off = {n.index: abs(n.width - geometry.notch_width_at_bend(before.get(n.index, n.bend) or 0.0))
                for n in calibrated if n.edges_measured and (n.index in checked or n.index in before)}
+        for n in calibrated:  # a width a kink's bend explains, its own or a neighbour's, was read right
+            if n.index in off and n.index in checked:
+                off[n.index] = min([off[n.index]] + [abs(n.width - geometry.notch_width_at_bend(bend))
+                                                     for bend in bends_that_explain(chord_bends, n.index)])
         worst = max(off, key=off.get, default=None)
         if worst is None or off[worst] <= limit:
             return CheckedNotches(calibrated, misread, sorted(n.index for n in calibrated if n.edges_measured
