@@ -357,9 +357,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
                         "(a slot seen through over a narrow run, a rim merged with a cut face, the last notch's distal "
                         "rim where the tube seen thins out), and their widths are what their measured bends imply (for "
                         "the last notch found, whose own bend no whole spine beyond measures, the bend of the two "
-                        "before it; a robot whose cuts are off its drawing would read so too, "
-                        "and so would a notch bent much sharper than its neighbours, whose bend the smoothed "
-                        "centreline spreads over them: there the width read may be the right one)")
+                        "before it; a robot whose cuts are off its drawing would read so too)")
     # a notch whose next one is missing where the tube seen ends within a pitch: its bend is a chord that may run
     # into a tube cut short; with no measured notch before it either, its width, as read, was checked against nothing
     unchecked = list(unchecked or ())
