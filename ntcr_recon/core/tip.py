@@ -193,15 +193,16 @@ def end_cap_plane(coords: TubeCoordinates, inner_radius: float, outer_radius: fl
     depth range), that face's pile-up is the last one left, and would be taken for the cap (3 mm short in the
     sweeps); the cap lies the distal ring's length past the last notch.
     """
-    near = (np.abs(coords.s - coarse_end) < reach) & (coords.s > after) & (coords.radius > 0.5 * inner_radius)
+    near = (np.abs(coords.s - coarse_end) < reach) & (coords.radius > 0.5 * inner_radius)
     near &= coords.radius < outer_radius + cell
     if np.count_nonzero(near) < 20:
         return None
     s = coords.s[near]
     edges = np.arange(coarse_end - reach, coarse_end + reach + cell, cell)
     counts, _ = np.histogram(s, bins=edges)
-    peak = int(np.argmax(counts))
-    if counts[peak] < max(10, 4.0 * float(np.median(counts))):
+    # the highest bin past `after` (the median over them all says what stands out)
+    peak = int(np.argmax(np.where(edges[:-1] >= after, counts, -1)))
+    if edges[peak] < after or counts[peak] < max(10, 4.0 * float(np.median(counts))):
         return None
     in_peak = (s >= edges[max(peak - 1, 0)]) & (s < edges[min(peak + 2, len(edges) - 1)])
     # a disc's points fill the annulus (uniform over it, half lie within sqrt((r_i^2 + r_o^2) / 2)); a pile-up on
