@@ -599,12 +599,12 @@ def test_the_last_notch_found_is_checked_against_the_bend_of_the_notches_before_
 
 def test_a_notch_bent_much_sharper_than_its_neighbours_keeps_the_width_it_reads():
     """A robot bent 2 deg at each notch but 12 at notch 7 (matrix row bend_kink), its rims read exactly. The smoothed
-    centreline spreads the kink over three notches: their chords read 4.7, 6.3 and 5.0 deg. Notch 7's width, 0.52 mm
+    centreline spreads the kink over three notches: their chords read 4.7, 6.3 and 4.7 deg. Notch 7's width, 0.52 mm
     narrower than its neighbours', is 0.30 mm off what its own chord's bend implies; with the bump's excess over the
-    steady bend given back (notches.bends_that_explain) its bend is 12 deg, and the width read is kept, as are its
-    neighbours', whose chords read the excess (theirs is the steady bend). The same width read where the chords
-    show no bump is misread. A chord that wobbles turns two neighbours opposite ways: that cancels."""
-    from ntcr_recon.core.notches import bends_that_explain, calibrate_and_check
+    steady bend given back (notches.gathered_bend) its bend is 12 deg, and the width read is kept. The same width
+    read where the chords show no bump is misread. A chord that wobbles turns two neighbours opposite ways: that
+    cancels."""
+    from ntcr_recon.core.notches import calibrate_and_check, gathered_bend
 
     geometry = TubeGeometry()
     true_bends = np.radians(np.where(np.arange(geometry.notch_count) == 7, 12.0, 2.0))
@@ -614,25 +614,23 @@ def test_a_notch_bent_much_sharper_than_its_neighbours_keeps_the_width_it_reads(
         notches.append(read_notch(geometry, i, start, end, bend))
         start = end + geometry.notch_pitch - geometry.notch_width
     chords = np.radians(np.where(np.arange(geometry.notch_count) == 7, 6.3, 2.0))
-    chords[[6, 8]] = np.radians([4.7, 5.0])
+    chords[[6, 8]] = np.radians([4.7, 4.7])
     kinked = [dataclasses.replace(n, bend=float(chords[n.index])) for n in notches]
     checked, misread, _ = calibrate_and_check(kinked, geometry)
     true_width = geometry.notch_width_at_bend(true_bends[7])
     kept = next(n for n in checked if n.index == 7)
     by_chord = geometry.notch_width_at_bend(chords[7])
-    own, steady, gathered = np.degrees(bends_that_explain(dict(enumerate(chords)), 7))
+    gathered = np.degrees(gathered_bend(dict(enumerate(chords)), 7))
     print(f"\nnotch 7 read {kept.width * 1e3:.3f} mm (true {true_width * 1e3:.3f}; its chord's bend implies "
-          f"{by_chord * 1e3:.3f}; bends explaining it {own:.1f}, {steady:.1f}, {gathered:.1f} deg)")
+          f"{by_chord * 1e3:.3f}; its gathered bend {gathered:.1f} deg)")
     assert misread == {} and kept.signal != "bend" and kept.width == pytest.approx(true_width, abs=1e-6)
     assert by_chord - true_width > 0.25e-3
     flat = [dataclasses.replace(n, bend=float(np.radians(6.3 if n.index == 7 else 2.0))) for n in notches]
     assert set(calibrate_and_check(flat, geometry).misread) == {7}
-    assert (own, steady, gathered) == pytest.approx((6.3, 2.0, 12.0), abs=0.05)
-    assert np.degrees(bends_that_explain(dict(enumerate(chords)), 8)[1]) == pytest.approx(2.0)  # its neighbour's
+    assert gathered == pytest.approx(11.7, abs=0.05)
     wobble = {i: np.radians(2.0) for i in range(16)} | {7: np.radians(3.0), 8: np.radians(1.0)}
-    assert np.degrees(bends_that_explain(wobble, 7)) == pytest.approx([3.0, 2.0, 2.0])
-    assert bends_that_explain(wobble, 0) == [wobble[0], wobble[0]]  # no neighbour before it: no excess given back
-    assert bends_that_explain({7: 0.1, 8: 0.1}, 7) == [0.1]
+    assert np.degrees(gathered_bend(wobble, 7)) == pytest.approx(2.0)
+    assert gathered_bend(wobble, 0) is None and gathered_bend({7: 0.1, 8: 0.1}, 7) is None
 
 
 def test_a_misread_notch_is_given_the_width_of_its_bend_taken_with_its_neighbours():

@@ -365,26 +365,20 @@ def steady_bend(bends: dict[int, float | None], index: int) -> float:
     return float(np.median(known)) if known else 0.0
 
 
-def bends_that_explain(bends: dict[int, float | None], index: int) -> list[float]:
-    """The bends (rad) that may be notch `index`'s given the chord bends the smoothed centreline reads
-    (`bends` by index): its own chord's; and, where the steady bend about it is known (the median of the notches
-    two and three away, two of them at least), that steady bend, and its own with its two neighbours' excess over
-    it given back. The centreline spreads a notch bent much sharper than its neighbours (a kink: 12 deg among 2)
-    over three: its own chord reads about half its bend and its neighbours' read its excess. The kink's width
-    is its bend's with that excess given back, and its neighbours' the steady bend's. On a steady or steadily
-    changing bend all three agree, and one chord's wobble, turning two neighbours opposite ways, cancels in the
-    excess."""
-    own = bends.get(index)
-    explaining = [] if own is None else [own]
+def gathered_bend(bends: dict[int, float | None], index: int) -> float | None:
+    """The bend of notch `index` (rad) with what the smoothed centreline spread of it over its two neighbours given
+    back: its own chord's bend plus each neighbour's excess over the steady bend about them (the median of the
+    notches two and three away, two of them at least), given the chord bends by index. The centreline spreads a
+    notch bent much sharper than its neighbours (a kink: 12 deg among 2) over three: its own chord reads about half
+    its bend, its neighbours' its excess. On a steady or steadily changing bend the excess is nought, and one
+    chord's wobble, turning two neighbours opposite ways, cancels in it. None where a neighbour's chord or the
+    steady bend is not known."""
+    own, neighbours = bends.get(index), [bends.get(i) for i in (index - 1, index + 1)]
     around = [bend for i in (index - 3, index - 2, index + 2, index + 3) if (bend := bends.get(i)) is not None]
-    if len(around) < 2:
-        return explaining
+    if own is None or None in neighbours or len(around) < 2:
+        return None
     steady = float(np.median(around))
-    explaining.append(steady)
-    neighbours = [bends.get(i) for i in (index - 1, index + 1)]
-    if own is not None and None not in neighbours:
-        explaining.append(float(own + sum(bend - steady for bend in neighbours)))
-    return explaining
+    return float(own + sum(bend - steady for bend in neighbours))
 
 
 class SideMeasurement(NamedTuple):
@@ -608,10 +602,9 @@ def calibrate_and_check(notches: list[Notch], geometry: TubeGeometry, centerline
         calibrated = calibrate_rims(notches, geometry, centerline, camera_origins)
         off = {n.index: abs(n.width - geometry.notch_width_at_bend(before.get(n.index, n.bend) or 0.0))
                for n in calibrated if n.edges_measured and (n.index in checked or n.index in before)}
-        for n in calibrated:  # a width a kink's bend explains, its own or a neighbour's, was read right
-            if n.index in off and n.index in checked:
-                off[n.index] = min([off[n.index]] + [abs(n.width - geometry.notch_width_at_bend(bend))
-                                                     for bend in bends_that_explain(chord_bends, n.index)])
+        for n in calibrated:  # a width a kink's bend explains (the centreline spread it over three) was read right
+            if n.index in off and n.index in checked and (gathered := gathered_bend(chord_bends, n.index)) is not None:
+                off[n.index] = min(off[n.index], abs(n.width - geometry.notch_width_at_bend(gathered)))
         worst = max(off, key=off.get, default=None)
         if worst is None or off[worst] <= limit:
             return CheckedNotches(calibrated, misread, sorted(n.index for n in calibrated if n.edges_measured
