@@ -602,9 +602,9 @@ def test_a_notch_bent_much_sharper_than_its_neighbours_keeps_the_width_it_reads(
     centreline spreads the kink over three notches: their chords read 4.7, 6.3 and 4.7 deg. Notch 7's width, 0.52 mm
     narrower than its neighbours', is 0.30 mm off what its own chord's bend implies; with the bump's excess over the
     steady bend given back (notches.gathered_bend) its bend is 12 deg, and the width read is kept. The same width
-    read where the chords show no bump is misread. A chord that wobbles turns two neighbours opposite ways: that
-    cancels."""
-    from ntcr_recon.core.notches import calibrate_and_check, gathered_bend
+    read where the chords show no bump is misread, and so is one where the chords scatter as much as the bump
+    (noise, not a kink). A chord that wobbles turns two neighbours opposite ways: no bump."""
+    from ntcr_recon.core.notches import calibrate_and_check, chord_scatter, gathered_bend
 
     geometry = TubeGeometry()
     true_bends = np.radians(np.where(np.arange(geometry.notch_count) == 7, 12.0, 2.0))
@@ -628,9 +628,15 @@ def test_a_notch_bent_much_sharper_than_its_neighbours_keeps_the_width_it_reads(
     flat = [dataclasses.replace(n, bend=float(np.radians(6.3 if n.index == 7 else 2.0))) for n in notches]
     assert set(calibrate_and_check(flat, geometry).misread) == {7}
     assert gathered == pytest.approx(11.7, abs=0.05)
+    assert chord_scatter(dict(enumerate(chords))) == pytest.approx(0.0)
+    rng = np.random.default_rng(3)  # chords scattered by 3 deg: the bump is noise's as much
+    noisy = chords + np.radians(rng.normal(0.0, 3.0, len(chords)))
+    assert np.degrees(chord_scatter(dict(enumerate(noisy)))) > 1.5
+    scattered = [dataclasses.replace(n, bend=float(noisy[n.index])) for n in notches]
+    assert 7 in calibrate_and_check(scattered, geometry).misread
     wobble = {i: np.radians(2.0) for i in range(16)} | {7: np.radians(3.0), 8: np.radians(1.0)}
-    assert np.degrees(gathered_bend(wobble, 7)) == pytest.approx(2.0)
-    assert gathered_bend(wobble, 0) is None and gathered_bend({7: 0.1, 8: 0.1}, 7) is None
+    assert gathered_bend(wobble, 7) is None and gathered_bend(wobble, 8) is None
+    assert gathered_bend(dict(enumerate(chords)), 0) is None and gathered_bend({7: 0.1, 8: 0.1}, 7) is None
 
 
 def test_a_misread_notch_is_given_the_width_of_its_bend_taken_with_its_neighbours():

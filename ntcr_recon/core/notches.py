@@ -365,20 +365,35 @@ def steady_bend(bends: dict[int, float | None], index: int) -> float:
     return float(np.median(known)) if known else 0.0
 
 
-def gathered_bend(bends: dict[int, float | None], index: int) -> float | None:
+def gathered_bend(bends: dict[int, float | None], index: int, scatter: float = 0.0) -> float | None:
     """The bend of notch `index` (rad) with what the smoothed centreline spread of it over its two neighbours given
-    back: its own chord's bend plus each neighbour's excess over the steady bend about them (the median of the
-    notches two and three away, two of them at least), given the chord bends by index. The centreline spreads a
-    notch bent much sharper than its neighbours (a kink: 12 deg among 2) over three: its own chord reads about half
-    its bend, its neighbours' its excess. On a steady or steadily changing bend the excess is nought, and one
-    chord's wobble, turning two neighbours opposite ways, cancels in it. None where a neighbour's chord or the
-    steady bend is not known."""
+    back, given the chord bends by index: its own chord's bend plus each neighbour's excess over the steady bend
+    about them (the median of the notches two and three away, two of them at least). The centreline spreads a
+    notch bent much sharper than its neighbours (a kink: 12 deg among 2) over three, a bump: its own chord reads
+    about half its bend, its neighbours' its excess. Only a bump counts - the three chords beyond the steady bend
+    the same way, each by more than three times the chords' `scatter` (chord_scatter) - as noisy chords give any
+    notch some excess either way. None where there is no such bump, or a neighbour's chord or the steady bend is
+    not known."""
     own, neighbours = bends.get(index), [bends.get(i) for i in (index - 1, index + 1)]
     around = [bend for i in (index - 3, index - 2, index + 2, index + 3) if (bend := bends.get(i)) is not None]
     if own is None or None in neighbours or len(around) < 2:
         return None
     steady = float(np.median(around))
-    return float(own + sum(bend - steady for bend in neighbours))
+    excess = np.array([own, *neighbours]) - steady
+    if not (np.all(excess > 3.0 * scatter) or np.all(excess < -3.0 * scatter)):
+        return None
+    return float(own + excess[1:].sum())
+
+
+def chord_scatter(bends: dict[int, float | None]) -> float:
+    """How much the chord bends (rad, by index) scatter notch to notch: sigma from the median absolute deviation of
+    each about the median of the two on either side of it (a steady or steadily changing bend leaves none)."""
+    indices = sorted(i for i, bend in bends.items() if bend is not None)
+    if len(indices) < 5:
+        return np.inf
+    values = np.array([bends[i] for i in indices])
+    local = np.array([np.median(np.delete(values[max(k - 2, 0):k + 3], min(k, 2))) for k in range(len(values))])
+    return robust_spread(values - local, 0.0)
 
 
 class SideMeasurement(NamedTuple):
@@ -596,6 +611,7 @@ def calibrate_and_check(notches: list[Notch], geometry: TubeGeometry, centerline
     # thins out: the rim most often read far off) is checked against the bend of the measured notches before it
     measured_bends = {n.index: n.bend for n in notches if n.index in checked and n.bend is not None}
     chord_bends = {n.index: n.bend for n in notches if n.edges_measured and n.index in checked}
+    scatter = chord_scatter(chord_bends)
     before = {n.index: float(np.median(earlier)) for n in notches if n.index not in checked
               and (earlier := [measured_bends[i] for i in (n.index - 2, n.index - 1) if i in measured_bends])}
     while True:  # one at a time, the farthest off first: a misread rim shared over a spine puts its neighbour off too
@@ -603,7 +619,8 @@ def calibrate_and_check(notches: list[Notch], geometry: TubeGeometry, centerline
         off = {n.index: abs(n.width - geometry.notch_width_at_bend(before.get(n.index, n.bend) or 0.0))
                for n in calibrated if n.edges_measured and (n.index in checked or n.index in before)}
         for n in calibrated:  # a width a kink's bend explains (the centreline spread it over three) was read right
-            if n.index in off and n.index in checked and (gathered := gathered_bend(chord_bends, n.index)) is not None:
+            if n.index in off and n.index in checked and (
+                    gathered := gathered_bend(chord_bends, n.index, scatter)) is not None:
                 off[n.index] = min(off[n.index], abs(n.width - geometry.notch_width_at_bend(gathered)))
         worst = max(off, key=off.get, default=None)
         if worst is None or off[worst] <= limit:
