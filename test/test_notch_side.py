@@ -66,6 +66,21 @@ def test_notch_side_is_not_claimed_when_no_notch_edge_is_seen():
     assert measured is None
 
 
+def test_notch_side_is_not_claimed_when_the_wall_inside_the_notches_lies_only_where_the_spines_are_unseen():
+    """The spines seen all round but for 20 deg of the backbone, the wall inside the notches only there (scene 5003
+    of the sweep, once its axis was levelled): nothing to measure the notches' wall against, and no side claimed
+    (it divided by nought, and the frame's relocation failed)."""
+    centerline, coords, notches = rolled_robot_wall(0.0, seen_half_width=math.radians(100.0))  # all round
+    in_notches = np.zeros(len(coords.s), dtype=bool)
+    for notch in notches:
+        in_notches |= (coords.s > notch.start_s) & (coords.s < notch.end_s)
+    back = np.abs(np.angle(np.exp(1j * (coords.angle - np.pi)))) < math.radians(10.0)
+    keep = (~in_notches & ~back) | (in_notches & back)
+    kept = type(coords)(coords.s[keep], coords.x[keep], coords.y[keep])
+    assert np.count_nonzero(in_notches & back) > 10
+    assert measure_notch_side(kept, notches, GEOMETRY, centerline, 0.8e-3, FOOTPRINT) is None
+
+
 @pytest.mark.parametrize("rolls_deg, kept", [((20.0, 1.0), False), ((29.0, 9.0), True)])
 def test_a_side_that_does_not_settle_in_the_turned_frame_keeps_the_configured_one(monkeypatch, rolls_deg, kept):
     """Turned to a measured side, the notches should open there: the measurement in the turned frame then

@@ -431,8 +431,9 @@ def measure_notch_side(observed: TubeCoordinates, notches: list[Notch], geometry
     notch_count = np.bincount(index[in_notch], minlength=sectors).astype(float)
     spine_count = np.bincount(index[on_spine], minlength=sectors).astype(float)
     seen = spine_count >= max(5.0, 0.1 * spine_count.max(initial=0.0))
-    # the open window is wide: with half the ring unseen or more (one camera alone) its position is not fixed
-    if np.count_nonzero(seen) <= sectors // 2 or notch_count.sum() == 0:
+    # the open window is wide: with half the ring unseen or more (one camera alone) its position is not fixed; and
+    # the wall inside the notches has to be seen where the spines' is, for the one to be measured against the other
+    if np.count_nonzero(seen) <= sectors // 2 or notch_count[seen].sum() == 0:
         return None
     ratio = (notch_count / np.maximum(spine_count, 1.0)) / (notch_count[seen].sum() / spine_count[seen].sum())
     centres = -np.pi + (np.arange(sectors) + 0.5) * width
