@@ -67,9 +67,9 @@ def test_notch_side_is_not_claimed_when_no_notch_edge_is_seen():
 
 
 def test_notch_side_is_not_claimed_when_the_wall_inside_the_notches_lies_only_where_the_spines_are_unseen():
-    """The spines seen all round but for 20 deg of the backbone, the wall inside the notches only there (scene 5003
-    of the sweep, once its axis was levelled): nothing to measure the notches' wall against, and no side claimed
-    (it divided by nought, and the frame's relocation failed)."""
+    """The spines seen all round but for 20 deg of the backbone, the wall inside the notches only there (met on sweep
+    scene 5003 under a trial levelling of its axis): nothing to measure the notches' wall against, and no side
+    claimed (it divided by nought, and the frame's relocation failed)."""
     centerline, coords, notches = rolled_robot_wall(0.0, seen_half_width=math.radians(100.0))  # all round
     in_notches = np.zeros(len(coords.s), dtype=bool)
     for notch in notches:

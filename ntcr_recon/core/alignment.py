@@ -53,11 +53,6 @@ SILHOUETTE_MARGIN_PX = 4.0
 # Weight of the difference of two consecutive windows' shifts, in a window's typical information.
 SHIFT_SMOOTHING = 0.3
 
-# level_by_backbone's least squares leaves out what its cameras' directions hardly tell (singular values under this
-# share of the largest): two cameras 170 deg apart tell the axis across their views by sin 10 deg, and a
-# millimetre's worth of move would follow a few hundredths' disagreement of their levels.
-PINV_RCOND = 0.25
-
 
 def facing_cosine(outer_radius: float, footprint: float, margin_px: float, max_view_angle: float) -> float:
     """The least cosine of the view angle (between a wall point's outward direction and the direction to its
@@ -383,23 +378,17 @@ def level_by_backbone(centerline: Centerline, coords: TubeCoordinates, frames: t
                       end_s: float, max_view_angle: float = np.radians(45.0), cut_margin_px: float = 1.0,
                       silhouette_margin_px: float = SILHOUETTE_MARGIN_PX,
                       minimum_points: int = 10) -> tuple[Centerline, float]:
-    """The axis moved along the cameras' lines of sight so that the wall each sees between the notches lies at the
-    level it sees on the plain tube, less the deficit its share of the notches' side accounts for; and the RMS of
-    that move (m).
+    """The axis moved along the lines of sight of the cameras that face the backbone, so that the wall each of
+    them sees between the notches lies at the level it sees on the plain tube; and the RMS of that move (m).
 
     A camera that sees the notch side reads the wall between the notches deeper than the plain tube (its
     matcher's window reaches into the slots: 0.3 mm at 100 mm), one that faces the backbone - the uncut wall
     opposite the notches, beyond the gap's half-angle from the notch side - hardly does. The alignment's common
-    level splits the two cameras' difference between them, and moves the axis away from the camera that sees more
-    of the notches' side. Per window of a notch pitch, each camera c reads its wall deeper than on the plain
-    stretches (before the first cut and after the last, measured) by m_c = D f_c + e . u_c: f_c the share of its
-    trusted points (as the alignment's) on the notches' side, D the deficit of a wall seen there whole, e the axis's
-    error and u_c the direction to the camera. D and e are solved by least squares (two cameras or more; one alone
-    only where it sees no notch side, D then nought) and the axis moved by -e: a camera facing the backbone (f 0)
-    places it along its line of sight alone, two that see the notches' side alike keep the common level, and one
-    at the gap's edge (f about a half, beside one in the slots) takes its part. The move, interpolated along s
-    from none at the base, holds beyond the last window. Unchanged (and 0) where no window holds such cameras or
-    none saw the plain tube.
+    level splits the two cameras' difference between them and moves the axis away from the notch side's camera
+    by half the deficit; the backbone's camera, whose level on the plain stretches (before the first cut and
+    after the last) is measured, places it along its line of sight instead. Windows of a notch pitch, trusted
+    points as the alignment's; the move, interpolated along s from none at the base, holds beyond the last
+    window. Unchanged (and 0) where no camera faces the backbone or none saw the plain tube.
     """
     window = geometry.notch_pitch
     cuts = cut_intervals(geometry, centerline, cut_margin_px * footprint)
@@ -413,30 +402,31 @@ def level_by_backbone(centerline: Centerline, coords: TubeCoordinates, frames: t
     plain = away_from_cuts & ((coords.s < cuts[0, 0]) | (coords.s > cuts[-1, 1]))
     plain_sums = sums(plain, max(end_s, window))[0]
     per_window = sums(away_from_cuts, window)
-    on_notch_side = sums(away_from_cuts & (np.abs(coords.angle) < geometry.gap_half_angle), window)[:, :, 0]
     windows = len(per_window)
     centres = (np.arange(windows) + 0.5) * window
     notched = (centres > cuts[0, 0]) & (centres < cuts[-1, 1])
     at, _, window_normal, window_binormal = centerline.frames_at(centres)
     shifts = np.zeros((windows, 3))
     for k in np.flatnonzero(notched):
-        rows, deeper = [], []  # per camera: (f_c, u_c in the window's normal plane), m_c
+        system, rhs = np.zeros((2, 2)), np.zeros(2)
         for c in range(cameras):
             if plain_sums[c, 0] < minimum_points or per_window[k, c, 0] < minimum_points:
                 continue
             view = origins[c] - at[k]
             along = np.array([view @ window_normal[k], view @ window_binormal[k]])
+            if abs(np.arctan2(along[1], along[0])) <= geometry.gap_half_angle:
+                continue  # it sees the notch side's gaps: its level there is not the plain tube's
             direction = along / np.linalg.norm(along)
             # reading deeper than on the plain tube: the axis lies too near this camera, by the shift that
             # lowers each point's offset by shift x cos(its view angle) (least squares about the plain level)
             cosine, cosine2, cosine_offset = per_window[k, c, 5:]
             plain_level = plain_sums[c, 3] / plain_sums[c, 0]
-            deeper.append((plain_level * cosine - cosine_offset) / cosine2)
-            rows.append([on_notch_side[k, c] / per_window[k, c, 0], *direction])
-        if len(rows) >= 2 or (rows and rows[0][0] == 0.0):  # (one camera alone tells D from e only at f = 0)
-            # opposed cameras leave the axis across their views unknown: the least-norm solution keeps it
-            error = (np.linalg.pinv(np.array(rows), rcond=PINV_RCOND) @ np.array(deeper))[1:]
-            shifts[k] = -(error[0] * window_normal[k] + error[1] * window_binormal[k])
+            nearer = (plain_level * cosine - cosine_offset) / cosine2
+            system += np.outer(direction, direction)
+            rhs -= nearer * direction
+        if np.any(system):
+            move = np.linalg.pinv(system) @ rhs
+            shifts[k] = move[0] * window_normal[k] + move[1] * window_binormal[k]
     known = np.flatnonzero(np.any(shifts != 0.0, axis=1))
     if not len(known):
         return centerline, 0.0

@@ -258,8 +258,7 @@ class Reconstructor:
                 alignment = alignment.moved_to(centerline, fitted)
                 coords, frames = centerline.project_with_frames(cloud.xyz, coords.s)
                 across_from_fit = aligned_outline, fit_outline
-            # the cameras' levels on the plain tube place the axis along their views, each one's deficit between the
-            # notches taken as its share of the notches' side (one facing the backbone has none)
+            # the cameras facing the backbone place the axis along their views by the plain tube's level
             leveled, backbone_shift = level_by_backbone(centerline, coords, frames, viewpoints, seen_by,
                                                         self._camera_origins, geometry, trusted_gate, footprint, end)
             if leveled is not centerline:

@@ -534,9 +534,8 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
                         "how far off across the tube they are was not measured")
     if lean > BIAS_WARN_FOOTPRINTS * footprint:
         names = " and ".join(looking_into_slots)
-        consequence = (f"the cameras' levels on the plain tube placed the axis along their lines of sight instead, "
-                       f"each one's deficit taken as its share of the notches' side ({backbone_shift * 1e3:.2f} mm "
-                       "moved)" if levelled else
+        consequence = (f"a camera facing the backbone placed the axis along its line of sight instead, by its level on "
+                       f"the plain tube ({backbone_shift * 1e3:.2f} mm moved)" if levelled else
                        f"the centreline there may lean up to {lean * 1e3:.2f} mm away from {names}")
         warnings.append(f"{names} looks into the notches' slots, and the wall between them reads "
                         f"{notched_thinning * 1e3:.2f} mm deeper than the plain tube (its matcher averages the spines "
@@ -608,8 +607,7 @@ def centerline_uncertainty(cross_view_spread: float | None, notched_thinning: fl
     cameras' levels decide, and a matcher whose window averages the spines with the slots reads the wall between
     the notches deeper than the plain tube (notched_thinning), a deficit no fit can place: a lean of about as
     much, twice it when a camera looks into the slots (carried by that camera alone, it reads half pooled) unless
-    the cameras' levels placed the axis along the views, each one's deficit its share of the notches' side's
-    (levelled, alignment.level_by_backbone). one_sided: (the share of the length
+    a camera facing the backbone placed the axis along the views (levelled). one_sided: (the share of the length
     seen by one camera alone, the outer wall's level about the r_o circle, m): there the axis along that camera's
     view rests on the level the fit gives its one side, which no second view checks and which stereo's
     flattening changes with distance and view angle by up to the level itself: that much again over that share.
