@@ -1296,6 +1296,9 @@ def test_a_camera_that_missed_a_stretch_is_named_with_why_too_near_or_end_on():
     assert carried_quality["tip_across_uncertainty_mm"] > 1.0 and carried_quality["tip_uncertainty_mm"] > 0.1
     assert carried_quality["centerline_uncertainty_mm"] > 0.3
     assert carried_quality["tip_seen_s_mm"] == pytest.approx(38.0)
+    assert carried_quality["tip_hidden_mm"] == pytest.approx(carried_quality["tip_s_mm"] - 38.0)
+    assert carried_quality["tip_hidden_mm"] > 10.0
+    assert quality["tip_hidden_mm"] == 0.0
     # bent towards cam_b, away from cam_a along its line of sight: cam_a sees the distal wall nearly edge-on
     _, away = warned(90.0)
     print(away)

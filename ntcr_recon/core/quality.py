@@ -559,6 +559,8 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
         else tip_across * 1e3,
         "tip_held_shift_mm": held * 1e3, "tip_held_over_mm": max(tip_s - held_from, 0.0) * 1e3,
         "tip_carried_mm": carried * 1e3,
+        # how far past the end seen the tip was carried, where every camera was kept from the rest (0: it was not)
+        "tip_hidden_mm": (tip_s - seen_end) * 1e3 if hidden_across else 0.0,
         "notch_width_vs_bend_mm": {str(i): d * 1e3 for i, d in sorted(off_model.items())},
         "notches_unchecked": unchecked,
         "pixel_footprint_mm": footprint * 1e3,
