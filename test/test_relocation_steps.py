@@ -1243,7 +1243,7 @@ def test_a_camera_that_missed_a_stretch_is_named_with_why_too_near_or_end_on():
     cameras = facing_pair(0.09)
     extrinsics = {pose.name: pose.extrinsic for pose in cameras}
 
-    def warned(towards_deg, tip_s=None, unsupported=(), carried=False):
+    def warned(towards_deg, tip_s=None, unsupported=(), carry=False):
         """The warnings of a robot bent 90 deg towards the camera at towards_deg (-90: cam_a, 90: cam_b) seen
         up to tip_s, cam_a's points only where the tube is 70 mm from it or more and short of 40 mm along it."""
         shape = TubeShape.from_bend_angle(dataclasses.replace(GEOMETRY, notch_side=math.radians(towards_deg)),
@@ -1258,7 +1258,7 @@ def test_a_camera_that_missed_a_stretch_is_named_with_why_too_near_or_end_on():
         reach = camera_reach(carried, tip_s, shape.length, R_O, FOOTPRINT, extrinsics, xyz, camera)
         s = np.concatenate([sample.s[by_a], sample.s])
         total_bend, tip_along = math.radians(90.0 * tip_s / shape.length), None
-        if carried:  # to the robot's length, as the pipeline does where the rest is hidden
+        if carry:  # to the robot's length, as the pipeline does where the rest is hidden
             tip_along = carried_to_length(TipAlongTube(tip_s, 0.1e-3, tip_s, 0.1e-3, shape.length, 0.1e-3),
                                           continued_bend(true_centerline(shape).up_to(tip_s), GEOMETRY.reach,
                                                          centres, GEOMETRY))
@@ -1285,9 +1285,10 @@ def test_a_camera_that_missed_a_stretch_is_named_with_why_too_near_or_end_on():
     print(cut_short)
     assert "continued at its last bend, it would come within 60 mm of cam_a" in cut_short
     assert "notches 12-15 lie beyond the end seen (38.0 mm along the tube)" in cut_short
+    assert re.search(r"the tube ends 1\d\.\d mm short", cut_short) and "carried on there" not in cut_short
     # carried on to the robot's length past where cam_a was too near to see: the tip and the centreline's stated
     # uncertainty count what a straight hidden part would leave them off, and the warning says where the tip is
-    carried_quality, carried = warned(-90.0, tip_s=38e-3, carried=True)
+    carried_quality, carried = warned(-90.0, tip_s=38e-3, carry=True)
     print(carried)
     assert re.search(r"the tube seen ends 1\d\.\d mm short of the robot's length .*within 60 mm of cam_a.*: that "
                      r"hides the rest, and the tip is carried on there", carried)
