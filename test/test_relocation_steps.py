@@ -1129,23 +1129,31 @@ def test_quality_tells_a_tube_cut_short_by_the_crop_box_from_one_that_ends_insid
 
 def test_quality_says_when_no_camera_showed_the_tubes_outline_whole():
     """The outline check runs on points that carry their camera: where no window's outline spanned the tube's
-    diameter (outline_offset None) the centreline went unchecked across the views, and the result says so; an
-    outline measured, or clouds without cameras (no check to run), say nothing of it."""
+    diameter (outline_offset None) the centreline went unchecked across the views, and the result says so, and
+    states it, and the tip at its free end, as uncertain as the pixel footprint the check resolves at least (the
+    cameras' spread said 0.02 mm); an outline measured, or clouds without cameras (no check to run), say nothing of
+    it and state the spread."""
     s = np.linspace(0.0, 30e-3, 3000)
 
-    def warnings_for(camera, outline_offset):
-        return " ".join(assess(
+    def assessed(camera, outline_offset):
+        quality, warnings = assess(
             geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=[], coords_s=s, camera=camera,
             tip_s=30e-3, total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.0, notch_side=0.0, configured_side=0.0,
-            bias_notch_side=0.0, bias_binormal=0.0, depth_steps={}, outline_offset=outline_offset)[1])
+            bias_notch_side=0.0, bias_binormal=0.0, depth_steps={}, outline_offset=outline_offset,
+            cross_view_spread=0.02e-3)
+        return quality, " ".join(warnings)
 
     cameras = (np.arange(len(s)) % 2).astype(np.int8)
-    unchecked = warnings_for(cameras, None)
+    quality, unchecked = assessed(cameras, None)
     print("\n" + unchecked)
     assert "no camera's view showed the tube's outline whole" in unchecked and "centreline" in unchecked
     assert "the tip at its free end" in unchecked  # the tip across the tube is the centreline's free end
-    assert "outline whole" not in warnings_for(cameras, 0.02e-3)
-    assert "outline whole" not in warnings_for(None, None)
+    assert "as uncertain as a pixel footprint at least (0.20 mm)" in unchecked
+    assert quality["centerline_uncertainty_mm"] == pytest.approx(FOOTPRINT * 1e3)
+    assert quality["tip_across_uncertainty_mm"] >= FOOTPRINT * 1e3
+    for camera, offset in ((cameras, 0.02e-3), (None, None)):
+        quality, checked = assessed(camera, offset)
+        assert "outline whole" not in checked and quality["centerline_uncertainty_mm"] == pytest.approx(0.02)
 
 
 def test_the_surface_depth_nearest_a_camera_is_the_axis_less_the_ring_it_turns_to_the_camera():

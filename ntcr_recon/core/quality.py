@@ -384,13 +384,18 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     astray = outline_offset if went_astray(outline_offset, footprint) else None
     uncertainty = centerline_uncertainty(cross_view_spread, notched_thinning, looking_into_slots, levelled,
                                          one_sided=resting_on_level, astray=astray)
+    # where no camera's view showed the tube's outline whole, nothing checked the axis across the views (outline.py):
+    # it is known there no better than that check resolves, a pixel footprint (a sound axis lies within one of the
+    # outline's middle), whatever the cameras' spread says (the warning below says so)
+    outline_unchecked = camera is not None and outline_offset is None
+    known = max(uncertainty or 0.0, footprint) if outline_unchecked else uncertainty
     # the tip sits on the centreline's free end, where an error growing along the tube is sqrt(3) its RMS, with
     # the shift the alignment measured last and held unchecked to the tip (the fit's lean it corrected there may
     # differ beyond); and where the cameras disagree in the last window, their own axes' distance apart
     end_spread = DISTAL_CROSS_VIEW_FACTOR * (distal_cross_view or 0.0)
-    free_end = FREE_END_FACTOR * (uncertainty or 0.0)
+    free_end = FREE_END_FACTOR * (known or 0.0)
     held, held_from = held_shift if held_shift is not None and held_shift[1] is not None else (0.0, tip_s)
-    carried, carried_across = carried_to_tip(fitted_end, tip_s, notch_centres, geometry, uncertainty or 0.0)
+    carried, carried_across = carried_to_tip(fitted_end, tip_s, notch_centres, geometry, known or 0.0)
     # carried past an end hidden from every camera: the hidden notches may bend otherwise than the ones seen
     hidden_across = 0.0 if tip_along is None or tip_along.hidden_across is None else tip_along.hidden_across
     tip_across = max(math.hypot(free_end, held, carried_across, hidden_across), end_spread)
@@ -411,9 +416,9 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     # the centreline runs on past the end seen to a carried tip: along that stretch a straight hidden part leaves it
     # off by up to hidden_across, growing with the square of the distance carried (a fifth of its square in the
     # mean): the RMS over the robot's length
-    stated_centreline = uncertainty
+    stated_centreline = known
     if hidden_across:
-        stated_centreline = math.sqrt((uncertainty or 0.0) ** 2 + (tip_s - seen_end) / tip_s * hidden_across**2 / 5)
+        stated_centreline = math.sqrt((known or 0.0) ** 2 + (tip_s - seen_end) / tip_s * hidden_across**2 / 5)
     tip_total = math.hypot(tip_uncertainty, tip_across)
     # (a tip carried past the end seen is not where the cameras saw it: the warning of the tube ending short says so)
     if tip_total > TIP_FLOOR and tip_from_cap and not hidden_across:
@@ -502,14 +507,15 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
                            f"the cameras' views, {astray / footprint:.1f} px where a sound one lies within "
                            f"{OUTLINE_TOLERANCE_PX:g}: the fit and the alignment followed a wall stereo moved that far"
                            if astray is not None else ""))
-    if camera is not None and outline_offset is None:
+    if outline_unchecked:
         # the check ran (points carry their camera) and no window's outline spanned the tube's diameter: the
         # matcher spoiled the silhouettes (a wide window over a near backdrop); in the sweeps only such scenes,
         # 10 of 26 on the second renderer over the centreline's floor, 2 of them beyond what the spread stated
         warnings.append("no camera's view showed the tube's outline whole (across each view its wall points spanned "
                         "no diameter: the matcher spoiled the silhouettes' pixels): the centreline was not checked "
                         "against the middle of the outline, and across the views it, and the tip at its free end, "
-                        "may lie further off than the cameras' spread says")
+                        "may lie further off than the cameras' spread says: they are stated as uncertain as a pixel "
+                        f"footprint at least ({footprint * 1e3:.2f} mm), what that check resolves")
     if across_from_fit is not None:
         aligned, fit = across_from_fit
         warnings.append(f"the alignment moved the axis {aligned * 1e3:.2f} mm (RMS) from the middle of the tube's "
@@ -555,7 +561,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
         "tip_s_mm": tip_s * 1e3, "tip_seen_s_mm": seen_end * 1e3, "expected_length_mm": expected_length * 1e3,
         "tip_length_weighed": bool(tip_along is not None and tip_along.length_weighed),
         "tip_uncertainty_mm": tip_uncertainty * 1e3,
-        "tip_across_uncertainty_mm": None if uncertainty is None and not held and not hidden_across
+        "tip_across_uncertainty_mm": None if known is None and not held and not hidden_across
         else tip_across * 1e3,
         "tip_held_shift_mm": held * 1e3, "tip_held_over_mm": max(tip_s - held_from, 0.0) * 1e3,
         "tip_carried_mm": carried * 1e3,
