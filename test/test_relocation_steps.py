@@ -1425,7 +1425,7 @@ def test_quality_gives_the_centreline_an_uncertainty_and_warns_above_its_floor()
     assert centerline_uncertainty(None, None, astray=0.5e-3) == pytest.approx(0.5e-3)
 
     def assessed(spread, thinning, looking=(), at_end=None, held=None, cam_b_up_to=None, wall_level=None,
-                 outline=None, across_from_fit=None, fitted_end=None):
+                 outline=0.02e-3, across_from_fit=None, fitted_end=None):  # (outline: checked, a sound axis's)
         s, seen_by = np.linspace(0.0, 50e-3, 1000), np.zeros(1000, np.int8)
         if cam_b_up_to is not None:  # cam_a sees the whole tube, cam_b up to there
             s = np.concatenate([s, np.linspace(0.0, cam_b_up_to, 750)])

@@ -194,7 +194,7 @@ def test_the_tip_weighs_the_end_seen_against_the_robots_known_length():
                       coords_s=np.linspace(0.0, along.s, 100), camera=np.arange(100) % 2, tip_s=along.s,
                       total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.0, notch_side=0.0, configured_side=0.0,
                       bias_notch_side=0.0, bias_binormal=0.0, depth_steps={}, tip_uncertainty=along.seen_uncertainty,
-                      tip_along=along, **more)
+                      tip_along=along, outline_offset=0.02e-3, **more)  # (the outline checked the axis)
 
     quality, warnings = warnings_for(with_known_length(52.0e-3, 0.2e-3, geometry.length, 0.1e-3))
     print("\n" + "\n".join(warnings))
@@ -302,7 +302,7 @@ def test_tip_warning_states_how_well_the_erosion_is_known(erosion, uncertainty, 
         geometry=geometry, camera_names=("cam_a", "cam_b"), notches=[], coords_s=s,
         camera=(np.arange(len(s)) % 2).astype(np.int8), tip_s=geometry.length, total_bend=0.0, footprint=0.2e-3,
         wall_residual=0.05e-3, notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0,
-        depth_steps={}, tip_erosion=erosion, tip_uncertainty=uncertainty)
+        depth_steps={}, tip_erosion=erosion, tip_uncertainty=uncertainty, outline_offset=0.02e-3)  # (checked)
     tip = [w for w in warnings if "stereo-eroded rim" in w]
     print(f"\ngiven back {erosion * 1e3:.2f} mm, uncertainty {uncertainty}: {tip}")
     if warned is None:
