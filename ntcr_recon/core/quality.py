@@ -388,14 +388,14 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     # it is known there no better than that check resolves, a pixel footprint (a sound axis lies within one of the
     # outline's middle), whatever the cameras' spread says (the warning below says so)
     outline_unchecked = camera is not None and outline_offset is None
-    known = max(uncertainty or 0.0, footprint) if outline_unchecked else uncertainty
+    centreline_known = max(uncertainty or 0.0, footprint) if outline_unchecked else uncertainty
     # the tip sits on the centreline's free end, where an error growing along the tube is sqrt(3) its RMS, with
     # the shift the alignment measured last and held unchecked to the tip (the fit's lean it corrected there may
     # differ beyond); and where the cameras disagree in the last window, their own axes' distance apart
     end_spread = DISTAL_CROSS_VIEW_FACTOR * (distal_cross_view or 0.0)
-    free_end = FREE_END_FACTOR * (known or 0.0)
+    free_end = FREE_END_FACTOR * (centreline_known or 0.0)
     held, held_from = held_shift if held_shift is not None and held_shift[1] is not None else (0.0, tip_s)
-    carried, carried_across = carried_to_tip(fitted_end, tip_s, notch_centres, geometry, known or 0.0)
+    carried, carried_across = carried_to_tip(fitted_end, tip_s, notch_centres, geometry, centreline_known or 0.0)
     # carried past an end hidden from every camera: the hidden notches may bend otherwise than the ones seen
     hidden_across = 0.0 if tip_along is None or tip_along.hidden_across is None else tip_along.hidden_across
     tip_across = max(math.hypot(free_end, held, carried_across, hidden_across), end_spread)
@@ -416,9 +416,10 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     # the centreline runs on past the end seen to a carried tip: along that stretch a straight hidden part leaves it
     # off by up to hidden_across, growing with the square of the distance carried (a fifth of its square in the
     # mean): the RMS over the robot's length
-    stated_centreline = known
+    stated_centreline = centreline_known
     if hidden_across:
-        stated_centreline = math.sqrt((known or 0.0) ** 2 + (tip_s - seen_end) / tip_s * hidden_across**2 / 5)
+        hidden_share = (tip_s - seen_end) / tip_s
+        stated_centreline = math.sqrt((centreline_known or 0.0) ** 2 + hidden_share * hidden_across**2 / 5)
     tip_total = math.hypot(tip_uncertainty, tip_across)
     # (a tip carried past the end seen is not where the cameras saw it: the warning of the tube ending short says so)
     if tip_total > TIP_FLOOR and tip_from_cap and not hidden_across:
@@ -561,7 +562,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
         "tip_s_mm": tip_s * 1e3, "tip_seen_s_mm": seen_end * 1e3, "expected_length_mm": expected_length * 1e3,
         "tip_length_weighed": bool(tip_along is not None and tip_along.length_weighed),
         "tip_uncertainty_mm": tip_uncertainty * 1e3,
-        "tip_across_uncertainty_mm": None if known is None and not held and not hidden_across
+        "tip_across_uncertainty_mm": None if centreline_known is None and not held and not hidden_across
         else tip_across * 1e3,
         "tip_held_shift_mm": held * 1e3, "tip_held_over_mm": max(tip_s - held_from, 0.0) * 1e3,
         "tip_carried_mm": carried * 1e3,
