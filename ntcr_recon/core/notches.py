@@ -611,8 +611,10 @@ def calibrate_and_check(notches: list[Notch], geometry: TubeGeometry, centerline
     # a notch whose own bend no whole spine beyond measured (the last one found, its distal rim where the tube seen
     # thins out: the rim most often read far off) is checked against the bend of the measured notches before it
     measured_bends = {n.index: n.bend for n in notches if n.index in checked and n.bend is not None}
+    # the bend a kink's bump gathers back, where the chords show one (fixed by the chords read: once)
     chord_bends = {n.index: n.bend for n in notches if n.edges_measured and n.index in checked}
     scatter = chord_scatter(chord_bends)
+    gathered = {i: bend for i in chord_bends if (bend := gathered_bend(chord_bends, i, scatter)) is not None}
     before = {n.index: float(np.median(earlier)) for n in notches if n.index not in checked
               and (earlier := [measured_bends[i] for i in (n.index - 2, n.index - 1) if i in measured_bends])}
     while True:  # one at a time, the farthest off first: a misread rim shared over a spine puts its neighbour off too
@@ -620,9 +622,8 @@ def calibrate_and_check(notches: list[Notch], geometry: TubeGeometry, centerline
         off = {n.index: abs(n.width - geometry.notch_width_at_bend(before.get(n.index, n.bend) or 0.0))
                for n in calibrated if n.edges_measured and (n.index in checked or n.index in before)}
         for n in calibrated:  # a width a kink's bend explains (the centreline spread it over three) was read right
-            if n.index in off and n.index in checked and (
-                    gathered := gathered_bend(chord_bends, n.index, scatter)) is not None:
-                off[n.index] = min(off[n.index], abs(n.width - geometry.notch_width_at_bend(gathered)))
+            if n.index in off and n.index in gathered:
+                off[n.index] = min(off[n.index], abs(n.width - geometry.notch_width_at_bend(gathered[n.index])))
         worst = max(off, key=off.get, default=None)
         if worst is None or off[worst] <= limit:
             return CheckedNotches(calibrated, misread, sorted(n.index for n in calibrated if n.edges_measured

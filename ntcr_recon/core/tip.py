@@ -430,8 +430,8 @@ def carried_to_length(along: TipAlongTube, centerline: Centerline) -> TipAlongTu
     How well it is known there: along the tube, as well as the length and as far as a straight hidden part would
     leave it ahead or short; across it, as far as that straight part would leave it off (hidden_across) - the
     hidden notches may bend less or more than the ones seen, and no camera says which."""
-    seen_position, seen_tangent = (a[0] for a in centerline.frames_at(np.array([along.seen_s]))[:2])
-    position, tangent = (a[0] for a in centerline.frames_at(np.array([along.expected_s]))[:2])
+    (seen_position, position), (seen_tangent, tangent) = centerline.frames_at(
+        np.array([along.seen_s, along.expected_s]))[:2]
     off = seen_position + (along.expected_s - along.seen_s) * seen_tangent - position
     ahead = float(off @ tangent)
     return replace(along, s=along.expected_s, uncertainty=float(np.hypot(along.tolerance or 0.0, ahead)),
