@@ -1289,11 +1289,17 @@ def test_a_camera_that_missed_a_stretch_is_named_with_why_too_near_or_end_on():
     # no notch was found (none given): those past 40 mm, where cam_a's points stop, are named with why
     assert re.search(r"notches 12-15 lie where cam_a did not see the tube \(it comes within 6\d mm of cam_a",
                      seen_alone)
-    _, cut_short = warned(-90.0, tip_s=38e-3)  # the tube's end found where cam_a stops seeing it
+    short_quality, cut_short = warned(-90.0, tip_s=38e-3)  # the tube's end found where cam_a stops seeing it
     print(cut_short)
     assert "continued at its last bend, it would come within 60 mm of cam_a" in cut_short
     assert "notches 12-15 lie beyond the end seen (38.0 mm along the tube)" in cut_short
-    assert re.search(r"the tube ends 1\d\.\d mm short", cut_short) and "carried on there" not in cut_short
+    shortfall = re.search(r"the tube ends (1\d\.\d) mm short", cut_short)
+    assert shortfall and "carried on there" not in cut_short
+    # left at the end seen, the tip may lie as far off as the rest of the robot reaches, and its figures say so (a
+    # controller reads those, not the warning): the shortfall along the tube and across it
+    assert f"the tip may lie up to {shortfall[1]} mm off" in cut_short
+    assert short_quality["tip_uncertainty_mm"] == pytest.approx(float(shortfall[1]), abs=0.05)
+    assert short_quality["tip_across_uncertainty_mm"] == pytest.approx(float(shortfall[1]), abs=0.05)
     # carried on to the robot's length past where cam_a was too near to see: the tip and the centreline's stated
     # uncertainty count what a straight hidden part would leave them off, and the warning says where the tip is
     carried_quality, carried = warned(-90.0, tip_s=38e-3, carry=True)
@@ -1424,13 +1430,16 @@ def test_quality_gives_the_centreline_an_uncertainty_and_warns_above_its_floor()
     assert centerline_uncertainty(0.06e-3, 0.08e-3, astray=0.5e-3) == pytest.approx(0.5e-3)
     assert centerline_uncertainty(None, None, astray=0.5e-3) == pytest.approx(0.5e-3)
 
+    # a robot 50 mm long, seen to its tip (one ending short of its length states its tip as far off)
+    seen_to_tip = dataclasses.replace(GEOMETRY, proximal_length=GEOMETRY.proximal_length - 3e-3)
+
     def assessed(spread, thinning, looking=(), at_end=None, held=None, cam_b_up_to=None, wall_level=None,
                  outline=0.02e-3, across_from_fit=None, fitted_end=None):  # (outline: checked, a sound axis's)
         s, seen_by = np.linspace(0.0, 50e-3, 1000), np.zeros(1000, np.int8)
         if cam_b_up_to is not None:  # cam_a sees the whole tube, cam_b up to there
             s = np.concatenate([s, np.linspace(0.0, cam_b_up_to, 750)])
             seen_by = np.concatenate([seen_by, np.ones(750, np.int8)])
-        return assess(geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=[],
+        return assess(geometry=seen_to_tip, camera_names=("cam_a", "cam_b"), notches=[],
                       coords_s=s, camera=seen_by, tip_s=50e-3, wall_level=wall_level,
                       total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.0, notch_side=0.0, configured_side=0.0,
                       bias_notch_side=0.1e-3, bias_binormal=0.0, depth_steps={}, notched_thinning=thinning,

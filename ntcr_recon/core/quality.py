@@ -477,7 +477,16 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
                        f"{stated_centreline * 1e3:.2f} mm (RMS over the robot's length)")
         elif why:
             warning += f"; {why}: that may hide the rest"
+        if not hidden_across:
+            warning += (f"; left at the end seen, the tip may lie up to {abs(short) * 1e3:.1f} mm off, along the tube "
+                        "or across it, and its uncertainty is stated so")
         warnings.append(warning)
+    # a tip left at an end seen far short of (or past) the robot's length lies wherever the rest of the robot
+    # reaches: up to that many mm off, along the tube or across it, and it says so in its figures too (a robot
+    # controller reads those, not the warning)
+    left_short = abs(short) > TIP_SHORT_DIAMETERS * diameter and not hidden_across
+    if left_short:
+        tip_uncertainty, tip_across = max(tip_uncertainty, abs(short)), max(tip_across, abs(short))
     side_off = math.degrees(math.remainder(notch_side - configured_side, 2 * math.pi))
     if side_unsettled is not None:
         first, then = (math.degrees(angle) for angle in side_unsettled)
@@ -563,7 +572,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
         "tip_length_weighed": bool(tip_along is not None and tip_along.length_weighed),
         "tip_uncertainty_mm": tip_uncertainty * 1e3,
         "tip_across_uncertainty_mm": None if centreline_known is None and not held and not hidden_across
-        else tip_across * 1e3,
+        and not left_short else tip_across * 1e3,
         "tip_held_shift_mm": held * 1e3, "tip_held_over_mm": max(tip_s - held_from, 0.0) * 1e3,
         "tip_carried_mm": carried * 1e3,
         # how far past the end seen the tip was carried, where every camera was kept from the rest (0: it was not)
