@@ -35,6 +35,7 @@ from ntcr_recon.core.quality import (
     depth_step,
     notched_thinning,
     surface_depth,
+    unmeasured_share,
     where_notches_went_unseen,
 )
 from ntcr_recon.core.tip import TipAlongTube, carried_to_length, tube_end, visible_sectors
@@ -1416,6 +1417,29 @@ def test_quality_measures_a_wall_that_reads_deeper_between_the_notches_than_on_t
     # move the axis; and a deficit a quarter of a footprint below the floor stays quiet
     assert "slots" not in warnings_for(0.3e-3, looking=())[1]
     assert "slots" not in warnings_for(0.2 * FOOTPRINT)[1]
+
+
+def test_a_centreline_over_stretches_nothing_measured_is_stated_as_uncertain_as_a_pixel_footprint_there():
+    """Where no camera saw the wall facing it, nothing measured how far off the axis is: over that share of the
+    length it is known no better than a pixel footprint, weighed into the stated RMS (overlapping stretches once)."""
+    assert unmeasured_share((), None, 50e-3, 3e-3) == 0.0
+    assert unmeasured_share(((40e-3, 50e-3), (45e-3, 52e-3)), None, 50e-3, 3e-3) == pytest.approx(0.2)
+
+    def stated(unsupported):
+        quality, warnings = assess(
+            geometry=dataclasses.replace(GEOMETRY, proximal_length=GEOMETRY.proximal_length - 3e-3),
+            camera_names=("cam_a", "cam_b"), notches=[], coords_s=np.linspace(0.0, 50e-3, 1000),
+            camera=np.zeros(1000, np.int8), tip_s=50e-3, total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.0,
+            notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0, depth_steps={},
+            cross_view_spread=0.03e-3, notched_thinning=0.04e-3, outline_offset=0.02e-3, unsupported=unsupported,
+            notch_centres=GEOMETRY.notch_centers_s)
+        return quality["centerline_uncertainty_mm"], " ".join(warnings)
+
+    measured, quiet = stated(())
+    assert measured == pytest.approx(0.05) and "how far off it is was not measured" not in quiet
+    unmeasured, said = stated(((40e-3, 50e-3),))
+    assert "over s = 40-50 mm no camera saw the tube's wall facing it" in said
+    assert unmeasured == pytest.approx(math.sqrt(0.05**2 + 0.2 * (FOOTPRINT * 1e3) ** 2))
 
 
 def test_quality_gives_the_centreline_an_uncertainty_and_warns_above_its_floor():

@@ -262,6 +262,23 @@ def cameras_looking_into_slots(centerline, geometry, camera_origins: np.ndarray,
     return looking
 
 
+def unmeasured_share(unsupported: tuple[tuple[float, float], ...], reach: CameraReach | None, tip_s: float,
+                     pitch: float) -> float:
+    """The share of the length up to tip_s where nothing measured how far off the axis is: the stretches where no
+    camera saw the wall facing it (`unsupported`) and a distal stretch every camera sees end-on (END_ON_PITCHES
+    pitches or more, CameraReach.end_on_to_every_camera), counted once where they overlap."""
+    stretches = [(max(start, 0.0), min(end, tip_s)) for start, end in unsupported]
+    end_on = 0.0 if reach is None else reach.end_on_to_every_camera(tip_s)[0]
+    if end_on >= END_ON_PITCHES * pitch:
+        stretches.append((tip_s - end_on, tip_s))
+    covered, reached = 0.0, 0.0
+    for start, end in sorted(stretches):
+        start = max(start, reached)
+        if end > start:
+            covered, reached = covered + end - start, end
+    return min(covered / tip_s, 1.0) if tip_s > 0 else 0.0
+
+
 def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
            coords_s: np.ndarray, camera: np.ndarray | None, tip_s: float, total_bend: float, footprint: float,
            wall_residual: float, notch_side: float, configured_side: float, bias_notch_side: float,
@@ -420,6 +437,12 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     if hidden_across:
         hidden_share = (tip_s - seen_end) / tip_s
         stated_centreline = math.sqrt((centreline_known or 0.0) ** 2 + hidden_share * hidden_across**2 / 5)
+    # over the stretches where no camera saw the wall facing it, or every camera sees it end-on (both warned below),
+    # nothing measured how far off the axis is: known there no better than a pixel footprint, their share of the
+    # length weighs that in the RMS (as the outline check's resolution where it could not run)
+    unmeasured = unmeasured_share(unsupported, reach, tip_s, geometry.notch_pitch)
+    if unmeasured and stated_centreline is not None:
+        stated_centreline = math.sqrt(stated_centreline**2 + unmeasured * footprint**2)
     tip_total = math.hypot(tip_uncertainty, tip_across)
     # (a tip carried past the end seen is not where the cameras saw it: the warning of the tube ending short says so)
     if tip_total > TIP_FLOOR and tip_from_cap and not hidden_across:
