@@ -1422,8 +1422,9 @@ def test_quality_measures_a_wall_that_reads_deeper_between_the_notches_than_on_t
 def test_a_centreline_over_stretches_nothing_measured_is_stated_as_uncertain_as_a_pixel_footprint_there():
     """Where no camera saw the wall facing it, nothing measured how far off the axis is: over that share of the
     length it is known no better than a pixel footprint, weighed into the stated RMS (overlapping stretches once)."""
-    assert unmeasured_share((), None, 50e-3, 3e-3) == 0.0
-    assert unmeasured_share(((40e-3, 50e-3), (45e-3, 52e-3)), None, 50e-3, 3e-3) == pytest.approx(0.2)
+    assert unmeasured_share((), 0.0, 50e-3) == 0.0
+    assert unmeasured_share(((40e-3, 50e-3), (45e-3, 52e-3)), 0.0, 50e-3) == pytest.approx(0.2)
+    assert unmeasured_share(((30e-3, 35e-3),), 8e-3, 50e-3) == pytest.approx(0.26)  # and a distal end-on stretch
 
     def stated(unsupported):
         quality, warnings = assess(

@@ -262,14 +262,12 @@ def cameras_looking_into_slots(centerline, geometry, camera_origins: np.ndarray,
     return looking
 
 
-def unmeasured_share(unsupported: tuple[tuple[float, float], ...], reach: CameraReach | None, tip_s: float,
-                     pitch: float) -> float:
+def unmeasured_share(unsupported: tuple[tuple[float, float], ...], end_on: float, tip_s: float) -> float:
     """The share of the length up to tip_s where nothing measured how far off the axis is: the stretches where no
-    camera saw the wall facing it (`unsupported`) and a distal stretch every camera sees end-on (END_ON_PITCHES
-    pitches or more, CameraReach.end_on_to_every_camera), counted once where they overlap."""
+    camera saw the wall facing it (`unsupported`) and the distal `end_on` m every camera sees end-on (0: none
+    warned of), counted once where they overlap."""
     stretches = [(max(start, 0.0), min(end, tip_s)) for start, end in unsupported]
-    end_on = 0.0 if reach is None else reach.end_on_to_every_camera(tip_s)[0]
-    if end_on >= END_ON_PITCHES * pitch:
+    if end_on > 0:
         stretches.append((tip_s - end_on, tip_s))
     covered, reached = 0.0, 0.0
     for start, end in sorted(stretches):
@@ -440,7 +438,9 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     # over the stretches where no camera saw the wall facing it, or every camera sees it end-on (both warned below),
     # nothing measured how far off the axis is: known there no better than a pixel footprint, their share of the
     # length weighs that in the RMS (as the outline check's resolution where it could not run)
-    unmeasured = unmeasured_share(unsupported, reach, tip_s, geometry.notch_pitch)
+    end_on, end_on_angles = (0.0, {}) if reach is None else reach.end_on_to_every_camera(tip_s)
+    end_on_warned = end_on >= END_ON_PITCHES * geometry.notch_pitch
+    unmeasured = unmeasured_share(unsupported, end_on if end_on_warned else 0.0, tip_s)
     if unmeasured and stated_centreline is not None:
         stated_centreline = math.sqrt(stated_centreline**2 + unmeasured * footprint**2)
     tip_total = math.hypot(tip_uncertainty, tip_across)
@@ -472,14 +472,18 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     # bending shortens the centreline by ybar * theta: what the tip should read with the measured bend
     expected_length = geometry.bent_length(total_bend)
     short = expected_length - seen_end
+    ends_off_length = abs(short) > TIP_SHORT_DIAMETERS * diameter
+    # a tip left at an end seen far short of (or past) the robot's length (not carried on) lies wherever the rest of
+    # the robot reaches
+    left_short = ends_off_length and not hidden_across
     if tip_along is not None and not tip_along.length_weighed and tip_along.tolerance is not None and (
-            abs(short) <= TIP_SHORT_DIAMETERS * diameter and abs(tip_along.disagreement) > LENGTH_AGREEMENT_SIGMAS):
+            not ends_off_length and abs(tip_along.disagreement) > LENGTH_AGREEMENT_SIGMAS):
         warnings.append(f"the end seen lies {abs(short) * 1e3:.2f} mm {'short of' if short > 0 else 'past'} the "
                         f"robot's length at this bend ({expected_length * 1e3:.2f} mm), more than both are known to "
                         f"({tip_along.seen_uncertainty * 1e3:.2f} and {tip_along.tolerance * 1e3:.2f} mm, "
                         "robot.length_tolerance with the bend's): the tip is where the end was seen; check the robot's "
                         "notch layout, its base position along it and robot.length_tolerance")
-    if abs(short) > TIP_SHORT_DIAMETERS * diameter:
+    if ends_off_length:
         where = "short of" if short > 0 else "past"
         warning = (f"the tube ends {abs(short) * 1e3:.1f} mm {where} the robot's length "
                    f"({expected_length * 1e3:.1f} mm at this bend): the tip is uncertain")
@@ -500,14 +504,12 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
                        f"{stated_centreline * 1e3:.2f} mm (RMS over the robot's length)")
         elif why:
             warning += f"; {why}: that may hide the rest"
-        if not hidden_across:
+        if left_short:
             warning += (f"; left at the end seen, the tip may lie up to {abs(short) * 1e3:.1f} mm off, along the tube "
                         "or across it, and its uncertainty is stated so")
         warnings.append(warning)
-    # a tip left at an end seen far short of (or past) the robot's length lies wherever the rest of the robot
-    # reaches: up to that many mm off, along the tube or across it, and it says so in its figures too (a robot
-    # controller reads those, not the warning)
-    left_short = abs(short) > TIP_SHORT_DIAMETERS * diameter and not hidden_across
+    # such a tip states so in its figures too, up to the shortfall along the tube or across it (a robot controller
+    # reads those, not the warning)
     if left_short:
         tip_uncertainty, tip_across = max(tip_uncertainty, abs(short)), max(tip_across, abs(short))
     side_off = math.degrees(math.remainder(notch_side - configured_side, 2 * math.pi))
@@ -565,8 +567,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     # a distal stretch every camera sees nearly end-on: no camera's view of its wall faces it, and nothing placed
     # the axis there across the tube as well as elsewhere (in the sweeps, most such tips missed their floor); said
     # unless an unsupported stretch reaching the tip says as much already
-    end_on, end_on_angles = (0.0, {}) if reach is None else reach.end_on_to_every_camera(tip_s)
-    if end_on >= END_ON_PITCHES * geometry.notch_pitch and not unsupported_to_tip:
+    if end_on_warned and not unsupported_to_tip:
         angles = " and ".join(f"{math.degrees(angle):.0f} deg of {name}'s" for name, angle in end_on_angles.items())
         warnings.append(f"the distal {end_on * 1e3:.0f} mm points within {angles} line of sight: every camera sees its "
                         "wall nearly edge-on there, and the centreline there and the tip with it rest on that wall: "
