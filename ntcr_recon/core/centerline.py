@@ -724,6 +724,11 @@ def _observed_end(coordinates: TubeCoordinates, geometry: TubeGeometry, settings
                     centerline=centerline, viewpoints=viewpoints, band=band)
 
 
+def _moved(previous: Centerline, samples: np.ndarray) -> float:
+    """RMS distance (m) of a new curve's `samples` from the `previous` curve (0 for none)."""
+    return float(np.sqrt(np.mean(previous.project(samples).radius ** 2))) if len(samples) else 0.0
+
+
 def estimate_centerline(xyz: np.ndarray, geometry: TubeGeometry, settings: CenterlineSettings,
                         prior: Centerline | None = None, viewpoints: np.ndarray | None = None
                         ) -> tuple[Centerline, int, tuple]:
@@ -787,12 +792,15 @@ def estimate_centerline(xyz: np.ndarray, geometry: TubeGeometry, settings: Cente
         previous = centerline
         centerline = Centerline.from_points(updated, binormal_hint, step)
         # the change of the curve's shape, not of its parametrisation: distance of the new samples from
-        # the previous curve, away from the tip where the extent itself may still move; and the extent, to a
-        # slab (a cold start's march runs on over what lies past the end - an end cap, the bore - and bends
-        # there: the curve is settled only once the slabs the tube's end leaves have been fitted again)
-        settled = min(previous.length, centerline.length) - 2 * settings.smoothing_length - 3 * step
-        interior = centerline.points[centerline.s < settled]
-        moved = float(np.sqrt(np.mean(previous.project(interior).radius ** 2))) if len(interior) else 0.0
-        if moved < settings.tolerance and abs(centerline.length - previous.length) <= step:
+        # the previous curve, over the interior and, apart, over the free end (where the tip sits: an RMS over
+        # the whole length dilutes a moved end, and a warm start's prior, settled within, came with the last
+        # frame's end); and the extent, to a slab (a cold start's march runs on over what lies past the end - an
+        # end cap, the bore - and bends there: the curve is settled only once the slabs the tube's end leaves
+        # have been fitted again; the last slab, there or not by a point, is not judged)
+        common = min(previous.length, centerline.length)
+        settled = common - 2 * settings.smoothing_length - 3 * step
+        if (_moved(previous, centerline.points[centerline.s < settled]) < settings.tolerance
+                and _moved(previous, centerline.points[(centerline.s >= settled) & (centerline.s < common - step)])
+                < settings.tolerance and abs(centerline.length - previous.length) <= step):
             return previous, iterations, (coordinates, frames, True)
     return centerline, iterations, (coordinates, frames, False)
