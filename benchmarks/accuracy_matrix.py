@@ -1,7 +1,7 @@
 """Accuracy of the reconstruction over a grid of robots and rigs it was not developed on (issue 9).
 
     .venv/bin/python benchmarks/accuracy_matrix.py [--frames 2] [--rows NAME,NAME...] [--method centerline|icp|both]
-        [--simulate='--no-left-right-check'] [--warnings] [--stated]
+        [--seed 1] [--seeds 1] [--simulate='--no-left-right-check'] [--warnings] [--stated]
 
 Each row is rendered by the simulator exactly as `ntcr-recon simulate OUT <row's options>` renders it (the
 same argument parser and `build_simulation`, in process, without writing the bag), reconstructed as
@@ -17,7 +17,8 @@ and a summary of the floors (issue 9, cameras <= 110 mm): all notches and none s
 misses a floor must have raised a warning that speaks of what it missed (SPOKEN_OF; "silent miss" otherwise).
 The summary also counts the rows whose centreline, tip along and tip across errors lie within the uncertainty
 their result stated for each (STATED): a warning that says 0.1 mm where the error is 0.3 still understates;
-`--stated` prints those pairs under each row.
+`--stated` prints those pairs under each row. `--seeds N` renders each row with N noise seeds: a floor met on
+one seed only is luck, and the summary names the rows that meet their floors on some seeds only.
 
 `--simulate='OPTIONS'` adds `ntcr-recon simulate` options to every row (after its own, so they win): the same grid
 under another stereo matcher than the one the method was developed with (`--no-left-right-check`, `--window 7`), or
@@ -367,6 +368,19 @@ def print_bounded(results: list[dict]) -> None:
               + ", ".join(f"{figure} {count}/{judged}" for figure, count in bounded.items()))
 
 
+def print_rows_by_seed(results: list[dict], seeds: int) -> None:
+    """The summary's line of a run over several noise seeds: how many rows meet every floor on every seed, and the
+    rows that meet them on some seeds only (with how many)."""
+    met: dict[str, int] = {}
+    for r in results:
+        name = r["row"].rsplit("#", 1)[0]
+        met[name] = met.get(name, 0) + (not r["misses"])
+    always = sum(count == seeds for count in met.values())
+    some = ", ".join(f"{name} {count}/{seeds}" for name, count in met.items() if 0 < count < seeds)
+    print(f"  rows meeting every floor on all {seeds} seeds: {always}/{len(met)}"
+          + (f"; on some only: {some}" if some else ""))
+
+
 def print_centerline_by_view(results: list[dict]) -> None:
     """The summary's line on where the centreline's error lies: along the cameras' views (depth) or across them
     (what only the silhouettes place) - the matrix's and the sweep's."""
@@ -383,6 +397,8 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--frames", type=int, default=2, help="frames per camera (default 2)")
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--seeds", type=int, default=1,
+                        help="noise seeds per row, from --seed on (default 1): a floor one seed meets by luck shows")
     parser.add_argument("--rows", default="", help="comma-separated row names (default: all)")
     parser.add_argument("--method", default="", help="relocation.method to use (default: the configured default; "
                                                      "'both': centerline and icp side by side)")
@@ -399,17 +415,20 @@ def main() -> int:
     results = []
     for row in rows:
         for method in methods:
-            figures = run_row(row, args.frames, args.seed, method)
-            if method:
-                figures["row"] = f"{row.name}[{method}]"
-            results.append(figures)
-            print(format_row(figures), flush=True)
-            print_details(figures, args)
+            for seed in range(args.seed, args.seed + args.seeds):
+                figures = run_row(row, args.frames, seed, method)
+                figures["row"] = (row.name + (f"[{method}]" if method else "")
+                                  + (f"#{seed}" if args.seeds > 1 else ""))
+                results.append(figures)
+                print(format_row(figures), flush=True)
+                print_details(figures, args)
     floored = [r for r in results if r["floors_apply"]]
     meeting = [r for r in floored if not r["misses"]]
     silent = silent_misses(results)
-    print(f"\nsummary: {len(meeting)}/{len(floored)} rows at cameras <= 110 mm meet every floor; "
-          f"silent misses: {', '.join(silent) if silent else 'none'}")
+    print(f"\nsummary: {len(meeting)}/{len(floored)} {'results' if args.seeds > 1 else 'rows'} at cameras <= 110 mm "
+          f"meet every floor; silent misses: {', '.join(silent) if silent else 'none'}")
+    if args.seeds > 1:
+        print_rows_by_seed(floored, args.seeds)
     print_bounded(results)
     print_centerline_by_view(results)
     whole = [r for r in floored if "error" not in r and abs(r["tip_along"]) < FLOORS["tip"] * 10]

@@ -183,6 +183,17 @@ def test_the_summary_counts_the_errors_within_the_uncertainty_each_result_stated
     assert figures["stated"]["tip_along"] > 0  # the tip is always known only so well: the key is read
 
 
+def test_a_run_over_several_seeds_names_the_rows_that_meet_their_floors_on_some_seeds_only(capsys):
+    """--seeds: a row meeting its floors on one noise seed and missing them on another met them by luck."""
+    results = [{"row": "steady#1", "misses": []}, {"row": "steady#2", "misses": []},
+               {"row": "lucky#1", "misses": []}, {"row": "lucky#2", "misses": ["tip"]},
+               {"row": "never#1", "misses": ["centerline"]}, {"row": "never#2", "misses": ["tip"]}]
+    accuracy_matrix.print_rows_by_seed(results, seeds=2)
+    line = capsys.readouterr().out.strip()
+    print("\n" + line)
+    assert line == "rows meeting every floor on all 2 seeds: 1/3; on some only: lucky 1/2"
+
+
 def test_stated_detail_names_each_figure_whose_error_exceeds_what_its_result_stated():
     """--stated prints each row's errors against its stated uncertainties (mm), OVER where one understates."""
     figures = {"centerline": 0.034e-3, "tip_along": -0.024e-3, "tip_across": 0.160e-3, "warnings": [],
