@@ -405,6 +405,8 @@ def main() -> int:
     add_detail_options(parser, "row")
     add_simulate_option(parser)
     args = parser.parse_args()
+    if args.seeds < 1:
+        parser.error(f"--seeds must be at least 1, got {args.seeds}")
     wanted = {name for name in args.rows.split(",") if name}
     rows = [with_simulate_options(row, args.simulate) for row in ROWS if not wanted or row.name in wanted]
     if wanted - {row.name for row in rows}:
