@@ -17,9 +17,8 @@ ROWS = {row.name: row for row in accuracy_matrix.ROWS}
 
 # rows that meet every floor on seed 1, all but bend_kink on five noise seeds too (`accuracy_matrix.py --seeds 5`:
 # on seed 5 bend_kink's kinked notch is taken for misread and given its bends' width, 0.37 mm off, and the warning
-# names it). bend_largest is not
-# among them: its tip misses its floor on four seeds of five, 0.19-0.24 mm off, as its warning of the alignment's
-# shift held to the tip says
+# names it). Not bend_largest: its tip misses its floor on four seeds of five, 0.19-0.24 mm off, as its warning of
+# the alignment's shift held to the tip says.
 @pytest.mark.parametrize("name", ["side45_bend30", "cameras75", "bend90", "bends_falling", "bend_kink"])
 def test_rows_meet_the_floors(name):
     figures = accuracy_matrix.run_row(ROWS[name], frames=2)
