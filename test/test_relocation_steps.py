@@ -899,6 +899,29 @@ def test_cross_view_spread_is_how_far_each_camera_alone_puts_the_axis_across_its
     assert seen_edge_on.unsupported[0] == pytest.approx((margin, length - margin))
 
 
+def test_the_alignments_shift_varying_along_the_tube_is_its_scatter_about_the_median_shift():
+    """A lean the same all along (the fit shifted 0.1 mm towards the notch side everywhere) scatters by nothing;
+    one that changes over the distal 40 % of the tube (0.1 mm there, none before) by sqrt(0.4) x 0.1 mm about the
+    median, none; measured up to the end seen only."""
+    from ntcr_recon.core.alignment import shift_scatter
+
+    fit = straight_centerline(30e-3)
+
+    def shifted(offset):  # the fit moved by offset(s) (m) towards the notch side (+x)
+        points = fit.points + offset(fit.s)[:, None] * fit.normals
+        return Centerline.from_points(points, fit.binormals[0], float(fit.s[1] - fit.s[0]))
+
+    everywhere = shifted(lambda s: np.full_like(s, 0.1e-3))
+    distal = shifted(lambda s: np.where(s > 18e-3, 0.1e-3, 0.0))
+    even, varying, proximal = (shift_scatter(fit, everywhere, 30e-3), shift_scatter(fit, distal, 30e-3),
+                               shift_scatter(fit, distal, 18e-3))
+    print(f"\nscatter: even lean {even * 1e3:.4f} mm, distal 40 % {varying * 1e3:.4f} mm, up to 18 mm "
+          f"{proximal * 1e3:.4f}")
+    assert even == pytest.approx(0.0, abs=1e-9)
+    assert varying == pytest.approx(math.sqrt(0.4) * 0.1e-3, rel=0.03)
+    assert proximal == pytest.approx(0.0, abs=1e-9)
+
+
 def test_the_outline_check_finds_an_axis_moved_across_the_views_not_along_them():
     """Opposed cameras at -y and +y see a straight tube's wall, each its own half: the middle of each camera's outline
     (its points' extent along x, across its view) lies on the true axis; an axis 0.3 mm off along x lies 0.3 mm from
@@ -1482,6 +1505,8 @@ def test_quality_gives_the_centreline_an_uncertainty_and_warns_above_its_floor()
     # an axis the outline check found astray is known no better than its offset from the outlines' middles
     assert centerline_uncertainty(0.06e-3, 0.08e-3, astray=0.5e-3) == pytest.approx(0.5e-3)
     assert centerline_uncertainty(None, None, astray=0.5e-3) == pytest.approx(0.5e-3)
+    # an alignment whose correction varies along the tube: that much again, in quadrature
+    assert centerline_uncertainty(0.03e-3, 0.0, varying_lean=0.04e-3) == pytest.approx(0.05e-3)
 
     # a robot 50 mm long, seen to its tip (one ending short of its length states its tip as far off)
     seen_to_tip = dataclasses.replace(GEOMETRY, proximal_length=GEOMETRY.proximal_length - 3e-3)

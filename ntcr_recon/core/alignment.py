@@ -373,6 +373,25 @@ def _align_once(centerline: Centerline, coords: TubeCoordinates, frames: tuple, 
     return Alignment(aligned, -float(bias[0]), -float(bias[1]), count, held_from=float(known_s[-1]))
 
 
+def shift_scatter(fit: Centerline, aligned: Centerline, end_s: float) -> float:
+    """How much the alignment's shift of the fit varies along the tube (m): the RMS, over the aligned curve's
+    samples up to end_s, of its shift from the fit (across the tube, in the fit's frame) about the median shift.
+
+    The shift is the fit's lean the trusted wall measured, which the matcher's bias beside the notches makes nearly
+    the same all along a tube seen alike; where it varies window to window, the facing wall it rests on - a few
+    pixels across its camera's view - was moved by stereo there too (the tube curling across a camera's baseline,
+    its end's depth edge, a thin tube's facing points within a few degrees of the line of sight) as much as the lean
+    changed, and nothing tells the two apart: the axis is known no better than that."""
+    seen = aligned.s <= end_s
+    if not np.any(seen):
+        return 0.0
+    position, _, normal, binormal = fit.frames_at(aligned.s[seen])
+    shift = aligned.points[seen] - position
+    across = np.stack([np.einsum("ij,ij->i", shift, normal), np.einsum("ij,ij->i", shift, binormal)], axis=1)
+    deviation = across - np.median(across, axis=0)
+    return float(np.sqrt(np.mean(np.einsum("ij,ij->i", deviation, deviation))))
+
+
 def level_by_backbone(centerline: Centerline, coords: TubeCoordinates, frames: tuple, viewpoints: np.ndarray,
                       camera: np.ndarray, origins: np.ndarray, geometry: TubeGeometry, gate: float, footprint: float,
                       end_s: float, max_view_angle: float = np.radians(45.0), cut_margin_px: float = 1.0,

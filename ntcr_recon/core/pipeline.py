@@ -34,6 +34,7 @@ from ntcr_recon.core.alignment import (
     align_to_trusted_wall,
     cross_view_spread,
     level_by_backbone,
+    shift_scatter,
 )
 from ntcr_recon.core.centerline import (
     Centerline,
@@ -236,6 +237,7 @@ class Reconstructor:
         fitted = centerline
         # 2. alignment: the reference tube shifted onto the wall points stereo measures without bias
         alignment, cross_view, backbone_shift, outline, across_from_fit = None, CrossView(None), None, None, None
+        scatter = None
         if viewpoints is not None:
             end = tube_end(coords, geometry.outer_radius, settings.gate, footprint, max_s=geometry.reach)
             # trusted wall lies within the wall's band on the spines: the fit's gate, a millimetre wide, lets in
@@ -258,6 +260,8 @@ class Reconstructor:
                 alignment = alignment.moved_to(centerline, fitted)
                 coords, frames = centerline.project_with_frames(cloud.xyz, coords.s)
                 across_from_fit = aligned_outline, fit_outline
+            # how much the lean it removed varies along the tube: what the facing wall says of the axis beyond it
+            scatter = shift_scatter(fitted, centerline, end)
             # the cameras facing the backbone place the axis along their views by the plain tube's level
             leveled, backbone_shift = level_by_backbone(centerline, coords, frames, viewpoints, seen_by,
                                                         self._camera_origins, geometry, trusted_gate, footprint, end)
@@ -427,7 +431,8 @@ class Reconstructor:
             crop_box=self.config.crop_box(),
             notched_thinning=thinning, looking_into_slots=looking, tip_from_cap=from_cap, side_unsettled=unsettled,
             side_uncertainty=side_uncertainty,
-            cross_view_spread=cross_view.spread, distal_cross_view=cross_view.distal, outline_offset=outline,
+            cross_view_spread=cross_view.spread, distal_cross_view=cross_view.distal, alignment_scatter=scatter,
+            outline_offset=outline,
             across_from_fit=across_from_fit,
             unsupported=cross_view.unsupported, backbone_shift=backbone_shift, misread_widths=misread,
             held_shift=None if alignment is None else (alignment.end_shift, alignment.held_from),

@@ -287,7 +287,8 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
            tip_from_cap: bool = False, side_unsettled: tuple[float, float] | None = None,
            side_uncertainty: float | None = None,
            cross_view_spread: float | None = None, distal_cross_view: float | None = None,
-           outline_offset: float | None = None, across_from_fit: tuple[float, float] | None = None, tip_along=None,
+           alignment_scatter: float | None = None, outline_offset: float | None = None,
+           across_from_fit: tuple[float, float] | None = None, tip_along=None,
            backbone_shift: float | None = None, held_shift: tuple[float, float] | None = None,
            unsupported: tuple[tuple[float, float], ...] = (),
            misread_widths: dict[int, float] | None = None, unchecked: list[int] | None = None,
@@ -307,11 +308,13 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     backbone), which then places it along the views, not the slots' lean. unsupported: the stretches of s
     where no camera saw trusted wall (alignment.CrossView), where no uncertainty was measured. distal_cross_view:
     CrossView.distal, the cameras' spread across their views in the last window, which bounds the tip across
-    the tube from below where it exceeds what the whole length implies. misread_widths: the width each notch
-    notches.calibrate_and_check found misread was read at (by index), now its bend's; unchecked: the notches it
-    could not check (CheckedNotches.unchecked). held_shift: (how far the alignment moved the end, the s beyond
-    which it held that shift unmeasured) (m; alignment.Alignment's end_shift and held_from), an uncertainty of the
-    tip across the tube of its own: the fit's lean there was measured no nearer the tip. reach: how near the tube
+    the tube from below where it exceeds what the whole length implies. alignment_scatter: how much the
+    alignment's shift of the fit varies along the tube (alignment.shift_scatter), part of the centreline's.
+    misread_widths: the width each notch notches.calibrate_and_check found misread was read at (by index), now its
+    bend's; unchecked: the notches it could not check (CheckedNotches.unchecked). held_shift: (how far the
+    alignment moved the end, the s beyond which it held that shift unmeasured) (m; alignment.Alignment's end_shift
+    and held_from), an uncertainty of the tip across the tube of its own: the fit's lean there was measured no
+    nearer the tip. reach: how near the tube
     comes to each camera, to name a camera too near a stretch it did not see (CameraReach). notch_centres: the
     comb's notch centres along s (comb.expected_centres), to say where the missing notches lie. wall_level: the
     outer wall's level about the r_o circle (m, wall.surface_band of all points), on which the axis rests where
@@ -398,7 +401,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
                         if one_sided and wall_level is not None else None)
     astray = outline_offset if went_astray(outline_offset, footprint) else None
     uncertainty = centerline_uncertainty(cross_view_spread, notched_thinning, looking_into_slots, levelled,
-                                         one_sided=resting_on_level, astray=astray)
+                                         one_sided=resting_on_level, astray=astray, varying_lean=alignment_scatter)
     # where no camera's view showed the tube's outline whole, nothing checked the axis across the views (outline.py):
     # it is known there no better than that check resolves, a pixel footprint (a sound axis lies within one of the
     # outline's middle), whatever the cameras' spread says (the warning below says so)
@@ -535,6 +538,9 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
                         f"{(cross_view_spread or 0.0) * 1e3:.2f} mm apart across their views, and the wall between "
                         f"the notches reads {(notched_thinning or 0.0) * 1e3:+.2f} mm deeper than the plain tube); "
                         f"{abs(bias_notch_side) * 1e3:.2f} mm of lean towards the notch side was removed"
+                        + (f", a correction that varies along the tube by {alignment_scatter * 1e3:.2f} mm (RMS), "
+                           "which the wall facing the cameras cannot tell from a wall stereo moved alike in every view"
+                           if alignment_scatter else "")
                         + (f"; over the distal {sum(one_sided.values()) * 1e3:.0f} mm seen by one camera alone, the "
                            f"wall's level ({wall_level * 1e3:+.2f} mm, the flattening of the views) places the axis "
                            "along that camera's view, and no second view checked it" if resting_on_level else "")
@@ -609,6 +615,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
         "cameras_looking_into_slots": list(looking_into_slots),
         "centerline_cross_view_mm": None if cross_view_spread is None else cross_view_spread * 1e3,
         "centerline_cross_view_at_tip_mm": None if distal_cross_view is None else distal_cross_view * 1e3,
+        "centerline_alignment_scatter_mm": None if alignment_scatter is None else alignment_scatter * 1e3,
         "centerline_outline_offset_mm": None if outline_offset is None else outline_offset * 1e3,
         # the aligned axis's offset, when it went astray and the fit placed the axis across the views instead
         "centerline_aligned_outline_offset_mm": None if across_from_fit is None else across_from_fit[0] * 1e3,
@@ -639,8 +646,8 @@ def carried_to_tip(fitted_end: float | None, tip_s: float, notch_centres: np.nda
 
 def centerline_uncertainty(cross_view_spread: float | None, notched_thinning: float | None,
                            looking_into_slots: tuple[str, ...] = (), levelled: bool = False,
-                           one_sided: tuple[float, float] | None = None, astray: float | None = None
-                           ) -> float | None:
+                           one_sided: tuple[float, float] | None = None, astray: float | None = None,
+                           varying_lean: float | None = None) -> float | None:
     """How far the centreline may be off (m), from what the data show of stereo's bias beside the notches;
     None when neither could be measured.
 
@@ -653,15 +660,18 @@ def centerline_uncertainty(cross_view_spread: float | None, notched_thinning: fl
     seen by one camera alone, the outer wall's level about the r_o circle, m): there the axis along that camera's
     view rests on the level the fit gives its one side, which no second view checks and which stereo's
     flattening changes with distance and view angle by up to the level itself: that much again over that share.
-    The three are orthogonal: added in quadrature (the share as weight, as the RMS over the length). astray:
+    varying_lean: how much the alignment's shift of the fit varies along the tube (alignment.shift_scatter): the
+    cameras' spread misses a facing wall stereo moved alike in every view, and that shows there.
+    The four are orthogonal: added in quadrature (the share as weight, as the RMS over the length). astray:
     how far the axis lies from the middle of the tube's outline where that shows it went astray (m): the wall
-    the three are measured on moved with it, and the axis is known no better than that.
+    the four are measured on moved with it, and the axis is known no better than that.
     """
     if cross_view_spread is None and notched_thinning is None:
         return astray
     along_views = (2.0 if looking_into_slots and not levelled else 1.0) * (notched_thinning or 0.0)
     share, level = one_sided if one_sided is not None else (0.0, 0.0)
-    return max(float(np.sqrt((cross_view_spread or 0.0) ** 2 + along_views ** 2 + share * level ** 2)), astray or 0.0)
+    return max(float(np.sqrt((cross_view_spread or 0.0) ** 2 + along_views ** 2 + share * level ** 2
+                             + (varying_lean or 0.0) ** 2)), astray or 0.0)
 
 
 def _nearest_box_face(point: np.ndarray, box: tuple[np.ndarray, np.ndarray]) -> tuple[int, float, float]:
