@@ -260,7 +260,7 @@ class Reconstructor:
                 alignment = alignment.moved_to(centerline, fitted)
                 coords, frames = centerline.project_with_frames(cloud.xyz, coords.s)
                 across_from_fit = aligned_outline, fit_outline
-            # how much the lean it removed varies along the tube: what the facing wall says of the axis beyond it
+            # how much the lean it removed varies along the tube: the axis is known no better (quality)
             scatter = shift_scatter(fitted, centerline, end)
             # the cameras facing the backbone place the axis along their views by the plain tube's level
             leveled, backbone_shift = level_by_backbone(centerline, coords, frames, viewpoints, seen_by,
