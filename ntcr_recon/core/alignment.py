@@ -77,12 +77,19 @@ class Alignment:
     def moved_to(self, centerline: Centerline, fit: Centerline) -> Alignment:
         """This alignment with its axis replaced by `centerline` (outline.across_views_from): the lean removed and
         the end's move as that axis has them against the fit (the lean: the mean shift over its samples)."""
-        position, _, normal, binormal = fit.frames_at(centerline.s)
-        shift = centerline.points - position
-        return dataclasses.replace(self, centerline=centerline,
-                                   bias_notch_side=-float(np.mean(np.einsum("ij,ij->i", shift, normal))),
-                                   bias_binormal=-float(np.mean(np.einsum("ij,ij->i", shift, binormal))),
-                                   end_shift=float(np.linalg.norm(shift[-1])))
+        shift, across = shift_from_fit(fit, centerline, centerline.length)
+        lean = across.mean(axis=0)
+        return dataclasses.replace(self, centerline=centerline, bias_notch_side=-float(lean[0]),
+                                   bias_binormal=-float(lean[1]), end_shift=float(np.linalg.norm(shift[-1])))
+
+
+def shift_from_fit(fit: Centerline, aligned: Centerline, end_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """The aligned curve's samples up to end_s moved off the fit at the same s: (N, 3) and, on the fit's normal
+    (towards the notch side) and binormal there, (N, 2) (m)."""
+    seen = aligned.s <= end_s
+    position, _, normal, binormal = fit.frames_at(aligned.s[seen])
+    shift = aligned.points[seen] - position
+    return shift, np.stack([np.einsum("ij,ij->i", shift, normal), np.einsum("ij,ij->i", shift, binormal)], axis=1)
 
 
 @jit
@@ -382,12 +389,9 @@ def shift_scatter(fit: Centerline, aligned: Centerline, end_s: float) -> float:
     pixels across its camera's view - was moved by stereo there too (the tube curling across a camera's baseline,
     its end's depth edge, a thin tube's facing points within a few degrees of the line of sight) as much as the lean
     changed, and nothing tells the two apart: the axis is known no better than that."""
-    seen = aligned.s <= end_s
-    if not np.any(seen):
+    _, across = shift_from_fit(fit, aligned, end_s)
+    if not len(across):
         return 0.0
-    position, _, normal, binormal = fit.frames_at(aligned.s[seen])
-    shift = aligned.points[seen] - position
-    across = np.stack([np.einsum("ij,ij->i", shift, normal), np.einsum("ij,ij->i", shift, binormal)], axis=1)
     deviation = across - np.median(across, axis=0)
     return float(np.sqrt(np.mean(np.einsum("ij,ij->i", deviation, deviation))))
 
