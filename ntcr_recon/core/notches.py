@@ -45,6 +45,15 @@ DIP_PROMINENCE = 0.25
 # calibrate_and_check): manufacturing keeps a cut to a few hundredths of a millimetre, a tenth of 1.0-1.8 mm.
 MISREAD_WIDTH_FRACTION = 0.1
 
+# The wall's local density plateau is the upper quartile of its coverage over a pitch (a gap fills at most half of
+# it). A matcher whose window mixes a backdrop behind the slots into the rims' pixels erodes each spine from both
+# sides, down to a tenth of a pitch, and pulls what is left off the wall's level: the upper quartile then lies in
+# the gaps and calls the window unseen. There the spines' top (this percentile of the coverage of all the window's
+# points over a pitch, on either side) is the plateau, if it is a wall's: at least ERODED_SPINE_TOP of the density of
+# the wall seen whole (a stray point's bump, where no camera sees the window, is a few hundredths of that).
+SPINE_TOP_PERCENTILE = 95
+ERODED_SPINE_TOP = 0.25
+
 
 @dataclass(frozen=True)
 class Notch:
@@ -104,7 +113,9 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
     the coverage at the comb's place (_dip_at) finds the notch without edges ("dip": placed by the comb, its
     width what its bend with its neighbours' implies, steady_bend). A rim the matcher mixed with the
     floor behind it is measured where its viewing rays put it (_rim_gaps). Where no camera sees the window
-    (its plateau under UNSEEN_PLATEAU_FRACTION of the tube's) no notch is found, nor one reaching into it.
+    (its plateau under UNSEEN_PLATEAU_FRACTION of the tube's) no notch is found, nor one reaching into it; where
+    the matcher ate the spines down to a tenth of the pitch (SPINE_TOP_PERCENTILE), the slots are the gaps between
+    what is left of them, on the wall or off its level.
 
     wall: spine_wall(observed) when the caller has it already.
     observed: the points' coordinates as measured, when `coords` are those points moved (e.g. along their
@@ -141,15 +152,24 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
     # range), its density and plateau are a few stray points, whose gaps are no slots: the wall counts as
     # missing there all along, so a run reaching into it has no far edge (it runs on to the tip, or wider than
     # any notch) and is no notch
-    window_seen = plateau >= UNSEEN_PLATEAU_FRACTION * np.percentile(plateau, 90)
-    coverage_gap = np.where(window_seen, np.clip(1.0 - density / np.maximum(plateau, 1e-12), 0.0, 1.0), 1.0)
-    rim_gaps = _rim_gaps(coords, seen, density, depressed, r_o, level, band, plateau, tip_s, cell, kernel)
-    _, deep = coverage_profile(coords.s[depressed], 0.0, tip_s, cell, kernel)
+    whole_wall = np.percentile(plateau, 90)
     _, anything = coverage_profile(coords.s[in_window & (np.abs(offset) < gate + r_o - geometry.inner_radius)],
                                    0.0, tip_s, cell, kernel)
-    # share of the window's points that are depressed; where the window holds few points it says nothing
+    # spines eaten to under a quarter of the pitch (SPINE_TOP_PERCENTILE): where the upper quartile calls the window
+    # unseen but the window's points stand as dense as a wall's on a spine within a pitch on either side, the slots
+    # are the gaps between them, on the wall or pulled off its level by the backdrop their pixels mixed in
+    spine_top = _spine_top_either_side(anything, span)
+    eroded = (plateau < UNSEEN_PLATEAU_FRACTION * whole_wall) & (spine_top >= ERODED_SPINE_TOP * whole_wall)
+    window_seen = eroded | (plateau >= UNSEEN_PLATEAU_FRACTION * whole_wall)
+    coverage_gap = np.where(window_seen, np.clip(1.0 - density / np.maximum(plateau, 1e-12), 0.0, 1.0), 1.0)
+    coverage_gap = np.where(eroded, np.clip(1.0 - anything / np.maximum(spine_top, 1e-12), 0.0, 1.0), coverage_gap)
+    plateau = np.where(eroded, spine_top, plateau)
+    rim_gaps = _rim_gaps(coords, seen, density, depressed, r_o, level, band, plateau, tip_s, cell, kernel)
+    _, deep = coverage_profile(coords.s[depressed], 0.0, tip_s, cell, kernel)
+    # share of the window's points that are depressed; where the window holds few points it says nothing, nor
+    # where the spines' own points were pulled off the wall
     total = deep + density
-    depression = np.where(window_seen & (total > 0.25 * plateau), deep / np.maximum(total, 1e-12), 0.0)
+    depression = np.where(window_seen & ~eroded & (total > 0.25 * plateau), deep / np.maximum(total, 1e-12), 0.0)
     evidence = np.maximum(coverage_gap, depression)
     # the comb as one matched filter: shift along s (within half a pitch) maximising the evidence under it
     half_width = geometry.notch_width / 2.0
@@ -186,6 +206,16 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
     signals = ["dip" if dip else "coverage" if see_through else "depression"
                for dip, see_through in zip(dipped, _seen_through(grid, anything, plateau, gaps), strict=True)]
     return _measure(gaps, indices, signals, centerline, geometry, centres + shift, tip_s)
+
+
+def _spine_top_either_side(density: np.ndarray, span: int) -> np.ndarray:
+    """Per cell the lower of the spines' tops (SPINE_TOP_PERCENTILE of the density) over the pitch (`span` cells)
+    before it and the pitch after it: a comb of narrow spines has one in each, the last spine before a stretch no
+    camera sees has none beyond it."""
+    half = span // 2
+    top = percentile_filter(density, SPINE_TOP_PERCENTILE, size=2 * half + 1, mode="nearest")
+    padded = np.pad(top, half, mode="edge")
+    return np.minimum(padded[:-2 * half], padded[2 * half:])
 
 
 def _rim_gaps(coords: TubeCoordinates, seen: TubeCoordinates, density: np.ndarray, depressed: np.ndarray,
