@@ -17,6 +17,7 @@ from ntcr_recon.core.centerline import (
     Centerline,
     continued_bend,
     estimate_centerline,
+    held_bend,
     settings_for,
     turn_from_base,
 )
@@ -103,6 +104,28 @@ def test_the_bend_is_counted_from_the_clamps_axis_not_from_the_curves_leaning_st
           f"{from_base:.2f}")
     assert curve_turn == pytest.approx(253.0, abs=0.3)
     assert from_base == pytest.approx(250.0, abs=0.3)
+
+
+def test_the_bend_read_short_of_a_leaning_free_end_is_the_robots():
+    """A fitted curve's free end follows only the data before it: its last 3 mm leaning 8 deg further towards the
+    notches turn the curve's bend at its end by as much, and the robot's length at that bend by ybar x 8 deg (0.17 mm
+    here). Read two pitches short of the end and carried on at the steady bend (held_bend), the bend is the
+    robot's; on the true curve the two agree."""
+    shape = TubeShape.from_bend_angle(GEOMETRY, math.radians(60))
+    centres = np.array([n["center_s"] for n in shape.notch_table()])
+    exact = true_centerline(shape)
+    leant, lean = 3e-3, math.tan(math.radians(8.0))
+    leaning = displaced_centerline(
+        shape, lambda s: lean / (2 * leant) * np.clip(s - (shape.length - leant), 0.0, None) ** 2)
+    at_end = math.degrees(turn_from_base(leaning, GEOMETRY, leaning.length))
+    held = math.degrees(held_bend(leaning, GEOMETRY, leaning.length, centres))
+    exact_end = math.degrees(turn_from_base(exact, GEOMETRY, exact.length))
+    exact_held = math.degrees(held_bend(exact, GEOMETRY, exact.length, centres))
+    print(f"\n60 deg bend, the last 3 mm leaning 8 deg: read at the end {at_end:.2f} deg, held {held:.2f}; "
+          f"on the true curve {exact_end:.2f} and {exact_held:.2f}")
+    assert at_end == pytest.approx(68.0, abs=0.5)
+    assert held == pytest.approx(60.0, abs=0.5)
+    assert exact_held == pytest.approx(exact_end, abs=0.2) and exact_end == pytest.approx(60.0, abs=0.2)
 
 
 @pytest.mark.parametrize("bend_deg", [60, 200])

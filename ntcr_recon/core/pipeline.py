@@ -41,6 +41,7 @@ from ntcr_recon.core.centerline import (
     TubeCoordinates,
     continued_bend,
     estimate_centerline,
+    held_bend,
     settings_for,
     turn_from_base,
 )
@@ -382,11 +383,15 @@ class Reconstructor:
         fitted_end = centerline.length
         centerline = continued_bend(centerline, geometry.reach, comb_centres, geometry)
         # the robot's own length, at the bend measured, is a measurement of the tip too (core.tip); the bend is
-        # known as well as the centreline's turn over a notch pitch
+        # known as well as the centreline's turn over a notch pitch, and as the curve's free end, whose tangent
+        # follows only the data before it, agrees with the bend read short of it (held_bend)
         total_bend = turn_from_base(centerline, geometry, tip_s)
         expected_length = geometry.bent_length(total_bend)
-        length_known = None if geometry.length_tolerance is None else float(np.hypot(
-            geometry.length_tolerance, geometry.neutral_axis_offset * centreline_off / geometry.notch_pitch))
+        held = held_bend(centerline, geometry, tip_s, comb_centres)
+        end_turn_off = None if held is None else abs(total_bend - held)
+        length_known = None if geometry.length_tolerance is None else float(np.linalg.norm([
+            geometry.length_tolerance, geometry.neutral_axis_offset * centreline_off / geometry.notch_pitch,
+            geometry.neutral_axis_offset * (end_turn_off or 0.0)]))
         # the cap's points only ever lie short of it (the matcher mixes its ring with the bore behind): a lower bound
         along = with_known_length(tip_s, seen_uncertainty, expected_length, length_known,
                                   lower_bound=from_cap)
@@ -443,7 +448,8 @@ class Reconstructor:
                    # None: the side could not be measured (or did not settle): the configured one is kept
                    "notch_side_uncertainty_deg": None if side_uncertainty is None else float(np.degrees(
                        side_uncertainty)),
-                   "edge_band_mrad": {name: band * 1e3 for name, band in self._edge_bands.items()}}
+                   "edge_band_mrad": {name: band * 1e3 for name, band in self._edge_bands.items()},
+                   "robot_bend_end_off_deg": None if end_turn_off is None else float(np.degrees(end_turn_off))}
         self._prior = fitted
         self._update_roi(relocated)
         self._timed("relocate", start)
