@@ -633,6 +633,12 @@ def held_bend(centerline: Centerline, geometry: TubeGeometry, s: float, notch_ce
     return turn_from_base(continued_bend(centerline.up_to(held_to), s, notch_centres, geometry), geometry, s)
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a x b of two 3-vectors: np.cross's broadcasting costs some 30 us a call, and continued_bend runs three
+    times a frame."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
 def continued_bend(centerline: Centerline, to_s: float, notch_centres: np.ndarray, geometry: TubeGeometry
                    ) -> Centerline:
     """The curve carried on from its end to arc length `to_s` as the robot bends: over what of each notch lies past
@@ -649,7 +655,7 @@ def continued_bend(centerline: Centerline, to_s: float, notch_centres: np.ndarra
     position, tangents_at, normal, binormal = centerline.frames_at(np.array([start, length]))
     first_tangent, tangent = tangents_at
     position, normal, binormal = position[1], normal[1], binormal[1]
-    axis = np.cross(first_tangent, tangent)
+    axis = _cross(first_tangent, tangent)
     turn = math.atan2(float(np.linalg.norm(axis)), float(first_tangent @ tangent))
     axis = axis / np.linalg.norm(axis) if turn > 1e-9 else binormal
     centres = np.asarray(notch_centres, float)
@@ -667,7 +673,7 @@ def continued_bend(centerline: Centerline, to_s: float, notch_centres: np.ndarra
     turned_by = np.clip((length - arc_starts) / arc, 0.0, 1.0)
     progress = np.clip((length + fine[:, None] - arc_starts) / arc, 0.0, 1.0) - turned_by
     angle = per_notch * progress.sum(axis=1)
-    side = np.cross(axis, tangent)
+    side = _cross(axis, tangent)
     directions = np.cos(angle)[:, None] * tangent + np.sin(angle)[:, None] * side
     travelled = np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * (directions[1:] + directions[:-1])
                                                            * np.diff(fine)[:, None], axis=0)])
@@ -676,7 +682,7 @@ def continued_bend(centerline: Centerline, to_s: float, notch_centres: np.ndarra
 
     def turned(v: np.ndarray) -> np.ndarray:  # Rodrigues about `axis`
         along = float(v @ axis) * axis
-        return along + cos_a * (v - along) + sin_a * np.cross(axis, v)
+        return along + cos_a * (v - along) + sin_a * _cross(axis, v)
 
     return Centerline(np.concatenate([centerline.s, length + extra]),
                       np.concatenate([centerline.points, position + travelled[picked]]),
