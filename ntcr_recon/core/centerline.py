@@ -624,7 +624,7 @@ def held_bend(centerline: Centerline, geometry: TubeGeometry, s: float, notch_ce
     """The robot's bend from its base to arc length s (rad) read END_TURN_PITCHES pitches short of s, where the
     smoothing has data on both sides, and carried over the rest at the steady bend of the pitches before
     (continued_bend); None on a curve too short for that. At a curve's free end its tangent follows only the data
-    before it: on the second renderer's coarse cameras it leant up to 9 deg off, where this stayed within 2.1 (1.0
+    before it: on the second renderer's coarse cameras it leant up to 9 deg off, where this stayed within 2.6 (1.0
     deg RMS against 2.2 over 70 scenes); on the simulator the two do as well (1.6 and 1.8 deg RMS over 40 scenes),
     and the end tangent better over the matrix (1.2 against 1.6)."""
     held_to = s - END_TURN_PITCHES * geometry.notch_pitch
