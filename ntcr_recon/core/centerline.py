@@ -626,7 +626,7 @@ def held_bend(centerline: Centerline, geometry: TubeGeometry, s: float, notch_ce
     (continued_bend); None on a curve too short for that. At a curve's free end its tangent follows only the data
     before it: on the second renderer's coarse cameras it leant up to 9 deg off, where this stayed within 2.6 (1.0
     deg RMS against 2.2 over 70 scenes); on the simulator the two do as well (1.6 and 1.8 deg RMS over 40 scenes),
-    and the end tangent better over the matrix (1.2 against 1.6)."""
+    and the end tangent better over the matrix (1.2 against 1.7)."""
     held_to = s - END_TURN_PITCHES * geometry.notch_pitch
     if held_to < END_TURN_PITCHES * geometry.notch_pitch:
         return None
