@@ -161,9 +161,9 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
     spine_top = _spine_top_either_side(anything, span)
     eroded = (plateau < UNSEEN_PLATEAU_FRACTION * whole_wall) & (spine_top >= ERODED_SPINE_TOP * whole_wall)
     window_seen = eroded | (plateau >= UNSEEN_PLATEAU_FRACTION * whole_wall)
-    coverage_gap = np.where(window_seen, np.clip(1.0 - density / np.maximum(plateau, 1e-12), 0.0, 1.0), 1.0)
-    coverage_gap = np.where(eroded, np.clip(1.0 - anything / np.maximum(spine_top, 1e-12), 0.0, 1.0), coverage_gap)
     plateau = np.where(eroded, spine_top, plateau)
+    coverage_gap = np.where(window_seen, np.clip(1.0 - np.where(eroded, anything, density) / np.maximum(plateau, 1e-12),
+                                                 0.0, 1.0), 1.0)
     rim_gaps = _rim_gaps(coords, seen, density, depressed, r_o, level, band, plateau, tip_s, cell, kernel)
     _, deep = coverage_profile(coords.s[depressed], 0.0, tip_s, cell, kernel)
     # share of the window's points that are depressed; where the window holds few points it says nothing, nor
