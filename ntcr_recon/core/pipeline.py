@@ -30,6 +30,7 @@ import numpy as np
 
 from ntcr_recon.core.alignment import (
     SILHOUETTE_MARGIN_PX,
+    Alignment,
     CrossView,
     align_to_trusted_wall,
     cross_view_spread,
@@ -54,6 +55,7 @@ from ntcr_recon.core.icp import icp, mesh_reference, posed_reference, relocate_o
 from ntcr_recon.core.notches import Notch, calibrate_and_check, detect_notches, measure_notch_side, spine_wall
 from ntcr_recon.core.outline import across_views_from, outline_offset, went_astray
 from ntcr_recon.core.quality import (
+    CameraReach,
     assess,
     camera_reach,
     cameras_looking_into_slots,
@@ -66,6 +68,7 @@ from ntcr_recon.core.tip import (
     EDGE_BAND_ATTEMPTS,
     LENGTH_AGREEMENT_SIGMAS,
     MAX_EDGE_BAND_RAD,
+    TipAlongTube,
     cap_faces_a_camera,
     carried_to_length,
     edge_band_angle,
@@ -123,6 +126,78 @@ class FrameResult:
     relocation: RelocationResult
     mesh: object | None = None
     timings_ms: dict[str, float] = field(default_factory=dict)
+
+
+# What each step of `Reconstructor.relocate` hands on to the next.
+
+@dataclass(frozen=True)
+class _Axis:
+    """An axis and the cloud's points about it, replaced whole where a step moves or turns the axis."""
+
+    centerline: Centerline
+    coords: TubeCoordinates         # the points about the axis
+    frames: tuple                   # (position, tangent, normal, binormal) at each point's s
+    rays: tuple | None = None       # core.relocation.along_rays: the points along their viewing rays onto the wall
+
+    @property
+    def measured(self) -> TubeCoordinates:
+        """The points as their cameras saw them (along their viewing rays onto the wall), else as fused."""
+        return self.coords if self.rays is None else self.rays[0]
+
+    def rolled(self, angle: float) -> _Axis:
+        """The same axis with its frame turned by `angle` about the tangent (towards the notch side measured)."""
+        position, tangent, normal, binormal = self.frames
+        return _Axis(self.centerline.rolled(angle), self.coords.rolled(angle),
+                     (position, tangent, *_rolled_axes(normal, binormal, angle)),
+                     None if self.rays is None else (self.rays[0].rolled(angle), self.rays[1]))
+
+
+@dataclass(frozen=True)
+class _Aligned:
+    """Step 2: the axis moved onto the trusted wall, and what the checks on it found (None: no cameras known)."""
+
+    axis: _Axis
+    alignment: Alignment | None = None
+    cross_view: CrossView = CrossView(None)
+    backbone_shift: float | None = None           # m, alignment.level_by_backbone's
+    outline: float | None = None                  # m, outline.outline_offset of the final axis
+    across_from_fit: tuple[float, float] | None = None  # the aligned and fitted axes' outline offsets, where the
+                                                        # fit's placement across the views was taken
+    scatter: float | None = None                  # m, alignment.shift_scatter
+
+
+@dataclass(frozen=True)
+class _Sided:
+    """Step 4: the notches, found in the frame turned to the side they open to (where it was measured)."""
+
+    axis: _Axis
+    notches: list[Notch]
+    notch_side: float                             # rad, measured (or the configured one)
+    unsettled: tuple[float, float] | None         # a turn that did not settle: (turned by, then measured off)
+    side_uncertainty: float | None                # rad; None: the side not measured
+
+
+@dataclass(frozen=True)
+class _SeenEnd:
+    """Step 5: the end the cameras saw."""
+
+    tip_s: float
+    eroded_end: float                             # the end before the rim a matcher erodes was given back
+    refinement: str                               # how it was placed (quality's tip_refinement)
+    tip_uncertainty: float | None = None          # m along the tube; None: nothing measured the erosion
+    from_cap: bool = False                        # placed on the end cap's points (a lower bound)
+
+
+@dataclass(frozen=True)
+class _ByLength:
+    """Step 5': the tip along the tube with the robot's known length weighed in."""
+
+    centerline: Centerline                        # carried on past the fit's end, bending as the notches did
+    along: TipAlongTube                           # core.tip.with_known_length's (or carried_to_length's)
+    total_bend: float                             # rad, at the tip
+    end_turn_off: float | None                    # rad, the free end's bend against the bend held short of it
+    reach: CameraReach                            # how near the tube came to each camera
+    fitted_end: float                             # m, where the fit's wall ended
 
 
 class Reconstructor:
@@ -227,86 +302,146 @@ class Reconstructor:
             raise ReconstructionError(f"only {len(cloud)} points left after filtering (need {minimum}): is the "
                                       "robot in view and inside the crop box?")
         settings = settings_for(geometry, cloud.pixel_footprint, options)
-        footprint = settings.cell
         seen_by = cloud.camera if cloud.camera is not None and len(cloud.camera) else None
-        viewpoints = None if seen_by is None else np.take(self._camera_origins, seen_by, axis=0)
 
         # 1. centreline: fixed-radius circle fits per slab, smoothed, iterated (core.centerline)
         centerline, iterations, coords, frames = self._centerline(cloud, settings, warm_start)
-        # the next frame warm-starts from the fit's own fixed point, not from the aligned curve (else each call
-        # would shift the curve once more, and results would depend on what came before)
-        fitted = centerline
-        # 2. alignment: the reference tube shifted onto the wall points stereo measures without bias
-        alignment, cross_view, backbone_shift, outline, across_from_fit = None, CrossView(None), None, None, None
-        scatter = None
-        if viewpoints is not None:
-            end = tube_end(coords, geometry.outer_radius, settings.gate, footprint, max_s=geometry.reach)
-            # trusted wall lies within the wall's band on the spines: the fit's gate, a millimetre wide, lets in
-            # pixels a matcher mixed with the background behind, which pull the axis across the cameras' views
-            trusted_gate = _wall_band_gate(coords, centerline, geometry, settings.gate, footprint)
-            # which points face their camera depends on where the axis is: selected again about the moved axis
-            alignment = align_to_trusted_wall(centerline, coords, frames, viewpoints, geometry, trusted_gate,
-                                              footprint, end, xyz=cloud.xyz, passes=ALIGNMENT_PASSES)
-            fit_projection = coords, frames
-            centerline = alignment.centerline
-            coords, frames = centerline.project_with_frames(cloud.xyz, alignment.arc_lengths)
-            # the alignment against the middle of the tube's outline in each camera's view: where it followed a wall
-            # stereo moved across the views and the fit did not, the fit places the axis across them (core.outline)
-            outline_of = functools.partial(outline_offset, xyz=cloud.xyz, viewpoints=viewpoints, camera=seen_by,
-                                           geometry=geometry, gate=settings.gate, end_s=end)
-            aligned_outline = outline_of(coords, frames)
-            fit_outline = outline_of(*fit_projection) if went_astray(aligned_outline, footprint) else None
-            if fit_outline is not None and not went_astray(fit_outline, footprint):
-                centerline = across_views_from(fitted, centerline, self._camera_origins)
-                alignment = alignment.moved_to(centerline, fitted)
-                coords, frames = centerline.project_with_frames(cloud.xyz, coords.s)
-                across_from_fit = aligned_outline, fit_outline
-            # how much the lean it removed varies along the tube: the axis is known no better (quality)
-            scatter = shift_scatter(fitted, centerline, end)
-            # the cameras facing the backbone place the axis along their views by the plain tube's level
-            leveled, backbone_shift = level_by_backbone(centerline, coords, frames, viewpoints, seen_by,
-                                                        self._camera_origins, geometry, trusted_gate, footprint, end)
-            if leveled is not centerline:
-                centerline = leveled
-                coords, frames = centerline.project_with_frames(cloud.xyz, coords.s)
-            # what each camera alone says about the axis across its view: the fused axis is known no better
-            cross_view = cross_view_spread(centerline, coords, frames, viewpoints, seen_by,
-                                           len(self._camera_origins), geometry, trusted_gate, footprint, end)
-            # the axis against the middle of the tube's outline in each camera's view (depth errors lie along the rays)
-            outline = outline_of(coords, frames)
-        # each point as its camera saw it: along its viewing ray onto the wall (core.relocation)
-        rays = None if viewpoints is None else along_rays(coords, frames, viewpoints, geometry.outer_radius,
-                                                          settings.gate)
-        measured = coords if rays is None else rays[0]
+        fitted = _Axis(centerline, coords, frames)
+        # 2. alignment: the reference tube shifted onto the wall points stereo measures without bias; each point
+        # then as its camera saw it, along its viewing ray onto the wall (core.alignment, core.relocation)
+        aligned = self._align(cloud, fitted, settings)
+        axis = aligned.axis
         # 3. tip, coarse: where the wall stops, over the sectors the cameras can see (core.tip)
-        tip_s = tube_end(measured, geometry.outer_radius, settings.gate, footprint, max_s=geometry.reach,
-                         centerline=centerline, viewpoints=self._camera_origins if seen_by is not None else None)
-        # 4. notches: the robot's comb matched to the evidence, edges refined locally (core.notches)
-        # the spines and the wall band on them, where the notches are found and their side is measured (the
-        # turned frame below has the same s and radii: the same spines and band)
-        wall = spine_wall(coords, centerline, geometry, settings.gate, footprint)
-        # the same detection, in the configured or turned frame and up to the coarse or refined end
-        notches_up_to = functools.partial(detect_notches, geometry=geometry, gate=settings.gate, footprint=footprint,
-                                          kernel_px=options.notch_kernel_px,
-                                          min_width_fraction=options.min_notch_width_fraction, wall=wall)
-        found = notches_up_to(measured, centerline, tip_s=tip_s, observed=coords)
-        # the robot's roll in its clamp is never exact: the side the notches open to, measured; where it is
-        # off the configured one the tube frame turns to it and the notches are found again in that frame
-        notch_side, unsettled, side_uncertainty = geometry.notch_side, None, None
+        coarse_end = tube_end(axis.measured, geometry.outer_radius, settings.gate, settings.cell,
+                              max_s=geometry.reach, centerline=axis.centerline,
+                              viewpoints=self._camera_origins if seen_by is not None else None)
+        # 4. notches: the robot's comb matched to the evidence, edges refined locally, and the side they open to
+        # (core.notches); the spines and the wall band on them are the same in a turned frame (same s and radii)
+        wall = spine_wall(axis.coords, axis.centerline, geometry, settings.gate, settings.cell)
         # per camera the band its matcher spoils at depth edges (an angle; NaN: not measured): what smears a notch
         # window's edge round the tube, and what the tip's rim refinement gives back
         bands = np.array([self._edge_band(name) for name in self.config.camera_names])
-        configured = centerline, coords, rays, measured, found, frames
+        sided = self._notches_and_side(axis, coarse_end, settings, wall, bands)
+        axis, notches = sided.axis, sided.notches
+        comb_centres = expected_centres(geometry, axis.centerline)  # where the robot's notches lie on the final frame
+        # 5. tip, refined: the rim the stereo matcher erodes at depth edges given back, or the end cap seen
+        end = self._seen_end(axis, notches, coarse_end, comb_centres, settings, bands, seen_by)
+        # the coarse end may stop at the last cut, where little of a thinly seen ring is left: notches the refined
+        # end now reaches past are looked for again (kept if more are found)
+        if any(coarse_end <= centre + geometry.notch_width / 2 < end.tip_s for centre in comb_centres):
+            again = self._find_notches(axis, end.tip_s, settings, wall)
+            notches = again if len(again) > len(notches) else notches
+        # how far the centreline may be off: what stereo beside the notches does to the wall (core.quality)
+        thinning = notched_thinning(axis.coords.radius - geometry.outer_radius, axis.coords.s,
+                                    cut_intervals(geometry, axis.centerline, 0.0), end.tip_s, settings.gate,
+                                    2 * settings.cell, spine=wall[0])
+        looking = tuple(cameras_looking_into_slots(axis.centerline, geometry, self._camera_origins,
+                                                   self.config.camera_names))
+        centreline_off = centerline_uncertainty(aligned.cross_view.spread, thinning, looking,
+                                                bool(aligned.backbone_shift)) or 0.0
+        # 5'. tip along the tube: the robot's own length at the bend measured weighed in (core.tip)
+        length = self._tip_by_length(cloud, axis.centerline, end, centreline_off, comb_centres, notches, settings,
+                                     seen_by)
+        centerline, along = length.centerline, length.along
+        tip_s = along.s
+        # the rims the matcher moves (over the cut faces the cameras see), against the spines' known length; a
+        # notch whose width its bend rules out was misread, and is given its bend's
+        notches, misread, unchecked = calibrate_and_check(notches, geometry, centerline,
+                                                          None if seen_by is None else self._camera_origins,
+                                                          along.seen_s if along.hidden_across is not None else tip_s)
+        # 6. relocation: every point within the gate onto the reference surface (core.relocation)
+        tip = centerline.frames_at(np.array([tip_s]))[0][0]
+        if options.method == "icp":  # the paper's KD-tree + ICP onto a reference (core.icp)
+            moved, tip = self._relocate_by_icp(cloud, centerline, notches, tip_s, tip, settings.gate, settings.cell)
+        else:
+            moved = relocate_points(axis.coords, centerline, geometry, notches, tip_s, settings.gate, axis.rays)
+        relocated = cloud.subset(moved.accepted, xyz=moved.points)
+        # 7. quality: how sure this result is (core.quality)
+        quality, warnings = self._assess(
+            axis, aligned, sided, end, length, notches=notches, settings=settings, seen_by=seen_by, tip=tip,
+            thinning=thinning, looking=looking, misread=misread, unchecked=unchecked, comb_centres=comb_centres)
+        # the next frame warm-starts from the fit's own fixed point, not from the aligned curve (else each call
+        # would shift the curve once more, and results would depend on what came before)
+        self._prior = fitted.centerline
+        self._update_roi(relocated)
+        self._timed("relocate", start)
+        return RelocationResult(centerline.up_to(tip_s), tip, notches, relocated, moved.normals, moved.rejected,
+                                axis.coords, iterations, moved.part, moved.coordinates, quality, tuple(warnings),
+                                sided.notch_side)
+
+    def _align(self, cloud: Cloud, fitted: _Axis, settings) -> _Aligned:
+        """Step 2: the fitted axis moved onto the wall stereo measures without bias (core.alignment), checked
+        against the tube's outline in each camera's view (core.outline) and levelled by the cameras facing the
+        backbone; and each point moved along its viewing ray onto the wall (core.relocation). Without the
+        points' cameras (a cloud from elsewhere), the fit as it is."""
+        if cloud.camera is None or not len(cloud.camera):
+            return _Aligned(fitted)
+        geometry, footprint, seen_by = self.geometry, settings.cell, cloud.camera
+        viewpoints = np.take(self._camera_origins, seen_by, axis=0)
+        end = tube_end(fitted.coords, geometry.outer_radius, settings.gate, footprint, max_s=geometry.reach)
+        # trusted wall lies within the wall's band on the spines: the fit's gate, a millimetre wide, lets in
+        # pixels a matcher mixed with the background behind, which pull the axis across the cameras' views
+        trusted_gate = _wall_band_gate(fitted.coords, fitted.centerline, geometry, settings.gate, footprint)
+        # which points face their camera depends on where the axis is: selected again about the moved axis
+        alignment = align_to_trusted_wall(fitted.centerline, fitted.coords, fitted.frames, viewpoints, geometry,
+                                          trusted_gate, footprint, end, xyz=cloud.xyz, passes=ALIGNMENT_PASSES)
+        centerline = alignment.centerline
+        coords, frames = centerline.project_with_frames(cloud.xyz, alignment.arc_lengths)
+        # the alignment against the middle of the tube's outline in each camera's view: where it followed a wall
+        # stereo moved across the views and the fit did not, the fit places the axis across them (core.outline)
+        outline_of = functools.partial(outline_offset, xyz=cloud.xyz, viewpoints=viewpoints, camera=seen_by,
+                                       geometry=geometry, gate=settings.gate, end_s=end)
+        aligned_outline, across_from_fit = outline_of(coords, frames), None
+        fit_outline = outline_of(fitted.coords, fitted.frames) if went_astray(aligned_outline, footprint) else None
+        if fit_outline is not None and not went_astray(fit_outline, footprint):
+            centerline = across_views_from(fitted.centerline, centerline, self._camera_origins)
+            alignment = alignment.moved_to(centerline, fitted.centerline)
+            coords, frames = centerline.project_with_frames(cloud.xyz, coords.s)
+            across_from_fit = aligned_outline, fit_outline
+        # how much the lean it removed varies along the tube: the axis is known no better (quality)
+        scatter = shift_scatter(fitted.centerline, centerline, end)
+        # the cameras facing the backbone place the axis along their views by the plain tube's level
+        leveled, backbone_shift = level_by_backbone(centerline, coords, frames, viewpoints, seen_by,
+                                                    self._camera_origins, geometry, trusted_gate, footprint, end)
+        if leveled is not centerline:
+            centerline = leveled
+            coords, frames = centerline.project_with_frames(cloud.xyz, coords.s)
+        # what each camera alone says about the axis across its view: the fused axis is known no better
+        cross_view = cross_view_spread(centerline, coords, frames, viewpoints, seen_by, len(self._camera_origins),
+                                       geometry, trusted_gate, footprint, end)
+        # each point as its camera saw it: along its viewing ray onto the wall
+        rays = along_rays(coords, frames, viewpoints, geometry.outer_radius, settings.gate)
+        return _Aligned(_Axis(centerline, coords, frames, rays), alignment, cross_view, backbone_shift,
+                        # the axis against the middle of the tube's outline in each camera's view (depth errors lie
+                        # along the rays)
+                        outline_of(coords, frames), across_from_fit, scatter)
+
+    def _find_notches(self, axis: _Axis, tip_s: float, settings, wall) -> list[Notch]:
+        """The robot's comb matched to the evidence about the axis, up to tip_s (core.notches)."""
+        options = self.config.relocation
+        return detect_notches(axis.measured, axis.centerline, geometry=self.geometry, gate=settings.gate,
+                              footprint=settings.cell, kernel_px=options.notch_kernel_px,
+                              min_width_fraction=options.min_notch_width_fraction, tip_s=tip_s,
+                              observed=axis.coords, wall=wall)
+
+    def _notches_and_side(self, axis: _Axis, tip_s: float, settings, wall, bands: np.ndarray) -> _Sided:
+        """Step 4: the notches found in the configured frame; the side they open to measured, and where it is off
+        the configured one the tube frame turned to it and the notches found again there (the robot's roll in its
+        clamp is never exact)."""
+        geometry, footprint = self.geometry, settings.cell
+        found = self._find_notches(axis, tip_s, settings, wall)
+        notch_side, unsettled, side_uncertainty = geometry.notch_side, None, None
+        configured = axis, found
         for turn in range(2):  # the second pass measures in the turned frame (the window fits better there)
             # a dip is found where the comb puts it, not where its cut opens: no evidence of the side
             edged = [notch for notch in found if notch.edges_measured]
-            side_measured = measure_notch_side(coords, edged, geometry, centerline, settings.gate, footprint,
-                                               wall=wall)
+            side_measured = measure_notch_side(axis.coords, edged, geometry, axis.centerline, settings.gate,
+                                               footprint, wall=wall)
             if side_measured is None:
                 break
             roll, side_uncertainty, by_edges = side_measured
             if not by_edges:  # one edge or none placed the window: the matcher's smear of it is not cancelled
-                side_uncertainty += self._edge_reach(bands, footprint, centerline) / geometry.outer_radius
+                side_uncertainty += self._edge_reach(bands, footprint, axis.centerline) / geometry.outer_radius
             if abs(roll) <= ROLL_TO_REFRAME:
                 notch_side += roll  # reported as measured; too small a turn to find the notches again for
                 break
@@ -314,70 +449,70 @@ class Reconstructor:
                 # not settle is no measurement, and the configured frame is kept
                 unsettled, side_uncertainty = (notch_side - geometry.notch_side, roll), None
                 notch_side = geometry.notch_side
-                centerline, coords, rays, measured, found, frames = configured
+                axis, found = configured
                 break
-            turned = centerline.rolled(roll), coords.rolled(roll)
-            turned_rays = None if rays is None else (rays[0].rolled(roll), rays[1])
-            turned_measured = turned[1] if turned_rays is None else turned_rays[0]
-            again = notches_up_to(turned_measured, turned[0], tip_s=tip_s, observed=turned[1])
+            turned = axis.rolled(roll)
+            again = self._find_notches(turned, tip_s, settings, wall)
             if len(again) < len(found):
                 side_uncertainty = None
                 break  # the turned frame explains the data worse: the measurement was not to be trusted
             notch_side += roll
-            (centerline, coords), rays, measured, found = turned, turned_rays, turned_measured, again
-            frames = (frames[0], frames[1], *_rolled_axes(frames[2], frames[3], roll))
-        notches, coarse_end = found, tip_s
-        comb_centres = expected_centres(geometry, centerline)  # where the robot's notches lie on the final frame
-        # 5. tip, refined: the rim the stereo matcher erodes at depth edges given back
-        eroded_end, refinement, tip_uncertainty, from_cap = tip_s, "coarse end (no camera seen)", None, False
+            axis, found = turned, again
+        return _Sided(axis, found, notch_side, unsettled, side_uncertainty)
+
+    def _seen_end(self, axis: _Axis, notches: list[Notch], coarse_end: float, comb_centres: np.ndarray, settings,
+                  bands: np.ndarray, seen_by: np.ndarray | None) -> _SeenEnd:
+        """Step 5: the end the cameras saw, refined from the coarse end: the end cap where the tube points at a
+        camera, else each camera's rim with the band its matcher erodes given back (core.tip)."""
+        geometry, footprint, centerline = self.geometry, settings.cell, axis.centerline
         # where a camera looks onto the end cap - wider in its image than 4 pixels, more than a matcher's
         # silhouette band - the end is that face (measured), not a rim the matcher erodes
-        cap_seen = seen_by is not None and cap_faces_a_camera(centerline, tip_s, self._camera_origins,
+        cap_seen = seen_by is not None and cap_faces_a_camera(centerline, coarse_end, self._camera_origins,
                                                               min(2 * footprint / geometry.outer_radius, 1.0))
-        if cap_seen and cap_faces_a_camera(centerline, tip_s, self._camera_origins, np.sin(CAP_PLANE_ANGLE)):
+        if cap_seen and cap_faces_a_camera(centerline, coarse_end, self._camera_origins, np.sin(CAP_PLANE_ANGLE)):
             # the tube points at a camera: its thinly seen wall cannot place the end, the cap's own points can; the
             # cap lies the distal ring's length past the last notch (a pile-up nearer it is that notch's cut face)
             last_cut = float(np.max(comb_centres)) + geometry.notch_width / 2
-            cap = end_cap_plane(measured, geometry.inner_radius, geometry.outer_radius, tip_s,
+            cap = end_cap_plane(axis.measured, geometry.inner_radius, geometry.outer_radius, coarse_end,
                                 geometry.outer_diameter, footprint, after=last_cut + geometry.distal_length / 2)
-            if cap is not None:  # the matcher's smear of the cap's points bounds how well it placed it
-                tip_s, tip_uncertainty, from_cap = cap[0], max(cap[1], footprint / 2), True
-            eroded_end, refinement = tip_s, "end cap" if cap is not None else "coarse end (no end cap found)"
-        elif seen_by is not None:
-            # each camera's end where its wall points thin to half, plus the band its matcher spoils at depth
-            # edges, measured in its depth images, as far as it reaches into the end's outline in its image
-            # (where the end turns towards a camera, the cap makes that outline; core.tip)
-            intervals = np.array([(n.start_s - 2 * footprint, n.end_s + 2 * footprint) for n in notches])
-            rim = rim_tip(coords, seen_by, self._camera_origins, centerline, tip_s, geometry.outer_radius,
-                          settings.gate, footprint, options.notch_kernel_px * footprint, bands,
-                          ~inside_intervals(coords.s, intervals), 2 * geometry.notch_pitch,
-                          last_notch_s=float(np.max(comb_centres)))
-            if rim is not None:
-                eroded_end, tip_s, tip_uncertainty = rim
-                refinement = "half-density end + edge band measured in the depth images"
-            elif not cap_seen:  # no depth images (clouds only): the erosion the silhouettes show, given back
-                refinement = "coarse end + silhouette erosion (no edge band: no depth images with a far background)"
-                tip_s = give_back_erosion(tip_s, coords, frames, seen_by, self._camera_origins,
-                                          geometry.outer_radius, settings.gate,
-                                          [(n.start_s, n.end_s) for n in notches], footprint)
-            else:
-                refinement = "coarse end (the end turns towards a camera; no edge band measured)"
-        # the coarse end may stop at the last cut, where little of a thinly seen ring is left: notches the refined
-        # end now reaches past are looked for again (kept if more are found)
-        if any(coarse_end <= centre + geometry.notch_width / 2 < tip_s for centre in comb_centres):
-            again = notches_up_to(measured, centerline, tip_s=tip_s, observed=coords)
-            notches = again if len(again) > len(notches) else notches
+            if cap is None:
+                return _SeenEnd(coarse_end, coarse_end, "coarse end (no end cap found)")
+            # the matcher's smear of the cap's points bounds how well it placed it
+            return _SeenEnd(cap[0], cap[0], "end cap", max(cap[1], footprint / 2), from_cap=True)
+        if seen_by is None:
+            return _SeenEnd(coarse_end, coarse_end, "coarse end (no camera seen)")
+        # each camera's end where its wall points thin to half, plus the band its matcher spoils at depth
+        # edges, measured in its depth images, as far as it reaches into the end's outline in its image
+        # (where the end turns towards a camera, the cap makes that outline; core.tip)
+        intervals = np.array([(n.start_s - 2 * footprint, n.end_s + 2 * footprint) for n in notches])
+        rim = rim_tip(axis.coords, seen_by, self._camera_origins, centerline, coarse_end, geometry.outer_radius,
+                      settings.gate, footprint, self.config.relocation.notch_kernel_px * footprint, bands,
+                      ~inside_intervals(axis.coords.s, intervals), 2 * geometry.notch_pitch,
+                      last_notch_s=float(np.max(comb_centres)))
+        if rim is not None:
+            eroded_end, tip_s, tip_uncertainty = rim
+            return _SeenEnd(tip_s, eroded_end, "half-density end + edge band measured in the depth images",
+                            tip_uncertainty)
+        if cap_seen:
+            return _SeenEnd(coarse_end, coarse_end, "coarse end (the end turns towards a camera; no edge band "
+                                                    "measured)")
+        # no depth images (clouds only): the erosion the silhouettes show, given back
+        tip_s = give_back_erosion(coarse_end, axis.coords, axis.frames, seen_by, self._camera_origins,
+                                  geometry.outer_radius, settings.gate, [(n.start_s, n.end_s) for n in notches],
+                                  footprint)
+        return _SeenEnd(tip_s, coarse_end, "coarse end + silhouette erosion (no edge band: no depth images with a "
+                                           "far background)")
+
+    def _tip_by_length(self, cloud: Cloud, centerline: Centerline, end: _SeenEnd, centreline_off: float,
+                       comb_centres: np.ndarray, notches: list[Notch], settings, seen_by: np.ndarray | None
+                       ) -> _ByLength:
+        """Step 5': the tip along the tube, the end seen weighed with the robot's own length at the bend measured
+        (core.tip); carried on to that length where every camera was kept from seeing the rest."""
+        geometry, footprint, tip_s = self.geometry, settings.cell, end.tip_s
         # a tip left at the coarse end is known as well as the band the matcher spoils there, not given back
         # (assess is told no uncertainty then: nothing measured the erosion given back)
-        seen_uncertainty = (tip_uncertainty if tip_uncertainty is not None
+        seen_uncertainty = (end.tip_uncertainty if end.tip_uncertainty is not None
                             else self._unrefined_tip_uncertainty(centerline, tip_s, footprint))
-        # how far the centreline may be off: what stereo beside the notches does to the wall (core.quality)
-        thinning = notched_thinning(coords.radius - geometry.outer_radius, coords.s,
-                                    cut_intervals(geometry, centerline, 0.0), tip_s, settings.gate, 2 * footprint,
-                                    spine=wall[0])
-        looking = tuple(cameras_looking_into_slots(centerline, geometry, self._camera_origins,
-                                                   self.config.camera_names))
-        centreline_off = centerline_uncertainty(cross_view.spread, thinning, looking, bool(backbone_shift)) or 0.0
         # the fit reaches as far as the tube's wall is seen whole; the tip may lie beyond, over a last notch seen
         # thinly: the curve carries on bending there as the notches before it did
         fitted_end = centerline.length
@@ -393,8 +528,7 @@ class Reconstructor:
             geometry.length_tolerance, geometry.neutral_axis_offset * centreline_off / geometry.notch_pitch,
             geometry.neutral_axis_offset * (end_turn_off or 0.0)]))
         # the cap's points only ever lie short of it (the matcher mixes its ring with the bore behind): a lower bound
-        along = with_known_length(tip_s, seen_uncertainty, expected_length, length_known,
-                                  lower_bound=from_cap)
+        along = with_known_length(tip_s, seen_uncertainty, expected_length, length_known, lower_bound=end.from_cap)
         # how near the tube comes to each camera, carried on past the end seen to the robot's length
         reach = camera_reach(continued_bend(centerline.up_to(tip_s), expected_length, comb_centres, geometry),
                              tip_s, expected_length, geometry.outer_radius, footprint, self._extrinsics, cloud.xyz,
@@ -407,54 +541,44 @@ class Reconstructor:
                 total_bend = turn_from_base(centerline, geometry, expected_length)
                 expected_length = geometry.bent_length(total_bend)
             along = carried_to_length(replace(along, expected_s=expected_length), centerline)
-        tip_erosion, tip_s = tip_s - eroded_end, along.s
-        # the rims the matcher moves (over the cut faces the cameras see), against the spines' known length; a
-        # notch whose width its bend rules out was misread, and is given its bend's
-        notches, misread, unchecked = calibrate_and_check(notches, geometry, centerline,
-                                                          None if seen_by is None else self._camera_origins,
-                                                          along.seen_s if along.hidden_across is not None else tip_s)
-        # 6. relocation: every point within the gate onto the reference surface (core.relocation)
-        tip = centerline.frames_at(np.array([tip_s]))[0][0]
-        if options.method == "icp":  # the paper's KD-tree + ICP onto a reference (core.icp)
-            moved, tip = self._relocate_by_icp(cloud, centerline, notches, tip_s, tip, settings.gate, footprint)
-        else:
-            moved = relocate_points(coords, centerline, geometry, notches, tip_s, settings.gate, rays)
-        relocated = cloud.subset(moved.accepted, xyz=moved.points)
-        # 7. quality: how sure this result is (core.quality)
-        offset = coords.radius - geometry.outer_radius
+        return _ByLength(centerline, along, total_bend, end_turn_off, reach, fitted_end)
+
+    def _assess(self, axis: _Axis, aligned: _Aligned, sided: _Sided, end: _SeenEnd, length: _ByLength, *,
+                notches: list[Notch], settings, seen_by, tip: np.ndarray, thinning, looking, misread, unchecked,
+                comb_centres: np.ndarray) -> tuple[dict, list[str]]:
+        """Step 7: the self-check (core.quality): how sure this result is, in figures and in plain words."""
+        geometry, alignment = self.geometry, aligned.alignment
+        offset = axis.coords.radius - geometry.outer_radius
         level, _ = surface_band(offset, settings.gate)
         near_wall = np.abs(offset - level) < settings.gate
         wall_residual = float(np.sqrt(np.mean((offset[near_wall] - level) ** 2))) if np.any(near_wall) else 0.0
         quality, warnings = assess(
             geometry=geometry, camera_names=self.config.camera_names, notches=notches,
-            coords_s=measured.s, camera=seen_by, tip_s=tip_s, total_bend=total_bend,
-            footprint=footprint, wall_residual=wall_residual, notch_side=notch_side,
+            coords_s=axis.measured.s, camera=seen_by, tip_s=length.along.s, total_bend=length.total_bend,
+            footprint=settings.cell, wall_residual=wall_residual, notch_side=sided.notch_side,
             configured_side=geometry.notch_side,
             bias_notch_side=0.0 if alignment is None else alignment.bias_notch_side,
             bias_binormal=0.0 if alignment is None else alignment.bias_binormal, depth_steps=dict(self._depth_steps),
-            tip_erosion=tip_erosion, tip_uncertainty=tip_uncertainty, tip_position=tip, tip_along=along,
-            crop_box=self.config.crop_box(),
-            notched_thinning=thinning, looking_into_slots=looking, tip_from_cap=from_cap, side_unsettled=unsettled,
-            side_uncertainty=side_uncertainty,
-            cross_view_spread=cross_view.spread, distal_cross_view=cross_view.distal, alignment_scatter=scatter,
-            outline_offset=outline,
-            across_from_fit=across_from_fit,
-            unsupported=cross_view.unsupported, backbone_shift=backbone_shift, misread_widths=misread,
+            tip_erosion=end.tip_s - end.eroded_end, tip_uncertainty=end.tip_uncertainty, tip_position=tip,
+            tip_along=length.along, crop_box=self.config.crop_box(),
+            notched_thinning=thinning, looking_into_slots=looking, tip_from_cap=end.from_cap,
+            side_unsettled=sided.unsettled, side_uncertainty=sided.side_uncertainty,
+            cross_view_spread=aligned.cross_view.spread, distal_cross_view=aligned.cross_view.distal,
+            alignment_scatter=aligned.scatter, outline_offset=aligned.outline, across_from_fit=aligned.across_from_fit,
+            unsupported=aligned.cross_view.unsupported, backbone_shift=aligned.backbone_shift, misread_widths=misread,
             held_shift=None if alignment is None else (alignment.end_shift, alignment.held_from),
-            unchecked=unchecked, reach=reach,
-            notch_centres=comb_centres, wall_level=level, fitted_end=fitted_end)
-        quality = {**quality, "tip_refinement": refinement,
+            unchecked=unchecked, reach=length.reach,
+            notch_centres=comb_centres, wall_level=level, fitted_end=length.fitted_end)
+        backbone_shift, side_uncertainty = aligned.backbone_shift, sided.side_uncertainty
+        quality = {**quality, "tip_refinement": end.refinement,
                    "centerline_backbone_shift_mm": None if backbone_shift is None else backbone_shift * 1e3,
                    # None: the side could not be measured (or did not settle): the configured one is kept
                    "notch_side_uncertainty_deg": None if side_uncertainty is None else float(np.degrees(
                        side_uncertainty)),
                    "edge_band_mrad": {name: band * 1e3 for name, band in self._edge_bands.items()},
-                   "robot_bend_end_off_deg": None if end_turn_off is None else float(np.degrees(end_turn_off))}
-        self._prior = fitted
-        self._update_roi(relocated)
-        self._timed("relocate", start)
-        return RelocationResult(centerline.up_to(tip_s), tip, notches, relocated, moved.normals, moved.rejected, coords,
-                          iterations, moved.part, moved.coordinates, quality, tuple(warnings), notch_side)
+                   "robot_bend_end_off_deg": None if length.end_turn_off is None else float(np.degrees(
+                       length.end_turn_off))}
+        return quality, warnings
 
     def _unrefined_tip_uncertainty(self, centerline: Centerline, tip_s: float, footprint: float) -> float:
         """How well a tip left at the coarse end is known along the tube: half a pixel for the end, and the band
