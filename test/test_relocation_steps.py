@@ -1079,6 +1079,71 @@ def test_the_camera_facing_the_backbone_levels_the_axis_between_the_notches():
     assert side_on is given and none == 0.0
 
 
+def test_a_camera_just_past_the_gaps_edge_levels_the_axis_by_the_wall_its_matcher_keeps_clear_of_the_slots():
+    """One camera faces the backbone from 137 deg round the tube from the notch side, 23 deg past the gap's edge (113.6
+    deg): in its image that edge lies 0.7 mm (3.5 px) from the tube's middle, and between the notches its matcher's
+    window reaches into the slots from the wall within 3 px of it, which reads 0.2 mm deep. The axis is where it
+    truly is: levelled by the wall clear of the slots in that camera's image, it stays there (by all the wall facing
+    it, it was moved 0.04 mm). The other camera looks into the slots."""
+    length = GEOMETRY.length
+    points = wall_points(length, rng=np.random.default_rng(8))
+    coords = straight_centerline(length).project(points)
+    cuts = cut_intervals(GEOMETRY, straight_centerline(length), 0.0)
+    in_cut = inside_intervals(points[:, 2], cuts) & (np.abs(coords.angle) < GEOMETRY.gap_half_angle)
+    points = points[~in_cut]  # the slots
+    angles = np.radians([137.0, -43.0])
+    origins = np.stack([0.09 * np.cos(angles), 0.09 * np.sin(angles), np.full(2, 0.025)], axis=1)
+    camera = (np.einsum("ij,cj->ic", points[:, :2], origins[:, :2]).argmax(axis=1)).astype(np.intp)
+    phi = np.arctan2(points[:, 1], points[:, 0])
+    # across cam_b's view, from the gap's edge on its side to the point
+    beyond_edge = R_O * (np.sin(phi - angles[0]) - np.sin(GEOMETRY.gap_half_angle - angles[0]))
+    reach = 3 * FOOTPRINT
+    near_slot = inside_intervals(points[:, 2], cut_intervals(GEOMETRY, straight_centerline(length), reach))
+    deep = (camera == 0) & near_slot & (beyond_edge < reach)
+    deep |= (camera == 1) & (points[:, 2] > GEOMETRY.proximal_length)  # the notch side's camera sees every slot
+    seen = points.copy()
+    seen[deep, :2] *= 1 - 0.2e-3 / R_O
+    given = straight_centerline(length)
+    coords, frames = given.project_with_frames(seen)
+    moved, rms = level_by_backbone(given, coords, frames, origins[camera], camera, origins, GEOMETRY, 0.8e-3,
+                                   FOOTPRINT, length)
+    shift = moved.frames_at(given.s)[0] - given.points
+    print(f"\naxis moved by {rms * 1e3:.3f} mm RMS, at most {np.abs(shift).max() * 1e3:.3f} mm")
+    assert np.abs(shift).max() < 0.02e-3
+
+
+def test_a_camera_that_sees_no_wall_clear_of_the_slots_levels_by_all_the_wall_facing_it():
+    """At 0.3 mm a pixel a camera 6 deg past the gap's edge (120 deg from the notch side) sees its edge within a
+    matcher's reach (4 px) of all the wall facing it: none is clear of the slots. It reads that wall as on the plain
+    tube (a matcher that keeps the slot out of the wall's window), the other camera looks into the slots and reads
+    it 0.3 mm deep: an axis put 0.15 mm towards the first camera is moved back by the first camera's level."""
+    footprint, length = 0.3e-3, GEOMETRY.length
+    points = wall_points(length, spacing=footprint, rng=np.random.default_rng(9))
+    first, last = GEOMETRY.proximal_length, length - GEOMETRY.distal_length
+    angles = np.radians([120.0, -60.0])
+    origins = np.stack([0.09 * np.cos(angles), 0.09 * np.sin(angles), np.full(2, 0.025)], axis=1)
+    toward = np.array([np.cos(angles[0]), np.sin(angles[0]), 0.0])
+    s = np.linspace(0.0, length, int(length / 0.1e-3) + 1)
+    lean = 0.15e-3 * np.clip(np.minimum(s - first, last - s) / 1e-3, 0.0, 1.0)
+    given = Centerline.from_points(np.stack([lean * toward[0], lean * toward[1], s], axis=1),
+                                   np.array([0.0, 1.0, 0.0]), 0.1e-3)
+    camera = (np.einsum("ij,cj->ic", points[:, :2], origins[:, :2]).argmax(axis=1)).astype(np.intp)
+    seen = points.copy()
+    deep = (points[:, 2] > first) & (points[:, 2] < last) & (camera == 1)
+    seen[deep, :2] *= 1 - 0.3e-3 / R_O
+    coords, frames = given.project_with_frames(seen)
+    assert not np.any(alignment.clear_of_slots_in_view(coords, frames, origins[camera], GEOMETRY, given,
+                                                       alignment.SILHOUETTE_MARGIN_PX * footprint)
+                      & (camera == 0) & (points[:, 2] > first) & (points[:, 2] < last)
+                      & (np.abs(coords.angle - angles[0]) < math.radians(20.0)))
+    moved, rms = level_by_backbone(given, coords, frames, origins[camera], camera, origins, GEOMETRY, 0.8e-3,
+                                   footprint, length)
+    middle = moved.frames_at(s[(s > 15e-3) & (s < 40e-3)])[0]
+    print(f"\naxis between the notches now {np.abs(middle[:, :2] @ toward[:2]).max() * 1e3:.3f} mm towards the "
+          f"first camera at most (given 0.150), moved by {rms * 1e3:.3f} mm RMS")
+    assert np.abs(middle[:, :2]).max() < 0.03e-3
+
+
 def test_trusted_points_lie_pixels_inside_the_silhouette():
     """The facing zone is set in pixels: 4 footprints inside the silhouette of a 1.75 mm tube is 32.9 deg of view
     angle at 0.2 mm a pixel, 24.2 deg at 0.258 mm, never wider than the cap, and empty for a tube 4 px wide."""

@@ -35,7 +35,7 @@ import numpy as np
 import scipy.linalg
 
 from ntcr_recon.core.centerline import Centerline, TubeCoordinates, unit_direction
-from ntcr_recon.core.comb import clear_of_cuts, cut_intervals
+from ntcr_recon.core.comb import clear_of_cuts, cut_intervals, inside_intervals
 from ntcr_recon.core.compiled import jit
 from ntcr_recon.core.geometry import TubeGeometry
 from ntcr_recon.core.wall import median
@@ -396,6 +396,24 @@ def shift_scatter(fit: Centerline, aligned: Centerline, end_s: float) -> float:
     return float(np.sqrt(np.mean(np.einsum("ij,ij->i", deviation, deviation))))
 
 
+def clear_of_slots_in_view(coords: TubeCoordinates, frames: tuple, viewpoints: np.ndarray, geometry: TubeGeometry,
+                           centerline: Centerline, margin: float) -> np.ndarray:
+    """(N,) bool: the point lies, in its camera's image, `margin` (m) or more beyond the edge of the cuts' opening
+    on its camera's side, towards the backbone (or further than `margin` along s from every cut). A matcher's window
+    reaching from the backbone into a slot pulls the wall there deeper too: a camera a few tens of degrees past the
+    gap's edge sees that edge a few pixels from the middle of the tube's image. Meaningful for the cameras facing
+    the backbone (beyond the gap's half-angle from the notch side); the others' points are not clear."""
+    position, _, normal, binormal = frames
+    view = viewpoints - position
+    camera_angle = np.arctan2(np.einsum("ij,ij->i", view, binormal), np.einsum("ij,ij->i", view, normal))
+    side = np.sign(camera_angle)
+    # across the camera's view, from the gap's edge on its side to the point (+: towards the backbone)
+    beyond_edge = side * geometry.outer_radius * (np.sin(coords.angle - camera_angle)
+                                                  - np.sin(side * geometry.gap_half_angle - camera_angle))
+    beside_cut = inside_intervals(coords.s, cut_intervals(geometry, centerline, margin))
+    return ~beside_cut | (beyond_edge >= margin)
+
+
 def level_by_backbone(centerline: Centerline, coords: TubeCoordinates, frames: tuple, viewpoints: np.ndarray,
                       camera: np.ndarray, origins: np.ndarray, geometry: TubeGeometry, gate: float, footprint: float,
                       end_s: float, max_view_angle: float = np.radians(45.0), cut_margin_px: float = 1.0,
@@ -410,36 +428,53 @@ def level_by_backbone(centerline: Centerline, coords: TubeCoordinates, frames: t
     level splits the two cameras' difference between them and moves the axis away from the notch side's camera
     by half the deficit; the backbone's camera, whose level on the plain stretches (before the first cut and
     after the last) is measured, places it along its line of sight instead. Windows of a notch pitch, trusted
-    points as the alignment's; the move, interpolated along s from none at the base, holds beyond the last
-    window. Unchanged (and 0) where no camera faces the backbone or none saw the plain tube.
+    points as the alignment's, and of those only the wall clear of the slots in the camera's image by a matcher's
+    reach (clear_of_slots_in_view: a camera just past the gap's edge sees that edge a few pixels from the tube's
+    middle, and a matcher that averages its window over the slot reads the wall there deep as well); a camera that
+    sees no such wall between the notches (a thin tube, a coarse pixel) levels by all the wall facing it, which a
+    matcher that keeps the slot out of the wall's window leaves whole. The move, interpolated along s from none at
+    the base, holds beyond the last window. Unchanged (and 0) where no camera faces the backbone or none saw the
+    plain tube.
     """
     window = geometry.notch_pitch
     cuts = cut_intervals(geometry, centerline, cut_margin_px * footprint)
-    away_from_cuts = clear_of_cuts(coords, geometry, centerline, cut_margin_px * footprint)
-    cameras = len(origins)
-
-    def sums(selected, width):
-        return _camera_window_sums(centerline, coords, frames, viewpoints, camera, cameras, geometry, gate,
-                                   footprint, end_s, silhouette_margin_px, max_view_angle, selected, width)
-
-    plain = away_from_cuts & ((coords.s < cuts[0, 0]) | (coords.s > cuts[-1, 1]))
-    plain_sums = sums(plain, max(end_s, window))[0]
-    per_window = sums(away_from_cuts, window)
-    windows = len(per_window)
+    windows = max(int(np.ceil(end_s / window)), 1)
     centres = (np.arange(windows) + 0.5) * window
     notched = (centres > cuts[0, 0]) & (centres < cuts[-1, 1])
     at, _, window_normal, window_binormal = centerline.frames_at(centres)
+    # each camera's direction round the tube per window, from the notch side (x): past the gap's half-angle it
+    # faces the backbone; one that sees the notch side's gaps reads no plain tube's level between them
+    views = origins[None, :, :] - at[:, None, :]
+    round_tube = np.stack([np.einsum("kcj,kj->kc", views, window_normal),
+                           np.einsum("kcj,kj->kc", views, window_binormal)], axis=-1)
+    faces_backbone = notched[:, None] & (np.abs(np.arctan2(round_tube[..., 1], round_tube[..., 0]))
+                                         > geometry.gap_half_angle)
+    if not np.any(faces_backbone):
+        return centerline, 0.0
+    away_from_cuts = clear_of_cuts(coords, geometry, centerline, cut_margin_px * footprint)
+    # the backbone's wall, but within a matcher's reach of a slot in the image, reads deeper as the notch side does
+    backbone_wall = away_from_cuts & clear_of_slots_in_view(coords, frames, viewpoints, geometry, centerline,
+                                                            silhouette_margin_px * footprint)
+
+    def sums(selected, width):
+        return _camera_window_sums(centerline, coords, frames, viewpoints, camera, len(origins), geometry, gate,
+                                   footprint, end_s, silhouette_margin_px, max_view_angle, selected, width)
+
+    plain = (coords.s < cuts[0, 0]) | (coords.s > cuts[-1, 1])
+    # per camera the wall clear of the slots where it sees any between the notches, else all its facing wall
+    plain_sums = [sums(selected & plain, max(end_s, window))[0] for selected in (backbone_wall, away_from_cuts)]
+    per_window = [sums(selected, window) for selected in (backbone_wall, away_from_cuts)]
+    clear = (np.any(per_window[0][notched, :, 0] >= minimum_points, axis=0)
+             & (plain_sums[0][:, 0] >= minimum_points))
+    plain_sums = np.where(clear[:, None], plain_sums[0], plain_sums[1])
+    per_window = np.where(clear[None, :, None], per_window[0], per_window[1])
     shifts = np.zeros((windows, 3))
-    for k in np.flatnonzero(notched):
+    for k in np.flatnonzero(np.any(faces_backbone, axis=1)):
         system, rhs = np.zeros((2, 2)), np.zeros(2)
-        for c in range(cameras):
+        for c in np.flatnonzero(faces_backbone[k]):
             if plain_sums[c, 0] < minimum_points or per_window[k, c, 0] < minimum_points:
                 continue
-            view = origins[c] - at[k]
-            along = np.array([view @ window_normal[k], view @ window_binormal[k]])
-            if abs(np.arctan2(along[1], along[0])) <= geometry.gap_half_angle:
-                continue  # it sees the notch side's gaps: its level there is not the plain tube's
-            direction = along / np.linalg.norm(along)
+            direction = round_tube[k, c] / np.linalg.norm(round_tube[k, c])
             # reading deeper than on the plain tube: the axis lies too near this camera, by the shift that
             # lowers each point's offset by shift x cos(its view angle) (least squares about the plain level)
             cosine, cosine2, cosine_offset = per_window[k, c, 5:]
