@@ -1144,6 +1144,40 @@ def test_a_camera_that_sees_no_wall_clear_of_the_slots_levels_by_all_the_wall_fa
     assert np.abs(middle[:, :2]).max() < 0.03e-3
 
 
+def test_a_camera_that_sees_wall_clear_of_the_slots_in_one_window_only_levels_by_all_the_wall_facing_it():
+    """A camera facing the backbone from 137 deg sees wall clear of the slots in its image in one window between the
+    notches only (the rest of that wall lost, as to a matcher's dropouts); all the wall facing it reads as on the
+    plain tube. An axis put 0.15 mm towards it is moved back over the whole notched stretch: one window's few points
+    do not decide for the others, which level by all the camera's facing wall."""
+    length = GEOMETRY.length
+    points = wall_points(length, rng=np.random.default_rng(10))
+    first, last = GEOMETRY.proximal_length, length - GEOMETRY.distal_length
+    angles = np.radians([137.0, -43.0])
+    origins = np.stack([0.09 * np.cos(angles), 0.09 * np.sin(angles), np.full(2, 0.025)], axis=1)
+    toward = np.array([np.cos(angles[0]), np.sin(angles[0])])
+    s = np.linspace(0.0, length, int(length / 0.1e-3) + 1)
+    lean = 0.15e-3 * np.clip(np.minimum(s - first, last - s) / 1e-3, 0.0, 1.0)
+    given = Centerline.from_points(np.stack([lean * toward[0], lean * toward[1], s], axis=1),
+                                   np.array([0.0, 1.0, 0.0]), 0.1e-3)
+    camera = (np.einsum("ij,cj->ic", points[:, :2], origins[:, :2]).argmax(axis=1)).astype(np.intp)
+    coords, frames = given.project_with_frames(points)
+    clear = alignment.clear_of_slots_in_view(coords, frames, origins[camera], GEOMETRY, given,
+                                             alignment.SILHOUETTE_MARGIN_PX * FOOTPRINT)
+    notched = (points[:, 2] > first) & (points[:, 2] < last)
+    one_window = (points[:, 2] > 19.2e-3) & (points[:, 2] < 22.4e-3)
+    kept = ~(clear & notched & ~one_window & (camera == 0))
+    seen = points[kept]
+    deep = notched[kept] & (camera[kept] == 1)  # the other camera looks into the slots
+    seen[deep, :2] *= 1 - 0.3e-3 / R_O
+    coords, frames = given.project_with_frames(seen)
+    moved, rms = level_by_backbone(given, coords, frames, origins[camera[kept]], camera[kept], origins, GEOMETRY,
+                                   0.8e-3, FOOTPRINT, length)
+    middle = moved.frames_at(s[(s > 10e-3) & (s < 40e-3)])[0]
+    print(f"\naxis between the notches now {np.abs(middle[:, :2] @ toward).max() * 1e3:.3f} mm towards the camera "
+          f"facing the backbone at most (given 0.150)")
+    assert np.abs(middle[:, :2]).max() < 0.03e-3
+
+
 def test_trusted_points_lie_pixels_inside_the_silhouette():
     """The facing zone is set in pixels: 4 footprints inside the silhouette of a 1.75 mm tube is 32.9 deg of view
     angle at 0.2 mm a pixel, 24.2 deg at 0.258 mm, never wider than the cap, and empty for a tube 4 px wide."""

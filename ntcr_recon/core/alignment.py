@@ -431,10 +431,10 @@ def level_by_backbone(centerline: Centerline, coords: TubeCoordinates, frames: t
     points as the alignment's, and of those only the wall clear of the slots in the camera's image by a matcher's
     reach (clear_of_slots_in_view: a camera just past the gap's edge sees that edge a few pixels from the tube's
     middle, and a matcher that averages its window over the slot reads the wall there deep as well); a camera that
-    sees no such wall between the notches (a thin tube, a coarse pixel) levels by all the wall facing it, which a
-    matcher that keeps the slot out of the wall's window leaves whole. The move, interpolated along s from none at
-    the base, holds beyond the last window. Unchanged (and 0) where no camera faces the backbone or none saw the
-    plain tube.
+    sees such wall in fewer than half the windows it faces the backbone in (a thin tube, a coarse pixel, a camera
+    just past the edge) levels by all the wall facing it, which a matcher that keeps the slot out of the wall's
+    window leaves whole. The move, interpolated along s from none at the base, holds beyond the last window.
+    Unchanged (and 0) where no camera faces the backbone or none saw the plain tube.
     """
     window = geometry.notch_pitch
     cuts = cut_intervals(geometry, centerline, cut_margin_px * footprint)
@@ -461,11 +461,12 @@ def level_by_backbone(centerline: Centerline, coords: TubeCoordinates, frames: t
                                    footprint, end_s, silhouette_margin_px, max_view_angle, selected, width)
 
     plain = (coords.s < cuts[0, 0]) | (coords.s > cuts[-1, 1])
-    # per camera the wall clear of the slots where it sees any between the notches, else all its facing wall
+    # per camera the wall clear of the slots where it sees such wall in most windows it faces the backbone in,
+    # else all its facing wall
     plain_sums = [sums(selected & plain, max(end_s, window))[0] for selected in (backbone_wall, away_from_cuts)]
     per_window = [sums(selected, window) for selected in (backbone_wall, away_from_cuts)]
-    clear = (np.any(per_window[0][notched, :, 0] >= minimum_points, axis=0)
-             & (plain_sums[0][:, 0] >= minimum_points))
+    clear_windows = np.sum(faces_backbone & (per_window[0][:, :, 0] >= minimum_points), axis=0)
+    clear = (2 * clear_windows >= np.sum(faces_backbone, axis=0)) & (plain_sums[0][:, 0] >= minimum_points)
     plain_sums = np.where(clear[:, None], plain_sums[0], plain_sums[1])
     per_window = np.where(clear[None, :, None], per_window[0], per_window[1])
     shifts = np.zeros((windows, 3))
