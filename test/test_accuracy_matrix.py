@@ -74,6 +74,18 @@ def test_a_row_that_misses_says_so():
     assert figures["centerline"] <= figures["stated"]["centerline"]
 
 
+def test_an_icp_relocation_says_how_far_it_moved_the_reference_off_the_centreline():
+    """relocation.method icp on side90_bend30: ICP slides the posed reference 0.14 mm along the tube, and the tip with
+    it, past its floor. The result says how far ICP moved the reference and the tip off where the centreline placed
+    them, states the tip that uncertain, and so no floor it misses goes unsaid."""
+    figures = accuracy_matrix.run_row(ROWS["side90_bend30"], frames=2, method="icp")
+    print("\n" + accuracy_matrix.format_row(figures) + "\n" + "\n".join(figures["warnings"]))
+    assert "tip" in figures["misses"], "ICP was expected to miss the tip's floor here; if it no longer does, say so"
+    assert any(warning.startswith("relocated by ICP") for warning in figures["warnings"])
+    assert accuracy_matrix.unwarned(figures) == []
+    assert abs(figures["tip_along"]) <= figures["stated"]["tip_along"]
+
+
 def test_a_tip_the_cameras_could_not_see_is_carried_on_to_the_robots_length():
     """Bent 90 deg towards cam_a of a 90 mm rig, the distal part comes nearer cam_a than the D405's 70 mm and points
     away from cam_b along its line of sight: the tube seen ends 11 mm short of the robot (its tip was placed there,

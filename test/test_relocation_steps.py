@@ -1816,6 +1816,26 @@ def test_icp_recovers_a_known_motion_of_the_reference_and_relocates_onto_it():
     assert np.median(moved.distance) < 0.05e-3
 
 
+def test_the_reference_move_is_how_far_icp_moved_the_reference_and_the_tip_along_and_across_the_tube():
+    """A straight reference along z turned 0.1 deg about x through its base and shifted 0.1 mm along z: at the 30 mm
+    tip that is 0.1 mm along the tube and 0.052 mm across it; over the points, their RMS move."""
+    from ntcr_recon.core.icp import reference_move
+    from ntcr_recon.core.transforms import quaternion_to_matrix
+
+    reference = wall_points(30e-3, spacing=0.5e-3)
+    angle = math.radians(0.1)
+    rotation = quaternion_to_matrix(np.array([math.sin(angle / 2), 0.0, 0.0, math.cos(angle / 2)]))
+    translation = np.array([0.0, 0.0, 0.1e-3])
+    move = reference_move(reference, rotation, translation, np.array([0.0, 0.0, 30e-3]), np.array([0.0, 0.0, 1.0]))
+    moved = reference @ rotation.T + translation - reference
+    print(f"\nreference moved {move.rms * 1e3:.4f} mm RMS; tip {move.tip_along * 1e3:.4f} mm along, "
+          f"{move.tip_across * 1e3:.4f} mm across")
+    assert move.tip_along == pytest.approx(0.1e-3, rel=1e-3)
+    assert move.tip_across == pytest.approx(30e-3 * math.sin(angle), rel=1e-3)
+    assert move.rms == pytest.approx(float(np.sqrt(np.mean(np.sum(moved**2, axis=1)))), rel=1e-9)
+    assert reference_move(reference, np.eye(3), np.zeros(3), np.zeros(3), np.array([0.0, 0.0, 1.0])).rms == 0.0
+
+
 def test_alignment_leaves_a_tube_seen_from_one_side_alone():
     """One camera sees one face: a shift towards it cannot be told from the wall's level, so nothing moves."""
     length = 30e-3

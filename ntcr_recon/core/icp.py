@@ -13,6 +13,7 @@ point's outward normal and surface part); the others are rejected.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -129,6 +130,27 @@ def icp(reference: np.ndarray, cloud: np.ndarray, gate: float, iterations: int =
         if np.linalg.norm(step_t) < tolerance and np.abs(step_r - np.eye(3)).max() < tolerance / gate:
             break
     return rotation, translation, iteration
+
+
+@dataclass(frozen=True)
+class ReferenceMove:
+    """How far ICP moved the reference from the pose it was given (m): RMS over its points, and the tip's move
+    along the tube and across it. The pose came from the centreline: the move is how far the two relocations
+    disagree, and the tip and the relocated surface are known no better than that."""
+
+    rms: float
+    tip_along: float
+    tip_across: float
+
+
+def reference_move(reference: np.ndarray, rotation: np.ndarray, translation: np.ndarray, tip: np.ndarray,
+                   tangent: np.ndarray) -> ReferenceMove:
+    """The ReferenceMove of ICP's (R, t) on the reference points (K, 3) and on the tip, `tangent` the tube's there."""
+    moved = reference @ rotation.T + translation - reference
+    tip_move = rotation @ tip + translation - tip
+    along = float(tip_move @ tangent)
+    return ReferenceMove(float(np.sqrt(np.mean(np.einsum("ij,ij->i", moved, moved)))), abs(along),
+                         float(np.linalg.norm(tip_move - along * tangent)))
 
 
 def relocate_onto_reference(cloud: np.ndarray, reference: np.ndarray, normals: np.ndarray, part: np.ndarray,

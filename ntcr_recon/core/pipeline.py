@@ -51,7 +51,14 @@ from ntcr_recon.core.comb import cut_intervals, expected_centres, inside_interva
 from ntcr_recon.core.config import RigConfig
 from ntcr_recon.core.filters import filter_cloud
 from ntcr_recon.core.fusion import FramePair, fuse
-from ntcr_recon.core.icp import icp, mesh_reference, posed_reference, relocate_onto_reference
+from ntcr_recon.core.icp import (
+    ReferenceMove,
+    icp,
+    mesh_reference,
+    posed_reference,
+    reference_move,
+    relocate_onto_reference,
+)
 from ntcr_recon.core.notches import Notch, calibrate_and_check, detect_notches, measure_notch_side, spine_wall
 from ntcr_recon.core.outline import across_views_from, outline_offset, went_astray
 from ntcr_recon.core.quality import (
@@ -351,15 +358,18 @@ class Reconstructor:
                                                           along.seen_s if along.hidden_across is not None else tip_s)
         # 6. relocation: every point within the gate onto the reference surface (core.relocation)
         tip = centerline.frames_at(np.array([tip_s]))[0][0]
+        reference_moved = None  # how far ICP moved its reference off the centreline's pose
         if options.method == "icp":  # the paper's KD-tree + ICP onto a reference (core.icp)
-            moved, tip = self._relocate_by_icp(cloud, centerline, notches, tip_s, tip, settings.gate, settings.cell)
+            moved, tip, reference_moved = self._relocate_by_icp(cloud, centerline, notches, tip_s, tip, settings.gate,
+                                                                settings.cell)
         else:
             moved = relocate_points(axis.coords, centerline, geometry, notches, tip_s, settings.gate, axis.rays)
         relocated = cloud.subset(moved.accepted, xyz=moved.points)
         # 7. quality: how sure this result is (core.quality)
         quality, warnings = self._assess(
             axis, aligned, sided, end, length, notches=notches, settings=settings, seen_by=seen_by, tip=tip,
-            thinning=thinning, looking=looking, misread=misread, unchecked=unchecked, comb_centres=comb_centres)
+            thinning=thinning, looking=looking, misread=misread, unchecked=unchecked, comb_centres=comb_centres,
+            reference_moved=reference_moved)
         # the next frame warm-starts from the fit's own fixed point, not from the aligned curve (else each call
         # would shift the curve once more, and results would depend on what came before)
         self._prior = fitted.centerline
@@ -545,7 +555,7 @@ class Reconstructor:
 
     def _assess(self, axis: _Axis, aligned: _Aligned, sided: _Sided, end: _SeenEnd, length: _ByLength, *,
                 notches: list[Notch], settings, seen_by, tip: np.ndarray, thinning, looking, misread, unchecked,
-                comb_centres: np.ndarray) -> tuple[dict, list[str]]:
+                comb_centres: np.ndarray, reference_moved: ReferenceMove | None) -> tuple[dict, list[str]]:
         """Step 7: the self-check (core.quality): how sure this result is, in figures and in plain words."""
         geometry, alignment = self.geometry, aligned.alignment
         offset = axis.coords.radius - geometry.outer_radius
@@ -568,7 +578,7 @@ class Reconstructor:
             unsupported=aligned.cross_view.unsupported, backbone_shift=aligned.backbone_shift, misread_widths=misread,
             held_shift=None if alignment is None else (alignment.end_shift, alignment.held_from),
             unchecked=unchecked, reach=length.reach,
-            notch_centres=comb_centres, wall_level=level, fitted_end=length.fitted_end)
+            notch_centres=comb_centres, wall_level=level, fitted_end=length.fitted_end, reference_moved=reference_moved)
         backbone_shift, side_uncertainty = aligned.backbone_shift, sided.side_uncertainty
         quality = {**quality, "tip_refinement": end.refinement,
                    "centerline_backbone_shift_mm": None if backbone_shift is None else backbone_shift * 1e3,
@@ -591,9 +601,11 @@ class Reconstructor:
         return footprint / 2 + (max(measured) if measured else UNMEASURED_EDGE_BAND_PX * footprint)
 
     def _relocate_by_icp(self, cloud: Cloud, centerline: Centerline, notches: list[Notch], tip_s: float,
-                         tip: np.ndarray, gate: float, footprint: float) -> tuple[RelocatedPoints, np.ndarray]:
+                         tip: np.ndarray, gate: float, footprint: float
+                         ) -> tuple[RelocatedPoints, np.ndarray, ReferenceMove]:
         """The reference (a user's mesh, or the configured robot posed by the centreline) aligned to the cloud by
-        ICP, every point onto its nearest reference point within the gate; the tip moved with the reference."""
+        ICP, every point onto its nearest reference point within the gate; the tip moved with the reference, and
+        how far ICP moved it."""
         options, spacing = self.config.relocation, footprint / 2
         if options.reference_mesh:
             if self._mesh_reference is None:
@@ -607,7 +619,8 @@ class Reconstructor:
         # tube coordinates of the relocated points, for the tube mesher (a mesh reference of another object
         # than a tube wants mesh.method: poisson)
         moved = replace(moved, coordinates=centerline.project(moved.points))
-        return moved, rotation @ tip + translation
+        tangent = centerline.frames_at(np.array([tip_s]))[1][0]
+        return moved, rotation @ tip + translation, reference_move(points, rotation, translation, tip, tangent)
 
     def _centerline(self, cloud: Cloud, settings, warm_start: bool):
         prior = self._prior if warm_start else None

@@ -293,7 +293,8 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
            unsupported: tuple[tuple[float, float], ...] = (),
            misread_widths: dict[int, float] | None = None, unchecked: list[int] | None = None,
            reach: CameraReach | None = None, notch_centres: np.ndarray | None = None,
-           wall_level: float | None = None, fitted_end: float | None = None) -> tuple[dict, list[str]]:
+           wall_level: float | None = None, fitted_end: float | None = None,
+           reference_moved=None) -> tuple[dict, list[str]]:
     """The `quality` document and the warnings (see the module docstring). tip_uncertainty: how well the tip's
     refinement placed it along the tube, when it measured the erosion it gave back (else the erosion itself
     counts as uncertain, and half a footprint). tip_position, crop_box: where the tip is and the box the points
@@ -323,7 +324,9 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     footprints the axis went astray with the wall it rests on, and is known no better than that. across_from_fit:
     (the aligned axis's outline offset, the fit's; m) when the alignment went astray, the fit did not, and the fit
     placed the axis across the cameras' views (outline.across_views_from). fitted_end: where the fitted curve ended
-    (m), past which the centreline was carried on bending to the tip (carried_to_tip)."""
+    (m), past which the centreline was carried on bending to the tip (carried_to_tip). reference_moved: relocated
+    by ICP, how far it moved its reference off the pose the centreline gave it (icp.ReferenceMove): the tip moved
+    with it, and the tip and the relocated surface are known no better than that move."""
     warnings: list[str] = []
     r_o, diameter = geometry.outer_radius, geometry.outer_diameter
     found = sorted(n.index for n in notches)
@@ -391,6 +394,11 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     if tip_along is not None:
         tip_uncertainty = tip_along.uncertainty
         weighed = " (the robot's known length weighed in)" if tip_along.length_weighed else ""
+    # relocated by ICP, the tip moved with the reference off where the centreline placed it
+    centreline_tip_along = tip_uncertainty
+    icp_along, icp_across = ((reference_moved.tip_along, reference_moved.tip_across) if reference_moved is not None
+                             else (0.0, 0.0))
+    tip_uncertainty = math.hypot(tip_uncertainty, icp_along)
     # pooled over two cameras, a deficit one of them carries alone reads half: the lean may reach twice it
     lean = 2.0 * notched_thinning if notched_thinning is not None and looking_into_slots else 0.0
     levelled = bool(backbone_shift)
@@ -416,9 +424,12 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     carried, carried_across = carried_to_tip(fitted_end, tip_s, notch_centres, geometry, centreline_known or 0.0)
     # carried past an end hidden from every camera: the hidden notches may bend otherwise than the ones seen
     hidden_across = 0.0 if tip_along is None or tip_along.hidden_across is None else tip_along.hidden_across
-    tip_across = max(math.hypot(free_end, held, carried_across, hidden_across), end_spread)
+    centreline_tip_across = max(math.hypot(free_end, held, carried_across, hidden_across), end_spread)
+    tip_across = max(math.hypot(free_end, held, carried_across, hidden_across, icp_across), end_spread)
     if end_spread >= tip_across:
         why = "the cameras' axes that far apart across their views at the end"
+    elif icp_across > max(free_end, held, carried_across, hidden_across):
+        why = "ICP moved it that far off where the centreline placed it"
     elif hidden_across > max(free_end, held, carried_across):
         why = (f"were the {(tip_s - seen_end) * 1e3:.1f} mm no camera saw straight, not bent as the notches seen, "
                "the tip would lie that far off")
@@ -447,6 +458,14 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     if unmeasured and stated_centreline is not None:
         stated_centreline = math.sqrt(stated_centreline**2 + unmeasured * footprint**2)
     tip_total = math.hypot(tip_uncertainty, tip_across)
+    if reference_moved is not None and (reference_moved.rms > (stated_centreline or 0.0)
+                                        or math.hypot(icp_along, icp_across)
+                                        > math.hypot(centreline_tip_along, centreline_tip_across)):
+        warnings.append(f"relocated by ICP (relocation.method icp), which moved the reference "
+                        f"{reference_moved.rms * 1e3:.2f} mm (RMS) off the pose the centreline gave it, and the tip "
+                        f"{icp_along * 1e3:.2f} mm along the tube and {icp_across * 1e3:.2f} mm across it: further "
+                        "than the centreline and its tip are known to. The two relocations disagree by that much, "
+                        "and the relocated surface and the tip are known no better")
     # (a tip carried past the end seen is not where the cameras saw it: the warning of the tube ending short says so)
     if tip_total > TIP_FLOOR and tip_from_cap and not hidden_across:
         if tip_along is not None and tip_along.beyond_seen:
@@ -605,6 +624,9 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
         and not left_short else tip_across * 1e3,
         "tip_held_shift_mm": held * 1e3, "tip_held_over_mm": max(tip_s - held_from, 0.0) * 1e3,
         "tip_carried_mm": carried * 1e3,
+        # relocated by ICP: how far it moved its reference off the centreline's pose (RMS) and the tip with it
+        "relocation_reference_move_mm": None if reference_moved is None else {
+            "rms": reference_moved.rms * 1e3, "tip_along": icp_along * 1e3, "tip_across": icp_across * 1e3},
         # how far past the end seen the tip was carried, where every camera was kept from the rest (0: it was not)
         "tip_hidden_mm": (tip_s - seen_end) * 1e3 if hidden_across else 0.0,
         "notch_width_vs_bend_mm": {str(i): d * 1e3 for i, d in sorted(off_model.items())},
