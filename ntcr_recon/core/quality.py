@@ -464,7 +464,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
         warnings.append(f"relocated by ICP (relocation.method icp), which moved the reference "
                         f"{reference_moved.rms * 1e3:.2f} mm (RMS) off the pose the centreline gave it, and the tip "
                         f"{icp_along * 1e3:.2f} mm along the tube and {icp_across * 1e3:.2f} mm across it: further "
-                        "than the centreline and its tip are known to. The two relocations disagree by that much, "
+                        "than the centreline or its tip is known to. The two relocations disagree by that much, "
                         "and the relocated surface and the tip are known no better")
     # (a tip carried past the end seen is not where the cameras saw it: the warning of the tube ending short says so)
     if tip_total > TIP_FLOOR and tip_from_cap and not hidden_across:
