@@ -1079,6 +1079,26 @@ def test_the_camera_facing_the_backbone_levels_the_axis_between_the_notches():
     assert side_on is given and none == 0.0
 
 
+def cameras_round_the_tube(angles_deg, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cameras 90 mm from a straight tube along z, at these angles round it from the notch side (+x), each point
+    seen by the one it faces most: (angles in rad, the cameras' origins (C, 3), each point's camera index)."""
+    angles = np.radians(angles_deg)
+    origins = np.stack([0.09 * np.cos(angles), 0.09 * np.sin(angles), np.full(len(angles), 0.025)], axis=1)
+    camera = (np.einsum("ij,cj->ic", points[:, :2], origins[:, :2]).argmax(axis=1)).astype(np.intp)
+    return angles, origins, camera
+
+
+def leaning_between_the_notches(toward: np.ndarray, lean: float) -> tuple[np.ndarray, Centerline]:
+    """A straight axis along z put `lean` (m) towards the direction `toward` (x, y) between the first and the last
+    cut, ramped over 1 mm at each: (its samples' s, the axis)."""
+    length, first = GEOMETRY.length, GEOMETRY.proximal_length
+    last = length - GEOMETRY.distal_length
+    s = np.linspace(0.0, length, int(length / 0.1e-3) + 1)
+    off = lean * np.clip(np.minimum(s - first, last - s) / 1e-3, 0.0, 1.0)
+    return s, Centerline.from_points(np.stack([off * toward[0], off * toward[1], s], axis=1),
+                                     np.array([0.0, 1.0, 0.0]), 0.1e-3)
+
+
 def test_a_camera_just_past_the_gaps_edge_levels_the_axis_by_the_wall_its_matcher_keeps_clear_of_the_slots():
     """One camera faces the backbone from 137 deg round the tube from the notch side, 23 deg past the gap's edge (113.6
     deg): in its image that edge lies 0.7 mm (3.5 px) from the tube's middle, and between the notches its matcher's
@@ -1091,11 +1111,9 @@ def test_a_camera_just_past_the_gaps_edge_levels_the_axis_by_the_wall_its_matche
     cuts = cut_intervals(GEOMETRY, straight_centerline(length), 0.0)
     in_cut = inside_intervals(points[:, 2], cuts) & (np.abs(coords.angle) < GEOMETRY.gap_half_angle)
     points = points[~in_cut]  # the slots
-    angles = np.radians([137.0, -43.0])
-    origins = np.stack([0.09 * np.cos(angles), 0.09 * np.sin(angles), np.full(2, 0.025)], axis=1)
-    camera = (np.einsum("ij,cj->ic", points[:, :2], origins[:, :2]).argmax(axis=1)).astype(np.intp)
+    angles, origins, camera = cameras_round_the_tube([137.0, -43.0], points)
     phi = np.arctan2(points[:, 1], points[:, 0])
-    # across cam_b's view, from the gap's edge on its side to the point
+    # across the backbone camera's view, from the gap's edge on its side to the point
     beyond_edge = R_O * (np.sin(phi - angles[0]) - np.sin(GEOMETRY.gap_half_angle - angles[0]))
     reach = 3 * FOOTPRINT
     near_slot = inside_intervals(points[:, 2], cut_intervals(GEOMETRY, straight_centerline(length), reach))
@@ -1120,14 +1138,9 @@ def test_a_camera_that_sees_no_wall_clear_of_the_slots_levels_by_all_the_wall_fa
     footprint, length = 0.3e-3, GEOMETRY.length
     points = wall_points(length, spacing=footprint, rng=np.random.default_rng(9))
     first, last = GEOMETRY.proximal_length, length - GEOMETRY.distal_length
-    angles = np.radians([120.0, -60.0])
-    origins = np.stack([0.09 * np.cos(angles), 0.09 * np.sin(angles), np.full(2, 0.025)], axis=1)
-    toward = np.array([np.cos(angles[0]), np.sin(angles[0]), 0.0])
-    s = np.linspace(0.0, length, int(length / 0.1e-3) + 1)
-    lean = 0.15e-3 * np.clip(np.minimum(s - first, last - s) / 1e-3, 0.0, 1.0)
-    given = Centerline.from_points(np.stack([lean * toward[0], lean * toward[1], s], axis=1),
-                                   np.array([0.0, 1.0, 0.0]), 0.1e-3)
-    camera = (np.einsum("ij,cj->ic", points[:, :2], origins[:, :2]).argmax(axis=1)).astype(np.intp)
+    angles, origins, camera = cameras_round_the_tube([120.0, -60.0], points)
+    toward = np.array([np.cos(angles[0]), np.sin(angles[0])])
+    s, given = leaning_between_the_notches(toward, 0.15e-3)
     seen = points.copy()
     deep = (points[:, 2] > first) & (points[:, 2] < last) & (camera == 1)
     seen[deep, :2] *= 1 - 0.3e-3 / R_O
@@ -1139,7 +1152,7 @@ def test_a_camera_that_sees_no_wall_clear_of_the_slots_levels_by_all_the_wall_fa
     moved, rms = level_by_backbone(given, coords, frames, origins[camera], camera, origins, GEOMETRY, 0.8e-3,
                                    footprint, length)
     middle = moved.frames_at(s[(s > 15e-3) & (s < 40e-3)])[0]
-    print(f"\naxis between the notches now {np.abs(middle[:, :2] @ toward[:2]).max() * 1e3:.3f} mm towards the "
+    print(f"\naxis between the notches now {np.abs(middle[:, :2] @ toward).max() * 1e3:.3f} mm towards the "
           f"first camera at most (given 0.150), moved by {rms * 1e3:.3f} mm RMS")
     assert np.abs(middle[:, :2]).max() < 0.03e-3
 
@@ -1152,14 +1165,9 @@ def test_a_camera_that_sees_wall_clear_of_the_slots_in_one_window_only_levels_by
     length = GEOMETRY.length
     points = wall_points(length, rng=np.random.default_rng(10))
     first, last = GEOMETRY.proximal_length, length - GEOMETRY.distal_length
-    angles = np.radians([137.0, -43.0])
-    origins = np.stack([0.09 * np.cos(angles), 0.09 * np.sin(angles), np.full(2, 0.025)], axis=1)
+    angles, origins, camera = cameras_round_the_tube([137.0, -43.0], points)
     toward = np.array([np.cos(angles[0]), np.sin(angles[0])])
-    s = np.linspace(0.0, length, int(length / 0.1e-3) + 1)
-    lean = 0.15e-3 * np.clip(np.minimum(s - first, last - s) / 1e-3, 0.0, 1.0)
-    given = Centerline.from_points(np.stack([lean * toward[0], lean * toward[1], s], axis=1),
-                                   np.array([0.0, 1.0, 0.0]), 0.1e-3)
-    camera = (np.einsum("ij,cj->ic", points[:, :2], origins[:, :2]).argmax(axis=1)).astype(np.intp)
+    s, given = leaning_between_the_notches(toward, 0.15e-3)
     coords, frames = given.project_with_frames(points)
     clear = alignment.clear_of_slots_in_view(coords, frames, origins[camera], GEOMETRY, given,
                                              alignment.SILHOUETTE_MARGIN_PX * FOOTPRINT)
