@@ -463,12 +463,13 @@ def level_by_backbone(centerline: Centerline, coords: TubeCoordinates, frames: t
     plain = (coords.s < cuts[0, 0]) | (coords.s > cuts[-1, 1])
     # per camera the wall clear of the slots where it sees such wall in most windows it faces the backbone in,
     # else all its facing wall
-    plain_sums = [sums(selected & plain, max(end_s, window))[0] for selected in (backbone_wall, away_from_cuts)]
-    per_window = [sums(selected, window) for selected in (backbone_wall, away_from_cuts)]
-    clear_windows = np.sum(faces_backbone & (per_window[0][:, :, 0] >= minimum_points), axis=0)
-    clear = (2 * clear_windows >= np.sum(faces_backbone, axis=0)) & (plain_sums[0][:, 0] >= minimum_points)
-    plain_sums = np.where(clear[:, None], plain_sums[0], plain_sums[1])
-    per_window = np.where(clear[None, :, None], per_window[0], per_window[1])
+    clear_plain, facing_plain = (sums(selected & plain, max(end_s, window))[0]
+                                 for selected in (backbone_wall, away_from_cuts))
+    clear_windows, facing_windows = (sums(selected, window) for selected in (backbone_wall, away_from_cuts))
+    clear_seen = np.sum(faces_backbone & (clear_windows[:, :, 0] >= minimum_points), axis=0)
+    clear = (2 * clear_seen >= np.sum(faces_backbone, axis=0)) & (clear_plain[:, 0] >= minimum_points)
+    plain_sums = np.where(clear[:, None], clear_plain, facing_plain)
+    per_window = np.where(clear[None, :, None], clear_windows, facing_windows)
     shifts = np.zeros((windows, 3))
     for k in np.flatnonzero(np.any(faces_backbone, axis=1)):
         system, rhs = np.zeros((2, 2)), np.zeros(2)

@@ -316,7 +316,7 @@ class Reconstructor:
         fitted = _Axis(centerline, coords, frames)
         # 2. alignment: the reference tube shifted onto the wall points stereo measures without bias; each point
         # then as its camera saw it, along its viewing ray onto the wall (core.alignment, core.relocation)
-        aligned = self._align(cloud, fitted, settings)
+        aligned = self._align(cloud, fitted, settings, seen_by)
         axis = aligned.axis
         # 3. tip, coarse: where the wall stops, over the sectors the cameras can see (core.tip)
         coarse_end = tube_end(axis.measured, geometry.outer_radius, settings.gate, settings.cell,
@@ -357,11 +357,12 @@ class Reconstructor:
                                                           None if seen_by is None else self._camera_origins,
                                                           along.seen_s if along.hidden_across is not None else tip_s)
         # 6. relocation: every point within the gate onto the reference surface (core.relocation)
-        tip = centerline.frames_at(np.array([tip_s]))[0][0]
+        tip_position, tip_tangents, _, _ = centerline.frames_at(np.array([tip_s]))
+        tip, tip_tangent = tip_position[0], tip_tangents[0]
         reference_moved = None  # how far ICP moved its reference off the centreline's pose
         if options.method == "icp":  # the paper's KD-tree + ICP onto a reference (core.icp)
-            moved, tip, reference_moved = self._relocate_by_icp(cloud, centerline, notches, tip_s, tip, settings.gate,
-                                                                settings.cell)
+            moved, tip, reference_moved = self._relocate_by_icp(cloud, centerline, notches, tip_s, tip, tip_tangent,
+                                                                settings.gate, settings.cell)
         else:
             moved = relocate_points(axis.coords, centerline, geometry, notches, tip_s, settings.gate, axis.rays)
         relocated = cloud.subset(moved.accepted, xyz=moved.points)
@@ -379,14 +380,14 @@ class Reconstructor:
                                 axis.coords, iterations, moved.part, moved.coordinates, quality, tuple(warnings),
                                 sided.notch_side)
 
-    def _align(self, cloud: Cloud, fitted: _Axis, settings) -> _Aligned:
+    def _align(self, cloud: Cloud, fitted: _Axis, settings, seen_by: np.ndarray | None) -> _Aligned:
         """Step 2: the fitted axis moved onto the wall stereo measures without bias (core.alignment), checked
         against the tube's outline in each camera's view (core.outline) and levelled by the cameras facing the
         backbone; and each point moved along its viewing ray onto the wall (core.relocation). Without the
-        points' cameras (a cloud from elsewhere), the fit as it is."""
-        if cloud.camera is None or not len(cloud.camera):
+        points' cameras (seen_by None: a cloud from elsewhere), the fit as it is."""
+        if seen_by is None:
             return _Aligned(fitted)
-        geometry, footprint, seen_by = self.geometry, settings.cell, cloud.camera
+        geometry, footprint = self.geometry, settings.cell
         viewpoints = np.take(self._camera_origins, seen_by, axis=0)
         end = tube_end(fitted.coords, geometry.outer_radius, settings.gate, footprint, max_s=geometry.reach)
         # trusted wall lies within the wall's band on the spines: the fit's gate, a millimetre wide, lets in
@@ -601,7 +602,7 @@ class Reconstructor:
         return footprint / 2 + (max(measured) if measured else UNMEASURED_EDGE_BAND_PX * footprint)
 
     def _relocate_by_icp(self, cloud: Cloud, centerline: Centerline, notches: list[Notch], tip_s: float,
-                         tip: np.ndarray, gate: float, footprint: float
+                         tip: np.ndarray, tip_tangent: np.ndarray, gate: float, footprint: float
                          ) -> tuple[RelocatedPoints, np.ndarray, ReferenceMove]:
         """The reference (a user's mesh, or the configured robot posed by the centreline) aligned to the cloud by
         ICP, every point onto its nearest reference point within the gate; the tip moved with the reference, and
@@ -619,8 +620,7 @@ class Reconstructor:
         # tube coordinates of the relocated points, for the tube mesher (a mesh reference of another object
         # than a tube wants mesh.method: poisson)
         moved = replace(moved, coordinates=centerline.project(moved.points))
-        tangent = centerline.frames_at(np.array([tip_s]))[1][0]
-        return moved, rotation @ tip + translation, reference_move(points, rotation, translation, tip, tangent)
+        return moved, rotation @ tip + translation, reference_move(points, rotation, translation, tip, tip_tangent)
 
     def _centerline(self, cloud: Cloud, settings, warm_start: bool):
         prior = self._prior if warm_start else None

@@ -424,8 +424,9 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     carried, carried_across = carried_to_tip(fitted_end, tip_s, notch_centres, geometry, centreline_known or 0.0)
     # carried past an end hidden from every camera: the hidden notches may bend otherwise than the ones seen
     hidden_across = 0.0 if tip_along is None or tip_along.hidden_across is None else tip_along.hidden_across
-    centreline_tip_across = max(math.hypot(free_end, held, carried_across, hidden_across), end_spread)
-    tip_across = max(math.hypot(free_end, held, carried_across, hidden_across, icp_across), end_spread)
+    centreline_across = math.hypot(free_end, held, carried_across, hidden_across)
+    centreline_tip_across = max(centreline_across, end_spread)
+    tip_across = max(math.hypot(centreline_across, icp_across), end_spread)
     if end_spread >= tip_across:
         why = "the cameras' axes that far apart across their views at the end"
     elif icp_across > max(free_end, held, carried_across, hidden_across):
