@@ -1146,7 +1146,7 @@ def test_a_camera_that_sees_no_wall_clear_of_the_slots_levels_by_all_the_wall_fa
     seen[deep, :2] *= 1 - 0.3e-3 / R_O
     coords, frames = given.project_with_frames(seen)
     assert not np.any(alignment.clear_of_slots_in_view(coords, frames, origins[camera], GEOMETRY, given,
-                                                       alignment.SILHOUETTE_MARGIN_PX * footprint)
+                                                       *(alignment.SILHOUETTE_MARGIN_PX * footprint,) * 2)
                       & (camera == 0) & (points[:, 2] > first) & (points[:, 2] < last)
                       & (np.abs(coords.angle - angles[0]) < math.radians(20.0)))
     moved, rms = level_by_backbone(given, coords, frames, origins[camera], camera, origins, GEOMETRY, 0.8e-3,
@@ -1170,7 +1170,7 @@ def test_a_camera_that_sees_wall_clear_of_the_slots_in_one_window_only_levels_by
     s, given = leaning_between_the_notches(toward, 0.15e-3)
     coords, frames = given.project_with_frames(points)
     clear = alignment.clear_of_slots_in_view(coords, frames, origins[camera], GEOMETRY, given,
-                                             alignment.SILHOUETTE_MARGIN_PX * FOOTPRINT)
+                                             *(alignment.SILHOUETTE_MARGIN_PX * FOOTPRINT,) * 2)
     notched = (points[:, 2] > first) & (points[:, 2] < last)
     one_window = (points[:, 2] > 19.2e-3) & (points[:, 2] < 22.4e-3)
     kept = ~(clear & notched & ~one_window & (camera == 0))
@@ -1254,6 +1254,40 @@ def test_alignment_ignores_a_silhouette_bulge_on_the_notch_side():
     assert abs(result.bias_notch_side) < 0.005e-3
     moved = result.centerline.points[(result.centerline.s > 3e-3) & (result.centerline.s < 27e-3)]
     assert np.abs(moved[:, :2]).max() < 0.01e-3
+
+
+def test_alignment_ignores_the_wall_a_matcher_reads_into_the_slots_beside_a_cut():
+    """Two cameras 100 deg round the tube from the notch side, either side of it: beside a cut each sees the backbone
+    from the slot's edge (113.6 deg) on one side of its view, and the wall within 2 px of that edge reads 0.1 mm deep
+    (the matcher's window reaches into the slot). The axis is where it truly is. Trusting that wall reads a lean
+    away from the notch side and moves the axis towards it; 2 px clear of the edge the alignment leaves it."""
+    length = GEOMETRY.length
+    points = wall_points(length, rng=np.random.default_rng(12))
+    axis = straight_centerline(length)
+    angle = np.arctan2(points[:, 1], points[:, 0])
+    beside_cut = inside_intervals(points[:, 2], cut_intervals(GEOMETRY, axis, FOOTPRINT))
+    points = points[~(beside_cut & (np.abs(angle) < GEOMETRY.gap_half_angle))]  # the slots
+    angles, origins, camera = cameras_round_the_tube([100.0, -100.0], points)
+    angle = np.arctan2(points[:, 1], points[:, 0])
+    beside_cut = inside_intervals(points[:, 2], cut_intervals(GEOMETRY, axis, 0.0))
+    camera_angle = angles[camera]
+    side = np.sign(camera_angle)
+    beyond_edge = side * R_O * (np.sin(angle - camera_angle) - np.sin(side * GEOMETRY.gap_half_angle - camera_angle))
+    deep = beside_cut & (beyond_edge < 2 * FOOTPRINT)
+    points[deep, :2] *= 1 - 0.1e-3 / R_O
+    coords, frames = axis.project_with_frames(points)
+
+    def aligned_middle(slot_margin_px):
+        result = align_to_trusted_wall(axis, coords, frames, origins[camera], GEOMETRY, 0.8e-3, FOOTPRINT, length,
+                                       slot_margin_px=slot_margin_px)
+        return result, result.centerline.points[(result.centerline.s > 10e-3) & (result.centerline.s < 40e-3)]
+
+    (trusting, moved_by_slots), (clear, middle) = aligned_middle(0.0), aligned_middle(alignment.SLOT_MARGIN_PX)
+    print(f"\n{deep.sum()} points beside the cuts read deep; axis towards the notch side at most "
+          f"{moved_by_slots[:, 0].max() * 1e3:.3f} mm trusting them, {np.abs(middle[:, 0]).max() * 1e3:.3f} mm 2 px "
+          f"clear of the slots' edges ({trusting.trusted} and {clear.trusted} trusted points)")
+    assert moved_by_slots[:, 0].max() > 0.02e-3
+    assert np.abs(middle[:, :2]).max() < 0.01e-3
 
 
 def test_alignment_passes_add_up_to_the_whole_lean():

@@ -13,7 +13,9 @@ Trusted are the wall points within the gate given (the pipeline's: the outer wal
 that pixels a matcher mixed with the background behind stay out) that face their camera, `silhouette_margin_px`
 pixel footprints or more inside the tube's silhouette in its image (a view angle a with r (1 - sin a) above the
 margin, never beyond `max_view_angle`), clear of the cuts (the expected notches grown by `cut_margin_px`, over the
-angles where they open the wall: the backbone opposite a cut is whole wall; comb.clear_of_cuts) and as far from the
+angles where they open the wall: the backbone opposite a cut is whole wall; comb.clear_of_cuts), on that backbone
+`slot_margin_px` or more beyond the slot's edge across the camera's view (clear_of_slots_in_view: nearer it the
+matcher's window reaches into the slot and reads the wall deep, on one side of the view only) and as far from the
 base and the tube's end (depth edges too). The criterion is in pixels, so it follows the footprint: on a rig twice
 as far the facing zone narrows to what the matcher leaves unbiased. Along the robot, in
 windows of a notch pitch, the shift of the reference tube (of the known radius, at the wall's level per window) that
@@ -49,6 +51,14 @@ MAX_ONE_SIDEDNESS = 0.6
 # nearer rows of its window (the silhouette bulges outward, the rows next to a notch fall inward), a bias that
 # is not symmetric about the view once a notch is near.
 SILHOUETTE_MARGIN_PX = 4.0
+
+# Beside a cut the alignment trusts the wall this many pixel footprints or more beyond the slot's edge across its
+# camera's view: a matcher's window from the wall nearer that edge reaches furthest into the slot and reads it
+# deepest (the simulator's and the second renderer's: 40-90 um deeper than the spines 0-2 px beyond the edge, 0-25 um
+# at 2-4 px). The silhouette's margin of 4 px left a camera that sees the backbone side-on too few points beside the
+# cuts on far rigs, whose distal windows then followed the wall before them (tips 0.03-0.07 mm further off at
+# 93-102 mm), so the margin is half it.
+SLOT_MARGIN_PX = 2.0
 
 # Weight of the difference of two consecutive windows' shifts, in a window's typical information.
 SHIFT_SMOOTHING = 0.3
@@ -210,8 +220,9 @@ def smoothed_shifts(matrix: np.ndarray, rhs: np.ndarray, smoothing: float) -> np
 def align_to_trusted_wall(centerline: Centerline, coords: TubeCoordinates, frames: tuple, viewpoints: np.ndarray,
                           geometry: TubeGeometry, gate: float, footprint: float, end_s: float,
                           max_view_angle: float = np.radians(45.0), cut_margin_px: float = 1.0,
-                          silhouette_margin_px: float = SILHOUETTE_MARGIN_PX, smoothing: float = SHIFT_SMOOTHING,
-                          minimum_points: int = 30, xyz: np.ndarray | None = None, passes: int = 1) -> Alignment:
+                          silhouette_margin_px: float = SILHOUETTE_MARGIN_PX, slot_margin_px: float = SLOT_MARGIN_PX,
+                          smoothing: float = SHIFT_SMOOTHING, minimum_points: int = 30, xyz: np.ndarray | None = None,
+                          passes: int = 1) -> Alignment:
     """Shift the centreline onto the trusted wall points (see the module docstring); end_s: the tube's end.
 
     passes > 1 (with the points' base-frame positions xyz): which points face their camera depends on where
@@ -219,15 +230,22 @@ def align_to_trusted_wall(centerline: Centerline, coords: TubeCoordinates, frame
     and selects and solves again; bias and shifts add up over the passes.
     """
     cut_margin = cut_margin_px * footprint
-    away_from_cuts = clear_of_cuts(coords, geometry, centerline, cut_margin)
     viewpoints = np.ascontiguousarray(viewpoints, dtype=float)
+
+    def trusted_wall(coords, frames, centerline):
+        # beside a cut, the wall a matcher reads into the slot from lies on one side of its camera's view: it would
+        # shift the axis across that view towards the notch side
+        return clear_of_cuts(coords, geometry, centerline, cut_margin) & clear_of_slots_in_view(
+            coords, frames, viewpoints, geometry, centerline, slot_margin_px * footprint, cut_margin)
+
+    away_from_cuts = trusted_wall(coords, frames, centerline)
     margin, least_cosine = _trust_limits(geometry, footprint, silhouette_margin_px, max_view_angle)
     bias, end_move = np.zeros(2), np.zeros(3)
     result = Alignment(centerline, 0.0, 0.0, 0)
     for done in range(max(passes, 1)):
         if done:  # the moved axis: its points' coordinates, and its comb (the cuts move with its bends)
             coords, frames = centerline.project_with_frames(xyz, coords.s)
-            away_from_cuts = clear_of_cuts(coords, geometry, centerline, cut_margin)
+            away_from_cuts = trusted_wall(coords, frames, centerline)
         result = _align_once(centerline, coords, frames, viewpoints, away_from_cuts, geometry, gate, margin, end_s,
                              least_cosine, smoothing, minimum_points)
         bias += (result.bias_notch_side, result.bias_binormal)
@@ -397,21 +415,40 @@ def shift_scatter(fit: Centerline, aligned: Centerline, end_s: float) -> float:
 
 
 def clear_of_slots_in_view(coords: TubeCoordinates, frames: tuple, viewpoints: np.ndarray, geometry: TubeGeometry,
-                           centerline: Centerline, margin: float) -> np.ndarray:
-    """(N,) bool: the point lies, in its camera's image, `margin` (m) or more beyond the edge of the cuts' opening
-    on its camera's side, towards the backbone (or further than `margin` along s from every cut). A matcher's window
-    reaching from the backbone into a slot pulls the wall there deeper too: a camera a few tens of degrees past the
-    gap's edge sees that edge a few pixels from the middle of the tube's image. Meaningful for the cameras facing
-    the backbone (beyond the gap's half-angle from the notch side); the others' points are not clear."""
+                           centerline: Centerline, across: float, along: float) -> np.ndarray:
+    """(N,) bool: the point lies further than `along` (m) along s from every cut, or, in its camera's image,
+    `across` (m) or more beyond the edge of the cuts' opening on its camera's side, towards the backbone. A
+    matcher's window reaching from the backbone into a slot pulls the wall there deeper too: a camera a few tens
+    of degrees past the gap's edge sees that edge a few pixels from the middle of the tube's image."""
     position, _, normal, binormal = frames
-    view = viewpoints - position
-    camera_angle = np.arctan2(np.einsum("ij,ij->i", view, binormal), np.einsum("ij,ij->i", view, normal))
-    side = np.sign(camera_angle)
-    # across the camera's view, from the gap's edge on its side to the point (+: towards the backbone)
-    beyond_edge = side * geometry.outer_radius * (np.sin(coords.angle - camera_angle)
-                                                  - np.sin(side * geometry.gap_half_angle - camera_angle))
-    beside_cut = inside_intervals(coords.s, cut_intervals(geometry, centerline, margin))
-    return ~beside_cut | (beyond_edge >= margin)
+    return _clear_of_slot_edge(inside_intervals(coords.s, cut_intervals(geometry, centerline, along)), coords.x,
+                               coords.y, position, normal, binormal, np.ascontiguousarray(viewpoints, dtype=float),
+                               geometry.outer_radius, geometry.gap_half_angle, across)
+
+
+@jit
+def _clear_of_slot_edge(beside_cut, x, y, position, normal, binormal, viewpoints, outer_radius, gap_half_angle,
+                        across):
+    """clear_of_slots_in_view per point (compiled: it runs on every alignment pass)."""
+    sin_gap, cos_gap = np.sin(gap_half_angle), np.cos(gap_half_angle)
+    clear = np.ones(beside_cut.shape[0], np.bool_)
+    for i in range(beside_cut.shape[0]):
+        if not beside_cut[i]:
+            continue
+        v0 = viewpoints[i, 0] - position[i, 0]
+        v1 = viewpoints[i, 1] - position[i, 1]
+        v2 = viewpoints[i, 2] - position[i, 2]
+        # the camera's direction round the tube from the notch side (cos, sin), and the point's
+        cos_camera, sin_camera = unit_direction(v0 * normal[i, 0] + v1 * normal[i, 1] + v2 * normal[i, 2],
+                                                v0 * binormal[i, 0] + v1 * binormal[i, 1] + v2 * binormal[i, 2])
+        cos_point, sin_point = unit_direction(x[i], y[i])
+        side = 1.0 if sin_camera >= 0.0 else -1.0  # the edge on the camera's side (either, square on)
+        # across the camera's view, from the gap's edge on its side to the point (+: towards the backbone):
+        # side r (sin(point - camera) - sin(side gap - camera))
+        beyond_edge = side * outer_radius * ((sin_point * cos_camera - cos_point * sin_camera)
+                                             - (side * sin_gap * cos_camera - cos_gap * sin_camera))
+        clear[i] = beyond_edge >= across
+    return clear
 
 
 def level_by_backbone(centerline: Centerline, coords: TubeCoordinates, frames: tuple, viewpoints: np.ndarray,
@@ -453,8 +490,9 @@ def level_by_backbone(centerline: Centerline, coords: TubeCoordinates, frames: t
         return centerline, 0.0
     away_from_cuts = clear_of_cuts(coords, geometry, centerline, cut_margin_px * footprint)
     # the backbone's wall, but within a matcher's reach of a slot in the image, reads deeper as the notch side does
+    reach = silhouette_margin_px * footprint
     backbone_wall = away_from_cuts & clear_of_slots_in_view(coords, frames, viewpoints, geometry, centerline,
-                                                            silhouette_margin_px * footprint)
+                                                            reach, reach)
 
     def sums(selected, width):
         return _camera_window_sums(centerline, coords, frames, viewpoints, camera, len(origins), geometry, gate,
