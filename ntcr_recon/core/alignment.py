@@ -234,7 +234,9 @@ def align_to_trusted_wall(centerline: Centerline, coords: TubeCoordinates, frame
 
     def trusted_wall(coords, frames, centerline):
         # beside a cut, the wall a matcher reads into the slot from lies on one side of its camera's view: it would
-        # shift the axis across that view towards the notch side
+        # shift the axis across that view towards the notch side. Along s the cut's margin only: a matcher reaches
+        # as far from a spine into the slots, but a spine is all a side-on camera sees between the cuts (the slot
+        # margin along s too left the matrix 23 rows of 29 meeting their floors, against 24; 4 px, 21)
         return clear_of_cuts(coords, geometry, centerline, cut_margin) & clear_of_slots_in_view(
             coords, frames, viewpoints, geometry, centerline, slot_margin_px * footprint, cut_margin)
 
