@@ -401,9 +401,10 @@ def gathered_bend(bends: dict[int, float | None], index: int, scatter: float = 0
     about them (the median of the notches two and three away, two of them at least). The centreline spreads a
     notch bent much sharper than its neighbours (a kink: 12 deg among 2) over three, a bump: its own chord reads
     about half its bend, its neighbours' its excess. Only a bump counts - the three chords beyond the steady bend
-    the same way, each by more than three times the chords' `scatter` (chord_scatter) - as noisy chords give any
-    notch some excess either way. None where there is no such bump, or a neighbour's chord or the steady bend is
-    not known."""
+    the same way, each by more than three times the chords' `scatter` (chord_scatter, of the chords but these
+    three) - as noisy chords give any notch some excess either way. (Their sum beyond three sigma of a sum of three
+    let misread widths stand in the sweeps: a notch 0.05-0.12 mm further off in three scenes of 360.) None where
+    there is no such bump, or a neighbour's chord or the steady bend is not known."""
     own, neighbours = bends.get(index), [bends.get(i) for i in (index - 1, index + 1)]
     around = [bend for i in (index - 3, index - 2, index + 2, index + 3) if (bend := bends.get(i)) is not None]
     if own is None or None in neighbours or len(around) < 2:
@@ -643,8 +644,11 @@ def calibrate_and_check(notches: list[Notch], geometry: TubeGeometry, centerline
     measured_bends = {n.index: n.bend for n in notches if n.index in checked and n.bend is not None}
     # the bend a kink's bump gathers back, where the chords show one (fixed by the chords read: once)
     chord_bends = {n.index: n.bend for n in notches if n.edges_measured and n.index in checked}
-    scatter = chord_scatter(chord_bends)
-    gathered = {i: bend for i in chord_bends if (bend := gathered_bend(chord_bends, i, scatter)) is not None}
+    # the chords' scatter is measured without the three a notch's bump would be: the bump's own excess over its
+    # neighbours is no noise, and it raised the scatter of all the chords to where it no longer stood out
+    gathered = {i: bend for i in chord_bends
+                if (bend := gathered_bend(chord_bends, i, chord_scatter(
+                    {k: b for k, b in chord_bends.items() if abs(k - i) > 1}))) is not None}
     before = {n.index: float(np.median(earlier)) for n in notches if n.index not in checked
               and (earlier := [measured_bends[i] for i in (n.index - 2, n.index - 1) if i in measured_bends])}
     while True:  # one at a time, the farthest off first: a misread rim shared over a spine puts its neighbour off too
