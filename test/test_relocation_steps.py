@@ -1153,8 +1153,8 @@ def test_a_camera_that_sees_no_wall_clear_of_the_slots_levels_by_all_the_wall_fa
     deep = (points[:, 2] > first) & (points[:, 2] < last) & (camera == 1)
     seen[deep, :2] *= 1 - 0.3e-3 / R_O
     coords, frames = given.project_with_frames(seen)
-    assert not np.any(alignment.clear_of_slots_in_view(coords, frames, origins[camera], GEOMETRY, given,
-                                                       *(alignment.SILHOUETTE_MARGIN_PX * footprint,) * 2)
+    reach = alignment.SILHOUETTE_MARGIN_PX * footprint  # across the view and along s, as level_by_backbone's
+    assert not np.any(alignment.clear_of_slots_in_view(coords, frames, origins[camera], GEOMETRY, given, reach, reach)
                       & (camera == 0) & (points[:, 2] > first) & (points[:, 2] < last)
                       & (np.abs(coords.angle - angles[0]) < math.radians(20.0)))
     moved, rms = level_by_backbone(given, coords, frames, origins[camera], camera, origins, GEOMETRY, 0.8e-3,
@@ -1177,8 +1177,8 @@ def test_a_camera_that_sees_wall_clear_of_the_slots_in_one_window_only_levels_by
     toward = np.array([np.cos(angles[0]), np.sin(angles[0])])
     s, given = leaning_between_the_notches(toward, 0.15e-3)
     coords, frames = given.project_with_frames(points)
-    clear = alignment.clear_of_slots_in_view(coords, frames, origins[camera], GEOMETRY, given,
-                                             *(alignment.SILHOUETTE_MARGIN_PX * FOOTPRINT,) * 2)
+    reach = alignment.SILHOUETTE_MARGIN_PX * FOOTPRINT  # across the view and along s, as level_by_backbone's
+    clear = alignment.clear_of_slots_in_view(coords, frames, origins[camera], GEOMETRY, given, reach, reach)
     notched = (points[:, 2] > first) & (points[:, 2] < last)
     one_window = (points[:, 2] > 19.2e-3) & (points[:, 2] < 22.4e-3)
     kept = ~(clear & notched & ~one_window & (camera == 0))

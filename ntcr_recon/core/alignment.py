@@ -54,8 +54,9 @@ SILHOUETTE_MARGIN_PX = 4.0
 
 # Beside a cut the alignment trusts the wall this many pixel footprints or more beyond the slot's edge across its
 # camera's view: a matcher's window from the wall nearer that edge reaches furthest into the slot and reads it
-# deepest (the simulator's and the second renderer's: 40-90 um deeper than the spines 0-2 px beyond the edge, 0-25 um
-# at 2-4 px). The silhouette's margin of 4 px left a camera that sees the backbone side-on too few points beside the
+# deepest (about the true axis, deeper than the spines by 35-95 um 0-2 px beyond the edge and under 25 um further
+# in the simulator; by 110-130, 70-80 and 20 um 1-2, 2-3 and 3-4 px beyond it in the second renderer). The
+# silhouette's margin of 4 px left a camera that sees the backbone side-on too few points beside the
 # cuts on far rigs, whose distal windows then followed the wall before them (tips 0.03-0.07 mm further off at
 # 93-102 mm), so the margin is half it.
 SLOT_MARGIN_PX = 2.0
