@@ -1107,6 +1107,15 @@ def leaning_between_the_notches(toward: np.ndarray, lean: float) -> tuple[np.nda
                                      np.array([0.0, 1.0, 0.0]), 0.1e-3)
 
 
+def beyond_slot_edge(points: np.ndarray, camera_angle) -> np.ndarray:
+    """Across the view of a camera at `camera_angle` round the straight tube (rad from the notch side; one, or one per
+    point), from the slots' edge on its side to each wall point (m; +: towards the backbone): what
+    alignment.clear_of_slots_in_view measures, written out here on the known geometry."""
+    phi = np.arctan2(points[:, 1], points[:, 0])
+    side = np.sign(camera_angle)
+    return side * R_O * (np.sin(phi - camera_angle) - np.sin(side * GEOMETRY.gap_half_angle - camera_angle))
+
+
 def test_a_camera_just_past_the_gaps_edge_levels_the_axis_by_the_wall_its_matcher_keeps_clear_of_the_slots():
     """One camera faces the backbone from 137 deg round the tube from the notch side, 23 deg past the gap's edge (113.6
     deg): in its image that edge lies 0.7 mm (3.5 px) from the tube's middle, and between the notches its matcher's
@@ -1120,9 +1129,7 @@ def test_a_camera_just_past_the_gaps_edge_levels_the_axis_by_the_wall_its_matche
     in_cut = inside_intervals(points[:, 2], cuts) & (np.abs(coords.angle) < GEOMETRY.gap_half_angle)
     points = points[~in_cut]  # the slots
     angles, origins, camera = cameras_round_the_tube([137.0, -43.0], points)
-    phi = np.arctan2(points[:, 1], points[:, 0])
-    # across the backbone camera's view, from the gap's edge on its side to the point
-    beyond_edge = R_O * (np.sin(phi - angles[0]) - np.sin(GEOMETRY.gap_half_angle - angles[0]))
+    beyond_edge = beyond_slot_edge(points, angles[0])  # across the backbone camera's view
     reach = 3 * FOOTPRINT
     near_slot = inside_intervals(points[:, 2], cut_intervals(GEOMETRY, straight_centerline(length), reach))
     deep = (camera == 0) & near_slot & (beyond_edge < reach)
@@ -1276,12 +1283,8 @@ def test_alignment_ignores_the_wall_a_matcher_reads_into_the_slots_beside_a_cut(
     beside_cut = inside_intervals(points[:, 2], cut_intervals(GEOMETRY, axis, FOOTPRINT))
     points = points[~(beside_cut & (np.abs(angle) < GEOMETRY.gap_half_angle))]  # the slots
     angles, origins, camera = cameras_round_the_tube([100.0, -100.0], points)
-    angle = np.arctan2(points[:, 1], points[:, 0])
     beside_cut = inside_intervals(points[:, 2], cut_intervals(GEOMETRY, axis, 0.0))
-    camera_angle = angles[camera]
-    side = np.sign(camera_angle)
-    beyond_edge = side * R_O * (np.sin(angle - camera_angle) - np.sin(side * GEOMETRY.gap_half_angle - camera_angle))
-    deep = beside_cut & (beyond_edge < 2 * FOOTPRINT)
+    deep = beside_cut & (beyond_slot_edge(points, angles[camera]) < 2 * FOOTPRINT)
     points[deep, :2] *= 1 - 0.1e-3 / R_O
     coords, frames = axis.project_with_frames(points)
 
