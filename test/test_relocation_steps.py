@@ -21,7 +21,7 @@ from ntcr_recon.core.centerline import (
     settings_for,
     turn_from_base,
 )
-from ntcr_recon.core.comb import clear_of_cuts, cut_intervals, expected_centres, inside_intervals
+from ntcr_recon.core.comb import clear_of_cuts, cut_intervals, expected_centres, inside_intervals, near_cuts
 from ntcr_recon.core.config import RelocationConfig
 from ntcr_recon.core.geometry import TubeGeometry
 from ntcr_recon.core.kinematics import TubeShape
@@ -1161,7 +1161,8 @@ def test_a_camera_that_sees_no_wall_clear_of_the_slots_levels_by_all_the_wall_fa
     seen[deep, :2] *= 1 - 0.3e-3 / R_O
     coords, frames = given.project_with_frames(seen)
     reach = alignment.SILHOUETTE_MARGIN_PX * footprint  # across the view and along s, as level_by_backbone's
-    assert not np.any(alignment.clear_of_slots_in_view(coords, frames, origins[camera], GEOMETRY, given, reach, reach)
+    near_cut = near_cuts(coords.s, GEOMETRY, given, reach)
+    assert not np.any(alignment.clear_of_slots_in_view(coords, frames, origins[camera], GEOMETRY, near_cut, reach)
                       & (camera == 0) & (points[:, 2] > first) & (points[:, 2] < last)
                       & (np.abs(coords.angle - angles[0]) < math.radians(20.0)))
     moved, rms = level_by_backbone(given, coords, frames, origins[camera], camera, origins, GEOMETRY, 0.8e-3,
@@ -1185,7 +1186,8 @@ def test_a_camera_that_sees_wall_clear_of_the_slots_in_one_window_only_levels_by
     s, given = leaning_between_the_notches(toward, 0.15e-3)
     coords, frames = given.project_with_frames(points)
     reach = alignment.SILHOUETTE_MARGIN_PX * FOOTPRINT  # across the view and along s, as level_by_backbone's
-    clear = alignment.clear_of_slots_in_view(coords, frames, origins[camera], GEOMETRY, given, reach, reach)
+    clear = alignment.clear_of_slots_in_view(coords, frames, origins[camera], GEOMETRY,
+                                             near_cuts(coords.s, GEOMETRY, given, reach), reach)
     notched = (points[:, 2] > first) & (points[:, 2] < last)
     one_window = (points[:, 2] > 19.2e-3) & (points[:, 2] < 22.4e-3)
     kept = ~(clear & notched & ~one_window & (camera == 0))

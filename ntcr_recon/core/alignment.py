@@ -36,8 +36,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from ntcr_recon.core.centerline import Centerline, TubeCoordinates, unit_direction
-from ntcr_recon.core.comb import clear_of_cuts, cut_intervals, inside_intervals
+from ntcr_recon.core.centerline import Centerline, TubeCoordinates, cameras_round_tube, unit_direction
+from ntcr_recon.core.comb import clear_of_cuts, cut_intervals, near_cuts
 from ntcr_recon.core.compiled import jit
 from ntcr_recon.core.geometry import TubeGeometry
 from ntcr_recon.core.wall import median
@@ -238,8 +238,9 @@ def align_to_trusted_wall(centerline: Centerline, coords: TubeCoordinates, frame
         # shift the axis across that view towards the notch side. Along s the cut's margin only: a matcher reaches
         # as far from a spine into the slots, but a spine is all a side-on camera sees between the cuts (the slot
         # margin along s too left the matrix 23 rows of 29 meeting their floors, against 24; 4 px, 21)
-        return clear_of_cuts(coords, geometry, centerline, cut_margin) & clear_of_slots_in_view(
-            coords, frames, viewpoints, geometry, centerline, slot_margin_px * footprint, cut_margin)
+        near_cut = near_cuts(coords.s, geometry, centerline, cut_margin)
+        return clear_of_cuts(coords, geometry, centerline, cut_margin, near_cut) & clear_of_slots_in_view(
+            coords, frames, viewpoints, geometry, near_cut, slot_margin_px * footprint)
 
     away_from_cuts = trusted_wall(coords, frames, centerline)
     margin, least_cosine = _trust_limits(geometry, footprint, silhouette_margin_px, max_view_angle)
@@ -418,13 +419,14 @@ def shift_scatter(fit: Centerline, aligned: Centerline, end_s: float) -> float:
 
 
 def clear_of_slots_in_view(coords: TubeCoordinates, frames: tuple, viewpoints: np.ndarray, geometry: TubeGeometry,
-                           centerline: Centerline, across: float, along: float) -> np.ndarray:
-    """(N,) bool: the point lies further than `along` (m) along s from every cut, or, in its camera's image,
-    `across` (m) or more beyond the edge of the cuts' opening on its camera's side, towards the backbone. A
+                           near_cut: np.ndarray, across: float) -> np.ndarray:
+    """(N,) bool: the point lies outside the cuts grown along s (near_cut: comb.near_cuts of the points), or, in
+    its camera's image, `across` (m) or more beyond the edge of the cuts' opening on its camera's side, towards
+    the backbone. A
     matcher's window reaching from the backbone into a slot pulls the wall there deeper too: a camera a few tens
     of degrees past the gap's edge sees that edge a few pixels from the middle of the tube's image."""
     position, _, normal, binormal = frames
-    return _clear_of_slot_edge(inside_intervals(coords.s, cut_intervals(geometry, centerline, along)), coords.x,
+    return _clear_of_slot_edge(np.ascontiguousarray(near_cut, np.bool_), coords.x,
                                coords.y, position, normal, binormal, np.ascontiguousarray(viewpoints, dtype=float),
                                geometry.outer_radius, geometry.gap_half_angle, across)
 
@@ -481,12 +483,11 @@ def level_by_backbone(centerline: Centerline, coords: TubeCoordinates, frames: t
     windows = max(int(np.ceil(end_s / window)), 1)
     centres = (np.arange(windows) + 0.5) * window
     notched = (centres > cuts[0, 0]) & (centres < cuts[-1, 1])
-    at, _, window_normal, window_binormal = centerline.frames_at(centres)
+    window_frames = centerline.frames_at(centres)
+    _, _, window_normal, window_binormal = window_frames
     # each camera's direction round the tube per window, from the notch side (x): past the gap's half-angle it
     # faces the backbone; one that sees the notch side's gaps reads no plain tube's level between them
-    views = origins[None, :, :] - at[:, None, :]
-    round_tube = np.stack([np.einsum("kcj,kj->kc", views, window_normal),
-                           np.einsum("kcj,kj->kc", views, window_binormal)], axis=-1)
+    round_tube = cameras_round_tube(window_frames, origins)
     faces_backbone = notched[:, None] & (np.abs(np.arctan2(round_tube[..., 1], round_tube[..., 0]))
                                          > geometry.gap_half_angle)
     if not np.any(faces_backbone):
@@ -494,8 +495,8 @@ def level_by_backbone(centerline: Centerline, coords: TubeCoordinates, frames: t
     away_from_cuts = clear_of_cuts(coords, geometry, centerline, cut_margin_px * footprint)
     # the backbone's wall, but within a matcher's reach of a slot in the image, reads deeper as the notch side does
     reach = silhouette_margin_px * footprint
-    backbone_wall = away_from_cuts & clear_of_slots_in_view(coords, frames, viewpoints, geometry, centerline,
-                                                            reach, reach)
+    backbone_wall = away_from_cuts & clear_of_slots_in_view(
+        coords, frames, viewpoints, geometry, near_cuts(coords.s, geometry, centerline, reach), reach)
 
     def sums(selected, width):
         return _camera_window_sums(centerline, coords, frames, viewpoints, camera, len(origins), geometry, gate,

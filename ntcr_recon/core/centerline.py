@@ -233,6 +233,14 @@ def unit_direction(x, y):
     return x / radius, y / radius
 
 
+def cameras_round_tube(frames: tuple, origins: np.ndarray) -> np.ndarray:
+    """Each camera's direction from the axis at the frames' positions (Centerline.frames_at), round the tube:
+    (K, C, 2) its components on the normal (towards the notch side) and the binormal, not normalised."""
+    position, _, normal, binormal = frames
+    views = np.asarray(origins, dtype=float)[None, :, :] - position[:, None, :]
+    return np.stack([np.einsum("kcj,kj->kc", views, normal), np.einsum("kcj,kj->kc", views, binormal)], axis=-1)
+
+
 @dataclass(frozen=True)
 class TubeCoordinates:
     """Points in the tube's own coordinates: arc length s of their cross-section, offset (x towards the notch

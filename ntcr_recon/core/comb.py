@@ -43,11 +43,18 @@ def cut_intervals(geometry: TubeGeometry, centerline, margin: float) -> np.ndarr
     return np.stack([centres - half, centres + half], axis=1)
 
 
-def clear_of_cuts(coords, geometry: TubeGeometry, centerline, margin: float) -> np.ndarray:
+def near_cuts(s: np.ndarray, geometry: TubeGeometry, centerline, margin: float) -> np.ndarray:
+    """(N,) bool: arc length s lies within an expected notch grown by `margin` along s (cut_intervals)."""
+    return inside_intervals(s, cut_intervals(geometry, centerline, margin))
+
+
+def clear_of_cuts(coords, geometry: TubeGeometry, centerline, margin: float,
+                  near_cut: np.ndarray | None = None) -> np.ndarray:
     """(N,) bool: the point (TubeCoordinates, x towards the notch side) lies where no expected cut opens the
-    outer wall: outside every notch grown by `margin` along s (cut_intervals), or round the tube from the notch
-    side beyond the gap's half-angle grown by as much, on the backbone a cut leaves whole."""
-    near_cut = inside_intervals(coords.s, cut_intervals(geometry, centerline, margin))
+    outer wall: outside every notch grown by `margin` along s (near_cuts, unless the caller has it), or round the
+    tube from the notch side beyond the gap's half-angle grown by as much, on the backbone a cut leaves whole."""
+    if near_cut is None:
+        near_cut = near_cuts(coords.s, geometry, centerline, margin)
     opening = np.abs(coords.angle) < geometry.gap_half_angle + margin / geometry.outer_radius
     return ~(near_cut & opening)
 

@@ -24,7 +24,7 @@ import numpy as np
 from scipy.ndimage import percentile_filter
 
 from ntcr_recon.core.centerline import Centerline, TubeCoordinates
-from ntcr_recon.core.comb import cut_intervals, expected_centres, inside_intervals
+from ntcr_recon.core.comb import expected_centres, inside_intervals, near_cuts
 from ntcr_recon.core.compiled import jit
 from ntcr_recon.core.geometry import TubeGeometry
 from ntcr_recon.core.profile import coverage_profile
@@ -88,7 +88,7 @@ def spine_wall(observed: TubeCoordinates, centerline: Centerline, geometry: Tube
                footprint: float) -> tuple[np.ndarray, float, float]:
     """The points on spines (away from the comb's cuts grown by two footprints) and the outer wall's level and
     spread measured on them (wall.surface_band), as detect_notches and measure_notch_side take it (`wall`)."""
-    spine = ~inside_intervals(observed.s, cut_intervals(geometry, centerline, 2.0 * footprint))
+    spine = ~near_cuts(observed.s, geometry, centerline, 2.0 * footprint)
     level, spread = surface_band(observed.radius - geometry.outer_radius, gate, spine)
     return spine, level, spread
 

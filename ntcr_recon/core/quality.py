@@ -24,9 +24,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import uniform_filter1d
 
+from ntcr_recon.core.centerline import cameras_round_tube
 from ntcr_recon.core.comb import expected_centres, inside_intervals
+from ntcr_recon.core.icp import ReferenceMove
 from ntcr_recon.core.outline import OUTLINE_TOLERANCE_PX, went_astray
-from ntcr_recon.core.tip import LENGTH_AGREEMENT_SIGMAS
+from ntcr_recon.core.tip import LENGTH_AGREEMENT_SIGMAS, TipAlongTube
 from ntcr_recon.core.wall import median, surface_band
 
 # Thresholds, relative to the robot and the camera so that no robot is special.
@@ -252,14 +254,10 @@ def cameras_looking_into_slots(centerline, geometry, camera_origins: np.ndarray,
     camera and the notch side (the centreline's normal), median over the notches, within
     geometry.slot_floor_view_angle - their line of sight through a slot meets its floor."""
     centres = np.clip(expected_centres(geometry, centerline), 0.0, centerline.length)
-    position, _, normal, binormal = centerline.frames_at(centres)
-    looking = []
-    for name, origin in zip(camera_names, np.asarray(camera_origins, float), strict=True):
-        towards = origin - position
-        angle = np.arctan2(np.einsum("ij,ij->i", towards, binormal), np.einsum("ij,ij->i", towards, normal))
-        if median(np.abs(angle)) < geometry.slot_floor_view_angle:
-            looking.append(name)
-    return looking
+    round_tube = cameras_round_tube(centerline.frames_at(centres), camera_origins)
+    angle = np.ascontiguousarray(np.abs(np.arctan2(round_tube[..., 1], round_tube[..., 0])).T)  # per camera
+    return [name for name, angles in zip(camera_names, angle, strict=True)
+            if median(angles) < geometry.slot_floor_view_angle]
 
 
 def unmeasured_share(unsupported: tuple[tuple[float, float], ...], end_on: float, tip_s: float) -> float:
@@ -288,13 +286,13 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
            side_uncertainty: float | None = None,
            cross_view_spread: float | None = None, distal_cross_view: float | None = None,
            alignment_scatter: float | None = None, outline_offset: float | None = None,
-           across_from_fit: tuple[float, float] | None = None, tip_along=None,
+           across_from_fit: tuple[float, float] | None = None, tip_along: TipAlongTube | None = None,
            backbone_shift: float | None = None, held_shift: tuple[float, float] | None = None,
            unsupported: tuple[tuple[float, float], ...] = (),
            misread_widths: dict[int, float] | None = None, unchecked: list[int] | None = None,
            reach: CameraReach | None = None, notch_centres: np.ndarray | None = None,
            wall_level: float | None = None, fitted_end: float | None = None,
-           reference_moved=None) -> tuple[dict, list[str]]:
+           reference_moved: ReferenceMove | None = None) -> tuple[dict, list[str]]:
     """The `quality` document and the warnings (see the module docstring). tip_uncertainty: how well the tip's
     refinement placed it along the tube, when it measured the erosion it gave back (else the erosion itself
     counts as uncertain, and half a footprint). tip_position, crop_box: where the tip is and the box the points
