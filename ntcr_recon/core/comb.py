@@ -24,7 +24,20 @@ def expected_centres(geometry: TubeGeometry, centerline) -> np.ndarray:
     short of its undeformed place by ybar times the turn up to itself, the centre where that holds (a fixed point:
     the turn taken at the undeformed place counts the notches beyond it once the comb has shortened by a pitch, and
     put a 280 deg bend's centres 0.7 mm off). The iteration contracts by ybar times a notch's curvature, a
-    quarter for a notch closed to its limit."""
+    quarter for a notch closed to its limit.
+
+    Remembered on the centreline (read-only), per geometry: a relocation lays the comb on one axis for each of
+    its steps, eight to twelve times a frame, and the fixed point costs 30 us."""
+    remembered = centerline.__dict__.setdefault("_expected_centres", {})  # a frozen dataclass: its own dict
+    centres = remembered.get(geometry)
+    if centres is None:
+        centres = remembered[geometry] = _bent_comb(geometry, centerline)
+        centres.flags.writeable = False
+    return centres
+
+
+def _bent_comb(geometry: TubeGeometry, centerline) -> np.ndarray:
+    """expected_centres' fixed point."""
     undeformed = geometry.notch_centers_s
     centres = undeformed
     for _ in range(COMB_ITERATIONS):

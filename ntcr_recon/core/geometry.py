@@ -159,12 +159,14 @@ class TubeGeometry:
         end cap, and the stereo matcher's spread at the end). No tube is searched for past it."""
         return self.length + self.outer_diameter
 
-    @property
+    @cached_property
     def notch_centers_s(self) -> np.ndarray:
         """Undeformed arc length of each notch's centre."""
-        return self.proximal_length + self.notch_width / 2.0 + self.notch_pitch * np.arange(self.notch_count)
+        centres = self.proximal_length + self.notch_width / 2.0 + self.notch_pitch * np.arange(self.notch_count)
+        centres.flags.writeable = False  # computed once and shared
+        return centres
 
-    @property
+    @cached_property
     def neutral_axis_offset(self) -> float:
         """ybar: distance from the tube axis to the backbone's neutral axis (away from the notches)."""
         d = self.chord_offset
@@ -172,7 +174,7 @@ class TubeGeometry:
         _, area_i, ybar_i = _segment_area_and_centroid(self.inner_radius, d)
         return (ybar_o * area_o - ybar_i * area_i) / (area_o - area_i)
 
-    @property
+    @cached_property
     def max_notch_bend(self) -> float:
         """theta_max = h / (r_o + ybar): the bend at which a notch's faces meet on the outer surface."""
         return self.notch_width / (self.outer_radius + self.neutral_axis_offset)
@@ -182,12 +184,12 @@ class TubeGeometry:
         about what a D405 at 90 mm gives a 3.5 mm tube, and what the stages' lengths are scaled by."""
         return footprint if footprint > 0 else self.outer_radius / 8.0
 
-    @property
+    @cached_property
     def gap_half_angle(self) -> float:
         """Half the angle about the axis over which a notch is open on the outer surface: acos(-d / r_o)."""
         return math.acos(-self.chord_offset / self.outer_radius)
 
-    @property
+    @cached_property
     def slot_floor_view_angle(self) -> float:
         """The largest angle about the axis between a line of sight and the notch side at which the line through
         the middle of a slot (from its opening's apex) meets the slot's floor - the backbone's cut face at the

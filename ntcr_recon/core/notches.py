@@ -393,7 +393,7 @@ def steady_bend(bends: dict[int, float | None], index: int) -> float:
     becomes seen by one camera alone) turns the two notches it joins opposite ways; where a notch's width is the one
     its bend implies (its edges not measured, or misread), one chord's wobble is not its width."""
     known = [bend for i in (index - 1, index, index + 1) if (bend := bends.get(i)) is not None]
-    return float(np.median(known)) if known else 0.0
+    return float(statistics.median(known)) if known else 0.0
 
 
 def gathered_bend(bends: dict[int, float | None], index: int, scatter: float | None = None) -> float | None:
@@ -412,15 +412,15 @@ def gathered_bend(bends: dict[int, float | None], index: int, scatter: float | N
     around = [bend for i in (index - 3, index - 2, index + 2, index + 3) if (bend := bends.get(i)) is not None]
     if own is None or None in neighbours or len(around) < 2:
         return None
-    steady = float(np.median(around))
-    excess = np.array([own, *neighbours]) - steady
-    if not (np.all(excess > 0.0) or np.all(excess < 0.0)):
+    steady = statistics.median(around)  # of two to four: plain Python, as chord_scatter's
+    excess = [bend - steady for bend in (own, *neighbours)]
+    if not (all(e > 0.0 for e in excess) or all(e < 0.0 for e in excess)):
         return None
     if scatter is None:  # measured only where there is a bump to judge (a dozen medians)
         scatter = chord_scatter({i: bend for i, bend in bends.items() if abs(i - index) > 1})
-    if not np.all(np.abs(excess) > 3.0 * scatter):
+    if not all(abs(e) > 3.0 * scatter for e in excess):
         return None
-    return float(own + excess[1:].sum())
+    return float(own + excess[1] + excess[2])
 
 
 def chord_scatter(bends: dict[int, float | None]) -> float:

@@ -414,8 +414,9 @@ class Reconstructor:
         # the cameras facing the backbone place the axis along their views by the plain tube's level
         leveled, backbone_shift = level_by_backbone(centerline, coords, frames, viewpoints, seen_by,
                                                     self._camera_origins, geometry, trusted_gate, footprint, end)
+        outline = aligned_outline if across_from_fit is None else None  # of the axis as it stands
         if leveled is not centerline:
-            centerline = leveled
+            centerline, outline = leveled, None
             coords, frames = centerline.project_with_frames(cloud.xyz, coords.s)
         # what each camera alone says about the axis across its view: the fused axis is known no better
         cross_view = cross_view_spread(centerline, coords, frames, viewpoints, seen_by, len(self._camera_origins),
@@ -425,7 +426,7 @@ class Reconstructor:
         return _Aligned(_Axis(centerline, coords, frames, rays), alignment, cross_view, backbone_shift,
                         # the axis against the middle of the tube's outline in each camera's view (depth errors lie
                         # along the rays)
-                        outline_of(coords, frames), across_from_fit, scatter)
+                        outline_of(coords, frames) if outline is None else outline, across_from_fit, scatter)
 
     def _find_notches(self, axis: _Axis, tip_s: float, settings, wall) -> list[Notch]:
         """The robot's comb matched to the evidence about the axis, up to tip_s (core.notches)."""
