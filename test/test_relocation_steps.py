@@ -158,6 +158,21 @@ def test_a_curve_that_stops_short_of_the_last_notch_carries_on_bending_over_it_t
     assert on_the_ring[1] == pytest.approx(on_the_ring[0], abs=1e-9) and on_the_ring[1] < 0.005e-3
 
 
+def test_the_comb_laid_on_a_centreline_is_its_own_per_robot_and_cannot_be_changed_by_a_caller():
+    """expected_centres remembers the comb on the centreline it was laid on: asked again, the same read-only
+    array; another robot (a longer notch pitch) on the same centreline, or the same robot on a bent one, its own."""
+    straight = straight_centerline(GEOMETRY.length)
+    centres = expected_centres(GEOMETRY, straight)
+    assert expected_centres(GEOMETRY, straight) is centres
+    with pytest.raises(ValueError, match="read-only"):
+        centres[0] = 0.0
+    wider = dataclasses.replace(GEOMETRY, notch_pitch=GEOMETRY.notch_pitch + 0.5e-3, notch_count=10)
+    assert np.allclose(expected_centres(wider, straight), wider.notch_centers_s)
+    bent = true_centerline(TubeShape.from_bend_angle(GEOMETRY, math.radians(60)))
+    assert expected_centres(GEOMETRY, bent)[-1] < centres[-1] - 0.05e-3
+    assert np.allclose(expected_centres(GEOMETRY, straight), GEOMETRY.notch_centers_s)
+
+
 def test_comb_lies_on_the_configured_notches_of_a_straight_tube_and_shortens_with_bend():
     straight = straight_centerline(GEOMETRY.length)
     assert np.allclose(expected_centres(GEOMETRY, straight), GEOMETRY.notch_centers_s)
