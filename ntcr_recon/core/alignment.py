@@ -422,13 +422,13 @@ def clear_of_slots_in_view(coords: TubeCoordinates, frames: tuple, viewpoints: n
                            near_cut: np.ndarray, across: float) -> np.ndarray:
     """(N,) bool: the point lies outside the cuts grown along s (near_cut: comb.near_cuts of the points), or, in
     its camera's image, `across` (m) or more beyond the edge of the cuts' opening on its camera's side, towards
-    the backbone. A
-    matcher's window reaching from the backbone into a slot pulls the wall there deeper too: a camera a few tens
-    of degrees past the gap's edge sees that edge a few pixels from the middle of the tube's image."""
+    the backbone. A matcher's window reaching from the backbone into a slot pulls the wall there deeper too: a
+    camera a few tens of degrees past the gap's edge sees that edge a few pixels from the middle of the tube's
+    image."""
     position, _, normal, binormal = frames
-    return _clear_of_slot_edge(np.ascontiguousarray(near_cut, np.bool_), coords.x,
-                               coords.y, position, normal, binormal, np.ascontiguousarray(viewpoints, dtype=float),
-                               geometry.outer_radius, geometry.gap_half_angle, across)
+    return _clear_of_slot_edge(np.ascontiguousarray(near_cut, np.bool_), coords.x, coords.y, position, normal,
+                               binormal, np.ascontiguousarray(viewpoints, dtype=float), geometry.outer_radius,
+                               geometry.gap_half_angle, across)
 
 
 @jit
