@@ -37,7 +37,7 @@ import numpy as np
 import scipy.linalg
 
 from ntcr_recon.core.centerline import Centerline, TubeCoordinates, cameras_round_tube, unit_direction
-from ntcr_recon.core.comb import clear_of_cuts, cut_intervals, near_cuts
+from ntcr_recon.core.comb import clear_of_cuts, cut_intervals, inside_intervals, near_cuts
 from ntcr_recon.core.compiled import jit
 from ntcr_recon.core.geometry import TubeGeometry
 from ntcr_recon.core.wall import median
@@ -492,7 +492,8 @@ def level_by_backbone(centerline: Centerline, coords: TubeCoordinates, frames: t
                                          > geometry.gap_half_angle)
     if not np.any(faces_backbone):
         return centerline, 0.0
-    away_from_cuts = clear_of_cuts(coords, geometry, centerline, cut_margin_px * footprint)
+    away_from_cuts = clear_of_cuts(coords, geometry, centerline, cut_margin_px * footprint,
+                                   inside_intervals(coords.s, cuts))
     # the backbone's wall, but within a matcher's reach of a slot in the image, reads deeper as the notch side does
     reach = silhouette_margin_px * footprint
     backbone_wall = away_from_cuts & clear_of_slots_in_view(

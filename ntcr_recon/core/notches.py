@@ -653,7 +653,7 @@ def calibrate_and_check(notches: list[Notch], geometry: TubeGeometry, centerline
     # the bend a kink's bump gathers back, where the chords show one (fixed by the chords read: once)
     chord_bends = {n.index: n.bend for n in notches if n.edges_measured and n.index in checked}
     gathered = {i: bend for i in chord_bends if (bend := gathered_bend(chord_bends, i)) is not None}
-    before = {n.index: float(np.median(earlier)) for n in notches if n.index not in checked
+    before = {n.index: float(statistics.median(earlier)) for n in notches if n.index not in checked
               and (earlier := [measured_bends[i] for i in (n.index - 2, n.index - 1) if i in measured_bends])}
     while True:  # one at a time, the farthest off first: a misread rim shared over a spine puts its neighbour off too
         calibrated = calibrate_rims(notches, geometry, centerline, camera_origins)
