@@ -4,6 +4,8 @@ bags, so nothing can be tuned to those. Each number asserted is printed."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from synthetic_views import make_config, render_pair
@@ -108,3 +110,26 @@ def test_a_frame_without_the_robot_is_refused():
     empty = FramePair(0, {})
     with pytest.raises(ReconstructionError, match="points left"):
         Reconstructor(config).process(empty)
+
+
+def test_a_frame_after_one_that_saw_part_of_the_robot_is_not_cut_to_that_part():
+    """The next frame is fused around the robot's last box; where the last frame saw only part of the robot (the
+    rest hidden, say by a hand), the robot found reaches that box's side, and the frame is done again whole."""
+    config = make_config({})
+    shape = TubeShape.from_bend_angle(config.robot, np.radians(40.0))
+    pair = render_pair(shape, config, seed=3)
+    hidden_rows = 200  # the image rows above it (the robot's distal part) return no depth
+    half = FramePair(pair.stamp_ns, {name: replace(frame, depth=np.where(
+        np.arange(frame.depth.shape[0])[:, None] < hidden_rows, 0, frame.depth).astype(frame.depth.dtype))
+        for name, frame in pair.frames.items()})
+    true_tip = shape.tip_pose()[0]
+    reconstructor = Reconstructor(config)
+    part = reconstructor.process(half).relocation
+    whole = reconstructor.process(pair).relocation
+    cold = Reconstructor(config).process(pair).relocation
+    errors = [np.linalg.norm(result.tip - true_tip) for result in (part, whole, cold)]
+    print(f"\ntip error: part seen {errors[0] * 1e3:.2f} mm, whole after it {errors[1] * 1e3:.3f}, "
+          f"whole cold {errors[2] * 1e3:.3f}")
+    assert errors[0] > 5e-3  # the hidden frame did lose the distal part
+    assert errors[1] < 0.15e-3
+    assert abs(whole.quality["tip_s_mm"] - cold.quality["tip_s_mm"]) < 0.05

@@ -907,6 +907,32 @@ def test_alignment_moves_the_reference_onto_the_facing_wall_and_reports_the_shif
     assert length - geometry.notch_pitch < result.held_from < length - FOOTPRINT
 
 
+@pytest.mark.parametrize("shift", [0.3e-3, 1.5e-3])
+def test_a_window_whose_few_points_solve_a_shift_past_the_gate_does_not_move_the_axis(shift):
+    """The only window with trusted points (s = 12-15 mm) is seen on narrow arcs about each camera's line of sight,
+    its points' offsets those of an axis `shift` towards the notch side (a linear model, as the solve's). Within
+    the gate (0.8 mm) the axis is moved by it; 1.5 mm would put the points that placed it off the moved wall - no
+    stereo bias, but a solve its few points did not determine (flying pixels against a backdrop moved a whole
+    second-renderer tube 11.7 mm so): the axis stays where it was."""
+    length, gate = 30e-3, 0.8e-3
+    geometry = TubeGeometry(notch_count=8, notch_pitch=3e-3)
+    rng = np.random.default_rng(6)
+    s = rng.uniform(12e-3, 15e-3, 400)
+    phi = np.where(rng.random(400) < 0.5, np.pi / 2, -np.pi / 2) + rng.uniform(-0.17, 0.17, 400)
+    radius = R_O + shift * np.cos(phi)
+    points = np.stack([radius * np.cos(phi), radius * np.sin(phi), s], axis=1)
+    centerline = straight_centerline(length)
+    coords, frames = centerline.project_with_frames(points)
+    viewpoints = np.where(points[:, 1:2] < 0, [[0.0, -0.09, 0.015]], [[0.0, 0.09, 0.015]])
+    result = align_to_trusted_wall(centerline, coords, frames, viewpoints, geometry, gate, FOOTPRINT, length)
+    print(f"\nshift {shift * 1e3:.1f} mm on {result.trusted} trusted points: bias "
+          f"{result.bias_notch_side * 1e3:+.3f} mm")
+    if shift < gate:
+        assert result.bias_notch_side == pytest.approx(-shift, abs=0.01e-3)
+    else:
+        assert result.centerline is centerline and result.bias_notch_side == 0.0
+
+
 def test_alignment_keeps_the_axis_between_cameras_at_different_distances():
     """Cameras 80 and 105 mm across from a tube on its true axis, each seeing its wall flattened by the matcher
     in proportion to its pixel footprint squared, i.e. to its squared distance (0.1 mm for the near one, 0.17 mm

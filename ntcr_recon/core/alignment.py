@@ -386,7 +386,18 @@ def _align_once(centerline: Centerline, coords: TubeCoordinates, frames: tuple, 
     if not np.any(solvable):
         return Alignment(centerline, 0.0, 0.0, count)
     shifts = np.zeros((windows, 2))
-    shifts[solvable] = smoothed_shifts(matrix[solvable], rhs[solvable], smoothing)
+    while True:
+        shifts[solvable] = smoothed_shifts(matrix[solvable], rhs[solvable], smoothing)
+        # a shift beyond the gate of the points that placed it is no stereo bias (those points would lie off the
+        # moved wall): the window's few points did not determine it (flying pixels, one side seen); it is left to
+        # its neighbours, as an unsolvable one
+        wild = solvable & (np.hypot(shifts[:, 0], shifts[:, 1]) > gate)
+        if not np.any(wild):
+            break
+        solvable &= ~wild
+        shifts[:] = 0.0
+        if not np.any(solvable):
+            return Alignment(centerline, 0.0, 0.0, count)
     centres = s_sum / np.maximum(counts, 1)  # where each window's trusted points lie on average
     # windows without enough trusted points take their neighbours' shift; the base stays clamped, and beyond the
     # last window its shift holds to the tube's end (the end's wall is fitted as the rest: it leans alike)

@@ -179,7 +179,8 @@ class RelocationConfig:
                                               "notches", minimum=0.0, maximum=1.0)
     roi_margin_fraction: float = setting(0.1, "next frame: deproject only around the robot's last box grown by "
                                          "this fraction of its length (the whole crop box when the robot is not "
-                                         "found there)", minimum=0.0, maximum=10.0, exclusive_minimum=True)
+                                         "found there, or reaches its side)", minimum=0.0, maximum=10.0,
+                                         exclusive_minimum=True)
     icp_iterations: int = setting(20, "method icp: ICP iterations at most (the paper's Eq. 10-11)", minimum=1,
                                   maximum=1000)
 

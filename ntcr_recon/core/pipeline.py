@@ -214,6 +214,7 @@ class Reconstructor:
         self._prior: Centerline | None = None
         self._roi: tuple[np.ndarray, np.ndarray] | None = None
         self._roi_count = 0
+        self._fused_within: tuple[np.ndarray, np.ndarray] | None = None  # the region the last fuse kept to
         # optical centre of each camera in the base frame, by camera index (viewing rays for relocation)
         self._camera_origins = config.camera_origins
         # each camera's optical frame in the base frame (4x4), by name in camera_names' order (the self-check)
@@ -239,13 +240,13 @@ class Reconstructor:
     def fuse(self, pair: FramePair) -> Cloud:
         start = time.perf_counter()
         self._note_depth_steps(pair)
-        cloud = None
+        cloud, self._fused_within = None, self._roi
         if self._roi is not None:
             cloud = fuse(pair, self.config, self._roi)
             if len(cloud) < 0.8 * self._roi_count:  # the robot moved out of the region: look everywhere
                 cloud = None
         if cloud is None:
-            cloud = fuse(pair, self.config)
+            cloud, self._fused_within = fuse(pair, self.config), None
         self._timed("fuse", start)
         return cloud
 
@@ -643,11 +644,8 @@ class Reconstructor:
             return
         margin = self.config.relocation.roi_margin_fraction * self.geometry.length + self.geometry.outer_diameter
         box_min, box_max = self.config.crop_box()
-        # a column at a time: min/max over the long axis of an (N, 3) array cost ten times more
-        columns = relocated.xyz.T
-        low = np.maximum(np.array([c.min() for c in columns]) - margin, box_min)
-        high = np.minimum(np.array([c.max() for c in columns]) + margin, box_max)
-        self._roi = (low, high)
+        low, high = _bounds(relocated.xyz)
+        self._roi = (np.maximum(low - margin, box_min), np.minimum(high + margin, box_max))
         self._roi_count = len(relocated)
 
     def mesh(self, relocation: RelocationResult):
@@ -664,13 +662,45 @@ class Reconstructor:
         return mesh
 
     def process(self, pair: FramePair, with_mesh: bool = False) -> FrameResult:
-        """fuse -> filter -> relocate (-> mesh) on one frame pair."""
+        """fuse -> filter -> relocate (-> mesh) on one frame pair.
+
+        The frame is fused around the robot's last box (the region of interest) when there is one; where the
+        robot found reaches that box's side, the box may have cut it (the robot moved, or the last frame saw
+        only part of it), and the frame is done again over the whole crop box, warm-started as the first pass
+        was (timings_ms: the two passes' sums)."""
         self.timings_ms = {}
+        prior = self._prior
         fused = self.fuse(pair)
         filtered = self.filter(fused)
         relocation = self.relocate(filtered)
+        if self._fused_within is not None and _reaches_side(relocation.relocated.xyz, self._fused_within,
+                                                            self.config.crop_box(), self.geometry.outer_diameter):
+            first, self._roi, self._prior = self.timings_ms, None, prior
+            self.timings_ms = {}
+            fused = self.fuse(pair)
+            filtered = self.filter(fused)
+            relocation = self.relocate(filtered)
+            self.timings_ms = {stage: first.get(stage, 0.0) + ms for stage, ms in self.timings_ms.items()}
         mesh = self.mesh(relocation) if with_mesh else None
         return FrameResult(fused, filtered, relocation, mesh, dict(self.timings_ms))
+
+
+def _reaches_side(xyz: np.ndarray, box: tuple[np.ndarray, np.ndarray], crop: tuple[np.ndarray, np.ndarray],
+                  distance: float) -> bool:
+    """Whether points come within `distance` of a side of `box` that lies inside the crop box (a side on the
+    crop box's own cuts nothing the crop box would not)."""
+    if not len(xyz):
+        return False
+    low, high = _bounds(xyz)
+    inside_low, inside_high = box[0] > crop[0], box[1] < crop[1]
+    return bool(np.any(inside_low & (low - box[0] < distance)) or np.any(inside_high & (box[1] - high < distance)))
+
+
+def _bounds(xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The (N, 3) points' axis-aligned bounds (low, high)."""
+    # a column at a time: min/max over the long axis of an (N, 3) array cost ten times more
+    columns = xyz.T
+    return np.array([c.min() for c in columns]), np.array([c.max() for c in columns])
 
 
 def _wall_band_gate(coords: TubeCoordinates, centerline: Centerline, geometry, gate: float, footprint: float
