@@ -1,6 +1,7 @@
 """Bags made from a sample bag's rendered frames for the offline command's tests: repeated with shifted stamps
-(a long recording of the still robot), cropped to the pixels that see the crop box (small enough for CI), or
-with one camera's depth images altered (units, byte order, quantisation)."""
+(a long recording of the still robot), joined one after the other (a robot that moved), cropped to the pixels
+that see the crop box (small enough for CI), or with one camera's depth images altered (units, byte order,
+quantisation)."""
 
 from __future__ import annotations
 
@@ -62,38 +63,52 @@ def crop_windows(bag: Path) -> dict[str, tuple[int, int, int, int]]:
     return windows
 
 
-def rewrite_bag(source: Path, out: Path, repeat: int = 1, crop: bool = False,
-                edit: Callable[[str, object], object] | None = None) -> Path:
-    """A copy of the rig bag `source` (rig.yaml and ground_truth.json alike) in `out`: its frames `repeat`
-    times, each repetition stamped one recording later; images cropped to the crop box's pixels when `crop`;
-    `edit(topic, msg) -> msg` applied to every message last."""
-    windows = crop_windows(source) if crop else {}
+def _recording(source: Path) -> tuple[list, int]:
+    """A bag's messages (topic, type, log time, message) and its span: its frames' stamps' range and one period."""
     with AnyReader([source]) as reader:
         messages = [(c.topic, c.msgtype, t, reader.deserialize(raw, c.msgtype))
                     for c, t, raw in reader.messages()]
     stamps = sorted({stamp_to_ns(m.header.stamp) for topic, _, _, m in messages if topic.endswith("image_rect_raw")})
     period = round((stamps[-1] - stamps[0]) / max(len(stamps) // 2 - 1, 1))  # two cameras' frames
-    shift = stamps[-1] - stamps[0] + period
+    return messages, stamps[-1] - stamps[0] + period
+
+
+def rewrite_bag(source: Path | list[Path], out: Path, repeat: int = 1, crop: bool = False,
+                edit: Callable[[str, object], object] | None = None) -> Path:
+    """A copy of the rig bag `source` (rig.yaml and ground_truth.json alike) in `out`: its frames `repeat`
+    times, each repetition stamped one recording later; images cropped to the crop box's pixels when `crop`;
+    `edit(topic, msg) -> msg` applied to every message last. Several sources (of one rig) are recorded one after
+    the other, with the last one's rig.yaml and ground_truth.json (e.g. a robot that moved between them)."""
+    sources = [source] if isinstance(source, Path) else list(source)
+    windows = {}
+    for path in sources if crop else []:  # each camera's window: the union of the sources'
+        for name, (u0, u1, v0, v1) in crop_windows(path).items():
+            a0, a1, b0, b1 = windows.get(name, (u0, u1, v0, v1))
+            windows[name] = (min(a0, u0), max(a1, u1), min(b0, v0), max(b1, v1))
+    recordings = [_recording(path) for path in sources]
     writer = Writer(out, version=9, storage_plugin=StoragePlugin.MCAP)  # makes `out`, which must not exist
     writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
     connections = {}
+    shift = 0
     with writer:
-        for index in range(repeat):
-            for topic, msgtype, log_time, msg in messages:
-                camera = topic.split("/")[2] if topic.count("/") >= 3 else None
-                if camera in windows:
-                    if msgtype == "sensor_msgs/msg/Image":
-                        msg = _crop_image(msg, windows[camera])
-                    elif msgtype == "sensor_msgs/msg/CameraInfo":
-                        msg = _crop_info(msg, windows[camera])
-                msg = _with_stamp(msg, stamp_to_ns(msg.header.stamp) + index * shift)
-                if edit is not None:
-                    msg = edit(topic, msg)
-                if topic not in connections:
-                    connections[topic] = writer.add_connection(topic, msgtype, typestore=TYPESTORE)
-                writer.write(connections[topic], log_time + index * shift, TYPESTORE.serialize_cdr(msg, msgtype))
+        for _ in range(repeat):
+            for messages, span in recordings:
+                for topic, msgtype, log_time, msg in messages:
+                    camera = topic.split("/")[2] if topic.count("/") >= 3 else None
+                    if camera in windows:
+                        if msgtype == "sensor_msgs/msg/Image":
+                            msg = _crop_image(msg, windows[camera])
+                        elif msgtype == "sensor_msgs/msg/CameraInfo":
+                            msg = _crop_info(msg, windows[camera])
+                    msg = _with_stamp(msg, stamp_to_ns(msg.header.stamp) + shift)
+                    if edit is not None:
+                        msg = edit(topic, msg)
+                    if topic not in connections:
+                        connections[topic] = writer.add_connection(topic, msgtype, typestore=TYPESTORE)
+                    writer.write(connections[topic], log_time + shift, TYPESTORE.serialize_cdr(msg, msgtype))
+                shift += span
     for name in ("rig.yaml", "ground_truth.json"):
-        shutil.copy(source / name, out / name)
+        shutil.copy(sources[-1] / name, out / name)
     return out
 
 

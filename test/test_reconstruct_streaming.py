@@ -5,6 +5,7 @@ offline reader and camera_node's BagSource share."""
 from __future__ import annotations
 
 import json
+import math
 import subprocess
 import sys
 from pathlib import Path
@@ -14,11 +15,12 @@ import numpy as np
 import pytest
 from bag_edit import rewrite_bag
 
-from ntcr_recon.cli.reconstruct import COMBINED_FRAMES_MAX, EvenlySpread
+from ntcr_recon.cli.reconstruct import COMBINED_FRAMES_MAX
 from ntcr_recon.core.config import load_rig_config
 from ntcr_recon.core.fusion import CameraFrame
 from ntcr_recon.core.input_checks import CameraInput
 from ntcr_recon.core.pairing import pair_frame_stream, pair_frames
+from ntcr_recon.core.still import EvenlySpread, Move, StillStretch
 from ntcr_recon.io.bag import DepthFrameMatcher, iter_camera_frames, read_camera_frames
 from ntcr_recon.io.camera_sources import BagSource
 
@@ -97,6 +99,30 @@ def test_evenly_spread_keeps_a_bounded_evenly_spaced_selection():
     kept = keeper.items()
     assert 4 <= len(kept) <= 8 and kept[0] == 0
     assert len(set(np.diff(kept))) == 1  # evenly spaced
+
+
+@pytest.mark.parametrize("motion", ["still", "step", "creep"])
+def test_the_frames_combined_are_the_latest_stretch_over_which_the_robot_stood_still(motion):
+    """Tips scattered as their stated uncertainty (0.1 mm): still, every frame is one stretch; a 2 mm step at frame
+    30 starts a new one; creeping 0.02 mm a frame (under a fifth of the scatter, a frame to the next) leaves the
+    stretch's first frames' tip after 20-40 frames, however often it is asked."""
+    rng = np.random.default_rng(7)
+    uncertainty, frames = 0.1e-3, 60
+    stretch = StillStretch(64)  # keeps every frame of these
+    for frame in range(frames):
+        along = {"still": 0.0, "step": 2e-3 * (frame >= 30), "creep": 0.02e-3 * frame}[motion]
+        tip = np.array([0.0, 0.0, 0.05 + along]) + rng.normal(0.0, uncertainty / math.sqrt(3), 3)
+        stretch.offer(tip, uncertainty, frame)
+    print(f"\n{motion}: {len(stretch.moves)} moves, stretch from frame {stretch.first}")
+    if motion == "still":
+        assert not stretch.moves and stretch.items() == list(range(frames)) and stretch.warning() is None
+    elif motion == "step":
+        assert [move.frame for move in stretch.moves] == [30] and stretch.items() == list(range(30, frames))
+        assert "frame pairs 31-60 only" in stretch.warning()
+    else:
+        assert all(20 <= later.frame - earlier.frame <= 40
+                   for earlier, later in zip([Move(0, 0.0), *stretch.moves], stretch.moves, strict=False))
+        assert stretch.moves and stretch.items() == list(range(stretch.first, frames))
 
 
 def _message(stamp: int, **fields):

@@ -123,3 +123,25 @@ def test_no_point_after_relocation_is_refused(bags_dir, tmp_path, capsys, monkey
     assert code == 2
     assert "relocation kept none of the" in stderr and "nothing to mesh" in stderr
     assert not (tmp_path / "out").exists()
+
+
+def test_a_robot_that_moved_during_the_recording_is_reconstructed_as_it_stood_last_and_said_so(bags_dir, tmp_path,
+                                                                                                capsys):
+    """Four frame pairs of the straight robot, then four of it bent 45 deg: combining all eight would blend the two
+    poses into one it never held. The result combines the last four, measured against the bent robot's truth, and
+    a warning names the frames left out; the straight recording alone combines all its frames, and says nothing."""
+    bag = rewrite_bag([bags_dir / "straight", bags_dir / "bend45"], tmp_path / "moved", crop=True)
+    code = cli_main(["reconstruct", str(bag), "--out", str(tmp_path / "out"), "--no-progress"])
+    stderr = capsys.readouterr().err
+    assert code == 0
+    result = json.loads((tmp_path / "out" / "result.json").read_text())
+    truth = result["ground_truth"]
+    assert result["frames"] == 8 and result["frames_combined"] == {"first": 5, "last": 8, "count": 4}
+    assert truth["tip_error_mm"] < 0.15 and truth["centerline_rmse_mm"] < 0.08
+    _warned(result, stderr, "the robot moved during the recording", "frame pairs 5-8 only")
+    code, still, _ = _reconstruct(bags_dir / "straight", tmp_path / "still", capsys)
+    assert code == 0 and still["frames_combined"] == {"first": 1, "last": 2, "count": 2}
+    assert not [w for w in still["warnings"] if "moved" in w]
+    with capsys.disabled():
+        print(f"\nmoved: frames {result['frames_combined']} combined, tip {truth['tip_error_mm']:.3f} mm off the "
+              f"bent robot's, centreline {truth['centerline_rmse_mm']:.3f}, {truth['notches_detected']} notches")

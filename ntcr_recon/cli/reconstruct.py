@@ -2,8 +2,9 @@
 
 Streams the cameras' depth images (or PointCloud2) from a rosbag2 bag: each frame is decoded, paired with
 the other camera's by stamp as they come, run through fusion, filtering and relocation
-(core.pipeline.Reconstructor) and released, so memory does not grow with the bag's length. The frames of the
-still robot are then combined (at most COMBINED_FRAMES_MAX of them, evenly spread over the bag) into one
+(core.pipeline.Reconstructor) and released, so memory does not grow with the bag's length. The frames over
+which the robot stood still last (core.still: all of them when it never moved, else the latest stretch, and a
+warning says so) are then combined (at most COMBINED_FRAMES_MAX of them, evenly spread over the stretch) into one
 relocated cloud, meshed and measured, and DIR gets:
 
     relocated.ply  fused_raw.ply  mesh.ply  mesh.stl  result.json
@@ -13,7 +14,8 @@ DIR is built whole in a staging directory beside it and swapped in by one rename
 sees the old result or the new one and a failure leaves DIR as it was. result.json (lengths in the unit its
 key names):
 
-    {"frames", "notch_count_expected", "notches": [{"index", "center_s_mm", "width_mm", "bend_deg"}],
+    {"frames", "frames_combined": {"first", "last", "count"} (1-based frame pairs), "notch_count_expected",
+     "notches": [{"index", "center_s_mm", "width_mm", "bend_deg"}],
      "centerline_m", "tip_m", "pdc": {"raw": {"mu", "sigma", "lambda"}, "relocated": {...}},
      "quality": {notches found / expected / by signal, length seen per camera, fit residual, notch side,
                  centreline bias, depth step, ...}  (core.quality), "warnings": [sentence, ...],
@@ -118,28 +120,6 @@ def _bag_dir(bag: Path) -> Path:
     return bag if bag.is_dir() else bag.parent
 
 
-class EvenlySpread:
-    """At most `limit` items of a stream of unknown length, evenly spread over it (every item while there
-    are no more than `limit`; then every 2nd, 4th, ... as it grows), so memory stays bounded."""
-
-    def __init__(self, limit: int) -> None:
-        self.limit = limit
-        self.stride = 1
-        self.seen = 0
-        self.kept: list[tuple[int, object]] = []
-
-    def offer(self, item) -> None:
-        if self.seen % self.stride == 0:
-            self.kept.append((self.seen, item))
-            if len(self.kept) > self.limit:
-                self.stride *= 2
-                self.kept = [(index, kept) for index, kept in self.kept if index % self.stride == 0]
-        self.seen += 1
-
-    def items(self) -> list:
-        return [item for _, item in self.kept]
-
-
 def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
     from tqdm import tqdm
 
@@ -149,6 +129,7 @@ def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
     from ntcr_recon.core.metrics import pdc
     from ntcr_recon.core.pairing import pair_frame_stream
     from ntcr_recon.core.pipeline import ReconstructionError, Reconstructor
+    from ntcr_recon.core.still import StillStretch, stated_tip_uncertainty
     from ntcr_recon.io.bag import iter_camera_frames
     from ntcr_recon.io.files import write_cloud_ply, write_mesh
 
@@ -158,7 +139,7 @@ def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
     pairs = pair_frame_stream(frames, int(round(config.fusion.slop * 1e9)),
                               int(round(config.fusion.camera_timeout * 1e9)))
     reconstructor = Reconstructor(config)
-    combined = EvenlySpread(COMBINED_FRAMES_MAX)  # (fused, filtered) of the frames the result combines
+    combined = StillStretch(COMBINED_FRAMES_MAX)  # (fused, filtered) of the frames the result combines
     per_stage: dict[str, list[float]] = {}
     pair_count = one_camera_pairs = 0
     for pair in tqdm(pairs, desc="frame pairs", unit="pair", disable=args.no_progress):
@@ -172,7 +153,8 @@ def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
         one_camera_pairs += len(pair.frames) == 1
         for index, count in zip(*np.unique(frame.fused.camera, return_counts=True), strict=True):
             cameras[config.camera_names[index]].fused_points += int(count)
-        combined.offer((frame.fused, frame.filtered))
+        combined.offer(frame.relocation.tip, stated_tip_uncertainty(frame.relocation.quality),
+                       (frame.fused, frame.filtered))
         for stage, ms in frame.timings_ms.items():
             per_stage.setdefault(stage, []).append(ms)
         del frame, pair  # the decoded images go now, not when the next pair replaces them
@@ -189,8 +171,9 @@ def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
         raise ReconstructionError(str(error) + "".join(f"; {w}" for w in warnings)) from error
     for index, count in zip(*np.unique(relocation.relocated.camera, return_counts=True), strict=True):
         cameras[config.camera_names[index]].relocated_points = int(count)
-    # what the input lacks, then what the relocation's self-check found (core.quality)
-    warnings = input_warnings(config, cameras, pair_count, one_camera_pairs) + list(relocation.warnings)
+    # what the input lacks, the frames left out, then what the relocation's self-check found (core.quality)
+    warnings = (input_warnings(config, cameras, pair_count, one_camera_pairs) + [
+        warning for warning in [combined.warning()] if warning] + list(relocation.warnings))
     timings["relocate_combined"] = reconstructor.timings_ms["relocate"]
     steps.update()
     mesh = reconstructor.mesh(relocation)
@@ -201,6 +184,7 @@ def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
     voxel = config.metrics.pdc_voxel
     result = {
         "frames": pair_count,
+        "frames_combined": {"first": combined.first + 1, "last": pair_count, "count": len(combined.items())},
         "notch_count_expected": geometry.notch_count,
         "notches": [{"index": n.index, "center_s_mm": n.center_s * 1e3, "width_mm": n.width * 1e3,
                      "bend_deg": None if n.bend is None else float(np.degrees(n.bend))} for n in relocation.notches],

@@ -1,0 +1,108 @@
+"""Which frames of a recording show the robot still: only those are combined into one result.
+
+A bag's frames combined into one relocated cloud give a better-sampled robot - if it held one pose. Frames of a
+robot that moved would blend its poses into one it never held, and the relocation cannot tell (the blend is a
+thicker tube). So the frames are taken as they stream by (StillStretch) and grouped into stretches over which
+each frame's tip stays where the stretch's first frames put it, within what the frames' results state of it;
+the result combines the latest stretch, and says that the robot moved before it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+# A tip further off the stretch's than this many of the two tips' combined stated uncertainties has moved.
+MOVE_SIGMAS = 3.0
+
+# The stretch's tip is the median of its first frames' tips, fixed once this many have come: a robot creeping
+# a little each frame moves off it as far as it crept (a median over the latest frames would follow it).
+ANCHOR_FRAMES = 16
+
+
+class EvenlySpread:
+    """At most `limit` items of a stream of unknown length, evenly spread over it (every item while there
+    are no more than `limit`; then every 2nd, 4th, ... as it grows), so memory stays bounded."""
+
+    def __init__(self, limit: int) -> None:
+        self.limit = limit
+        self.stride = 1
+        self.seen = 0
+        self.kept: list[tuple[int, object]] = []
+
+    def offer(self, item) -> None:
+        if self.seen % self.stride == 0:
+            self.kept.append((self.seen, item))
+            if len(self.kept) > self.limit:
+                self.stride *= 2
+                self.kept = [(index, kept) for index, kept in self.kept if index % self.stride == 0]
+        self.seen += 1
+
+    def items(self) -> list:
+        return [item for _, item in self.kept]
+
+
+def stated_tip_uncertainty(quality: dict) -> float:
+    """How well one frame's result places its tip (m): its stated uncertainty along the tube and across it (the
+    along one again where it states none across), never under a pixel footprint, which no frame resolves."""
+    along = quality["tip_uncertainty_mm"]
+    across = quality.get("tip_across_uncertainty_mm")
+    across = along if across is None else across
+    return 1e-3 * max(math.hypot(along, across), quality.get("pixel_footprint_mm") or 0.0)
+
+
+@dataclass(frozen=True)
+class Move:
+    """The robot moved: the first frame (0-based) whose tip left the stretch before it, and how far (m)."""
+    frame: int
+    distance: float
+
+
+class StillStretch:
+    """The latest stretch of frames over which the robot stood still, as the frames stream by.
+
+    offer(tip, uncertainty, item): a frame's tip (m, (3,)) and how well its result places it (m, e.g.
+    stated_tip_uncertainty); a tip off the stretch's (ANCHOR_FRAMES) by more than MOVE_SIGMAS of the two's
+    combined uncertainty starts a new stretch. The items of the current stretch are kept as EvenlySpread(limit).
+    """
+
+    def __init__(self, limit: int) -> None:
+        self.limit = limit
+        self.frames = 0                 # frames offered
+        self.moves: list[Move] = []
+        self.first = 0                  # the current stretch's first frame (0-based)
+        self._items = EvenlySpread(limit)
+        self._anchor_tips: list[np.ndarray] = []
+        self._anchor_uncertainties: list[float] = []
+
+    def offer(self, tip: np.ndarray, uncertainty: float, item) -> None:
+        tip = np.asarray(tip, dtype=float)
+        if self._anchor_tips:
+            anchor = np.median(self._anchor_tips, axis=0)
+            distance = float(np.linalg.norm(tip - anchor))
+            if distance > MOVE_SIGMAS * math.hypot(uncertainty, float(np.median(self._anchor_uncertainties))):
+                self.moves.append(Move(self.frames, distance))
+                self.first = self.frames
+                self._items = EvenlySpread(self.limit)
+                self._anchor_tips, self._anchor_uncertainties = [], []
+        if len(self._anchor_tips) < ANCHOR_FRAMES:
+            self._anchor_tips.append(tip)
+            self._anchor_uncertainties.append(float(uncertainty))
+        self._items.offer(item)
+        self.frames += 1
+
+    def items(self) -> list:
+        """The current stretch's kept items, in order."""
+        return self._items.items()
+
+    def warning(self) -> str | None:
+        """What a result combining the current stretch should say of the frames it left out (None: none)."""
+        if not self.moves:
+            return None
+        largest = max(self.moves, key=lambda move: move.distance)
+        return (f"the robot moved during the recording (its tip {len(self.moves)} time{'s' * (len(self.moves) > 1)},"
+                f" by up to {largest.distance * 1e3:.2f} mm at frame pair {largest.frame + 1}): the result "
+                f"combines frame pairs {self.first + 1}-{self.frames} only, over which it stood still; a result "
+                "of every frame is relocation_node's (`ntcr-recon run`)")
