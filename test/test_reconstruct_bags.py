@@ -55,11 +55,11 @@ def reconstruction(request, bags_dir, tmp_path_factory):
 def test_outputs_and_schema(reconstruction):
     _, out, result = reconstruction
     assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUT_FILES)
-    assert set(result) == {"frames", "notch_count_expected", "notches", "centerline_m", "tip_m", "pdc",
-                           "ground_truth", "timings_ms", "quality", "warnings"}
+    assert set(result) == {"frames", "frames_combined", "notch_count_expected", "notches", "centerline_m", "tip_m",
+                           "pdc", "ground_truth", "timings_ms", "quality", "warnings"}
     assert result["quality"]["notches_found"] == len(result["notches"])
     assert all(isinstance(w, str) for w in result["warnings"])
-    assert result["frames"] == 4
+    assert result["frames"] == 4 and result["frames_combined"] == {"first": 1, "last": 4, "count": 4}
     for notch in result["notches"]:
         assert set(notch) == {"index", "center_s_mm", "width_mm", "bend_deg"}
     assert len(result["tip_m"]) == 3 and all(len(p) == 3 for p in result["centerline_m"])
