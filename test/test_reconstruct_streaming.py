@@ -112,13 +112,13 @@ def test_the_frames_combined_are_the_latest_stretch_over_which_the_robot_stood_s
     for frame in range(frames):
         along = {"still": 0.0, "step": 2e-3 * (frame >= 30), "creep": 0.02e-3 * frame}[motion]
         tip = np.array([0.0, 0.0, 0.05 + along]) + rng.normal(0.0, uncertainty / math.sqrt(3), 3)
-        stretch.offer(tip, uncertainty, frame)
+        stretch.offer(frame, tip, uncertainty, frame)
     print(f"\n{motion}: {len(stretch.moves)} moves, stretch from frame {stretch.first}")
     if motion == "still":
         assert not stretch.moves and stretch.items() == list(range(frames)) and stretch.warning() is None
     elif motion == "step":
         assert [move.frame for move in stretch.moves] == [30] and stretch.items() == list(range(30, frames))
-        assert "frame pairs 31-60 only" in stretch.warning()
+        assert "frame pairs 31-60 only" in stretch.warning("frame pair")
     else:
         assert all(20 <= later.frame - earlier.frame <= 40
                    for earlier, later in zip([Move(0, 0.0), *stretch.moves], stretch.moves, strict=False))

@@ -145,3 +145,33 @@ def test_a_robot_that_moved_during_the_recording_is_reconstructed_as_it_stood_la
     with capsys.disabled():
         print(f"\nmoved: frames {result['frames_combined']} combined, tip {truth['tip_error_mm']:.3f} mm off the "
               f"bent robot's, centreline {truth['centerline_rmse_mm']:.3f}, {truth['notches_detected']} notches")
+
+
+def test_a_frame_pair_without_the_robot_is_left_out_and_said_so(bags_dir, tmp_path, capsys):
+    """The second of four frame pairs returns no depth in either camera (the robot covered): the other three are
+    reconstructed, and a warning names the pair left out and why; a recording where every pair fails is refused
+    with the first one's cause."""
+    def blanking(frame: int | None):  # each camera's depth image `frame` (0-based; None: every one) made empty
+        seen = {}
+
+        def blank(topic, msg):
+            if topic.endswith("depth/image_rect_raw"):
+                seen[topic] = seen.get(topic, -1) + 1
+                if frame is None or seen[topic] == frame:
+                    return with_depth_values(msg, np.zeros_like(depth_values(msg)))
+            return msg
+        return blank
+
+    bag = rewrite_bag(bags_dir / "straight", tmp_path / "covered", crop=True, edit=blanking(1))
+    code = cli_main(["reconstruct", str(bag), "--out", str(tmp_path / "out"), "--no-progress"])
+    stderr = capsys.readouterr().err
+    assert code == 0
+    result = json.loads((tmp_path / "out" / "result.json").read_text())
+    assert result["frames"] == 4 and result["frames_combined"] == {"first": 1, "last": 4, "count": 3}
+    assert result["ground_truth"]["notches_detected"] == 16
+    _warned(result, stderr, "1 of 4 frame pairs gave no result and are left out", "frame pair 2")
+    bag = rewrite_bag(bags_dir / "straight", tmp_path / "all_covered", crop=True, edit=blanking(None))
+    code, _, stderr = _reconstruct(bag, tmp_path / "none", capsys)
+    assert code == 2
+    (message,) = stderr.strip().splitlines()
+    assert "frame pair 1" in message and "and each of the other 1 frame pairs failed" in message

@@ -2,7 +2,9 @@
 
 Streams the cameras' depth images (or PointCloud2) from a rosbag2 bag: each frame is decoded, paired with
 the other camera's by stamp as they come, run through fusion, filtering and relocation
-(core.pipeline.Reconstructor) and released, so memory does not grow with the bag's length. The frames over
+(core.pipeline.Reconstructor) and released, so memory does not grow with the bag's length; a pair without a
+result (the robot out of view, say) is left out and named in a warning, and only a bag of which no pair gives one
+is refused, with the first pair's cause. The frames over
 which the robot stood still last (core.still: all of them when it never moved, else the latest stretch, and a
 warning says so) are then combined (at most COMBINED_FRAMES_MAX of them, evenly spread over the stretch) into one
 relocated cloud, meshed and measured, and DIR gets:
@@ -142,22 +144,26 @@ def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
     combined = StillStretch(COMBINED_FRAMES_MAX)  # (fused, filtered) of the frames the result combines
     per_stage: dict[str, list[float]] = {}
     pair_count = one_camera_pairs = 0
+    failed: list[str] = []  # why each frame pair without a result (the robot out of view, ...) gave none
     for pair in tqdm(pairs, desc="frame pairs", unit="pair", disable=args.no_progress):
-        try:
-            frame = reconstructor.process(pair)
-        except ReconstructionError as error:  # say what the input showed so far: it often is the cause
-            warnings = input_warnings(config, cameras, pair_count + 1, one_camera_pairs)
-            raise ReconstructionError(f"frame pair {pair_count + 1} (stamp {pair.stamp_ns}): {error}" +
-                                      "".join(f"; {w}" for w in warnings)) from error
         pair_count += 1
         one_camera_pairs += len(pair.frames) == 1
+        try:
+            frame = reconstructor.process(pair)
+        except ReconstructionError as error:  # left out, and said so (the error itself when no pair gives one)
+            failed.append(f"frame pair {pair_count} (stamp {pair.stamp_ns}): {error}")
+            continue
         for index, count in zip(*np.unique(frame.fused.camera, return_counts=True), strict=True):
             cameras[config.camera_names[index]].fused_points += int(count)
-        combined.offer(frame.relocation.tip, stated_tip_uncertainty(frame.relocation.quality),
+        combined.offer(pair_count - 1, frame.relocation.tip, stated_tip_uncertainty(frame.relocation.quality),
                        (frame.fused, frame.filtered))
         for stage, ms in frame.timings_ms.items():
             per_stage.setdefault(stage, []).append(ms)
         del frame, pair  # the decoded images go now, not when the next pair replaces them
+    if failed and combined.last is None:  # say what the input showed: it often is the cause
+        warnings = input_warnings(config, cameras, pair_count, one_camera_pairs)
+        raise ReconstructionError(failed[0] + (f" (and each of the other {len(failed) - 1} frame pairs failed)"
+                                               if len(failed) > 1 else "") + "".join(f"; {w}" for w in warnings))
     timings = {stage: float(np.median(values)) for stage, values in per_stage.items()}
     steps = tqdm(total=4, desc="combine, mesh, measure", disable=args.no_progress)
     raw = Cloud.concatenate([fused for fused, _ in combined.items()])
@@ -172,8 +178,10 @@ def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
     for index, count in zip(*np.unique(relocation.relocated.camera, return_counts=True), strict=True):
         cameras[config.camera_names[index]].relocated_points = int(count)
     # what the input lacks, the frames left out, then what the relocation's self-check found (core.quality)
-    warnings = (input_warnings(config, cameras, pair_count, one_camera_pairs) + [
-        warning for warning in [combined.warning()] if warning] + list(relocation.warnings))
+    left_out = ([f"{len(failed)} of {pair_count} frame pairs gave no result and are left out; {failed[0]}"]
+                if failed else [])
+    warnings = (input_warnings(config, cameras, pair_count, one_camera_pairs) + left_out + [
+        warning for warning in [combined.warning("frame pair")] if warning] + list(relocation.warnings))
     timings["relocate_combined"] = reconstructor.timings_ms["relocate"]
     steps.update()
     mesh = reconstructor.mesh(relocation)
@@ -184,7 +192,7 @@ def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
     voxel = config.metrics.pdc_voxel
     result = {
         "frames": pair_count,
-        "frames_combined": {"first": combined.first + 1, "last": pair_count, "count": len(combined.items())},
+        "frames_combined": {"first": combined.first + 1, "last": combined.last + 1, "count": len(combined.items())},
         "notch_count_expected": geometry.notch_count,
         "notches": [{"index": n.index, "center_s_mm": n.center_s * 1e3, "width_mm": n.width * 1e3,
                      "bend_deg": None if n.bend is None else float(np.degrees(n.bend))} for n in relocation.notches],

@@ -55,7 +55,7 @@ def stated_tip_uncertainty(quality: dict) -> float:
 
 @dataclass(frozen=True)
 class Move:
-    """The robot moved: the first frame (0-based) whose tip left the stretch before it, and how far (m)."""
+    """The robot moved: the first frame whose tip left the stretch before it, and how far (m)."""
     frame: int
     distance: float
 
@@ -63,46 +63,49 @@ class Move:
 class StillStretch:
     """The latest stretch of frames over which the robot stood still, as the frames stream by.
 
-    offer(tip, uncertainty, item): a frame's tip (m, (3,)) and how well its result places it (m, e.g.
-    stated_tip_uncertainty); a tip off the stretch's (ANCHOR_FRAMES) by more than MOVE_SIGMAS of the two's
-    combined uncertainty starts a new stretch. The items of the current stretch are kept as EvenlySpread(limit).
+    offer(frame, tip, uncertainty, item): a frame's index (increasing; frames without a result are not offered), its
+    tip (m, (3,)) and how well its result places it (m, e.g. stated_tip_uncertainty); a tip off the stretch's
+    (ANCHOR_FRAMES) by more than MOVE_SIGMAS of the two's combined uncertainty starts a new stretch. The items of
+    the current stretch are kept as EvenlySpread(limit).
     """
 
     def __init__(self, limit: int) -> None:
         self.limit = limit
-        self.frames = 0                 # frames offered
         self.moves: list[Move] = []
-        self.first = 0                  # the current stretch's first frame (0-based)
+        self.first = self.last = None   # the current stretch's first and last frame
         self._items = EvenlySpread(limit)
         self._anchor_tips: list[np.ndarray] = []
         self._anchor_uncertainties: list[float] = []
 
-    def offer(self, tip: np.ndarray, uncertainty: float, item) -> None:
+    def offer(self, frame: int, tip: np.ndarray, uncertainty: float, item) -> None:
         tip = np.asarray(tip, dtype=float)
         if self._anchor_tips:
             anchor = np.median(self._anchor_tips, axis=0)
             distance = float(np.linalg.norm(tip - anchor))
             if distance > MOVE_SIGMAS * math.hypot(uncertainty, float(np.median(self._anchor_uncertainties))):
-                self.moves.append(Move(self.frames, distance))
-                self.first = self.frames
+                self.moves.append(Move(frame, distance))
+                self.first = None
                 self._items = EvenlySpread(self.limit)
                 self._anchor_tips, self._anchor_uncertainties = [], []
+        if self.first is None:
+            self.first = frame
+        self.last = frame
         if len(self._anchor_tips) < ANCHOR_FRAMES:
             self._anchor_tips.append(tip)
             self._anchor_uncertainties.append(float(uncertainty))
         self._items.offer(item)
-        self.frames += 1
 
     def items(self) -> list:
         """The current stretch's kept items, in order."""
         return self._items.items()
 
-    def warning(self) -> str | None:
-        """What a result combining the current stretch should say of the frames it left out (None: none)."""
+    def warning(self, name: str = "frame") -> str | None:
+        """What a result combining the current stretch should say of the frames it left out (None: none); frames
+        are named `name` and numbered from 1."""
         if not self.moves:
             return None
         largest = max(self.moves, key=lambda move: move.distance)
         return (f"the robot moved during the recording (its tip {len(self.moves)} time{'s' * (len(self.moves) > 1)},"
-                f" by up to {largest.distance * 1e3:.2f} mm at frame pair {largest.frame + 1}): the result "
-                f"combines frame pairs {self.first + 1}-{self.frames} only, over which it stood still; a result "
-                "of every frame is relocation_node's (`ntcr-recon run`)")
+                f" by up to {largest.distance * 1e3:.2f} mm at {name} {largest.frame + 1}): the result combines "
+                f"{name}s {self.first + 1}-{self.last + 1} only, over which it stood still; a result of every frame "
+                "is relocation_node's (`ntcr-recon run`)")
