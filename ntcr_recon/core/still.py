@@ -105,7 +105,8 @@ class StillStretch:
         if not self.moves:
             return None
         largest = max(self.moves, key=lambda move: move.distance)
-        return (f"the robot moved during the recording (its tip {len(self.moves)} time{'s' * (len(self.moves) > 1)},"
-                f" by up to {largest.distance * 1e3:.2f} mm at {name} {largest.frame + 1}): the result combines "
-                f"{name}s {self.first + 1}-{self.last + 1} only, over which it stood still; a result of every frame "
-                "is relocation_node's (`ntcr-recon run`)")
+        times = "once" if len(self.moves) == 1 else f"{len(self.moves)} times"
+        return (f"the robot moved during the recording ({times}; its tip by {'up to ' * (len(self.moves) > 1)}"
+                f"{largest.distance * 1e3:.2f} mm at {name} {largest.frame + 1}): the result combines {name}s "
+                f"{self.first + 1}-{self.last + 1} only, over which it stood still; a result of every frame is "
+                "relocation_node's (`ntcr-recon run`)")
