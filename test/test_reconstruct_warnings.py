@@ -125,11 +125,11 @@ def test_no_point_after_relocation_is_refused(bags_dir, tmp_path, capsys, monkey
     assert not (tmp_path / "out").exists()
 
 
-def test_a_robot_that_moved_during_the_recording_is_reconstructed_as_it_stood_last_and_said_so(bags_dir, tmp_path,
-                                                                                                capsys):
+def test_a_robot_that_moved_during_the_recording_is_reconstructed_in_one_pose_and_said_so(bags_dir, tmp_path, capsys):
     """Four frame pairs of the straight robot, then four of it bent 45 deg: combining all eight would blend the two
-    poses into one it never held. The result combines the last four, measured against the bent robot's truth, and
-    a warning names the frames left out; the straight recording alone combines all its frames, and says nothing."""
+    poses into one it never held. The result combines the last four (of two stretches as long, the latest),
+    measured against the bent robot's truth, and a warning names the frames left out; the straight recording alone
+    combines all its frames, and says nothing."""
     bag = rewrite_bag([bags_dir / "straight", bags_dir / "bend45"], tmp_path / "moved", crop=True)
     code = cli_main(["reconstruct", str(bag), "--out", str(tmp_path / "out"), "--no-progress"])
     stderr = capsys.readouterr().err

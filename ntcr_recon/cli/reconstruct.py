@@ -4,10 +4,10 @@ Streams the cameras' depth images (or PointCloud2) from a rosbag2 bag: each fram
 the other camera's by stamp as they come, run through fusion, filtering and relocation
 (core.pipeline.Reconstructor) and released, so memory does not grow with the bag's length; a pair without a
 result (the robot out of view, say) is left out and named in a warning, and only a bag of which no pair gives one
-is refused, with the first pair's cause. The frames over which the robot stood still last (core.still: all of
-them when it never moved, else the latest stretch, and a warning says so) are then combined (at most
-COMBINED_FRAMES_MAX of them, evenly spread over the stretch) into one relocated cloud, meshed and measured, and
-DIR gets:
+is refused, with the first pair's cause. The frames over which the robot stood still longest (core.still: all
+of them when it never moved, else the longest stretch, the latest of equals, and a warning says so) are then
+combined (at most COMBINED_FRAMES_MAX of them, evenly spread over the stretch) into one relocated cloud, meshed
+and measured, and DIR gets:
 
     relocated.ply  fused_raw.ply  mesh.ply  mesh.stl  result.json
     density_heatmaps.png  notch_widths.png  side_views.png

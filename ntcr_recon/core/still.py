@@ -4,13 +4,13 @@ A bag's frames combined into one relocated cloud give a better-sampled robot - i
 robot that moved would blend its poses into one it never held, and the relocation cannot tell (the blend is a
 thicker tube). So the frames are taken as they stream by (StillStretch) and grouped into stretches over which
 each frame's tip stays where the stretch's first frames put it, within what the frames' results state of it;
-the result combines the latest stretch, and says that the robot moved before it.
+the result combines the longest stretch (the latest of equals), and says that the robot moved.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -60,47 +60,76 @@ class Move:
     distance: float
 
 
+@dataclass
+class _Stretch:
+    """Frames over which the robot stood still: the first and last, how many, their items, and the tip of its
+    first ANCHOR_FRAMES frames (with how well each placed it) that the later ones are held to."""
+    first: int
+    last: int
+    items: EvenlySpread
+    frames: int = 0
+    anchor_tips: list = field(default_factory=list)
+    anchor_uncertainties: list = field(default_factory=list)
+
+
 class StillStretch:
-    """The latest stretch of frames over which the robot stood still, as the frames stream by.
+    """The longest stretch of frames over which the robot stood still (the latest of equally long ones), as the
+    frames stream by.
 
     offer(frame, tip, uncertainty, item): a frame's index (increasing; frames without a result are not offered), its
-    tip (m, (3,)) and how well its result places it (m, e.g. stated_tip_uncertainty); a tip off the stretch's
-    (ANCHOR_FRAMES) by more than MOVE_SIGMAS of the two's combined uncertainty starts a new stretch. The items of
-    the current stretch are kept as EvenlySpread(limit).
+    tip (m, (3,)) and how well its result places it (m, e.g. stated_tip_uncertainty); a tip off the current
+    stretch's (ANCHOR_FRAMES) by more than MOVE_SIGMAS of the two's combined uncertainty starts a new stretch. The
+    items of the current stretch and of the longest before it are kept, as EvenlySpread(limit) each: a frame that
+    misplaced its tip (a stretch of one) does not outweigh the frames before it.
     """
 
     def __init__(self, limit: int) -> None:
         self.limit = limit
         self.moves: list[Move] = []
-        self.first = self.last = None   # the current stretch's first and last frame
-        self._items = EvenlySpread(limit)
-        self._anchor_tips: list[np.ndarray] = []
-        self._anchor_uncertainties: list[float] = []
+        self._current: _Stretch | None = None
+        self._longest: _Stretch | None = None  # the longest stretch before the current one
 
     def offer(self, frame: int, tip: np.ndarray, uncertainty: float, item) -> None:
         tip = np.asarray(tip, dtype=float)
-        if self._anchor_tips:
-            anchor = np.median(self._anchor_tips, axis=0)
-            distance = float(np.linalg.norm(tip - anchor))
-            if distance > MOVE_SIGMAS * math.hypot(uncertainty, float(np.median(self._anchor_uncertainties))):
+        current = self._current
+        if current is not None:
+            distance = float(np.linalg.norm(tip - np.median(current.anchor_tips, axis=0)))
+            if distance > MOVE_SIGMAS * math.hypot(uncertainty, float(np.median(current.anchor_uncertainties))):
                 self.moves.append(Move(frame, distance))
-                self.first = None
-                self._items = EvenlySpread(self.limit)
-                self._anchor_tips, self._anchor_uncertainties = [], []
-        if self.first is None:
-            self.first = frame
-        self.last = frame
-        if len(self._anchor_tips) < ANCHOR_FRAMES:
-            self._anchor_tips.append(tip)
-            self._anchor_uncertainties.append(float(uncertainty))
-        self._items.offer(item)
+                if self._longest is None or current.frames >= self._longest.frames:
+                    self._longest = current
+                current = None
+        if current is None:
+            current = self._current = _Stretch(frame, frame, EvenlySpread(self.limit))
+        current.last = frame
+        current.frames += 1
+        if len(current.anchor_tips) < ANCHOR_FRAMES:
+            current.anchor_tips.append(tip)
+            current.anchor_uncertainties.append(float(uncertainty))
+        current.items.offer(item)
+
+    @property
+    def _chosen(self) -> _Stretch | None:
+        if self._longest is not None and self._current is not None and self._longest.frames > self._current.frames:
+            return self._longest
+        return self._current
+
+    @property
+    def first(self) -> int | None:
+        """The chosen stretch's first frame (None: no frame offered)."""
+        return None if self._chosen is None else self._chosen.first
+
+    @property
+    def last(self) -> int | None:
+        """The chosen stretch's last frame (None: no frame offered)."""
+        return None if self._chosen is None else self._chosen.last
 
     def items(self) -> list:
-        """The current stretch's kept items, in order."""
-        return self._items.items()
+        """The chosen stretch's kept items, in order."""
+        return [] if self._chosen is None else self._chosen.items.items()
 
     def warning(self, name: str = "frame") -> str | None:
-        """What a result combining the current stretch should say of the frames it left out (None: none); frames
+        """What a result combining the chosen stretch should say of the frames it left out (None: none); frames
         are named `name` and numbered from 1."""
         if not self.moves:
             return None
@@ -108,5 +137,5 @@ class StillStretch:
         times = "once" if len(self.moves) == 1 else f"{len(self.moves)} times"
         return (f"the robot moved during the recording ({times}; its tip by {'up to ' * (len(self.moves) > 1)}"
                 f"{largest.distance * 1e3:.2f} mm at {name} {largest.frame + 1}): the result combines {name}s "
-                f"{self.first + 1}-{self.last + 1} only, over which it stood still; a result of every frame is "
-                "relocation_node's (`ntcr-recon run`)")
+                f"{self.first + 1}-{self.last + 1} only, the longest stretch over which it stood still; a result "
+                "of every frame is relocation_node's (`ntcr-recon run`)")
