@@ -162,8 +162,10 @@ def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
         del frame, pair  # the decoded images go now, not when the next pair replaces them
     if failed and combined.last is None:  # say what the input showed: it often is the cause
         warnings = input_warnings(config, cameras, pair_count, one_camera_pairs)
-        raise ReconstructionError(failed[0] + (f" (and each of the other {len(failed) - 1} frame pairs failed)"
-                                               if len(failed) > 1 else "") + "".join(f"; {w}" for w in warnings))
+        others = len(failed) - 1
+        raise ReconstructionError(failed[0] + ("" if not others else " (and so did the other frame pair)" if others == 1
+                                               else f" (and so did the other {others} frame pairs)")
+                                  + "".join(f"; {w}" for w in warnings))
     timings = {stage: float(np.median(values)) for stage, values in per_stage.items()}
     steps = tqdm(total=4, desc="combine, mesh, measure", disable=args.no_progress)
     raw = Cloud.concatenate([fused for fused, _ in combined.items()])
