@@ -133,3 +133,20 @@ def test_a_frame_after_one_that_saw_part_of_the_robot_is_not_cut_to_that_part():
     assert errors[0] > 5e-3  # the hidden frame did lose the distal part
     assert errors[1] < 0.15e-3
     assert abs(whole.quality["tip_s_mm"] - cold.quality["tip_s_mm"]) < 0.05
+
+
+def test_a_region_of_interest_that_no_longer_holds_the_robot_never_fails_a_frame():
+    """The robot's last box set beside it (as if it had swung away and back between frames, and as many points
+    in the box as before, so that the count does not give it away): no robot is found there, and the frame is done
+    again over the whole crop box."""
+    config = make_config({})
+    shape = TubeShape.from_bend_angle(config.robot, np.radians(30.0))
+    pair = render_pair(shape, config, seed=4)
+    reconstructor = Reconstructor(config)
+    cold = reconstructor.process(pair).relocation
+    reconstructor._roi = (np.array([0.03, 0.03, 0.0]), np.array([0.05, 0.05, 0.02]))  # holds nothing of the robot
+    reconstructor._roi_count = 0
+    again = reconstructor.process(pair).relocation
+    print(f"\ntip after a region of interest beside the robot: {np.linalg.norm(again.tip - cold.tip) * 1e3:.3f} mm "
+          "from the cold start's")
+    assert np.linalg.norm(again.tip - cold.tip) < 0.02e-3

@@ -665,21 +665,29 @@ class Reconstructor:
         """fuse -> filter -> relocate (-> mesh) on one frame pair.
 
         The frame is fused around the robot's last box (the region of interest) when there is one; where the
-        robot found reaches that box's side, the box may have cut it (the robot moved, or the last frame saw
-        only part of it), and the frame is done again over the whole crop box, warm-started as the first pass
-        was (timings_ms: the two passes' sums)."""
+        robot found reaches that box's side, or none is found in it, the box may have cut it (the robot moved, or
+        the last frame saw only part of it), and the frame is done again over the whole crop box, warm-started as
+        the first pass was (timings_ms: the two passes' sums)."""
         self.timings_ms = {}
         prior = self._prior
-        fused = self.fuse(pair)
-        filtered = self.filter(fused)
-        relocation = self.relocate(filtered)
-        if self._fused_within is not None and _reaches_side(relocation.relocated.xyz, self._fused_within,
-                                                            self.config.crop_box(), self.geometry.outer_diameter):
-            first, self._roi, self._prior = self.timings_ms, None, prior
-            self.timings_ms = {}
+
+        def chain() -> tuple[Cloud, Cloud, RelocationResult]:
             fused = self.fuse(pair)
             filtered = self.filter(fused)
-            relocation = self.relocate(filtered)
+            return fused, filtered, self.relocate(filtered)
+
+        try:
+            fused, filtered, relocation = chain()
+            again = self._fused_within is not None and _reaches_side(
+                relocation.relocated.xyz, self._fused_within, self.config.crop_box(), self.geometry.outer_diameter)
+        except ReconstructionError:
+            if self._fused_within is None:
+                raise
+            again = True
+        if again:
+            first, self._roi, self._prior = self.timings_ms, None, prior
+            self.timings_ms = {}
+            fused, filtered, relocation = chain()
             self.timings_ms = {stage: first.get(stage, 0.0) + ms for stage, ms in self.timings_ms.items()}
         mesh = self.mesh(relocation) if with_mesh else None
         return FrameResult(fused, filtered, relocation, mesh, dict(self.timings_ms))
