@@ -62,11 +62,11 @@ class Move:
 
 @dataclass
 class _Stretch:
-    """Frames over which the robot stood still: the first and last, how many, their items, and the tip of its
-    first ANCHOR_FRAMES frames (with how well each placed it) that the later ones are held to."""
+    """Frames over which the robot stood still: the first and last, how many, the items kept of them, and the tip
+    of its first ANCHOR_FRAMES frames (with how well each placed it) that the later ones are held to."""
     first: int
     last: int
-    items: EvenlySpread
+    kept: EvenlySpread
     frames: int = 0
     anchor_tips: list = field(default_factory=list)
     anchor_uncertainties: list = field(default_factory=list)
@@ -106,7 +106,7 @@ class StillStretch:
         if len(current.anchor_tips) < ANCHOR_FRAMES:
             current.anchor_tips.append(tip)
             current.anchor_uncertainties.append(float(uncertainty))
-        current.items.offer(item)
+        current.kept.offer(item)
 
     @property
     def _chosen(self) -> _Stretch | None:
@@ -126,7 +126,7 @@ class StillStretch:
 
     def items(self) -> list:
         """The chosen stretch's kept items, in order."""
-        return [] if self._chosen is None else self._chosen.items.items()
+        return [] if self._chosen is None else self._chosen.kept.items()
 
     def warning(self, name: str = "frame") -> str | None:
         """What a result combining the chosen stretch should say of the frames it left out (None: none); frames
