@@ -395,7 +395,6 @@ def _align_once(centerline: Centerline, coords: TubeCoordinates, frames: tuple, 
         if not np.any(wild):
             break
         solvable &= ~wild
-        shifts[:] = 0.0
         if not np.any(solvable):
             return Alignment(centerline, 0.0, 0.0, count)
     centres = s_sum / np.maximum(counts, 1)  # where each window's trusted points lie on average
