@@ -62,14 +62,18 @@ class Move:
 
 @dataclass
 class _Stretch:
-    """Frames over which the robot stood still: the first and last, how many, the items kept of them, and the tip
-    of its first ANCHOR_FRAMES frames (with how well each placed it) that the later ones are held to."""
+    """Frames over which the robot stood still: the first and last, the items kept of them, and the tip of its
+    first ANCHOR_FRAMES frames (with how well each placed it) that the later ones are held to."""
     first: int
     last: int
     kept: EvenlySpread
-    frames: int = 0
     anchor_tips: list = field(default_factory=list)
     anchor_uncertainties: list = field(default_factory=list)
+
+    @property
+    def frames(self) -> int:
+        """How many frames it holds (each was offered to `kept`)."""
+        return self.kept.seen
 
 
 class StillStretch:
@@ -102,7 +106,6 @@ class StillStretch:
         if current is None:
             current = self._current = _Stretch(frame, frame, EvenlySpread(self.limit))
         current.last = frame
-        current.frames += 1
         if len(current.anchor_tips) < ANCHOR_FRAMES:
             current.anchor_tips.append(tip)
             current.anchor_uncertainties.append(float(uncertainty))
