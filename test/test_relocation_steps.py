@@ -675,11 +675,11 @@ def test_a_notch_bent_much_sharper_than_its_neighbours_keeps_the_width_it_reads(
     """A robot bent 2 deg at each notch but 12 at notch 7 (matrix row bend_kink), its rims read exactly. The smoothed
     centreline spreads the kink over three notches: their chords read 4.7, 6.3 and 4.7 deg. Notch 7's width, 0.52 mm
     narrower than its neighbours', is 0.30 mm off what its own chord's bend implies; with the bump's excess over the
-    steady bend given back (notches.gathered_bend) its bend is 12 deg, and the width read is kept, also where the
+    steady bend given back (notches.bump_at) its bend is 12 deg, and the width read is kept, also where the
     bump's own excess raises the scatter of all the chords (it is measured without the bump's three). The same width
     read where the chords show no bump is misread, and so is one where the chords scatter as much as the bump
     (noise, not a kink). A chord that wobbles turns two neighbours opposite ways: no bump."""
-    from ntcr_recon.core.notches import calibrate_and_check, chord_scatter, gathered_bend
+    from ntcr_recon.core.notches import bump_at, calibrate_and_check, chord_scatter
 
     geometry = TubeGeometry()
     true_bends = np.radians(np.where(np.arange(geometry.notch_count) == 7, 12.0, 2.0))
@@ -695,7 +695,7 @@ def test_a_notch_bent_much_sharper_than_its_neighbours_keeps_the_width_it_reads(
     true_width = geometry.notch_width_at_bend(true_bends[7])
     kept = next(n for n in checked if n.index == 7)
     by_chord = geometry.notch_width_at_bend(chords[7])
-    gathered = np.degrees(gathered_bend(dict(enumerate(chords)), 7))
+    gathered = np.degrees(bump_at(dict(enumerate(chords)), 7).bend)
     print(f"\nnotch 7 read {kept.width * 1e3:.3f} mm (true {true_width * 1e3:.3f}; its chord's bend implies "
           f"{by_chord * 1e3:.3f}; its gathered bend {gathered:.1f} deg)")
     assert misread == {} and kept.signal != "bend" and kept.width == pytest.approx(true_width, abs=1e-6)
@@ -717,8 +717,48 @@ def test_a_notch_bent_much_sharper_than_its_neighbours_keeps_the_width_it_reads(
                                               geometry)
     assert 7 not in misread and next(n for n in checked if n.index == 7).width == pytest.approx(true_width, abs=1e-6)
     wobble = {i: np.radians(2.0) for i in range(16)} | {7: np.radians(3.0), 8: np.radians(1.0)}
-    assert gathered_bend(wobble, 7) is None and gathered_bend(wobble, 8) is None
-    assert gathered_bend(dict(enumerate(chords)), 0) is None and gathered_bend({7: 0.1, 8: 0.1}, 7) is None
+    assert bump_at(wobble, 7) is None and bump_at(wobble, 8) is None
+    assert bump_at(dict(enumerate(chords)), 0) is None and bump_at({7: 0.1, 8: 0.1}, 7) is None
+    # chords as read on second-renderer scenes of robots bent evenly (4.8 deg at each of 20 notches, 4.5 at each of
+    # 16): one alone off its neighbours, a curve that waves along the tube, chords falling towards its end
+    lone = [4.57, 4.49, 4.52, 4.87, 4.96, 4.86, 4.76, 4.63, 4.51, 5.25, 5.52, 5.55, 4.81, 4.23, 0.27, 4.41, 4.73, 5.5,
+            4.72, 4.62]
+    waving = lone[:14] + [4.14] + lone[15:]
+    falling = [4.27, 4.23, 4.24, 4.88, 4.36, 4.6, 4.18, 3.65, 4.1, 4.88, 5.92, 7.09, 5.26, 3.12, 2.59, 3.35]
+    for even in (lone, waving, falling):
+        assert bump_at(dict(enumerate(np.radians(even))), 14) is None
+
+
+def test_a_kink_read_wide_is_given_the_bend_its_chords_gather_back_and_its_neighbours_the_steady_bend():
+    """bend_kink (12 deg at notch 7, 2 at the others): notch 7's rims read it about 0.2 mm wide, a width its own
+    chord (spread by the smoothed centreline) does not rule out. The bump's five chords, less the steady bend of four,
+    give back its bend: that rules the width out, and notch 7 is given that bend's width; the notches beside it,
+    judged by the steady bend, keep theirs. So with the chords as read under the simulator's own matcher, and under
+    one without its left-right check (the far neighbour's chord then only 2.9 times the scatter beyond the steady
+    bend: the bump of three chords each beyond three missed it)."""
+    from ntcr_recon.core.notches import bump_at, calibrate_and_check
+
+    geometry = TubeGeometry()
+    true_bends = np.radians(np.where(np.arange(geometry.notch_count) == 7, 12.0, 2.0))
+    notches, start = [], geometry.notch_centers_s[0] - geometry.notch_arc_at_bend(true_bends[0]) / 2
+    for i, bend in enumerate(true_bends):
+        end = start + geometry.notch_arc_at_bend(bend)
+        widen = 0.18e-3 if i == 7 else 0.0  # notch 7's rims read too far apart (the spines beside share half)
+        notches.append(read_notch(geometry, i, start - widen, end + widen, bend))
+        start = end + geometry.notch_pitch - geometry.notch_width
+    true_width = geometry.notch_width_at_bend(true_bends[7])
+    own_matcher = [1.98, 1.77, 2.18, 1.86, 2.01, 2.42, 4.67, 6.16, 4.98, 2.29, 1.81, 1.5, 1.95, 2.11, 2.68, 1.4]
+    no_left_right_check = [2.61, 1.91, 1.87, 1.63, 1.99, 3.0, 4.64, 5.83, 3.71, 2.62, 2.96, 1.91, 1.31, 2.02, 2.93,
+                           1.03]
+    for chords in (np.radians(own_matcher), np.radians(no_left_right_check)):
+        assert np.degrees(bump_at(dict(enumerate(chords)), 7).bend) == pytest.approx(12.0, abs=1.3)
+        checked, misread, _ = calibrate_and_check([dataclasses.replace(n, bend=float(chords[n.index]))
+                                                   for n in notches], geometry)
+        given = next(n for n in checked if n.index == 7)
+        assert set(misread) == {7} and given.signal == "bend" and misread[7] - true_width > 0.1e-3
+        assert abs(given.width - true_width) < 0.07e-3
+        assert geometry.notch_width_at_bend(chords[7]) - true_width > 0.25e-3  # what its own chord would give
+        assert max(abs(n.width - geometry.notch_width_at_bend(true_bends[n.index])) for n in checked) < 0.07e-3
 
 
 def test_a_misread_notch_is_given_the_width_of_its_bend_taken_with_its_neighbours():

@@ -16,6 +16,7 @@ Width (the documented definition): the gap on the outer surface line facing the 
 
 from __future__ import annotations
 
+import math
 import statistics
 from dataclasses import dataclass, replace
 from typing import NamedTuple
@@ -396,31 +397,65 @@ def steady_bend(bends: dict[int, float | None], index: int) -> float:
     return float(statistics.median(known)) if known else 0.0
 
 
-def gathered_bend(bends: dict[int, float | None], index: int, scatter: float | None = None) -> float | None:
-    """The bend of notch `index` (rad) with what the smoothed centreline spread of it over its two neighbours given
-    back, given the chord bends by index: its own chord's bend plus each neighbour's excess over the steady bend
-    about them (the median of the notches two and three away, two of them at least). The centreline spreads a
-    notch bent much sharper than its neighbours (a kink: 12 deg among 2) over three, a bump: its own chord reads
-    about half its bend, its neighbours' its excess. Only a bump counts - the three chords beyond the steady bend
-    the same way, each by more than three times the chords' `scatter` - as noisy chords give any notch some excess
-    either way. The scatter (None: chord_scatter of the chords but these three) leaves the bump's own excess out:
-    it is no noise, and once it raised the scatter of all sixteen chords to 0.93 deg a kink was taken for a misread.
-    (The three's sum beyond three sigma of a sum of three let misread widths stand in the sweeps: a notch 0.05-0.12
-    mm further off in three scenes of 360.) None where there is no such bump, or a neighbour's chord or the steady
-    bend is not known."""
+# The least share of a kink's excess chord each of its neighbours holds (bump_at).
+SPREAD_SHARE = 0.35
+
+
+class Bump(NamedTuple):
+    """A notch whose chord stands out of the bends beside it the way a kink's does (bump_at)."""
+    bend: float    # rad: the bend with what the centreline spread over the notches beside it given back
+    steady: float  # rad: the steady bend about it (steady_about), the bend of the notches beside it
+
+
+def bump_at(bends: dict[int, float | None], index: int, scatter: float | None = None) -> Bump | None:
+    """Whether the chord bends (rad, by index) show a kink at notch `index`, and its bend.
+
+    The centreline spreads a notch bent much sharper than its neighbours (a kink: 12 deg among 2) over up to five,
+    a bump: its own chord reads about half its bend, its neighbours' the rest. It moves the turn along the tube, it
+    does not lose it: the kink's bend is the steady bend about it (steady_about) plus the excess over it of the
+    chords up to two notches either side. A bump has its own chord's excess the largest, beyond three times the
+    chords' `scatter`, its two neighbours' the same way and each at least SPREAD_SHARE of it, the span's excess
+    beyond three sigma of a sum of that many chords (noisy chords give any notch some excess either way), and the
+    chords three and four away within six of it and half its own excess of each other (a real bump three notches
+    on is no steady bend, and a curve that waves along the tube has none: five chords' excess over it sums what it
+    is off). A chord that wobbles where the curve's support changes is alone off its neighbours: no bump (the
+    first notches of a robot bent 18 deg at each read 15.1, 18.7, 20.9, 17.7 deg; three of one bent 4.8 at each,
+    4.2, 0.3, 4.4). The scatter (None: chord_scatter of the chords outside the span) leaves the bump out: it is no
+    noise, and once it raised the scatter of all sixteen chords to 0.93 deg a kink was taken for a misread. None
+    where there is no bump, or a neighbour's chord or the steady bend is not known."""
     own, neighbours = bends.get(index), [bends.get(i) for i in (index - 1, index + 1)]
-    around = [bend for i in (index - 3, index - 2, index + 2, index + 3) if (bend := bends.get(i)) is not None]
-    if own is None or None in neighbours or len(around) < 2:
+    steady = steady_about(bends, index)
+    if own is None or None in neighbours or steady is None:
         return None
-    steady = statistics.median(around)  # of two to four: plain Python, as chord_scatter's
-    excess = [bend - steady for bend in (own, *neighbours)]
-    if not (all(e > 0.0 for e in excess) or all(e < 0.0 for e in excess)):
+    peak, beside = own - steady, [bend - steady for bend in neighbours]
+    excess = [bend - steady for i in range(index - 2, index + 3) if (bend := bends.get(i)) is not None]
+    # the smoothing spreads a kink over both neighbours alike: each holds a good part of its excess (0.45-0.75 of
+    # the kink's own on bend_kink); a chord alone off its neighbours (0.2 of it) is the curve's wobble, no kink
+    if peak == 0.0 or not all(e / peak >= SPREAD_SHARE for e in beside) or any(abs(e) > abs(peak) for e in excess):
         return None
     if scatter is None:  # measured only where there is a bump to judge (a dozen medians)
-        scatter = chord_scatter({i: bend for i, bend in bends.items() if abs(i - index) > 1})
-    if not all(abs(e) > 3.0 * scatter for e in excess):
+        scatter = chord_scatter({i: bend for i, bend in bends.items() if abs(i - index) > 2})
+    total = math.fsum(excess)
+    around = _around(bends, index)
+    if not (abs(peak) > 3.0 * scatter and abs(total) > 3.0 * scatter * math.sqrt(len(excess))
+            and max(around) - min(around) <= min(6.0 * scatter, abs(peak) / 2.0)):
         return None
-    return float(own + excess[1] + excess[2])
+    return Bump(float(steady + total), steady)
+
+
+def _around(bends: dict[int, float | None], index: int) -> list[float]:
+    """The chord bends (rad, by index) of the notches three and four away from notch `index`: beyond the reach of a
+    bump the centreline spread from it."""
+    return [bend for i in (index - 4, index - 3, index + 3, index + 4) if (bend := bends.get(i)) is not None]
+
+
+def steady_about(bends: dict[int, float | None], index: int) -> float | None:
+    """The steady bend about notch `index` (rad): the median of the chord bends (by index) of the notches three and
+    four away (_around); None without one on either side (chords falling towards the tube's end are no bump)."""
+    sides = ((index - 4, index - 3), (index + 3, index + 4))
+    if not all(any(bends.get(i) is not None for i in side) for side in sides):
+        return None
+    return float(statistics.median(_around(bends, index)))  # plain Python: as chord_scatter's
 
 
 def chord_scatter(bends: dict[int, float | None]) -> float:
@@ -643,32 +678,42 @@ def calibrate_and_check(notches: list[Notch], geometry: TubeGeometry, centerline
     with a neighbour; so on, the farthest off first, until no measured notch is off its bend that far. One whose
     bend was not so measured (the last found: its distal rim, where the tube seen thins out, is the rim most often
     read far off, 0.25-0.4 mm in the sweeps) is checked against, and if misread given, the median of the bends of
-    the one or two notches before it whose bends were; those with neither are listed unchecked."""
+    the one or two notches before it whose bends were; those with neither are listed unchecked.
+
+    Where the chords show a kink (bump_at), the smoothed centreline spread its bend over the notches up to two away:
+    the kink is checked against (and if misread given) the bend gathered back, those notches against the steady
+    bend about it, not by their chords, the spread ones (taking whichever of its own chord's bend and the gathered
+    one explained its width let bend_kink's notch 7, read 0.22 mm wide by a matcher with a 5 px window and no
+    left-right check, stand)."""
     misread: dict[int, float] = {}
     limit = MISREAD_WIDTH_FRACTION * geometry.notch_width
     checked = _bends_measured(notches, geometry, tip_s)
     # a notch whose own bend no whole spine beyond measured (the last one found, its distal rim where the tube seen
     # thins out: the rim most often read far off) is checked against the bend of the measured notches before it
     measured_bends = {n.index: n.bend for n in notches if n.index in checked and n.bend is not None}
-    # the bend a kink's bump gathers back, where the chords show one (fixed by the chords read: once)
+    # the bend a kink's bump gathers back, where the chords show one (fixed by the chords read: once); beside it,
+    # whose chords the centreline gave part of the kink's bend, the notches bend as the steady bend does
     chord_bends = {n.index: n.bend for n in notches if n.edges_measured and n.index in checked}
-    gathered = {i: bend for i in chord_bends if (bend := gathered_bend(chord_bends, i)) is not None}
+    bumps = {i: bump for i in chord_bends if (bump := bump_at(chord_bends, i)) is not None}
+    given_back = {i + k: bump.steady for i, bump in bumps.items() for k in (-2, -1, 1, 2)}
+    given_back |= {i: bump.bend for i, bump in bumps.items()}
     before = {n.index: float(statistics.median(earlier)) for n in notches if n.index not in checked
               and (earlier := [measured_bends[i] for i in (n.index - 2, n.index - 1) if i in measured_bends])}
     while True:  # one at a time, the farthest off first: a misread rim shared over a spine puts its neighbour off too
         calibrated = calibrate_rims(notches, geometry, centerline, camera_origins)
         off = {n.index: abs(n.width - geometry.notch_width_at_bend(before.get(n.index, n.bend) or 0.0))
                for n in calibrated if n.edges_measured and (n.index in checked or n.index in before)}
-        for n in calibrated:  # a width a kink's bend explains (the centreline spread it over three) was read right
-            if n.index in off and n.index in gathered:
-                off[n.index] = min(off[n.index], abs(n.width - geometry.notch_width_at_bend(gathered[n.index])))
+        for n in calibrated:  # about a kink a width is judged by the bend given back: the chords are the spread ones
+            if n.index in off and n.index in given_back:
+                off[n.index] = abs(n.width - geometry.notch_width_at_bend(given_back[n.index]))
         worst = max(off, key=off.get, default=None)
         if worst is None or off[worst] <= limit:
             return CheckedNotches(calibrated, misread, sorted(n.index for n in calibrated if n.edges_measured
                                                               and n.index not in checked and n.index not in before))
         read = next(n for n in calibrated if n.index == worst)
         misread[worst] = read.width
-        steady = before[worst] if worst in before else steady_bend({n.index: n.bend for n in notches}, worst)
+        steady = (before[worst] if worst in before else given_back[worst] if worst in given_back
+                  else steady_bend({n.index: n.bend for n in notches}, worst))
         notches = [bend_implied(replace(read, bend=steady), geometry, "bend") if n.index == worst else n
                    for n in notches]
 
