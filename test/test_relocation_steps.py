@@ -733,9 +733,9 @@ def test_a_kink_read_wide_is_given_the_bend_its_chords_gather_back_and_its_neigh
     """bend_kink (12 deg at notch 7, 2 at the others): notch 7's rims read it about 0.2 mm wide, a width its own
     chord (spread by the smoothed centreline) does not rule out. The bump's five chords, less the steady bend of four,
     give back its bend: that rules the width out, and notch 7 is given that bend's width; the notches beside it,
-    judged by the steady bend, keep theirs. So with the chords as read under the simulator's own matcher, and under
-    one without its left-right check (the far neighbour's chord then only 2.9 times the scatter beyond the steady
-    bend: the bump of three chords each beyond three missed it)."""
+    judged by the steady bend, keep theirs. Those bends are the ones reported. So with the chords as read under the
+    simulator's own matcher, and under one without its left-right check (the far neighbour's chord then only 2.9
+    times the scatter beyond the steady bend: the bump of three chords each beyond three missed it)."""
     from ntcr_recon.core.notches import bump_at, calibrate_and_check
 
     geometry = TubeGeometry()
@@ -759,6 +759,10 @@ def test_a_kink_read_wide_is_given_the_bend_its_chords_gather_back_and_its_neigh
         assert abs(given.width - true_width) < 0.07e-3
         assert geometry.notch_width_at_bend(chords[7]) - true_width > 0.25e-3  # what its own chord would give
         assert max(abs(n.width - geometry.notch_width_at_bend(true_bends[n.index])) for n in checked) < 0.07e-3
+        # the bends reported: the kink's and the steady one beside it, the span's total turn its chords'
+        reported = np.array([n.bend for n in checked])
+        assert np.degrees(np.abs(reported - true_bends)).max() < 1.3
+        assert reported[5:10].sum() == pytest.approx(chords[5:10].sum(), abs=1e-12)
 
 
 def test_a_misread_notch_is_given_the_width_of_its_bend_taken_with_its_neighbours():

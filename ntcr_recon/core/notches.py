@@ -684,7 +684,7 @@ def calibrate_and_check(notches: list[Notch], geometry: TubeGeometry, centerline
     the kink is checked against (and if misread given) the bend gathered back, those notches against the steady
     bend about it, not by their chords, the spread ones (taking whichever of its own chord's bend and the gathered
     one explained its width let bend_kink's notch 7, read 0.22 mm wide by a matcher with a 5 px window and no
-    left-right check, stand)."""
+    left-right check, stand); and those are the bends they report."""
     misread: dict[int, float] = {}
     limit = MISREAD_WIDTH_FRACTION * geometry.notch_width
     checked = _bends_measured(notches, geometry, tip_s)
@@ -708,6 +708,8 @@ def calibrate_and_check(notches: list[Notch], geometry: TubeGeometry, centerline
                 off[n.index] = abs(n.width - geometry.notch_width_at_bend(given_back[n.index]))
         worst = max(off, key=off.get, default=None)
         if worst is None or off[worst] <= limit:
+            # about a kink the bends given back are the notches' (the span's turn is its chords')
+            calibrated = [replace(n, bend=given_back[n.index]) if n.index in given_back else n for n in calibrated]
             return CheckedNotches(calibrated, misread, sorted(n.index for n in calibrated if n.edges_measured
                                                               and n.index not in checked and n.index not in before))
         read = next(n for n in calibrated if n.index == worst)
