@@ -736,7 +736,7 @@ def test_a_kink_read_wide_is_given_the_bend_its_chords_gather_back_and_its_neigh
     judged by the steady bend, keep theirs. Those bends are the ones reported. So with the chords as read under the
     simulator's own matcher, and under one without its left-right check (the far neighbour's chord then only 2.9
     times the scatter beyond the steady bend: the bump of three chords each beyond three missed it)."""
-    from ntcr_recon.core.notches import bump_at, calibrate_and_check
+    from ntcr_recon.core.notches import bend_implied, bump_at, calibrate_and_check
 
     geometry = TubeGeometry()
     true_bends = np.radians(np.where(np.arange(geometry.notch_count) == 7, 12.0, 2.0))
@@ -763,6 +763,14 @@ def test_a_kink_read_wide_is_given_the_bend_its_chords_gather_back_and_its_neigh
         reported = np.array([n.bend for n in checked])
         assert np.degrees(np.abs(reported - true_bends)).max() < 1.3
         assert reported[5:10].sum() == pytest.approx(chords[5:10].sum(), abs=1e-12)
+    # a notch two from the kink whose edges were not measured (a dip: its width its bend's, by the median of its own
+    # and its neighbours' chords, one of them the kink's spread one) takes the width of the steady bend given back
+    dip = bend_implied(dataclasses.replace(notches[9], bend=float(np.median(chords[8:11]))), geometry, "dip")
+    with_dip = [dip if n.index == 9 else dataclasses.replace(n, bend=float(chords[n.index])) for n in notches]
+    given = next(n for n in calibrate_and_check(with_dip, geometry).notches if n.index == 9)
+    assert given.signal == "dip" and dip.width - geometry.notch_width_at_bend(true_bends[9]) < -0.05e-3
+    assert given.width == pytest.approx(geometry.notch_width_at_bend(given.bend), abs=1e-12)
+    assert abs(given.width - geometry.notch_width_at_bend(true_bends[9])) < 0.01e-3
 
 
 def test_a_misread_notch_is_given_the_width_of_its_bend_taken_with_its_neighbours():

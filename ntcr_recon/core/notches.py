@@ -708,8 +708,11 @@ def calibrate_and_check(notches: list[Notch], geometry: TubeGeometry, centerline
                 off[n.index] = abs(n.width - geometry.notch_width_at_bend(given_back[n.index]))
         worst = max(off, key=off.get, default=None)
         if worst is None or off[worst] <= limit:
-            # about a kink the bends given back are the notches' (the span's turn is its chords')
-            calibrated = [replace(n, bend=given_back[n.index]) if n.index in given_back else n for n in calibrated]
+            # about a kink the bends given back are the notches' (the span's turn is its chords'); one whose edges
+            # were not measured takes the width its bend now implies
+            calibrated = [n if (bend := given_back.get(n.index)) is None
+                          else replace(n, bend=bend) if n.edges_measured
+                          else bend_implied(replace(n, bend=bend), geometry, n.signal) for n in calibrated]
             return CheckedNotches(calibrated, misread, sorted(n.index for n in calibrated if n.edges_measured
                                                               and n.index not in checked and n.index not in before))
         read = next(n for n in calibrated if n.index == worst)
