@@ -676,7 +676,7 @@ def test_a_notch_bent_much_sharper_than_its_neighbours_keeps_the_width_it_reads(
     centreline spreads the kink over three notches: their chords read 4.7, 6.3 and 4.7 deg. Notch 7's width, 0.52 mm
     narrower than its neighbours', is 0.30 mm off what its own chord's bend implies; with the bump's excess over the
     steady bend given back (notches.bump_at) its bend is 12 deg, and the width read is kept, also where the
-    bump's own excess raises the scatter of all the chords (it is measured without the bump's three). The same width
+    bump's own excess raises the scatter of all the chords (it is measured without the bump's span). The same width
     read where the chords show no bump is misread, and so is one where the chords scatter as much as the bump
     (noise, not a kink). A chord that wobbles turns two neighbours opposite ways: no bump."""
     from ntcr_recon.core.notches import bump_at, calibrate_and_check, chord_scatter
