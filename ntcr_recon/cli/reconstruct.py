@@ -182,8 +182,9 @@ def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
     # what the input lacks, the frames left out, then what the relocation's self-check found (core.quality)
     left_out = ([f"{len(failed)} of {pair_count} frame pairs gave no result and are left out; {failed[0]}"]
                 if failed else [])
-    warnings = (input_warnings(config, cameras, pair_count, one_camera_pairs) + left_out + [
-        warning for warning in [combined.warning("frame pair")] if warning] + list(relocation.warnings))
+    moved = combined.warning("frame pair")
+    warnings = (input_warnings(config, cameras, pair_count, one_camera_pairs) + left_out + ([moved] if moved else [])
+                + list(relocation.warnings))
     timings["relocate_combined"] = reconstructor.timings_ms["relocate"]
     steps.update()
     mesh = reconstructor.mesh(relocation)

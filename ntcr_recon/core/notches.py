@@ -404,29 +404,30 @@ SPREAD_SHARE = 0.35
 class Bump(NamedTuple):
     """A notch whose chord stands out of the bends beside it the way a kink's does (bump_at)."""
     bend: float    # rad: the bend with what the centreline spread over the notches beside it given back
-    steady: float  # rad: the steady bend about it (steady_about), the bend of the notches beside it
+    steady: float  # rad: the steady bend about it (_steady_chords' median), the bend of the notches beside it
 
 
 def bump_at(bends: dict[int, float | None], index: int, scatter: float | None = None) -> Bump | None:
     """Whether the chord bends (rad, by index) show a kink at notch `index`, and its bend.
 
-    The centreline spreads a notch bent much sharper than its neighbours (a kink: 12 deg among 2) over up to five,
-    a bump: its own chord reads about half its bend, its neighbours' the rest. It moves the turn along the tube, it
-    does not lose it: the kink's bend is the steady bend about it (steady_about) plus the excess over it of the
-    chords up to two notches either side. A bump has its own chord's excess the largest, beyond three times the
-    chords' `scatter`, its two neighbours' the same way and each at least SPREAD_SHARE of it, the span's excess
-    beyond three sigma of a sum of that many chords (noisy chords give any notch some excess either way), and the
-    chords three and four away within six of it and half its own excess of each other (a real bump three notches
+    The centreline spreads a notch bent much sharper than its neighbours (a kink: 12 deg among 2) over up to five, a
+    bump: its own chord reads about half its bend, its neighbours' the rest. It moves the turn along the tube, it
+    does not lose it: the kink's bend is the steady bend about it (the median of _steady_chords) plus the excess
+    over it of the chords up to two notches either side. A bump has its own chord's excess the largest, beyond three
+    times the chords' `scatter`, its two neighbours' the same way and each at least SPREAD_SHARE of it, the span's
+    excess beyond three sigma of a sum of that many chords (noisy chords give any notch some excess either way), and
+    the chords three and four away within six of it and half its own excess of each other (a real bump three notches
     on is no steady bend, and a curve that waves along the tube has none: five chords' excess over it sums what it
-    is off). A chord that wobbles where the curve's support changes is alone off its neighbours: no bump (the
-    first notches of a robot bent 18 deg at each read 15.1, 18.7, 20.9, 17.7 deg; three of one bent 4.8 at each,
-    4.2, 0.3, 4.4). The scatter (None: chord_scatter of the chords outside the span) leaves the bump out: it is no
-    noise, and once it raised the scatter of all sixteen chords to 0.93 deg a kink was taken for a misread. None
-    where there is no bump, or a neighbour's chord or the steady bend is not known."""
+    is off). A chord that wobbles where the curve's support changes is alone off its neighbours: no bump (the first
+    notches of a robot bent 18 deg at each read 15.1, 18.7, 20.9, 17.7 deg; three of one bent 4.8 at each, 4.2, 0.3,
+    4.4). The scatter (None: chord_scatter of the chords outside the span) leaves the bump out: it is no noise, and
+    once it raised the scatter of all sixteen chords to 0.93 deg a kink was taken for a misread. None where there is
+    no bump, or a neighbour's chord or the steady bend is not known."""
     own, neighbours = bends.get(index), [bends.get(i) for i in (index - 1, index + 1)]
-    steady = steady_about(bends, index)
-    if own is None or None in neighbours or steady is None:
+    around = _steady_chords(bends, index)
+    if own is None or None in neighbours or around is None:
         return None
+    steady = float(statistics.median(around))  # plain Python: as chord_scatter's
     peak, beside = own - steady, [bend - steady for bend in neighbours]
     excess = [bend - steady for i in range(index - 2, index + 3) if (bend := bends.get(i)) is not None]
     # the smoothing spreads a kink over both neighbours alike: each holds a good part of its excess (0.45-0.75 of
@@ -436,26 +437,19 @@ def bump_at(bends: dict[int, float | None], index: int, scatter: float | None = 
     if scatter is None:  # measured only where there is a bump to judge (a dozen medians)
         scatter = chord_scatter({i: bend for i, bend in bends.items() if abs(i - index) > 2})
     total = math.fsum(excess)
-    around = _around(bends, index)
     if not (abs(peak) > 3.0 * scatter and abs(total) > 3.0 * scatter * math.sqrt(len(excess))
             and max(around) - min(around) <= min(6.0 * scatter, abs(peak) / 2.0)):
         return None
     return Bump(float(steady + total), steady)
 
 
-def _around(bends: dict[int, float | None], index: int) -> list[float]:
-    """The chord bends (rad, by index) of the notches three and four away from notch `index`: beyond the reach of a
-    bump the centreline spread from it."""
-    return [bend for i in (index - 4, index - 3, index + 3, index + 4) if (bend := bends.get(i)) is not None]
-
-
-def steady_about(bends: dict[int, float | None], index: int) -> float | None:
-    """The steady bend about notch `index` (rad): the median of the chord bends (by index) of the notches three and
-    four away (_around); None without one on either side (chords falling towards the tube's end are no bump)."""
-    sides = ((index - 4, index - 3), (index + 3, index + 4))
-    if not all(any(bends.get(i) is not None for i in side) for side in sides):
-        return None
-    return float(statistics.median(_around(bends, index)))  # plain Python: as chord_scatter's
+def _steady_chords(bends: dict[int, float | None], index: int) -> list[float] | None:
+    """The chord bends (rad, by index) of the notches three and four away from notch `index`, beyond the reach of a
+    bump the centreline spread from it; None without one on either side (chords falling towards the tube's end
+    are no bump)."""
+    before = [bend for i in (index - 4, index - 3) if (bend := bends.get(i)) is not None]
+    after = [bend for i in (index + 3, index + 4) if (bend := bends.get(i)) is not None]
+    return before + after if before and after else None
 
 
 def chord_scatter(bends: dict[int, float | None]) -> float:
