@@ -32,7 +32,8 @@ def test_sim_and_template_configs_load(repo_root):
     template = load_rig_config(repo_root / "config" / "rig_template.yaml")
     assert sim.camera_names == ("cam_a", "cam_b")
     assert sim.robot.outer_radius == pytest.approx(1.75e-3)
-    assert template.cameras["cam_a"].depth_unit == pytest.approx(1e-3)
+    # a live D405 keeps 0.1 mm depth units (camera_node sets them): 1 mm would lose most of the tube
+    assert template.cameras["cam_a"].depth_unit == template.cameras["cam_b"].depth_unit == pytest.approx(1e-4)
     # the extrinsic maps the optical axis of cam_a (looking along +y) into the base frame
     assert sim.cameras["cam_a"].extrinsic[:3, 2] == pytest.approx([0.0, 1.0, 0.0], abs=1e-9)
     assert sim.topics.camera_topic("cam_b", "depth") == "/ntcr/cam_b/depth/image_rect_raw"

@@ -146,3 +146,31 @@ def test_truncated_bag_stops_and_leaves_an_existing_output_untouched(bags_dir, t
     assert [p.name for p in out.iterdir()] == ["result.json"]
     assert (out / "result.json").read_text() == "earlier"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cut", "out"]
+
+
+def _empty_directory(folder):
+    (folder / "empty").mkdir()
+    return folder / "empty"
+
+
+def _yaml_file(folder):
+    (folder / "rig.yaml").write_text("a: 1\n")
+    return folder / "rig.yaml"
+
+
+@pytest.mark.parametrize(("make", "cause"), [
+    (lambda folder: folder / "missing", "does not exist"),
+    (_empty_directory, "a directory without metadata.yaml"),
+    (_yaml_file, "is not a bag"),
+])
+def test_what_is_not_a_bag_is_named_before_anything_starts(bags_dir, tmp_path, capsys, make, cause):
+    """A path that cannot be a bag (the rig file given in its place, an empty directory) is one message naming
+    it, not the bag reader's traceback; the progress bar has not started."""
+    bag = make(tmp_path)
+    code = cli_main(["reconstruct", str(bag), "--config", str(bags_dir / "straight" / "rig.yaml"),
+                     "--out", str(tmp_path / "out")])
+    assert code == 2
+    message = capsys.readouterr().err.strip().splitlines()
+    assert len(message) == 1 and str(bag) in message[0] and cause in message[0], message
+    assert message[0].startswith("ntcr-recon reconstruct: error:")
+    assert not (tmp_path / "out").exists()

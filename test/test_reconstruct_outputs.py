@@ -133,3 +133,19 @@ def test_a_killed_run_leaves_the_old_result_and_the_next_run_cleans_up(bags_dir,
     assert result.returncode == 0, result.stderr
     assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUT_FILES)
     assert [p.name for p in tmp_path.iterdir()] == ["res"]  # the killed run's staging is gone
+
+
+def test_an_output_directory_holding_other_files_is_refused_unless_overwrite(bags_dir, tmp_path, capsys):
+    """--out is replaced whole: a directory holding files no reconstruction writes (the user's own) is refused,
+    naming them, and kept as it was; --overwrite replaces it."""
+    out = tmp_path / "data"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    command = ["reconstruct", str(bags_dir / "straight"), "--out", str(out), "--no-progress", "--max-frames", "1"]
+    assert cli_main(command) == 2
+    message = capsys.readouterr().err
+    assert "--out:" in message and "notes.txt" in message and "--overwrite" in message
+    assert (out / "notes.txt").read_text() == "mine"
+    assert [p.name for p in tmp_path.iterdir()] == ["data"]
+    assert cli_main([*command, "--overwrite"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUT_FILES)

@@ -175,3 +175,14 @@ def test_a_frame_pair_without_the_robot_is_left_out_and_said_so(bags_dir, tmp_pa
     assert code == 2
     (message,) = stderr.strip().splitlines()
     assert "frame pair 1" in message and "(and so did the other frame pair)" in message
+
+
+def test_no_camera_contributing_is_refused_without_saying_either_carries_the_result(bags_dir, tmp_path, capsys):
+    def millimetres(parameters):
+        for camera in ("cam_a", "cam_b"):
+            parameters[camera].update(depth_unit=0.001)
+    config = _rig(bags_dir, tmp_path, millimetres)
+    code, _, stderr = _reconstruct(bags_dir / "straight", tmp_path / "out", capsys, "--config", config)
+    assert code == 2
+    assert "cam_a contributed no points" in stderr and "cam_b contributed no points" in stderr
+    assert "nor did any other camera" in stderr and "rests on" not in stderr

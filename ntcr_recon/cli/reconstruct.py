@@ -13,8 +13,9 @@ and measured, and DIR gets:
     density_heatmaps.png  notch_widths.png  side_views.png
 
 DIR is built whole in a staging directory beside it and swapped in by one rename (io.staging), so a reader
-sees the old result or the new one and a failure leaves DIR as it was. result.json (lengths in the unit its
-key names):
+sees the old result or the new one and a failure leaves DIR as it was. An existing DIR holding anything but
+those files (not a previous result) is refused unless --overwrite: it would be replaced whole.
+result.json (lengths in the unit its key names):
 
     {"frames", "frames_combined": {"first", "last", "count"} (1-based frame pairs), "notch_count_expected",
      "notches": [{"index", "center_s_mm", "width_mm", "bend_deg"}],
@@ -53,7 +54,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("bag", type=Path, help="rosbag2 directory (or .mcap file)")
     parser.add_argument("--config", type=Path, default=None,
                         help="rig configuration (ROS 2 parameter file); default: rig.yaml inside the bag directory")
-    parser.add_argument("--out", required=True, help="output directory (replaced whole when the run succeeds)")
+    parser.add_argument("--out", required=True, help="output directory (replaced whole when the run succeeds; one "
+                                                     "holding other files than a previous result's is refused)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace --out even when it holds other files than a previous result's")
     parser.add_argument("--source", choices=("auto", "depth", "points"), default="auto",
                         help="read depth images or PointCloud2 (auto: depth when the bag has them)")
     parser.add_argument("--topic", action="append", default=[], metavar="CAM.KIND=TOPIC",
@@ -95,9 +99,12 @@ def run(args: argparse.Namespace) -> dict:
     """The whole command; raises ReconstructCommandError with the cause. Returns the result document."""
     from ntcr_recon.core.config import ConfigError, load_rig_config
     from ntcr_recon.core.pipeline import ReconstructionError
-    from ntcr_recon.io.bag import BagError
+    from ntcr_recon.io.bag import BagError, bag_problem
     from ntcr_recon.io.staging import StagingError, staged_directory
 
+    problem = bag_problem(args.bag)
+    if problem:  # said before anything starts (the progress bar, the output directory)
+        raise ReconstructCommandError(problem)
     config_path = args.config if args.config is not None else _bag_dir(args.bag) / "rig.yaml"
     try:
         config = load_rig_config(config_path)
@@ -110,12 +117,24 @@ def run(args: argparse.Namespace) -> dict:
             raise ReconstructCommandError(f"--topic expects CAM.KIND=TOPIC, got {item!r}")
         overrides[key] = topic
     try:
-        with staged_directory(args.out) as staging:
+        with staged_directory(args.out) as staging:  # refuses a target no directory may replace (root, ...)
+            if not args.overwrite:
+                _refuse_other_files(Path(args.out))
             return _reconstruct(args, config, overrides, staging)
     except StagingError as error:
         raise ReconstructCommandError(f"--out: {error}") from error
     except (BagError, ReconstructionError, ValueError, OSError) as error:
         raise ReconstructCommandError(str(error)) from error
+
+
+def _refuse_other_files(out: Path) -> None:
+    """ReconstructCommandError when an existing output directory holds entries a reconstruction does not write:
+    the user's own files, which replacing it whole would delete."""
+    others = sorted(entry.name for entry in out.iterdir() if entry.name not in OUTPUT_FILES) if out.is_dir() else []
+    if others:
+        shown = ", ".join(others[:5]) + (f" and {len(others) - 5} more" if len(others) > 5 else "")
+        raise ReconstructCommandError(f"--out: {out} holds {shown}, which this command did not write, and it would "
+                                      "be replaced whole: choose another directory or pass --overwrite")
 
 
 def _bag_dir(bag: Path) -> Path:

@@ -76,8 +76,11 @@ def input_warnings(config: RigConfig, cameras: dict[str, CameraInput], pairs: in
                             f"{unit * 1e3:.3g} mm suggests (a coarser recording rescaled, e.g. realsense-ros's "
                             "1 mm?): depth detail below that step is lost")
         if not facts.fused_points:
-            warnings.append(f"{name} contributed no points inside the crop box in {facts.frames} frames: the "
-                            f"result rests on {others} alone; check {name}'s depth_unit ({unit:g} m) and pose "
+            contributing = sorted(other for other, other_facts in seen.items() if other_facts.fused_points)
+            rests_on = (f"the result rests on {', '.join(contributing)} alone" if contributing
+                        else "nor did any other camera")
+            warnings.append(f"{name} contributed no points inside the crop box in {facts.frames} frames: "
+                            f"{rests_on}; check {name}'s depth_unit ({unit:g} m) and pose "
                             f"(translation, rotation){_distance_hint(config, name, facts)}")
     # Who the result rests on: the relocated points once relocation ran (a camera whose points land beside
     # the robot, e.g. a wrong pose, contributes little there), else the fused points per frame.

@@ -167,8 +167,11 @@ def open_bag(bag: Path):
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
-    reader = AnyReader([Path(bag)], default_typestore=get_typestore(Stores.ROS2_JAZZY))
+    problem = bag_problem(Path(bag))
+    if problem:
+        raise BagError(problem)
     try:
+        reader = AnyReader([Path(bag)], default_typestore=get_typestore(Stores.ROS2_JAZZY))
         reader.open()
     except Exception as error:  # rosbags raises several types for a damaged or foreign file  # noqa: BLE001
         raise BagError(_unreadable(bag, error)) from error
@@ -176,6 +179,24 @@ def open_bag(bag: Path):
         yield reader
     finally:
         reader.close()
+
+
+# Files rosbags reads as a bag by themselves: rosbag2's storage files, and ROS 1 bags.
+BAG_FILE_SUFFIXES = (".mcap", ".db3", ".bag")
+
+
+def bag_problem(bag: Path) -> str | None:
+    """Why `bag` cannot be a bag at all (missing, a directory without metadata.yaml, another kind of file), or
+    None: said before reading starts, in the user's terms rather than the reader's."""
+    if not bag.exists():
+        return f"bag {bag} does not exist"
+    if bag.is_dir() and not (bag / "metadata.yaml").is_file():
+        return (f"bag {bag} is a directory without metadata.yaml, so no rosbag2 bag (a recording that was "
+                "interrupted gets one from `ros2 bag reindex`)")
+    if not bag.is_dir() and bag.suffix not in BAG_FILE_SUFFIXES:
+        return (f"{bag} is not a bag: give a rosbag2 directory (with metadata.yaml) or a "
+                f"{'/'.join(BAG_FILE_SUFFIXES)} file")
+    return None
 
 
 def _unreadable(bag: Path, error: Exception) -> str:
@@ -233,8 +254,6 @@ def iter_camera_frames(bag: str | Path, config: RigConfig, source: str = "auto",
     facts: camera -> CameraInput, filled in while reading (frames, byte order, raw depth quantisation).
     """
     bag = Path(bag)
-    if not bag.exists():
-        raise BagError(f"bag {bag} does not exist")
     wanted = {name: camera_topics(config, name, topic_overrides) for name in config.camera_names}
     with open_bag(bag) as reader:
         available = {c.topic for c in reader.connections}
