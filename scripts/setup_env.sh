@@ -22,9 +22,10 @@ fi
 
 if [ ! -x "$venv/bin/python" ]; then
   python=""
+  # quiet: a pyenv shim for a version it does not have active complains, and is simply not taken
   for candidate in python3.12 python3.11 python3; do
     if command -v "$candidate" >/dev/null \
-       && "$candidate" -c 'import sys; sys.exit(not (3, 11) <= sys.version_info[:2] <= (3, 12))'; then
+       && "$candidate" -c 'import sys; sys.exit(not (3, 11) <= sys.version_info[:2] <= (3, 12))' 2>/dev/null; then
       python="$candidate"; break
     fi
   done

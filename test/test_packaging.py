@@ -91,3 +91,25 @@ def test_cli_lists_its_subcommands():
                             capture_output=True, text=True, timeout=60)
     assert result.returncode == 0
     assert all(name in result.stdout for name in ("simulate", "render", "reconstruct", "run"))
+
+
+def test_the_rosdep_source_the_readme_registers_resolves_every_pip_key_of_package_xml():
+    """rosdistro's database lacks python3-rosbags-pip, -mcap-pip, -pyrealsense2-pip and -ruff-pip (and has
+    python3-numba for Ubuntu up to 20.04 only): rosdep install would stop at them. The package's own source
+    defines each for Debian and Ubuntu, by the PyPI name requirements*.txt pins, and the README registers it."""
+    import re
+
+    import yaml
+
+    manifest = ET.parse(REPO / "package.xml").getroot()
+    pip_keys = {element.text for element in manifest if element.text and element.text.endswith("-pip")}
+    source = yaml.safe_load((REPO / "rosdep" / "ntcr_recon.yaml").read_text())
+    assert pip_keys | {"python3-numba"} <= set(source), (pip_keys | {"python3-numba"}) - set(source)
+    requirements = {re.split(r"[<>=\s#]", line, maxsplit=1)[0].lower()
+                    for name in ("requirements.txt", "requirements-test.txt")
+                    for line in (REPO / name).read_text().splitlines() if line and line[0].isalpha()}
+    for key in pip_keys:
+        for platform in ("debian", "ubuntu"):
+            (package,) = source[key][platform]["pip"]["packages"]
+            assert package.lower() in requirements, (key, package)
+    assert "rosdep/ntcr_recon.yaml" in (REPO / "README.md").read_text()

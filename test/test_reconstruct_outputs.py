@@ -149,3 +149,33 @@ def test_an_output_directory_holding_other_files_is_refused_unless_overwrite(bag
     assert [p.name for p in tmp_path.iterdir()] == ["data"]
     assert cli_main([*command, "--overwrite"]) == 0
     assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUT_FILES)
+
+
+def _drawn_rows(image, columns: slice) -> float:
+    """The share of the image's height between the topmost and lowest point drawn (tab:blue) in `columns`."""
+    import numpy as np
+
+    pixels = np.asarray(image.convert("RGB"))[:, columns].astype(int)
+    blue = np.abs(pixels - [31, 119, 180]).sum(axis=2) < 60
+    rows = np.flatnonzero(blue.any(axis=1))
+    return (rows[-1] - rows[0]) / pixels.shape[0] if len(rows) else 0.0
+
+
+def test_the_side_views_frame_the_robot_not_the_raw_clouds_far_points(tmp_path):
+    """The raw cloud holds the clamp, the table and a backdrop up to 15 cm off: framed on them the robot would be a
+    few pixels; framed on the relocated robot it fills most of the panel's height."""
+    import numpy as np
+    from PIL import Image
+
+    from ntcr_recon.core import figures
+
+    along = np.linspace(0.0, 0.05, 2000)
+    robot = np.stack([0.002 * np.sin(40 * along), np.zeros_like(along), along], axis=1)
+    far = np.array([[-0.15, 0.0, -0.15], [0.15, 0.0, 0.15], [0.15, 0.0, -0.15]])
+    path = tmp_path / "side_views.png"
+    figures.side_views(path, np.concatenate([robot, far]), robot, None, np.array([[1.0, 0, 0], [0, 0, 1.0]]),
+                       axis_labels=("x (mm)", "z (mm)"))
+    with Image.open(path) as image:
+        third = image.width // 3
+        assert _drawn_rows(image, slice(third, 2 * third)) > 0.6  # the relocated panel
+        assert _drawn_rows(image, slice(0, third)) > 0.6  # the raw panel: the same frame, its far points beyond it

@@ -233,14 +233,16 @@ def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
     write_mesh(staging / "mesh.ply", mesh)
     write_mesh(staging / "mesh.stl", mesh)
     view = _view_axes(geometry)
-    figures.density_heatmaps(staging / "density_heatmaps.png", raw.xyz, relocation.relocated.xyz, view, voxel)
+    figures.density_heatmaps(staging / "density_heatmaps.png", raw.xyz, relocation.relocated.xyz, view, voxel,
+                             VIEW_AXIS_LABELS)
     truth_widths = None
     if result["ground_truth"] is not None:
         truth_widths = result["ground_truth"].pop("_widths_mm")
     figures.notch_width_plot(staging / "notch_widths.png", [n["width_mm"] for n in result["notches"]],
                              geometry.notch_width * 1e3, truth_widths, [n["index"] for n in result["notches"]])
     mesh_title = "Poisson mesh" if config.mesh.method == "poisson" else "tube-grid mesh"
-    figures.side_views(staging / "side_views.png", raw.xyz, relocation.relocated.xyz, mesh, view, mesh_title)
+    figures.side_views(staging / "side_views.png", raw.xyz, relocation.relocated.xyz, mesh, view, mesh_title,
+                       VIEW_AXIS_LABELS)
     steps.update()
     steps.close()
     timings["total"] = (time.perf_counter() - started) * 1e3
@@ -248,6 +250,10 @@ def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
     text = json.dumps(result, indent=1)
     (staging / "result.json").write_text(text)
     return result
+
+
+# what _view_axes' two directions are, for the figures' axes
+VIEW_AXIS_LABELS = ("towards the configured notch side (mm)", "along the robot's base axis (mm)")
 
 
 def _view_axes(geometry) -> np.ndarray:

@@ -5,7 +5,9 @@ Public API (each writes one PNG atomically and returns nothing):
     notch_width_plot(path, widths_mm, nominal_mm, truth_mm=None)   Fig. 7: scatter by notch and box plot
     side_views(path, raw_xyz, relocated_xyz, mesh, axes)           Fig. 1/5: raw, relocated, mesh
 `axes` is a (2, 3) array: the two in-plane directions of the view (e.g. the robot's notch side and its
-axis), so every figure looks at the bending plane.
+axis), so every figure looks at the bending plane; `axis_labels` names them. The clouds are framed on the
+relocated robot: the raw cloud's points beyond it (the clamp, the table, a backdrop inside the crop box) would
+shrink the robot to a few pixels, and the figures count them instead.
 """
 
 from __future__ import annotations
@@ -34,21 +36,36 @@ def _project(xyz: np.ndarray, axes: np.ndarray) -> np.ndarray:
     return np.asarray(xyz) @ np.asarray(axes).T * 1e3  # mm
 
 
-def density_heatmaps(path, raw_xyz: np.ndarray, relocated_xyz: np.ndarray, axes: np.ndarray, cell: float) -> None:
+def _robot_frame(relocated: np.ndarray, raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The figures' frame (mm, low and high corners): the relocated robot with a margin of a tenth of its extent
+    and 2 mm; the raw cloud's where nothing was relocated."""
+    around = relocated if len(relocated) else raw if len(raw) else np.zeros((1, 2))
+    low, high = around.min(axis=0), around.max(axis=0)
+    margin = 0.1 * float(np.max(high - low)) + 2.0
+    return low - margin, high + margin
+
+
+def _beyond(points: np.ndarray, low: np.ndarray, high: np.ndarray) -> int:
+    return int(np.count_nonzero(np.any((points < low) | (points > high), axis=1)))
+
+
+def density_heatmaps(path, raw_xyz: np.ndarray, relocated_xyz: np.ndarray, axes: np.ndarray, cell: float,
+                     axis_labels: tuple[str, str] = ("mm", "mm")) -> None:
     plt = _pyplot()
     raw, relocated = _project(raw_xyz, axes), _project(relocated_xyz, axes)
-    both = np.concatenate([raw, relocated]) if len(raw) + len(relocated) else np.zeros((1, 2))
-    lo, hi = both.min(axis=0) - 1.0, both.max(axis=0) + 1.0
+    lo, hi = _robot_frame(relocated, raw)
     bins = [np.arange(lo[d], hi[d] + cell * 1e3, cell * 1e3) for d in range(2)]
     fig, panels = plt.subplots(1, 2, figsize=(10, 6), sharex=True, sharey=True)
     counts = [np.histogram2d(p[:, 0], p[:, 1], bins=bins)[0] for p in (relocated, raw)]
     top = max(float(c.max()) for c in counts) or 1.0
-    for panel, count, title in zip(panels, counts, ("relocated", "raw fused"), strict=True):
+    beyond = _beyond(raw, lo, hi)
+    titles = ("relocated", "raw fused" + (f" ({beyond} points beyond this frame)" if beyond else ""))
+    for panel, count, title in zip(panels, counts, titles, strict=True):
         image = panel.imshow(count.T, origin="lower", extent=(lo[0], hi[0], lo[1], hi[1]), cmap="viridis",
                              vmin=0, vmax=top, aspect="equal")
-        panel.set_title(f"{title}: points per {cell * 1e3:.1f} mm cell")
-        panel.set_xlabel("mm")
-    panels[0].set_ylabel("mm")
+        panel.set_title(f"{title}: points per {cell * 1e3:.1f} mm cell", fontsize="medium")
+        panel.set_xlabel(axis_labels[0])
+    panels[0].set_ylabel(axis_labels[1])
     fig.colorbar(image, ax=list(panels), label="points")
     _save(fig, path)
 
@@ -74,11 +91,14 @@ def notch_width_plot(path, widths_mm: list[float], nominal_mm: float, truth_mm: 
 
 
 def side_views(path, raw_xyz: np.ndarray, relocated_xyz: np.ndarray, mesh, axes: np.ndarray,
-               mesh_title: str = "mesh") -> None:
+               mesh_title: str = "mesh", axis_labels: tuple[str, str] = ("mm", "mm")) -> None:
     plt = _pyplot()
     fig, panels = plt.subplots(1, 3, figsize=(12, 6), sharex=True, sharey=True)
-    for panel, xyz, title in ((panels[0], raw_xyz, "raw fused cloud"), (panels[1], relocated_xyz, "relocated cloud")):
-        p = _project(xyz, axes)
+    raw, relocated = _project(raw_xyz, axes), _project(relocated_xyz, axes)
+    lo, hi = _robot_frame(relocated, raw)
+    beyond = _beyond(raw, lo, hi)
+    raw_title = "raw fused cloud" + (f"\n({beyond} points beyond this frame)" if beyond else "")
+    for panel, p, title in ((panels[0], raw, raw_title), (panels[1], relocated, "relocated cloud")):
         panel.scatter(p[:, 0], p[:, 1], s=0.3, color="tab:blue")
         panel.set_title(title)
     if mesh is not None and len(mesh):
@@ -87,7 +107,9 @@ def side_views(path, raw_xyz: np.ndarray, relocated_xyz: np.ndarray, mesh, axes:
     panels[2].set_title(mesh_title)
     for panel in panels:
         panel.set_aspect("equal")
-        panel.set_xlabel("mm")
-    panels[0].set_ylabel("mm")
+        panel.set_xlabel(axis_labels[0])
+    panels[0].set_xlim(lo[0], hi[0])  # shared by the three panels
+    panels[0].set_ylim(lo[1], hi[1])
+    panels[0].set_ylabel(axis_labels[1])
     fig.tight_layout()
     _save(fig, path)

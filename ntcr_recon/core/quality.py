@@ -547,8 +547,8 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
                         f"{rolled} (measured side used)")
     if footprint > FOOTPRINT_RADIUS_FRACTION * r_o:
         warnings.append(f"a depth pixel covers {footprint * 1e3:.2f} mm, the tube is only "
-                        f"{diameter / footprint:.0f} px across: expect errors above 0.1 mm (move the cameras "
-                        "closer)")
+                        f"{diameter / footprint:.0f} px across: expect errors above 0.1 mm (a higher depth "
+                        "resolution, or cameras closer, down to the D405's minimum depth of about 70 mm)")
     warnings += [w for name, step in depth_steps.items() if (w := depth_quantisation_warning(name, step, geometry))]
     if uncertainty is not None and uncertainty > CENTERLINE_FLOOR:
         warnings.append(f"the centreline is uncertain by about {uncertainty * 1e3:.2f} mm: stereo matching beside "
