@@ -108,8 +108,9 @@ def run(args: argparse.Namespace) -> dict:
     config_path = args.config if args.config is not None else _bag_dir(args.bag) / "rig.yaml"
     try:
         config = load_rig_config(config_path)
-    except ConfigError as error:
-        raise ReconstructCommandError(f"bad rig configuration: {error}") from error
+    except ConfigError as error:  # an unreadable file says so itself; a bad one is named as such
+        unreadable = isinstance(error.__cause__, OSError)
+        raise ReconstructCommandError(str(error) if unreadable else f"bad rig configuration: {error}") from error
     overrides = {}
     for item in args.topic:
         key, sep, topic = item.partition("=")

@@ -110,20 +110,21 @@ def _argv(executable: str, node_name: str, config: Path, parameters: dict[str, o
 
 def main(args: argparse.Namespace) -> int:
     from ntcr_recon.core.config import ConfigError, load_rig_config
+    from ntcr_recon.io.bag import bag_problem
 
     try:
         config = load_rig_config(args.config)
-        if args.bag is not None and not args.bag.exists():
-            raise ValueError(f"bag {args.bag} does not exist")
+        if args.bag is not None and (problem := bag_problem(args.bag)):
+            raise ValueError(problem)
         commands = node_commands(args, list(config.camera_names))
     except (ConfigError, ValueError) as error:
-        print(f"error: {error}", file=sys.stderr)
+        print(f"ntcr-recon run: error: {error}", file=sys.stderr)
         return 2
     if args.output is not None:
         try:
             args.output.mkdir(parents=True, exist_ok=True)
         except OSError as error:  # an --output that cannot be a folder (a file on the way, no permission)
-            print(f"error: --output {args.output}: {error.strerror or error}", file=sys.stderr)
+            print(f"ntcr-recon run: error: --output {args.output}: {error.strerror or error}", file=sys.stderr)
             return 2
     if args.single_process:
         with tempfile.TemporaryDirectory(prefix="ntcr-run-") as folder:
@@ -235,7 +236,8 @@ def _supervise(running: list[_Running], respawn: bool) -> bool:
         if code is None:
             continue
         if code == CONFIG_REFUSED or not respawn:
-            print(f"error: {node.command.name} exited with code {code}; stopping the graph", file=sys.stderr)
+            print(f"ntcr-recon run: error: {node.command.name} exited with code {code}; stopping the graph",
+                  file=sys.stderr)
             return False
         node.deaths = node.deaths + 1 if now - node.started < STABLE_S else 1
         delay = min(RESPAWN_DELAY_S * 2 ** (node.deaths - 1), RESPAWN_MAX_DELAY_S)
