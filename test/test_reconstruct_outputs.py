@@ -11,6 +11,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from ntcr_recon.cli import main as cli_main
@@ -153,8 +154,6 @@ def test_an_output_directory_holding_other_files_is_refused_unless_overwrite(bag
 
 def _drawn_rows(image, columns: slice) -> float:
     """The share of the image's height between the topmost and lowest point drawn (tab:blue) in `columns`."""
-    import numpy as np
-
     pixels = np.asarray(image.convert("RGB"))[:, columns].astype(int)
     blue = np.abs(pixels - [31, 119, 180]).sum(axis=2) < 60
     rows = np.flatnonzero(blue.any(axis=1))
@@ -164,7 +163,6 @@ def _drawn_rows(image, columns: slice) -> float:
 def test_the_side_views_frame_the_robot_not_the_raw_clouds_far_points(tmp_path):
     """The raw cloud holds the clamp, the table and a backdrop up to 15 cm off: framed on them the robot would be a
     few pixels; framed on the relocated robot it fills most of the panel's height."""
-    import numpy as np
     from PIL import Image
 
     from ntcr_recon.core import figures
