@@ -209,6 +209,21 @@ class MetricsConfig:
 
 
 @dataclass(frozen=True)
+class QualityConfig:
+    """What a result must be good to for its status to be ok (result.json `status`, /diagnostics level)."""
+
+    centerline_tolerance: float = setting(0.08e-3, "the centreline's stated uncertainty (a 90 % bound on its RMS "
+                                          "error) must not exceed this for status ok", unit="m", minimum=0.0,
+                                          maximum=0.1, exclusive_minimum=True)
+    tip_tolerance: float = setting(0.15e-3, "the tip's stated uncertainty (a 90 % bound on its distance from the "
+                                   "true tip) must not exceed this for status ok", unit="m", minimum=0.0, maximum=0.1,
+                                   exclusive_minimum=True)
+    notch_width_tolerance: float = setting(0.20e-3, "every notch width's stated uncertainty (a 90 % bound) must not "
+                                           "exceed this for status ok", unit="m", minimum=0.0, maximum=0.1,
+                                           exclusive_minimum=True)
+
+
+@dataclass(frozen=True)
 class RigConfig:
     """The whole rig: its frames and cameras, the robot, and the stages' parameters."""
 
@@ -224,6 +239,7 @@ class RigConfig:
     relocation: RelocationConfig = field(default_factory=RelocationConfig)
     mesh: MeshConfig = field(default_factory=MeshConfig)
     metrics: MetricsConfig = field(default_factory=MetricsConfig)
+    quality: QualityConfig = field(default_factory=QualityConfig)
 
     @property
     def flying_pixel_step(self) -> float:
@@ -271,6 +287,7 @@ STAGE_SECTIONS = {
     "relocation": RelocationConfig,
     "mesh": MeshConfig,
     "metrics": MetricsConfig,
+    "quality": QualityConfig,
 }
 
 
