@@ -53,7 +53,8 @@ from ntcr_recon.ros.node_support import (
 )
 from ntcr_recon.ros.topics import stage_topic
 
-CENTERLINES_KEPT = 4
+CENTERLINES_KEPT = 4  # the centrelines last received (not those of the highest stamps: see _on_centerline)
+STAMP_JUMP_NS = 1_000_000_000  # a centreline stamped this much before the previous one: the clock jumped back
 
 PARAMETERS = {
     "rate": (1.0, describe("meshes per second (of the node's clock)", minimum=0.01, maximum=30.0)),
@@ -78,7 +79,8 @@ class MeshNode(RigNode):
         super().__init__(node_name, PARAMETERS)
         self.stats = NodeStats(self, "ntcr_recon: mesh")
         self._newest = None  # the newest relocated cloud message not yet meshed
-        self._centerlines: dict[int, bytes] = {}  # the last few centrelines by stamp, serialized
+        self._centerlines: dict[int, bytes] = {}  # the last few centrelines received, by stamp, serialized
+        self._last_centerline_ns: int | None = None
         self.meshes = 0
         self._marker = self.create_publisher(Marker, stage_topic(self.rig.topics, "mesh"), LATCHED_QOS)
         self._raw = self.create_publisher(Mesh, stage_topic(self.rig.topics, "mesh/raw"), LATCHED_QOS)
@@ -118,9 +120,20 @@ class MeshNode(RigNode):
 
     @guarded
     def _on_centerline(self, raw: bytes) -> None:
-        self._centerlines[_header_stamp_ns(raw)] = raw
-        for stamp in sorted(self._centerlines)[:-CENTERLINES_KEPT]:
-            del self._centerlines[stamp]
+        """Kept in the order they arrive, the oldest arrival leaving first: kept by highest stamp, four clouds
+        stamped in the future (a wrong clock, a replay looping, sim time starting) held the node's only places
+        for good and no later cloud found its centreline (issue 66). A jump back of the stamps starts afresh,
+        as fusion's pairing does; a jump forward ages out after CENTERLINES_KEPT arrivals."""
+        stamp = _header_stamp_ns(raw)
+        previous, self._last_centerline_ns = self._last_centerline_ns, stamp
+        if previous is not None and stamp < previous - STAMP_JUMP_NS:
+            self.get_logger().warning(f"centreline stamps jumped back by {(previous - stamp) / 1e9:.3f} s: "
+                                      "matching clouds to centrelines starts afresh")
+            self._centerlines.clear()
+        self._centerlines.pop(stamp, None)  # a repeated stamp counts as the newest arrival
+        self._centerlines[stamp] = raw
+        while len(self._centerlines) > CENTERLINES_KEPT:
+            del self._centerlines[next(iter(self._centerlines))]
 
     def _take_newest(self) -> None:
         """Decode and check the newest cloud (a bad one is logged by cause, counted and dropped)."""
