@@ -73,12 +73,20 @@ def _recording(source: Path) -> tuple[list, int]:
     return messages, stamps[-1] - stamps[0] + period
 
 
+# The messages of one instant in two orders `ros2 bag record` may write them in (it gives none among them).
+INFO_FIRST = ("depth/camera_info", "depth/image_rect_raw", "color/camera_info", "color/image_rect_raw")
+DEPTH_FIRST = ("depth/image_rect_raw", "color/image_rect_raw", "color/camera_info", "depth/camera_info")
+
+
 def rewrite_bag(source: Path | list[Path], out: Path, repeat: int = 1, crop: bool = False,
-                edit: Callable[[str, object], object] | None = None) -> Path:
+                edit: Callable[[str, object], object] | None = None, instant_order: tuple[str, ...] | None = None,
+                ) -> Path:
     """A copy of the rig bag `source` (rig.yaml and ground_truth.json alike) in `out`: its frames `repeat`
     times, each repetition stamped one recording later; images cropped to the crop box's pixels when `crop`;
     `edit(topic, msg) -> msg` applied to every message last. Several sources (of one rig) are recorded one after
-    the other, with the last one's rig.yaml and ground_truth.json (e.g. a robot that moved between them)."""
+    the other, with the last one's rig.yaml and ground_truth.json (e.g. a robot that moved between them).
+    `instant_order` (topic endings, e.g. DEPTH_FIRST): the messages of one camera's instant are logged in that
+    order (1 ns apart), so a reader meets them so."""
     sources = [source] if isinstance(source, Path) else list(source)
     windows = {}
     for path in sources if crop else []:  # each camera's window: the union of the sources'
@@ -105,7 +113,9 @@ def rewrite_bag(source: Path | list[Path], out: Path, repeat: int = 1, crop: boo
                         msg = edit(topic, msg)
                     if topic not in connections:
                         connections[topic] = writer.add_connection(topic, msgtype, typestore=TYPESTORE)
-                    writer.write(connections[topic], log_time + shift, TYPESTORE.serialize_cdr(msg, msgtype))
+                    rank = next((i for i, end in enumerate(instant_order or ()) if topic.endswith(end)), 0)
+                    writer.write(connections[topic], log_time + shift + rank,
+                                 TYPESTORE.serialize_cdr(msg, msgtype))
                 shift += span
     for name in ("rig.yaml", "ground_truth.json"):
         shutil.copy(sources[-1] / name, out / name)

@@ -9,7 +9,8 @@ Public API:
     BagError(ValueError)                                  missing topics, truncated or unreadable bag
     camera_topics(config, camera, overrides=None) -> dict[kind, topic]
     image_to_array(msg) -> np.ndarray                     16UC1/mono16 -> uint16, 32FC1 -> float32, colour -> RGB
-    DepthMessages, DepthFrameMatcher                       depth + camera_info (+ colour) of one frame, matched
+    DepthMessages, DepthFrameMatcher                       depth + camera_info (+ colour) of one frame, matched by
+                                                          stamp in whatever order the bag holds them
     BagStream(bag, topics_by_camera, mode)                 iterate: (camera, DepthMessages | PointCloud2 message)
     iter_camera_frames(bag, config, source="auto", topic_overrides=None, max_frames=0, facts=None)
         -> iterator of core.fusion.CameraFrame, in the bag's order
@@ -38,6 +39,8 @@ DEPTH_KINDS = ("depth", "depth_info", "color")
 # camera_info messages remembered to find the one in force at a depth frame's stamp (a driver publishes it
 # with every image; a few cover any interleaving of the topics in the bag)
 INFO_HISTORY = 8
+# depth images that may come after one still without any camera_info before it is given up (bounded memory)
+INFO_WAIT = 8
 # colour images kept waiting for the depth frame of their stamp; older ones are dropped (bounded memory)
 COLOR_WAIT = 4
 
@@ -101,53 +104,67 @@ class DepthMessages:
 
 
 class DepthFrameMatcher:
-    """Puts one camera's depth, camera_info and colour messages together as they stream by (in the bag's
-    order). A depth image takes the newest camera_info stamped at or before it (the nearest later one when
-    none is); one that comes before any camera_info cannot be deprojected and is counted in
-    `frames_without_info`. Its colour is the image of the same stamp, before or after it; a depth frame whose
-    colour has not come by the next depth image goes without."""
+    """Puts one camera's depth, camera_info and colour messages together by stamp, whatever their order in
+    the bag: `ros2 bag record` gives none among the messages of one instant, so a depth image may come before
+    or after its camera_info and its colour.
+
+    A depth image waits (bounded) for what belongs to it: it is released once it has the camera_info of its
+    own stamp (or one stamped later has come by) and, when the bag has colour, its colour image; or, at the
+    latest, when the next depth image of the camera comes, with the camera_info in force at its stamp (the
+    newest stamped at or before it, else the nearest later) and without colour if none came. Only a depth
+    image for which no camera_info at all has come by the time `INFO_WAIT` later depth images have (or the bag
+    ends) cannot be deprojected: it is counted in `frames_without_info`. Frames come out in the order of their
+    depth images; colour images waiting for their depth image are kept up to `COLOR_WAIT`."""
 
     def __init__(self, has_color: bool) -> None:
         self.has_color = has_color
         self.frames_without_info = 0
         self._infos: deque[tuple[int, Any, Intrinsics]] = deque(maxlen=INFO_HISTORY)
         self._colors: dict[int, Any] = {}
-        self._waiting: DepthMessages | None = None  # a depth frame whose colour has not come yet
+        self._pending: deque[_PendingDepth] = deque()  # depth images not yet released, in their order
 
     def add(self, kind: str, msg) -> list[DepthMessages]:
-        """Take one message; returns the frames it completes (none, one, or two)."""
+        """Take one message; returns the frames it completes (in the order of their depth images)."""
         stamp = stamp_to_ns(msg.header.stamp)
         if kind == "depth_info":
             self._infos.append((stamp, msg, Intrinsics.from_camera_info(msg)))
-            return []
-        done = []
-        if kind == "color":
-            if self._waiting is not None and self._waiting.stamp_ns == stamp:
-                done.append(_with_color(self._waiting, msg))
-                self._waiting = None
+        elif kind == "color":
+            waiting = next((p for p in self._pending if p.stamp_ns == stamp and p.color is None), None)
+            if waiting is not None:
+                waiting.color = msg
             else:
                 self._colors[stamp] = msg
                 for old in sorted(self._colors)[:-COLOR_WAIT]:
                     del self._colors[old]
-            return done
-        if self._waiting is not None:  # its colour never came: it goes without
-            done.append(self._waiting)
-            self._waiting = None
-        info = self._info_at(stamp)
-        if info is None:
-            self.frames_without_info += 1
-            return done
-        frame = DepthMessages(stamp, msg, info[1], info[2], self._colors.pop(stamp, None))
-        if frame.color is not None or not self.has_color:
-            done.append(frame)
         else:
-            self._waiting = frame
-        return done
+            for pending in self._pending:  # the next depth image: nothing more is waited for but a camera_info
+                pending.superseded += 1
+            self._pending.append(_PendingDepth(stamp, msg, self._colors.pop(stamp, None)))
+        return self._release()
 
     def finish(self) -> list[DepthMessages]:
-        """The frame still waiting for its colour when the bag ends."""
-        waiting, self._waiting = self._waiting, None
-        return [] if waiting is None else [waiting]
+        """The frames still waiting when the bag ends, with what they have."""
+        for pending in self._pending:
+            pending.superseded = INFO_WAIT
+        return self._release()
+
+    def _release(self) -> list[DepthMessages]:
+        done = []
+        while self._pending:
+            pending = self._pending[0]
+            info = self._info_at(pending.stamp_ns)
+            own_info = info is not None and (info[0] == pending.stamp_ns
+                                             or any(entry[0] > pending.stamp_ns for entry in self._infos))
+            complete = own_info and (pending.color is not None or not self.has_color)
+            if not (complete or pending.superseded and info is not None):
+                if pending.superseded < INFO_WAIT:
+                    break
+                self._pending.popleft()  # no camera_info at all came for it: it cannot be deprojected
+                self.frames_without_info += 1
+                continue
+            self._pending.popleft()
+            done.append(DepthMessages(pending.stamp_ns, pending.depth, info[1], info[2], pending.color))
+        return done
 
     def _info_at(self, stamp: int) -> tuple[int, Any, Intrinsics] | None:
         if not self._infos:
@@ -156,8 +173,12 @@ class DepthFrameMatcher:
         return max(earlier, key=lambda e: e[0]) if earlier else min(self._infos, key=lambda e: e[0])
 
 
-def _with_color(frame: DepthMessages, color) -> DepthMessages:
-    return DepthMessages(frame.stamp_ns, frame.depth, frame.info, frame.intrinsics, color)
+@dataclass
+class _PendingDepth:
+    stamp_ns: int
+    depth: Any
+    color: Any = None
+    superseded: int = 0  # depth images of the camera that came after it
 
 
 @contextlib.contextmanager

@@ -321,8 +321,10 @@ class CameraNode(RigNode):
                                         viewpoints=camera.translation))
                 xyz, pixel = np.take(xyz, inside, axis=0), np.take(pixel, inside, axis=0)
                 rgb = None if rgb is None else rgb[inside]
-        self._cloud_publisher.publish(camera_cloud_to_msg(xyz, rgb, pixel, camera.frame_id, frame.stamp_ns))
+        # the camera_info first: a subscriber pairing them (fusion_node's pixel footprint) has it when the cloud
+        # of its stamp comes, as a driver publishes it before its image
         self._info_publisher.publish(camera_info_msg(frame, camera.frame_id))
+        self._cloud_publisher.publish(camera_cloud_to_msg(xyz, rgb, pixel, camera.frame_id, frame.stamp_ns))
         self.frames_published += 1
         self.stats.published(frame.stamp_ns, started)
 
