@@ -6,6 +6,7 @@ adapter part in one place so each node file holds only what is its own.
 
 from __future__ import annotations
 
+import difflib
 import functools
 import os
 import signal
@@ -172,6 +173,7 @@ def run_nodes(node_factories: Sequence[Callable[[], Node]], args: list[str] | No
     # one thread per node's kernels: the graph already runs a process per stage on every core there is (the
     # offline pipeline splits the filter's kernels over the cores instead; core/compiled.py)
     numba.set_num_threads(1)
+    COMMAND_LINE_OVERRIDES[:] = command_line_overrides(sys.argv if args is None else args)
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     context = rclpy.get_default_context()
     stop = threading.Event()
@@ -181,6 +183,7 @@ def run_nodes(node_factories: Sequence[Callable[[], Node]], args: list[str] | No
     try:
         for factory in node_factories:
             nodes.append(factory())
+        refuse_unknown_overrides(nodes)
         executor = make_executor(context)
         for node in nodes:
             executor.add_node(node)
@@ -207,6 +210,69 @@ def run_nodes(node_factories: Sequence[Callable[[], Node]], args: list[str] | No
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     return exit_code
+
+
+# ---- command-line overrides (`--ros-args -p NAME:=VALUE`) -----------------------------------------------------
+# rcl drops a `-p` value whose type differs from the parameter file's value of the same key without a word
+# (`-p robot.notch_count:=abc` or `:=16.5` with notch_count 16 in the file: the node ran with 16), and a `-p` of
+# a name no node declares is never read. So run_nodes reads the command line's overrides itself: RigNode checks
+# each by the schema (and applies one rcl dropped), and a name no node of the process declares is refused with
+# the nearest one suggested, as the rig file's loader refuses an unknown key.
+
+COMMAND_LINE_OVERRIDES: list[tuple[str | None, str, str]] = []  # (node or None, name, text), set by run_nodes
+BUILTIN_PARAMETERS = ("use_sim_time", "start_type_description_service")
+BUILTIN_PREFIXES = ("qos_overrides.",)
+
+
+def command_line_overrides(argv: Sequence[str]) -> list[tuple[str | None, str, str]]:
+    """(node name or None, parameter name, value text) of every `-p` / `--param` [NODE:]NAME:=VALUE of the
+    command line's --ros-args sections."""
+    overrides, in_ros, argv = [], False, list(argv)
+    for index, token in enumerate(argv):
+        if token == "--ros-args":
+            in_ros = True
+        elif token == "--":
+            in_ros = False
+        elif in_ros and token in ("-p", "--param") and index + 1 < len(argv):
+            name, sep, text = argv[index + 1].partition(":=")
+            if not sep:
+                continue  # rcl refuses it itself
+            node, _, name = name.rpartition(":")
+            overrides.append((node or None, name, text))
+    return overrides
+
+
+def ros_argument_value(text: str) -> Any:
+    """A `-p NAME:=VALUE` value as rcl types it (YAML: an integer, a double, a bool, a list, else a string)."""
+    import yaml
+
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    try:
+        value = yaml.safe_load(text)
+    except yaml.YAMLError:
+        return text
+    return value if isinstance(value, bool | list | str | int | float) else text
+
+
+def _targets(node: Node, target: str | None) -> bool:
+    return target is None or target.lstrip("/") in (node.get_name(), node.get_fully_qualified_name().lstrip("/"))
+
+
+def refuse_unknown_overrides(nodes: Sequence[Node]) -> None:
+    """ParameterError for a `-p` name that no node of the process declares, the nearest declared one suggested."""
+    known = sorted({name for node in nodes for name in node._parameters})
+    for target, name, text in COMMAND_LINE_OVERRIDES:
+        if name in known or name in BUILTIN_PARAMETERS or name.startswith(BUILTIN_PREFIXES):
+            continue
+        if target is not None and not any(_targets(node, target) for node in nodes):
+            continue  # meant for a node of another process
+        nearest = difflib.get_close_matches(name, known, n=1)
+        hint = f"; did you mean {nearest[0]!r}?" if nearest else " (`ros2 param list` shows the parameters)"
+        raise ParameterError(f"-p {name}:={text}: unknown parameter {name!r}{hint}")
 
 
 # ---- rig-configured nodes -------------------------------------------------------------------------------------
@@ -275,12 +341,46 @@ class RigNode(Node):
         self._rig_names = ["camera_names", *rig_keys]
         self._own_names = list(own_parameters)
         names = self._rig_names + self._own_names
+        self._refuse_unknown_rig_keys(rig_keys)
+        self._apply_command_line(rig_keys)
         self._configure_from({name: self.get_parameter(name).value for name in names})
         for name, key in rig_keys.items():
             descriptor = rig_parameter_descriptor(key)
             descriptor.read_only = name.startswith(READ_ONLY_RIG_PREFIXES)
             self.set_descriptor(name, descriptor)
         validate_on_change(self, names, self._configure_from)
+
+    def _refuse_unknown_rig_keys(self, rig_keys) -> None:
+        """A key of a rig section (a camera's, robot, filters...) this node does not know, from the parameter
+        file or the command line, is a typo: refused naming the nearest, as the rig file's loader refuses it."""
+        from ntcr_recon.core.config import STAGE_SECTIONS
+
+        sections = {"robot", *STAGE_SECTIONS, *self._camera_names}
+        for name in self._parameter_overrides:
+            section, dot, _ = name.partition(".")
+            if dot and section in sections and name not in rig_keys:
+                nearest = difflib.get_close_matches(name, [k for k in rig_keys if k.startswith(section + ".")], n=1)
+                hint = f"; did you mean {nearest[0]!r}?" if nearest else ""
+                raise ParameterError(f"rig configuration: unknown key {name}{hint}")
+
+    def _apply_command_line(self, rig_keys) -> None:
+        """Each `-p` of a rig key checked by the schema (ParameterError naming it) and applied: rcl keeps the
+        parameter file's value when the `-p` value's type differs (an integer for a double key, say)."""
+        from rclpy.parameter import Parameter
+
+        from ntcr_recon.core.config import ConfigError
+        from ntcr_recon.core.schema import convert
+
+        for target, name, text in COMMAND_LINE_OVERRIDES:
+            if not _targets(self, target) or name not in rig_keys:
+                continue
+            try:
+                value = convert(name, rig_keys[name], ros_argument_value(text))
+            except ConfigError as error:
+                raise ParameterError(f"-p {name}:={text}: rig configuration: {error}") from error
+            value = list(value) if isinstance(value, tuple) else value
+            if self.get_parameter(name).value != value:
+                Node.set_parameters(self, [Parameter(name, value=value)])
 
     def set_parameters_atomically(self, parameter_list):
         """The schema checks a rig parameter's new value first, so a refusal names the key, its unit and range
