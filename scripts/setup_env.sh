@@ -53,3 +53,34 @@ if [ ! -e "$stamp" ]; then
   fi
   touch "$stamp"
 fi
+
+# The test tools: ROS 2's launch system (launch, launch_ros, launch_testing, launch_testing_ros, ros2launch) for
+# the launch tests. On a rig it comes with ROS; elsewhere from the jazzy sources beside the checkout
+# (../shared/ros2-launch-jazzy, or NTCR_ROS2_LAUNCH_SRC), installed from a writable copy (shared/ may be
+# read-only). Without either, the launch tests are skipped and say so.
+if [ "${NTCR_EXTRAS:-}" = test ] \
+   && ! "$venv/bin/python" -c 'import launch, launch_ros, launch_testing, launch_testing_ros, ros2launch' 2>/dev/null; then
+  launch_src="${NTCR_ROS2_LAUNCH_SRC:-$root/../shared/ros2-launch-jazzy}"
+  if [ -d "$launch_src/launch/launch" ]; then
+    echo "[setup] installing ROS 2 launch (jazzy) from $launch_src into $venv"
+    copy="$(mktemp -d)/ros2-launch" && cp -r "$launch_src" "$copy" && chmod -R u+w "$copy"
+    log="$venv/pip-install-launch.log"
+    if ! { "$venv/bin/python" -m pip install osrf-pycommon PyYAML importlib-metadata \
+           && "$venv/bin/python" -m pip install --no-deps "$copy"/launch/launch "$copy"/launch/launch_xml \
+                "$copy"/launch/launch_yaml "$copy"/launch/launch_testing "$copy"/launch_ros/launch_ros \
+                "$copy"/launch_ros/ros2launch "$copy"/launch_ros/launch_testing_ros \
+           && cp -r "$copy"/stand-ins/composition_interfaces \
+                "$("$venv/bin/python" -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')/"; } \
+         >"$log" 2>&1; then
+      tail -n 40 "$log" >&2
+      echo "[setup] error: installing ROS 2 launch failed (full log: $log)" >&2
+      exit 1
+    fi
+    rm -rf "$(dirname "$copy")"
+  else
+    echo "[setup] ROS 2 launch is not installed and $launch_src is not there: the launch tests will be skipped"
+  fi
+fi
+
+# The numba kernels compiled now rather than in a node's first start (a few seconds when they already are).
+"$venv/bin/python" -m ntcr_recon.sim.warm_up

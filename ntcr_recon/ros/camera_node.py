@@ -41,6 +41,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, PointCloud2
 from std_msgs.msg import Float64
 
+from ntcr_recon.core import compiled
 from ntcr_recon.core.cloud import rows
 from ntcr_recon.core.deproject import Intrinsics, crop_window, depth_to_points
 from ntcr_recon.core.filters import crop_mask
@@ -48,6 +49,7 @@ from ntcr_recon.core.quality import depth_quantisation_warning, depth_step
 from ntcr_recon.core.tip import EDGE_BAND_ATTEMPTS, edge_band_angle
 from ntcr_recon.core.transforms import transform_points
 from ntcr_recon.io.camera_sources import BagSource, SourceError, SourceFrame
+from ntcr_recon.ros.graph import START_DELAY_S
 from ntcr_recon.ros.messages import RCLPY, camera_cloud_to_msg, checked_intrinsics, header, stamp_msg
 from ntcr_recon.ros.node_stats import NodeStats
 from ntcr_recon.ros.node_support import LATCHED_QOS, SENSOR_QOS, ParameterError, RigNode, describe, run_node
@@ -186,6 +188,17 @@ class CameraNode(RigNode):
         start_wall, start_stamp = self._pace_origin
         return start_wall + (stamp_ns - start_stamp) * 1e-9 / rate
 
+    def _start_time(self) -> float:
+        """When the first frame is due: `start_time` (one instant for every camera of the graph), or now. When the
+        kernels were compiled at this start (a first start after an install, core/compiled.py), not before
+        START_DELAY_S after they were ready: every camera reads the same instant from the cache, so they stay in
+        step, and no frame is skipped as late for the compilation."""
+        start = self._params["start_time"]
+        if not start:
+            return time.time()
+        ready = compiled.ready_at()
+        return max(start, ready + START_DELAY_S) if ready is not None else start
+
     def _too_late(self, stamp_ns: int) -> bool:
         """A paced replay more than 1.5 frame periods behind skips the frame, as a live camera drops frames
         rather than falling behind: the cameras stay in step with the clock, and so with each other."""
@@ -262,7 +275,7 @@ class CameraNode(RigNode):
                     return
                 if self._pace_origin is None:  # the first frame is due at start_time (even if that has passed:
                     # then this node skips frames to catch up, in step with the others) or now
-                    self._pace_origin = (self._params["start_time"] or time.time(), frame.stamp_ns)
+                    self._pace_origin = (self._start_time(), frame.stamp_ns)
                 due = self._due(frame.stamp_ns)
                 if due is not None and due > time.time() and self._stop.wait(due - time.time()):
                     return

@@ -176,6 +176,15 @@ def run_nodes(node_factories: Sequence[Callable[[], Node]], args: list[str] | No
     COMMAND_LINE_OVERRIDES[:] = command_line_overrides(sys.argv if args is None else args)
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     context = rclpy.get_default_context()
+    # the numba kernels compiled (first start after an install: one log line) and loaded before any node
+    # subscribes, never inside the first frames (core/compiled.py); a Ctrl-C meanwhile ends the process cleanly
+    try:
+        from ntcr_recon.sim.warm_up import ready_kernels
+
+        ready_kernels(rclpy.logging.get_logger(os.path.basename(sys.argv[0]).removesuffix(".py") or "ntcr").info)
+    except KeyboardInterrupt:
+        rclpy.shutdown()
+        return 0
     stop = threading.Event()
     previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
     nodes: list[Node] = []
