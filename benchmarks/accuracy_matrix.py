@@ -61,6 +61,9 @@ class Row:
     args: tuple[str, ...] = ()              # `ntcr-recon simulate` options
     robot: dict = field(default_factory=dict)  # robot geometry fields (metres) written to --robot
     side_error_deg: float = 0.0             # the rig file's notch_side is off the true one by this much
+    # the rig file's cam_b turned this many degrees about the base's z axis (through its optical centre) and moved
+    # this many millimetres along its line of sight, off the pose the scene was rendered with
+    extrinsics_off: tuple[float, float] = (0.0, 0.0)
 
 
 ROWS = [
@@ -125,7 +128,7 @@ def print_details(figures: dict, args: argparse.Namespace) -> None:
     """Under a row: its warnings (--warnings) and its errors against what it stated (--stated)."""
     if args.warnings:
         for warning in figures["warnings"]:
-            print(f"    ! {warning}")
+            print(f"    ! {getattr(warning, 'severity', 'error')} [{getattr(warning, 'code', '-')}] {warning}")
     if args.stated and "stated" in figures:
         by_view = ("" if "centerline_across_views" not in figures else
                    f"; centreline error along the views {figures['centerline_along_views'] * 1e3:.3f}, across them "
@@ -187,14 +190,32 @@ def frame_pairs(simulation) -> list:
     return pair_frames(streams, int(15e6))
 
 
-def rig_config(simulation, side_error_deg: float = 0.0, method: str | None = None):
+def rig_config(simulation, side_error_deg: float = 0.0, method: str | None = None,
+               extrinsics_off: tuple[float, float] = (0.0, 0.0)):
     from ntcr_recon.core.config import rig_config_from_mapping
 
     parameters = simulation.rig_parameters()["/**"]["ros__parameters"]
     parameters["robot"]["notch_side"] = parameters["robot"]["notch_side"] + math.radians(side_error_deg)
+    if any(extrinsics_off):
+        moved = parameters["cam_b"]
+        moved["translation"], moved["rotation"] = perturbed_pose(moved["translation"], moved["rotation"],
+                                                                 *extrinsics_off)
     if method is not None:
         parameters["relocation"] = {"method": method}
     return rig_config_from_mapping(parameters)
+
+
+def perturbed_pose(translation, rotation_xyzw, turn_deg: float, along_mm: float) -> tuple[list, list]:
+    """A camera pose (optical frame in the base frame) turned turn_deg about the base's z axis through its optical
+    centre and moved along_mm along its line of sight: a rig file whose extrinsics are that far off."""
+    from ntcr_recon.core.transforms import matrix_to_quaternion, quaternion_to_matrix
+
+    angle = math.radians(turn_deg)
+    turn = np.array([[math.cos(angle), -math.sin(angle), 0.0], [math.sin(angle), math.cos(angle), 0.0],
+                     [0.0, 0.0, 1.0]])
+    rotation = turn @ quaternion_to_matrix(rotation_xyzw)
+    position = np.asarray(translation, float) + rotation[:, 2] * along_mm * 1e-3
+    return position.tolist(), matrix_to_quaternion(rotation).tolist()
 
 
 def reconstruct(config, pairs):
@@ -215,7 +236,7 @@ def measure(shape, relocation, viewpoints: np.ndarray | None = None) -> dict:
     truth = shape.notch_table()
     true_centres = np.array([n["center_s"] for n in truth])
     tolerance = 0.5 * shape.geometry.notch_pitch
-    errors, centre_errors, found, spurious = [], [], set(), 0
+    errors, centre_errors, found, spurious, by_index = [], [], set(), 0, {}
     for notch in relocation.notches:
         nearest = int(np.argmin(np.abs(true_centres - notch.center_s)))
         if abs(true_centres[nearest] - notch.center_s) > tolerance or nearest in found:
@@ -223,6 +244,7 @@ def measure(shape, relocation, viewpoints: np.ndarray | None = None) -> dict:
             continue
         found.add(nearest)
         errors.append(notch.width - truth[nearest]["width"])
+        by_index[notch.index] = abs(errors[-1])
         centre_errors.append(notch.center_s - truth[nearest]["center_s"])
     errors = np.abs(np.array(errors))
     s = np.linspace(0.0, shape.length, 4000)
@@ -239,6 +261,7 @@ def measure(shape, relocation, viewpoints: np.ndarray | None = None) -> dict:
         "found": len(found), "expected": len(truth), "spurious": spurious,
         # where along the tube the notches were placed (+ towards the tip): not a floor, but published
         "centre_errors": centre_errors,
+        "width_errors": by_index,  # per notch found (its index): |width error|
         "width_mae": float(errors.mean()) if errors.size else math.inf,
         "width_max": float(errors.max()) if errors.size else math.inf,
         "centerline": centerline_rmse(relocation.centerline.points, true_centerline),
@@ -261,22 +284,34 @@ def misses(figures: dict) -> list[str]:
     return missed
 
 
-# What a warning must speak of for a missed floor to count as said: words of the result's own warnings.
+# What a warning must speak of for a missed floor to count as said: the codes (core.findings) that do. The input's
+# faults (a camera that gave nothing or little, coarse depth) speak of every figure.
+_INPUT = {"CAMERA_NO_FRAMES", "CAMERA_NO_POINTS", "CAMERA_FEW_POINTS", "CAMERA_SHORT_VIEW", "DEPTH_BIG_ENDIAN",
+          "DEPTH_COARSER_THAN_UNIT", "DEPTH_QUANTISED", "PIXEL_FOOTPRINT_COARSE"}
+_NOTCH = {"NOTCHES_MISSING", "NOTCH_WIDTH_FROM_BEND", "NOTCH_WIDTH_MISREAD", "NOTCH_WIDTH_UNCHECKED",
+          "NOTCH_SIDE_UNSETTLED", "ROBOT_ROLLED", "SLOTS_LEAN"}
+_CENTRELINE = {"CENTERLINE_UNCERTAIN", "SLOTS_LEAN", "ALIGNMENT_ASTRAY", "OUTLINE_UNCHECKED", "CENTERLINE_UNSUPPORTED",
+               "DISTAL_END_ON", "DISTAL_ONE_CAMERA", "TUBE_ENDS_SHORT", "TIP_CARRIED", "TIP_OFF_LENGTH"}
+_TIP = {"TIP_ON_ERODED_RIM", "TIP_ON_END_CAP", "TIP_OFF_LENGTH", "TUBE_ENDS_SHORT", "TIP_CARRIED", "DISTAL_END_ON",
+        "DISTAL_ONE_CAMERA", "CENTERLINE_UNSUPPORTED", "OUTLINE_UNCHECKED", "ICP_MOVED_REFERENCE"}
 SPOKEN_OF = {
-    "notches": ("notch",), "spurious": ("notch",),
-    "width_mae": ("notch", "depth pixel covers", "quantised"),
-    "width_max": ("notch", "depth pixel covers", "quantised"),
-    "centerline": ("centreline", "depth pixel covers", "quantised", "short of"),
-    "surface": ("centreline", "depth pixel covers", "quantised", "short of", "notch"),
-    "tip": ("tip", "tube ends"),
-    "failed": ("",),
+    "notches": _INPUT | _NOTCH, "spurious": _INPUT | _NOTCH,
+    "width_mae": _INPUT | _NOTCH, "width_max": _INPUT | _NOTCH,
+    "centerline": _INPUT | _CENTRELINE,
+    "surface": _INPUT | _CENTRELINE | _NOTCH | {"ICP_MOVED_REFERENCE"},
+    "tip": _INPUT | _TIP,
+    "failed": None,  # no result: said by its error
 }
+
+
+def codes_of(figures: dict) -> set[str]:
+    return {warning.code for warning in figures["warnings"] if hasattr(warning, "code")}
 
 
 def unwarned(figures: dict) -> list[str]:
     """The floors a row misses that none of its result's warnings speaks of (a silent wrong answer)."""
-    text = " ".join(figures["warnings"]).lower()
-    return [miss for miss in figures["misses"] if not any(word in text for word in SPOKEN_OF[miss])]
+    codes = codes_of(figures)
+    return [miss for miss in figures["misses"] if SPOKEN_OF[miss] is not None and not codes & SPOKEN_OF[miss]]
 
 
 # The quality keys in which a result states how far off each of its figures may be.
@@ -311,7 +346,8 @@ def silent_misses(results: list[dict]) -> list[str]:
 def run_row(row: Row, frames: int = 2, seed: int = 1, method: str | None = None) -> dict:
     """Render, reconstruct and measure one row; the figures, the misses and the result's warnings."""
     simulation = simulation_for(row, seed, frames)
-    return reconstruct_and_measure(row.name, simulation.shape, rig_config(simulation, row.side_error_deg, method),
+    return reconstruct_and_measure(row.name, simulation.shape,
+                                   rig_config(simulation, row.side_error_deg, method, row.extrinsics_off),
                                    frame_pairs(simulation), max(simulation.camera_distances
                                                                 or (simulation.camera_distance,)))
 
@@ -334,6 +370,9 @@ def reconstruct_and_measure(name: str, shape, config, pairs: list, distance: flo
     # what the result says of its own errors (mm -> m; not stated: 0, nothing owned up to)
     stated = {figure: (quality.get(key) or 0.0) * 1e-3 for figure, key in STATED.items()}
     figures.update(row=name, warnings=list(getattr(relocation, "warnings", ()) or ()), stated=stated,
+                   status=getattr(relocation, "status", None), uncertainty=quality.get("uncertainty_mm") or {},
+                   width_stated={int(i): mm * 1e-3 for i, mm in
+                                 (quality.get("notch_width_uncertainty_mm") or {}).items()},
                    side_deg=quality.get("notch_side_deg"),
                    side_uncertainty_deg=quality.get("notch_side_uncertainty_deg"),
                    seconds=time.perf_counter() - started,
@@ -366,6 +405,46 @@ def print_bounded(results: list[dict]) -> None:
     if judged:
         print(f"  the error within the uncertainty the result stated ({judged} results): "
               + ", ".join(f"{figure} {count}/{judged}" for figure, count in bounded.items()))
+
+
+# A result's three stated bounds (quality.uncertainty_mm) and the measured error each bounds.
+BOUNDED = {"centerline": "centerline", "tip": "tip", "notch_width": "width_max"}
+
+
+def within_tolerance(figures: dict, tolerance) -> bool:
+    """Whether a result is as good as `status` ok promises (config.QualityConfig): every notch found and none
+    spurious, the centreline, the tip and every notch width within their tolerances."""
+    return ("error" not in figures and figures["found"] == figures["expected"] and not figures["spurious"]
+            and figures["centerline"] <= tolerance.centerline_tolerance and figures["tip"] <= tolerance.tip_tolerance
+            and figures["width_max"] <= tolerance.notch_width_tolerance)
+
+
+def print_status(results: list[dict]) -> None:
+    """The summary's lines on what the results say of themselves (issue 63): how many say ok / warn / error, the
+    results saying ok that miss the tolerance (at most 5 %), the share of those within it that say ok (at least
+    80 %), and per stated bound how often it covers the error (at least 90 %) and the median of stated over
+    measured (at most 3); per notch too."""
+    from ntcr_recon.core.config import QualityConfig
+
+    tolerance = QualityConfig()
+    judged = [r for r in results if r.get("status")]
+    if not judged:
+        return
+    said = {level: sum(r["status"] == level for r in judged) for level in ("ok", "warn", "error")}
+    wrong_ok = [r["row"] for r in judged if r["status"] == "ok" and not within_tolerance(r, tolerance)]
+    within = [r for r in judged if within_tolerance(r, tolerance)]
+    print(f"  status: ok {said['ok']}, warn {said['warn']}, error {said['error']}; ok yet missing the tolerance: "
+          f"{len(wrong_ok)}/{said['ok']}{f' ({chr(44).join(wrong_ok)})' if wrong_ok else ''}; within the tolerance "
+          f"and saying ok: {sum(r['status'] == 'ok' for r in within)}/{len(within)}")
+    bounds = {name: [(r["uncertainty"].get(name), r[key] * 1e3) for r in judged if math.isfinite(r[key])]
+              for name, key in BOUNDED.items()}
+    bounds["per notch"] = [(r["width_stated"].get(i, math.nan) * 1e3, error * 1e3) for r in judged
+                           for i, error in r["width_errors"].items()]
+    for name, pairs in bounds.items():
+        covered = sum(stated is not None and error <= stated for stated, error in pairs)
+        ratios = [stated / error for stated, error in pairs if stated is not None and error > 0]
+        median = f"{np.median(ratios):.1f}" if ratios else "-"
+        print(f"  {name} uncertainty covers the error in {covered}/{len(pairs)}, median stated/measured {median}")
 
 
 def print_rows_by_seed(results: list[dict], seeds: int) -> None:
@@ -404,6 +483,9 @@ def main() -> int:
                                                      "'both': centerline and icp side by side)")
     add_detail_options(parser, "row")
     add_simulate_option(parser)
+    parser.add_argument("--extrinsics-off", action="append", default=[], metavar="DEG,MM",
+                        help="reconstruct each row with cam_b's pose in the rig file turned DEG about the base's z "
+                        "axis and moved MM along its view (repeatable: each offset a row of its own)")
     args = parser.parse_args()
     if args.seeds < 1:
         parser.error(f"--seeds must be at least 1, got {args.seeds}")
@@ -412,6 +494,15 @@ def main() -> int:
     if wanted - {row.name for row in rows}:
         print(f"unknown rows: {sorted(wanted - {row.name for row in rows})}", file=sys.stderr)
         return 2
+    try:
+        offsets = [tuple(float(v) for v in item.split(",")) for item in args.extrinsics_off]
+    except ValueError:
+        offsets = [()]
+    if any(len(offset) != 2 for offset in offsets):
+        parser.error(f"--extrinsics-off takes DEG,MM (e.g. 0.3,0.2), got {args.extrinsics_off}")
+    if offsets:
+        rows = [replace(row, name=f"{row.name}@{turn:g}deg,{along:g}mm", extrinsics_off=(turn, along))
+                for row in rows for turn, along in offsets]
     methods = ["centerline", "icp"] if args.method == "both" else [args.method or None]
     print(HEADER)
     results = []
@@ -432,6 +523,7 @@ def main() -> int:
     if args.seeds > 1:
         print_rows_by_seed(floored, args.seeds)
     print_bounded(results)
+    print_status(results)
     print_centerline_by_view(results)
     whole = [r for r in floored if "error" not in r and abs(r["tip_along"]) < FLOORS["tip"] * 10]
     if whole:

@@ -138,12 +138,13 @@ def main() -> int:
     silent = matrix.silent_misses(results)
     centreline_missed = [r for r in results if "centerline" in r["misses"]]
     over_stated = [r for r in results if "centerline" not in r["misses"]
-                   and any(w.startswith("the centreline is uncertain") for w in r["warnings"])]
+                   and any(getattr(w, "code", None) == "CENTERLINE_UNCERTAIN" for w in r["warnings"])]
     print(f"\nsummary: {len(meeting)}/{len(results)} scenes meet every floor; silent misses: "
           f"{', '.join(silent) if silent else 'none'}")
     print(f"  centreline: {len(centreline_missed)} scenes over its floor; "
           f"{len(over_stated)} of {len(results) - len(centreline_missed)} within it warned all the same")
     matrix.print_bounded(results)
+    matrix.print_status(results)
     matrix.print_centerline_by_view(results)
     # a tip over its floor is mostly the centreline's free end off across the tube, not the end placed along it
     tip_missed = [r for r in results if "tip" in r["misses"] and abs(r["tip_along"]) < 10 * matrix.FLOORS["tip"]]

@@ -12,7 +12,19 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import accuracy_matrix  # noqa: E402
 
+from ntcr_recon.core.findings import finding  # noqa: E402
+
 ROWS = {row.name: row for row in accuracy_matrix.ROWS}
+
+
+def _listed(warnings) -> str:
+    """A result's warnings (core.findings.Finding), one a line, as --warnings prints them."""
+    return "\n".join(f"[{w.code}] {w}" for w in warnings)
+
+
+def _found(figures: dict, code: str) -> list:
+    """The figures of each of a result's warnings of `code`."""
+    return [w.figures for w in figures["warnings"] if w.code == code]
 
 
 # rows that meet every floor on seed 1, all but bend_kink on five noise seeds too (`accuracy_matrix.py --seeds 5`:
@@ -62,14 +74,14 @@ def test_a_row_renders_without_flying_pixels():
 def test_a_row_that_misses_says_so():
     """1 mm depth steps (realsense-ros recordings) cost accuracy: the result must warn about them."""
     figures = accuracy_matrix.run_row(ROWS["depth_unit_1mm"], frames=2)
-    print("\n" + accuracy_matrix.format_row(figures) + "\n" + "\n".join(figures["warnings"]))
+    print("\n" + accuracy_matrix.format_row(figures) + "\n" + _listed(figures["warnings"]))
     assert figures["misses"], "this row was expected to miss a floor; if it no longer does, pick another"
-    assert any("quantised in 1 mm steps" in warning for warning in figures["warnings"])
+    assert any(f["depth_step_mm"] == pytest.approx(1.0, abs=0.05) for f in _found(figures, "DEPTH_QUANTISED"))
     # the alignment followed the quantised wall across the views (0.41 mm off); the fit, which the outline bears
     # out, places the axis across them instead (0.20 mm off), and the error stays within what the result states
-    moved = [warning for warning in figures["warnings"] if warning.startswith("the alignment moved the axis")]
+    moved = _found(figures, "ALIGNMENT_ASTRAY")
     assert moved, "the alignment was expected to go astray from the outline here"
-    astray = float(moved[0].split("moved the axis ")[1].split(" mm")[0]) * 1e-3
+    astray = moved[0]["aligned_offset_mm"] * 1e-3
     assert figures["centerline"] < 0.6 * astray
     assert figures["centerline"] <= figures["stated"]["centerline"]
 
@@ -79,9 +91,9 @@ def test_an_icp_relocation_says_how_far_it_moved_the_reference_off_the_centrelin
     it, past its floor. The result says how far ICP moved the reference and the tip off where the centreline placed
     them, states the tip that uncertain, and so no floor it misses goes unsaid."""
     figures = accuracy_matrix.run_row(ROWS["side90_bend30"], frames=2, method="icp")
-    print("\n" + accuracy_matrix.format_row(figures) + "\n" + "\n".join(figures["warnings"]))
+    print("\n" + accuracy_matrix.format_row(figures) + "\n" + _listed(figures["warnings"]))
     assert "tip" in figures["misses"], "ICP was expected to miss the tip's floor here; if it no longer does, say so"
-    assert any(warning.startswith("relocated by ICP") for warning in figures["warnings"])
+    assert _found(figures, "ICP_MOVED_REFERENCE")
     assert accuracy_matrix.unwarned(figures) == []
     assert abs(figures["tip_along"]) <= figures["stated"]["tip_along"]
 
@@ -95,8 +107,8 @@ def test_a_tip_the_cameras_could_not_see_is_carried_on_to_the_robots_length():
     guessed."""
     figures = accuracy_matrix.run_row(ROWS["bend90_toward_cam_a_90mm"], frames=2)
     print("\n" + accuracy_matrix.format_row(figures) + "\n" + accuracy_matrix.format_stated(figures) + "\n"
-          + "\n".join(figures["warnings"]))
-    assert any("that hides the rest, and the tip is carried on there" in warning for warning in figures["warnings"])
+          + _listed(figures["warnings"]))
+    assert _found(figures, "TIP_CARRIED")  # the rest hidden, the tip carried on there
     assert figures["tip"] < 0.6e-3
     assert accuracy_matrix.within_stated(figures, "tip_along") and accuracy_matrix.within_stated(figures, "tip_across")
     assert figures["centerline"] <= figures["stated"]["centerline"]
@@ -112,7 +124,7 @@ def test_an_alignment_that_moved_the_curled_end_more_than_the_rest_says_the_cent
     print("\n" + accuracy_matrix.format_row(figures) + "\n" + accuracy_matrix.format_stated(figures))
     assert accuracy_matrix.unwarned(figures) == []
     assert accuracy_matrix.within_stated(figures, "centerline")
-    assert any("a correction that varies along the tube by" in warning for warning in figures["warnings"])
+    assert any(f["alignment_scatter_mm"] > 0 for f in _found(figures, "CENTERLINE_UNCERTAIN"))
 
 
 def test_a_camera_looking_into_the_notches_from_afar_is_overruled_by_the_one_facing_the_backbone():
@@ -121,9 +133,9 @@ def test_a_camera_looking_into_the_notches_from_afar_is_overruled_by_the_one_fac
     the axis along its line of sight by its own level on the plain tube, and the centreline meets its floor
     (0.26 mm off when the two cameras' levels were split between them)."""
     figures = accuracy_matrix.run_row(ROWS["side-90_bend30_cameras110"], frames=2)
-    print("\n" + accuracy_matrix.format_row(figures) + "\n" + "\n".join(figures["warnings"]))
-    assert any("cam_a looks into the notches' slots" in warning and "a camera facing the backbone placed the axis"
-               in warning for warning in figures["warnings"])
+    print("\n" + accuracy_matrix.format_row(figures) + "\n" + _listed(figures["warnings"]))
+    # cam_a looks into the slots; a camera facing the backbone placed the axis along its line of sight instead
+    assert any("cam_a" in f["cameras"] and f["levelled"] for f in _found(figures, "SLOTS_LEAN"))
     assert figures["centerline"] <= accuracy_matrix.FLOORS["centerline"]
 
 
@@ -132,10 +144,10 @@ def test_a_centreline_off_its_floor_says_how_uncertain_it_is():
     floor, and the result's own uncertainty (the cameras' spread across their views, the wall's deficit between
     the notches) says so - at least as large as the error it made."""
     figures = accuracy_matrix.run_row(ROWS["cameras110"], frames=2)
-    print("\n" + accuracy_matrix.format_row(figures) + "\n" + "\n".join(figures["warnings"]))
+    print("\n" + accuracy_matrix.format_row(figures) + "\n" + _listed(figures["warnings"]))
     assert "centerline" in figures["misses"], "this row was expected to miss; if it no longer does, pick another"
-    stated = [w for w in figures["warnings"] if w.startswith("the centreline is uncertain by about")]
-    assert stated and float(stated[0].split("about ")[1].split(" mm")[0]) * 1e-3 >= figures["centerline"]
+    stated = _found(figures, "CENTERLINE_UNCERTAIN")
+    assert stated and round(stated[0]["uncertainty_mm"], 2) * 1e-3 >= figures["centerline"]
 
 
 def test_a_rig_file_rolled_20_degrees_off_reports_the_side_the_notches_open_to():
@@ -158,9 +170,9 @@ def test_a_last_notch_beyond_where_the_coarse_end_stopped_is_found_once_the_end_
                               ("--bend-deg", "83.7", "--notch-side", "133.4", "--camera-distance", "0.090"),
                               robot={"notch_width": 0.0018, "notch_pitch": 0.0032})
     figures = accuracy_matrix.run_row(row, frames=2, seed=3016)
-    print("\n" + accuracy_matrix.format_row(figures) + "\n" + "\n".join(figures["warnings"]))
+    print("\n" + accuracy_matrix.format_row(figures) + "\n" + _listed(figures["warnings"]))
     assert (figures["found"], figures["spurious"]) == (figures["expected"], 0) == (16, 0)
-    assert not any("notches found (missing" in warning for warning in figures["warnings"])
+    assert not _found(figures, "NOTCHES_MISSING")
 
 
 def test_the_backbone_across_the_cuts_is_trusted_wall_for_the_alignment():
@@ -170,7 +182,7 @@ def test_the_backbone_across_the_cuts_is_trusted_wall_for_the_alignment():
     row = accuracy_matrix.Row("backbone_across_the_cuts",
                               ("--bend-deg", "40.4", "--notch-side", "-134.9", "--camera-distance", "0.102"))
     figures = accuracy_matrix.run_row(row, frames=2, seed=4011)
-    print("\n" + accuracy_matrix.format_row(figures) + "\n" + "\n".join(figures["warnings"]))
+    print("\n" + accuracy_matrix.format_row(figures) + "\n" + _listed(figures["warnings"]))
     assert figures["centerline"] <= accuracy_matrix.FLOORS["centerline"]
     assert figures["misses"] == []
 
@@ -199,7 +211,9 @@ def test_the_summary_counts_the_errors_within_the_uncertainty_each_result_stated
 
     results = [result(0.05e-3, -0.08e-3, 0.1e-3, (0.06e-3, 0.1e-3, 0.2e-3)),  # all within
                result(0.2e-3, 0.12e-3, 0.3e-3, (0.1e-3, 0.1e-3, 0.15e-3)),    # all understated
-               result(0.05e-3, -8e-3, 2e-3, (0.06e-3, 9e-3, 9e-3), ["the tube ends 9.0 mm short of ..."]),
+               result(0.05e-3, -8e-3, 2e-3, (0.06e-3, 9e-3, 9e-3),
+                      [finding("TUBE_ENDS_SHORT", "the tube ends 9.0 mm short of ...", short_of_length_mm=9.0,
+                               at_crop_box=False)]),
                {"row": "failed", "error": "too few points", "warnings": ["too few points"]}]
     judged, bounded = accuracy_matrix.bounded_by_stated(results)
     assert judged == 3

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import tiny_rig
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from ros_graph import RosGraph
@@ -65,7 +66,19 @@ def relocation_probe(scene):
         for name, kind in (("centerline", Path), ("tip", PoseStamped), ("notches", Float64MultiArray),
                            ("notches/markers", MarkerArray)):
             graph.node.create_subscription(kind, f"/ntcr/{name}", probe.extra[name].append, COLLECT_RELIABLE)
+        probe.quality = []  # relocation_node's per-frame status on /diagnostics
+        graph.node.create_subscription(DiagnosticArray, "/diagnostics", lambda msg: probe.quality.extend(
+            s for s in msg.status if s.name == "relocation_node: reconstruction quality"), COLLECT_RELIABLE)
         yield probe
+
+
+def quality_of(probe, stamp_ns: int):
+    """relocation_node's /diagnostics status of the frame stamped stamp_ns (None: not yet), its values a dict."""
+    for status in reversed(probe.quality):
+        values = {kv.key: kv.value for kv in status.values}
+        if values.get("stamp_ns") == str(stamp_ns):
+            return status, values
+    return None
 
 
 @pytest.fixture(scope="module")
@@ -126,6 +139,18 @@ def test_relocation_node_relocates_as_the_core(scene, relocation_probe):
                                expected.centerline.tangents[-1], atol=1e-6)
     markers = probe.extra["notches/markers"][-1].markers
     assert sum(m.ns == "notches" and m.action == m.ADD for m in markers) == len(expected.notches)
+    # the frame's status is the /diagnostics level, its codes and bounds key-values, its stamp in the message
+    stamp = stamp_to_ns(filtered[0].header.stamp)
+    assert probe.graph.spin_until(lambda: quality_of(probe, stamp) is not None, 10)
+    status, values = quality_of(probe, stamp)
+    level = {"ok": DiagnosticStatus.OK, "warn": DiagnosticStatus.WARN, "error": DiagnosticStatus.ERROR}
+    assert status.level == level[expected.status] and values["status"] == expected.status
+    assert values["codes"] == ",".join(dict.fromkeys(w.code for w in expected.warnings))
+    assert {f"warning.{w.code}" for w in expected.warnings} <= set(values)
+    assert float(values["uncertainty_mm.centerline"]) == pytest.approx(expected.quality["uncertainty_mm"]["centerline"],
+                                                                       abs=1e-4)
+    stamp_text = f"{filtered[0].header.stamp.sec}.{filtered[0].header.stamp.nanosec:09d}"
+    assert status.message.startswith(f"{expected.status} at frame {stamp_text}")
 
 
 @pytest.mark.parametrize("defect", tiny_rig.MALFORMED)
@@ -150,6 +175,10 @@ def test_relocation_node_logs_a_cloud_without_a_robot_and_goes_on(scene, relocat
     assert probe.graph.spin_until(lambda: "cannot reconstruct the cloud of 10 points" in
                                   probe.graph.log_of(probe.process)[log_before:], 10)
     assert len(probe.received) == count
+    # a frame without a result is an ERROR a controller sees on /diagnostics, stamped as the cloud was
+    assert probe.graph.spin_until(lambda: quality_of(probe, stamp_to_ns(stray.header.stamp)) is not None, 10)
+    status, values = quality_of(probe, stamp_to_ns(stray.header.stamp))
+    assert status.level == DiagnosticStatus.ERROR and values["status"] == "error"
     assert probe.send_and_wait(scene[3][0]) is not None
 
 

@@ -14,6 +14,7 @@ import yaml
 
 from ntcr_recon.cli import main as cli_main
 from ntcr_recon.cli.reconstruct import OUTPUT_FILES
+from ntcr_recon.core.findings import CODES, SEVERITIES
 
 # Another robot through the same stereo emulation, rendered here: thinner (2.5 mm), fewer and narrower
 # notches (10 of 1.0 mm), a 60 degree bend and the cameras nearer (80 mm). Nothing in the configuration is
@@ -55,13 +56,20 @@ def reconstruction(request, bags_dir, tmp_path_factory):
 def test_outputs_and_schema(reconstruction):
     _, out, result = reconstruction
     assert sorted(p.name for p in out.iterdir()) == sorted(OUTPUT_FILES)
-    assert set(result) == {"frames", "frames_combined", "notch_count_expected", "notches", "centerline_m", "tip_m",
-                           "pdc", "ground_truth", "timings_ms", "quality", "warnings"}
+    assert set(result) == {"status", "frames", "frames_combined", "notch_count_expected", "notches", "centerline_m",
+                           "tip_m", "pdc", "ground_truth", "timings_ms", "quality", "warnings"}
+    assert result["status"] in ("ok", "warn", "error")
+    assert set(result["quality"]["uncertainty_mm"]) == {"centerline", "tip", "notch_width"}
     assert result["quality"]["notches_found"] == len(result["notches"])
-    assert all(isinstance(w, str) for w in result["warnings"])
+    # coded records (core.findings), errors first
+    for warning in result["warnings"]:
+        assert warning["code"] in CODES and warning["severity"] == CODES[warning["code"]].severity
+        assert isinstance(warning["message"], str)
+    order = [SEVERITIES.index(w["severity"]) for w in result["warnings"]]
+    assert order == sorted(order, reverse=True)
     assert result["frames"] == 4 and result["frames_combined"] == {"first": 1, "last": 4, "count": 4}
     for notch in result["notches"]:
-        assert set(notch) == {"index", "center_s_mm", "width_mm", "bend_deg"}
+        assert set(notch) == {"index", "center_s_mm", "width_mm", "width_uncertainty_mm", "bend_deg"}
     assert len(result["tip_m"]) == 3 and all(len(p) == 3 for p in result["centerline_m"])
     assert set(result["ground_truth"]["surface_error_mm"]) == {"raw", "relocated"}
     assert {"fuse", "filter", "relocate", "mesh"} <= set(result["timings_ms"])

@@ -8,10 +8,12 @@ import dataclasses
 import json
 
 import numpy as np
+import pytest
 import yaml
 from bag_edit import depth_edit, depth_values, rewrite_bag, with_depth_values
 
 from ntcr_recon.cli import main as cli_main
+from ntcr_recon.core.findings import CODES
 
 FRAMES = "2"  # frame pairs per run: enough to show each fault, quick
 
@@ -24,12 +26,14 @@ def _reconstruct(bag, out, capsys, *extra):
     return code, result, stderr
 
 
-def _warned(result, stderr, *phrases) -> list[str]:
-    """The warnings naming all phrases; each is also printed on stderr."""
-    found = [w for w in result["warnings"] if all(p in w for p in phrases)]
+def _warned(result, stderr, code, **figures) -> list[dict]:
+    """The warnings of `code` whose figures are `figures` (a value or a pytest.approx); each is also printed on
+    stderr as `<severity>: [<CODE>] <message>`, with the severity core.findings gives the code."""
+    found = [w for w in result["warnings"] if w["code"] == code and all(w.get(k) == v for k, v in figures.items())]
     assert found, result["warnings"]
     for warning in found:
-        assert f"warning: {warning}" in stderr
+        assert warning["severity"] == CODES[code].severity
+        assert f"{warning['severity']}: [{code}] {warning['message']}" in stderr
     return found
 
 
@@ -45,14 +49,15 @@ def test_frames_from_one_camera_only_are_reported(bags_dir, tmp_path, capsys):
     code, result, stderr = _reconstruct(bags_dir / "straight", tmp_path / "out", capsys,
                                         "--topic", "cam_b.depth=/nowhere")
     assert code == 0
-    _warned(result, stderr, "cam_b has no frame", "cam_a alone")
+    _warned(result, stderr, "CAMERA_NO_FRAMES", camera="cam_b", rests_on=["cam_a"])
+    assert result["status"] == "error"
 
 
 def test_a_camera_with_the_wrong_depth_unit_is_reported_with_the_unit_that_fits(bags_dir, tmp_path, capsys):
     config = _rig(bags_dir, tmp_path, lambda p: p["cam_b"].update(depth_unit=0.001))  # realsense-ros's unit
     code, result, stderr = _reconstruct(bags_dir / "straight", tmp_path / "out", capsys, "--config", config)
     assert code == 0
-    _warned(result, stderr, "cam_b contributed no points", "depth_unit of 0.0001 would put it there")
+    _warned(result, stderr, "CAMERA_NO_POINTS", camera="cam_b", depth_unit_that_fits=pytest.approx(0.0001))
 
 
 def test_a_camera_with_a_wrong_pose_is_reported(bags_dir, tmp_path, capsys):
@@ -61,7 +66,7 @@ def test_a_camera_with_a_wrong_pose_is_reported(bags_dir, tmp_path, capsys):
     config = _rig(bags_dir, tmp_path, shift)
     code, result, stderr = _reconstruct(bags_dir / "straight", tmp_path / "out", capsys, "--config", config)
     assert code == 0
-    _warned(result, stderr, "cam_b contributed", "the result leans on cam_a")
+    _warned(result, stderr, "CAMERA_FEW_POINTS", camera="cam_b", leans_on="cam_a")
 
 
 def test_depth_coarser_than_its_unit_is_reported(bags_dir, tmp_path, capsys):
@@ -70,7 +75,8 @@ def test_depth_coarser_than_its_unit_is_reported(bags_dir, tmp_path, capsys):
     bag = rewrite_bag(bags_dir / "straight", tmp_path / "coarse", edit=coarse)
     code, result, stderr = _reconstruct(bag, tmp_path / "out", capsys)
     assert code == 0
-    _warned(result, stderr, "cam_a", "steps of 10 units (1 mm)")
+    _warned(result, stderr, "DEPTH_COARSER_THAN_UNIT", camera="cam_a", step_units=10,
+            depth_step_mm=pytest.approx(1.0))
 
 
 def test_big_endian_depth_is_read_byte_swapped_and_reported(bags_dir, tmp_path, capsys):
@@ -78,11 +84,13 @@ def test_big_endian_depth_is_read_byte_swapped_and_reported(bags_dir, tmp_path, 
     bag = rewrite_bag(bags_dir / "straight", tmp_path / "swapped", edit=swapped)
     code, result, stderr = _reconstruct(bag, tmp_path / "out", capsys)
     assert code == 0
-    big_endian = _warned(result, stderr, "cam_a", "flagged big-endian")
+    big_endian = _warned(result, stderr, "DEPTH_BIG_ENDIAN", camera="cam_a")
     code, plain, _ = _reconstruct(bags_dir / "straight", tmp_path / "plain_out", capsys)
     assert plain["centerline_m"] == result["centerline_m"] and plain["notches"] == result["notches"]
-    # nothing else wrong: the rest is what the self-check says of the very same data read plainly
-    assert result["warnings"] == big_endian + plain["warnings"]
+    # nothing else wrong: the rest is what the self-check says of the very same data read plainly (in result.json's
+    # order, errors first: the flag's warning among the other warnings)
+    assert len(result["warnings"]) == len(big_endian) + len(plain["warnings"])
+    assert [w for w in result["warnings"] if w not in big_endian] == plain["warnings"]
 
 
 def test_a_wrong_big_endian_flag_is_reported_or_refused(bags_dir, tmp_path, capsys):
@@ -92,8 +100,8 @@ def test_a_wrong_big_endian_flag_is_reported_or_refused(bags_dir, tmp_path, caps
     bag = rewrite_bag(bags_dir / "straight", tmp_path / "one", edit=depth_edit("cam_a", flag))
     code, result, stderr = _reconstruct(bag, tmp_path / "out", capsys)
     assert code == 0
-    _warned(result, stderr, "cam_a", "flagged big-endian")
-    _warned(result, stderr, "cam_a contributed", "the result leans on cam_b")
+    _warned(result, stderr, "DEPTH_BIG_ENDIAN", camera="cam_a")
+    _warned(result, stderr, "CAMERA_FEW_POINTS", camera="cam_a", leans_on="cam_b")
 
     # Both cameras: nothing of the robot is left. Before: "open3d could not write mesh.ply"; now a refusal
     # that names the flag, and no output.
@@ -138,10 +146,10 @@ def test_a_robot_that_moved_during_the_recording_is_reconstructed_in_one_pose_an
     truth = result["ground_truth"]
     assert result["frames"] == 8 and result["frames_combined"] == {"first": 5, "last": 8, "count": 4}
     assert truth["tip_error_mm"] < 0.15 and truth["centerline_rmse_mm"] < 0.08
-    _warned(result, stderr, "the robot moved during the recording", "frame pairs 5-8 only")
+    _warned(result, stderr, "ROBOT_MOVED", combined=[5, 8])
     code, still, _ = _reconstruct(bags_dir / "straight", tmp_path / "still", capsys)
     assert code == 0 and still["frames_combined"] == {"first": 1, "last": 2, "count": 2}
-    assert not [w for w in still["warnings"] if "moved" in w]
+    assert "ROBOT_MOVED" not in {w["code"] for w in still["warnings"]}
     with capsys.disabled():
         print(f"\nmoved: frames {result['frames_combined']} combined, tip {truth['tip_error_mm']:.3f} mm off the "
               f"bent robot's, centreline {truth['centerline_rmse_mm']:.3f}, {truth['notches_detected']} notches")
@@ -169,7 +177,8 @@ def test_a_frame_pair_without_the_robot_is_left_out_and_said_so(bags_dir, tmp_pa
     result = json.loads((tmp_path / "out" / "result.json").read_text())
     assert result["frames"] == 4 and result["frames_combined"] == {"first": 1, "last": 4, "count": 3}
     assert result["ground_truth"]["notches_detected"] == 16
-    _warned(result, stderr, "1 of 4 frame pairs gave no result and are left out", "frame pair 2")
+    (left_out,) = _warned(result, stderr, "FRAMES_LEFT_OUT", pairs=1, of=4)
+    assert "frame pair 2" in left_out["message"]  # which pair, and why: no figure carries it (cli/reconstruct.py)
     bag = rewrite_bag(bags_dir / "straight", tmp_path / "all_covered", crop=True, edit=blanking(None))
     code, _, stderr = _reconstruct(bag, tmp_path / "none", capsys)
     assert code == 2

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import re
 
 import numpy as np
 import pytest
@@ -26,7 +25,7 @@ from ntcr_recon.core.config import RelocationConfig
 from ntcr_recon.core.geometry import TubeGeometry
 from ntcr_recon.core.kinematics import TubeShape
 from ntcr_recon.core.notches import Notch, detect_notches
-from ntcr_recon.core.outline import across_views_from, outline_offset
+from ntcr_recon.core.outline import OUTLINE_TOLERANCE_PX, across_views_from, outline_offset
 from ntcr_recon.core.quality import (
     assess,
     camera_coverage,
@@ -43,6 +42,24 @@ from ntcr_recon.core.tip import TipAlongTube, carried_to_length, tube_end, visib
 
 GEOMETRY = TubeGeometry()   # 3.5 mm, 16 notches, straight along base +z, notches towards +x
 FOOTPRINT = 0.2e-3          # a D405 pixel at 90 mm
+# the findings (core.findings) that state how well the tip is placed, along the tube and across it
+TIP_CODES = {"TIP_ON_ERODED_RIM", "TIP_ON_END_CAP"}
+
+
+def _by_code(warnings) -> dict:
+    """The findings by code (core.findings), each code's in the order raised."""
+    found: dict = {}
+    for warning in warnings:
+        found.setdefault(warning.code, []).append(warning)
+    return found
+
+
+def _tip_findings(warnings) -> list:
+    return [w for w in warnings if w.code in TIP_CODES]
+
+
+def _text(by_code: dict) -> str:
+    return "\n".join(f"[{code}] {w}" for code, found in by_code.items() for w in found)
 R_O = GEOMETRY.outer_radius
 
 
@@ -630,7 +647,7 @@ def test_a_notch_read_at_a_width_its_bend_rules_out_is_given_its_bends_and_its_n
         total_bend=bend * geometry.notch_count, footprint=FOOTPRINT, wall_residual=0.0, notch_side=0.0,
         configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0, depth_steps={}, unchecked=not_checked)
     assert quality["notches_unchecked"] == [6]
-    assert any(w.startswith("widths not checked against their bends, as read: notches 6 (") for w in said)
+    assert [w.figures["notches"] for w in said if w.code == "NOTCH_WIDTH_UNCHECKED"] == [[6]]
 
     wide = [read_notch(geometry, 6, n.start_s - 0.05e-3, n.end_s + 0.05e-3, bend) if n.index == 6 else n for n in exact]
     assert MISREAD_WIDTH_FRACTION * geometry.notch_width > 0.1e-3
@@ -642,9 +659,11 @@ def test_a_notch_read_at_a_width_its_bend_rules_out_is_given_its_bends_and_its_n
         camera=None, tip_s=50e-3, total_bend=bend * geometry.notch_count, footprint=FOOTPRINT, wall_residual=0.0,
         notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0, depth_steps={},
         misread_widths=misread)[1]
-    text = " ".join(warnings)
-    print("\n" + text)
-    assert f"6 ({misread[6] * 1e3:.2f} mm read, {width * 1e3:.2f} implied)" in text
+    print("\n" + " ".join(map(str, warnings)))
+    (misread_finding,) = [w for w in warnings if w.code == "NOTCH_WIDTH_MISREAD"]
+    assert misread_finding.figures["notches"] == [6]
+    assert misread_finding.figures["read_width_mm"] == {"6": pytest.approx(misread[6] * 1e3)}
+    assert misread_finding.figures["implied_width_mm"] == {"6": pytest.approx(width * 1e3)}
 
 
 def test_the_last_notch_found_is_checked_against_the_bend_of_the_notches_before_it():
@@ -1438,32 +1457,38 @@ def test_quality_says_what_is_doubtful():
         camera=camera, tip_s=50e-3, total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.05e-3,
         notch_side=math.radians(20), configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0,
         depth_steps={"cam_a": 1e-3, "cam_b": 1e-4})
-    print("\n" + "\n".join(warnings))
-    text = " ".join(warnings)
-    assert "0 of 16 notches found" in text
-    assert "the distal 10 mm is seen by cam_b alone" in text
-    assert "short of the robot's length" in text
-    assert "+20 deg from the configured robot.notch_side" in text
-    assert "depth of cam_a is quantised in 1 mm steps" in text and "cam_b is quantised" not in text
+    print("\n" + "\n".join(map(str, warnings)))
+    said = _by_code(warnings)
+    assert said["NOTCHES_MISSING"][0].figures["missing"] == list(range(16))
+    assert [(w.figures["camera"], round(w.figures["length_mm"])) for w in said["DISTAL_ONE_CAMERA"]] == [("cam_b", 10)]
+    (short,) = said["TUBE_ENDS_SHORT"]
+    assert short.figures["short_of_length_mm"] > 0
+    (rolled,) = said["ROBOT_ROLLED"]
+    assert rolled.figures["side_off_deg"] == pytest.approx(20.0)
+    assert [(w.figures["camera"], w.figures["depth_step_mm"]) for w in said["DEPTH_QUANTISED"]] == [
+        ("cam_a", pytest.approx(1.0))]
     assert quality["notches_found"] == 0 and quality["notch_side_deg"] == pytest.approx(20.0)
-    assert "crop box" not in text
-    assert "the robot is rolled in its clamp" in text
+    assert not short.figures["at_crop_box"]
+    # no uncertainty stated for the side: the offset is a roll
+    assert rolled.figures["side_uncertainty_deg"] is None
     # a side measured +20 deg off yet known only to +-25 deg (one edge of the window placed it) is no proof of a roll
-    for known_deg, said in ((5.0, "(known to +-5 deg): the robot is rolled in its clamp"),
-                            (25.0, "(known to +-25 deg): the robot may be rolled in its clamp")):
+    for known_deg, rolled_beyond in ((5.0, True), (25.0, False)):  # is rolled / may be rolled
         side_warnings = assess(
             geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=notches, coords_s=s, camera=camera,
             tip_s=50e-3, total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.05e-3, notch_side=math.radians(20),
             configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0, depth_steps={},
             side_uncertainty=math.radians(known_deg))[1]
-        assert any(said in warning for warning in side_warnings), side_warnings
+        (side,) = _by_code(side_warnings)["ROBOT_ROLLED"]
+        assert side.figures["side_uncertainty_deg"] == pytest.approx(known_deg)
+        assert (abs(side.figures["side_off_deg"]) > side.figures["side_uncertainty_deg"]) == rolled_beyond
     cap_warnings = assess(
         geometry=GEOMETRY, camera_names=("cam_a",), notches=[], coords_s=s,
         camera=np.zeros(len(s), np.int8), tip_s=50e-3, total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.0,
         notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0, depth_steps={},
         tip_uncertainty=0.26e-3, tip_from_cap=True)[1]
-    assert any("end cap's plane, whose points the stereo matcher smeared over 0.26 mm" in w for w in cap_warnings)
-    assert not any("eroded rim" in w for w in cap_warnings)
+    (cap,) = _by_code(cap_warnings)["TIP_ON_END_CAP"]
+    assert cap.figures["along_mm"] == pytest.approx(0.26)  # the cap's points smeared over that much
+    assert "TIP_ON_ERODED_RIM" not in _by_code(cap_warnings)
 
 
 def test_quality_tells_a_tube_cut_short_by_the_crop_box_from_one_that_ends_inside_it():
@@ -1471,17 +1496,19 @@ def test_quality_tells_a_tube_cut_short_by_the_crop_box_from_one_that_ends_insid
     s = np.linspace(0.0, 30e-3, 3000)
 
     def warnings_for(tip):
-        return " ".join(assess(
+        return _by_code(assess(
             geometry=GEOMETRY, camera_names=("cam_a",), notches=[], coords_s=s,
             camera=np.zeros(len(s), np.int8), tip_s=30e-3, total_bend=0.0, footprint=FOOTPRINT,
             wall_residual=0.0, notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0,
             depth_steps={}, tip_position=np.array(tip), crop_box=box)[1])
 
-    on_face = warnings_for([0.02, 0.0, 0.5e-3])    # the robot curled down to the base plane
-    print("\n" + on_face)
-    assert "short of the robot's length" in on_face and "crop box's face z = 0.0 mm" in on_face
-    inside = warnings_for([0.0, 0.0, 0.03])
-    assert "short of the robot's length" in inside and "crop box" not in inside
+    (on_face,) = warnings_for([0.02, 0.0, 0.5e-3])["TUBE_ENDS_SHORT"]    # the robot curled down to the base plane
+    print("\n" + str(on_face))
+    assert on_face.figures["short_of_length_mm"] > 0 and on_face.figures["at_crop_box"]
+    assert on_face.figures["crop_box_face"] == "z" and on_face.figures["crop_box_face_mm"] == pytest.approx(0.0)
+    (inside,) = warnings_for([0.0, 0.0, 0.03])["TUBE_ENDS_SHORT"]
+    assert inside.figures["short_of_length_mm"] > 0 and not inside.figures["at_crop_box"]
+    assert inside.figures["crop_box_face"] is None
 
 
 def test_quality_says_when_no_camera_showed_the_tubes_outline_whole():
@@ -1498,19 +1525,20 @@ def test_quality_says_when_no_camera_showed_the_tubes_outline_whole():
             tip_s=30e-3, total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.0, notch_side=0.0, configured_side=0.0,
             bias_notch_side=0.0, bias_binormal=0.0, depth_steps={}, outline_offset=outline_offset,
             cross_view_spread=0.02e-3)
-        return quality, " ".join(warnings)
+        return quality, _by_code(warnings)
 
     cameras = (np.arange(len(s)) % 2).astype(np.int8)
     quality, unchecked = assessed(cameras, None)
-    print("\n" + unchecked)
-    assert "no camera's view showed the tube's outline whole" in unchecked and "centreline" in unchecked
-    assert "the tip at its free end" in unchecked  # the tip across the tube is the centreline's free end
-    assert "as uncertain as a pixel footprint at least (0.20 mm)" in unchecked
+    print("\n" + " ".join(map(str, unchecked.get("OUTLINE_UNCHECKED", []))))
+    (outline,) = unchecked["OUTLINE_UNCHECKED"]
+    assert outline.figures["pixel_footprint_mm"] == pytest.approx(0.20)  # stated at least that uncertain
+    # the tip across the tube is the centreline's free end
+    assert [w.figures["across_because"] for w in unchecked["TIP_ON_ERODED_RIM"]] == ["free_end"]
     assert quality["centerline_uncertainty_mm"] == pytest.approx(FOOTPRINT * 1e3)
     assert quality["tip_across_uncertainty_mm"] >= FOOTPRINT * 1e3
     for camera, offset in ((cameras, 0.02e-3), (None, None)):
         quality, checked = assessed(camera, offset)
-        assert "outline whole" not in checked and quality["centerline_uncertainty_mm"] == pytest.approx(0.02)
+        assert "OUTLINE_UNCHECKED" not in checked and quality["centerline_uncertainty_mm"] == pytest.approx(0.02)
 
 
 def test_the_surface_depth_nearest_a_camera_is_the_axis_less_the_ring_it_turns_to_the_camera():
@@ -1634,37 +1662,43 @@ def test_a_camera_that_missed_a_stretch_is_named_with_why_too_near_or_end_on():
             wall_residual=0.0, notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0,
             depth_steps={}, reach=reach, notch_centres=expected_centres(shape.geometry, true_centerline(shape)),
             unsupported=unsupported)
-        return quality, " ".join(warnings)
+        return quality, _by_code(warnings)
 
     quality, seen_alone = warned(-90.0)
-    print(f"\n{seen_alone}\nnearest returned {quality['camera_nearest_depth_mm']}, "
+    print(f"\n{_text(seen_alone)}\nnearest returned {quality['camera_nearest_depth_mm']}, "
           f"tube's nearest {quality['tube_nearest_depth_mm']}")
-    assert "seen by cam_b alone (it comes within 60 mm of cam_a, which returned no depth nearer than 71 mm)" \
-        in seen_alone
+    (alone,) = seen_alone["DISTAL_ONE_CAMERA"]
+    assert alone.figures["camera"] == "cam_b"
+    assert alone.figures["too_near_mm"] == {"cam_a": pytest.approx(60.0, abs=0.5)} and alone.figures["end_on_deg"] == {}
     assert quality["camera_nearest_depth_mm"]["cam_a"] == pytest.approx(70.5, abs=0.3)
     assert quality["tube_nearest_depth_mm"]["cam_a"] == pytest.approx(59.9, abs=0.3)
     # no notch was found (none given): those past 40 mm, where cam_a's points stop, are named with why
-    assert re.search(r"notches 12-15 lie where cam_a did not see the tube \(it comes within 6\d mm of cam_a",
-                     seen_alone)
+    (missing,) = seen_alone["NOTCHES_MISSING"]
+    assert missing.figures["unseen_by"] == {"cam_a": [12, 13, 14, 15]}
+    assert 60.0 <= quality["tube_nearest_depth_mm"]["cam_a"] + 0.5 < 70.0  # (it comes within 6x mm of cam_a)
     short_quality, cut_short = warned(-90.0, tip_s=38e-3)  # the tube's end found where cam_a stops seeing it
-    print(cut_short)
-    assert "continued at its last bend, it would come within 60 mm of cam_a" in cut_short
-    assert "notches 12-15 lie beyond the end seen (38.0 mm along the tube)" in cut_short
-    shortfall = re.search(r"the tube ends (1\d\.\d) mm short", cut_short)
-    assert shortfall and "carried on there" not in cut_short
+    print(_text(cut_short))
+    (ends,) = cut_short["TUBE_ENDS_SHORT"]  # not carried on
+    assert "TIP_CARRIED" not in cut_short
+    assert ends.figures["too_near_mm"] == {"cam_a": pytest.approx(60.0, abs=0.5)}  # continued at its last bend
+    (missing,) = cut_short["NOTCHES_MISSING"]
+    assert missing.figures["beyond_end"] == [12, 13, 14, 15] and short_quality["tip_seen_s_mm"] == pytest.approx(38.0)
+    shortfall = ends.figures["short_of_length_mm"]
+    assert 10.0 <= shortfall < 20.0
     # left at the end seen, the tip may lie as far off as the rest of the robot reaches, and its figures say so (a
     # controller reads those, not the warning): the shortfall along the tube and across it
-    assert f"the tip may lie up to {shortfall[1]} mm off" in cut_short
-    assert short_quality["tip_uncertainty_mm"] == pytest.approx(float(shortfall[1]), abs=0.05)
-    assert short_quality["tip_across_uncertainty_mm"] == pytest.approx(float(shortfall[1]), abs=0.05)
+    assert short_quality["tip_uncertainty_mm"] == pytest.approx(shortfall, abs=0.05)
+    assert short_quality["tip_across_uncertainty_mm"] == pytest.approx(shortfall, abs=0.05)
     # carried on to the robot's length past where cam_a was too near to see: the tip and the centreline's stated
     # uncertainty count what a straight hidden part would leave them off, and the warning says where the tip is
     carried_quality, carried = warned(-90.0, tip_s=38e-3, carry=True)
-    print(carried)
-    assert re.search(r"the tube seen ends 1\d\.\d mm short of the robot's length .*within 60 mm of cam_a.*: that "
-                     r"hides the rest, and the tip is carried on there", carried)
-    assert "notches 12-15 lie beyond the end seen (38.0 mm along the tube)" in carried
-    assert "stereo-eroded rim" not in carried  # (the tip is not where the end was seen)
+    print(_text(carried))
+    (carried_on,) = carried["TIP_CARRIED"]
+    assert 10.0 <= carried_on.figures["short_of_length_mm"] < 20.0
+    assert carried_on.figures["too_near_mm"] == {"cam_a": pytest.approx(60.0, abs=0.5)}
+    assert carried["NOTCHES_MISSING"][0].figures["beyond_end"] == [12, 13, 14, 15]
+    assert carried_quality["tip_seen_s_mm"] == pytest.approx(38.0)
+    assert "TIP_ON_ERODED_RIM" not in carried  # (the tip is not where the end was seen)
     assert carried_quality["tip_across_uncertainty_mm"] > 1.0 and carried_quality["tip_uncertainty_mm"] > 0.1
     assert carried_quality["centerline_uncertainty_mm"] > 0.3
     assert carried_quality["tip_seen_s_mm"] == pytest.approx(38.0)
@@ -1673,21 +1707,27 @@ def test_a_camera_that_missed_a_stretch_is_named_with_why_too_near_or_end_on():
     assert quality["tip_hidden_mm"] == 0.0
     # bent towards cam_b, away from cam_a along its line of sight: cam_a sees the distal wall nearly edge-on
     _, away = warned(90.0)
-    print(away)
-    assert re.search(r"seen by cam_b alone \(it points within \d+ deg of cam_a's line of sight", away)
+    print(_text(away))
+    (alone,) = away["DISTAL_ONE_CAMERA"]
+    assert alone.figures["camera"] == "cam_b" and alone.figures["too_near_mm"] == {}
+    assert set(alone.figures["end_on_deg"]) == {"cam_a"}
     # bent side-on, whatever hid the distal part from cam_a, it was neither: no reason given
     side_on_quality, side_on = warned(0.0)
-    print(side_on)
-    assert "seen by cam_b alone: the tube's far side" in side_on and "within" not in side_on
+    print(_text(side_on))
+    (alone,) = side_on["DISTAL_ONE_CAMERA"]
+    assert alone.figures["camera"] == "cam_b"
+    assert alone.figures["too_near_mm"] == {} and alone.figures["end_on_deg"] == {}  # no reason given
     # along the lines of sight, the last ~20 deg of the bend lie within 30 deg of both (notch pitch 3.2 mm)
     assert 8.0 < quality["distal_end_on_mm"] < 16.0 and side_on_quality["distal_end_on_mm"] == 0.0
-    assert re.search(rf"the distal {quality['distal_end_on_mm']:.0f} mm points within \d+ deg of cam_a's and \d+ deg "
-                     "of cam_b's line of sight: every camera sees its wall nearly edge-on there", seen_alone)
-    assert "every camera sees its wall" not in side_on
+    (end_on,) = seen_alone["DISTAL_END_ON"]
+    assert end_on.figures["length_mm"] == pytest.approx(quality["distal_end_on_mm"])
+    assert set(end_on.figures["angles_deg"]) == {"cam_a", "cam_b"}
+    assert "DISTAL_END_ON" not in side_on
     # where a stretch without trusted wall reaches the tip, its warning says as much: not said twice
     _, unsupported = warned(-90.0, unsupported=((42e-3, 50e-3),))
-    assert "(and the tip with it) follows points off the wall" in unsupported
-    assert "every camera sees its wall" not in unsupported
+    (stretch,) = unsupported["CENTERLINE_UNSUPPORTED"]
+    assert stretch.figures["to_tip"] and stretch.figures["stretches_mm"] == [[pytest.approx(42.0), pytest.approx(50.0)]]
+    assert "DISTAL_END_ON" not in unsupported
 
 
 def test_the_distal_stretch_every_camera_sees_end_on_is_measured_from_the_tip_back():
@@ -1726,13 +1766,11 @@ def test_missing_notches_are_placed_beyond_the_end_seen_or_where_a_camera_did_no
         coords_s=s, camera=camera, tip_s=45e-3, total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.0,
         notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0, depth_steps={},
         notch_centres=centres)
-    print("\n" + warnings[0])
-    assert warnings[0] == ("11 of 16 notches found (missing: 3, 12, 13, 14, 15): their widths are unknown; notches 12 "
-                           "and 13 lie where cam_a did not see the tube; notches 14 and 15 lie beyond the end seen "
-                           f"(45.0 mm along the tube); notch 3 lies where the cameras saw the tube, yet no gap or "
-                           f"dip of the wall marks it (a 1.5 mm cut spans {1.5e-3 / FOOTPRINT:.0f} px in the depth "
-                           "images there: a stereo matcher's window that wide or wider fills it; or it opens to a "
-                           "side no camera saw)")
+    print("\n" + str(warnings[0]))
+    assert warnings[0].code == "NOTCHES_MISSING" and warnings[0].severity == "warn"
+    assert dict(warnings[0].figures) == {"missing": [3, 12, 13, 14, 15], "beyond_end": [14, 15],
+                                         "unseen_by": {"cam_a": [12, 13]}, "unmarked": [3]}
+    assert quality["notches_found"] == 11 and quality["tip_seen_s_mm"] == pytest.approx(45.0)
     assert quality["notches_missing_beyond_end"] == [14, 15] and quality["notches_missing_unmarked"] == [3]
     assert quality["notches_missing_unseen_by"] == {"cam_a": [12, 13]}
 
@@ -1762,17 +1800,19 @@ def test_quality_measures_a_wall_that_reads_deeper_between_the_notches_than_on_t
             camera=np.zeros(len(s), np.int8), tip_s=50e-3, total_bend=0.0, footprint=FOOTPRINT,
             wall_residual=0.0, notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0,
             depth_steps={}, notched_thinning=thinning(deep), looking_into_slots=looking)
-        return quality, " ".join(warnings)
+        return quality, _by_code(warnings)
 
     quality, text = warnings_for(0.3e-3)
     assert quality["notched_thinning_mm"] == pytest.approx(0.3, abs=0.02)
     assert quality["cameras_looking_into_slots"] == ["cam_a"]
-    assert "cam_a looks into the notches' slots" in text and "reads 0.30 mm deeper than the plain tube" in text
-    assert "may lean up to 0.60 mm away from cam_a" in text
+    (slots,) = text["SLOTS_LEAN"]
+    assert slots.figures["cameras"] == ["cam_a"] and not slots.figures["levelled"]
+    assert f"{slots.figures['notched_thinning_mm']:.2f}" == "0.30"
+    assert f"{slots.figures['lean_mm']:.2f}" == "0.60"  # may lean up to that, away from cam_a
     # shared by cameras that see the slots edge-on (through them), a thinner wall between the notches does not
     # move the axis; and a deficit a quarter of a footprint below the floor stays quiet
-    assert "slots" not in warnings_for(0.3e-3, looking=())[1]
-    assert "slots" not in warnings_for(0.2 * FOOTPRINT)[1]
+    assert "SLOTS_LEAN" not in warnings_for(0.3e-3, looking=())[1]
+    assert "SLOTS_LEAN" not in warnings_for(0.2 * FOOTPRINT)[1]
 
 
 def test_a_centreline_over_stretches_nothing_measured_is_stated_as_uncertain_as_a_pixel_footprint_there():
@@ -1790,12 +1830,13 @@ def test_a_centreline_over_stretches_nothing_measured_is_stated_as_uncertain_as_
             notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0, depth_steps={},
             cross_view_spread=0.03e-3, notched_thinning=0.04e-3, outline_offset=0.02e-3, unsupported=unsupported,
             notch_centres=GEOMETRY.notch_centers_s)
-        return quality["centerline_uncertainty_mm"], " ".join(warnings)
+        return quality["centerline_uncertainty_mm"], _by_code(warnings)
 
     measured, quiet = stated(())
-    assert measured == pytest.approx(0.05) and "how far off it is was not measured" not in quiet
+    assert measured == pytest.approx(0.05) and "CENTERLINE_UNSUPPORTED" not in quiet
     unmeasured, said = stated(((40e-3, 50e-3),))
-    assert "over s = 40-50 mm no camera saw the tube's wall facing it" in said
+    assert [w.figures["stretches_mm"] for w in said["CENTERLINE_UNSUPPORTED"]] == [[[pytest.approx(40.0),
+                                                                                      pytest.approx(50.0)]]]
     assert unmeasured == pytest.approx(math.sqrt(0.05**2 + 0.2 * (FOOTPRINT * 1e3) ** 2))
 
 
@@ -1831,19 +1872,21 @@ def test_quality_gives_the_centreline_an_uncertainty_and_warns_above_its_floor()
                       fitted_end=fitted_end, notch_centres=GEOMETRY.notch_centers_s)
 
     quality, warnings = assessed(0.06e-3, 0.08e-3)
-    print("\n" + "\n".join(warnings))
+    print("\n" + "\n".join(map(str, warnings)))
     assert quality["centerline_uncertainty_mm"] == pytest.approx(0.1)
     assert quality["centerline_cross_view_mm"] == pytest.approx(0.06)
-    assert any("the centreline is uncertain by about 0.10 mm" in warning and "0.06 mm apart" in warning
-               for warning in warnings)
+    (uncertain,) = _by_code(warnings)["CENTERLINE_UNCERTAIN"]
+    assert uncertain.figures["uncertainty_mm"] == pytest.approx(0.1)
+    assert uncertain.figures["cross_view_mm"] == pytest.approx(0.06)  # the cameras' axes that far apart
     quiet_quality, quiet = assessed(0.03e-3, 0.04e-3)
     assert quiet_quality["centerline_uncertainty_mm"] == pytest.approx(0.05)
-    assert not any(warning.startswith("the centreline is uncertain") for warning in quiet)
+    assert "CENTERLINE_UNCERTAIN" not in _by_code(quiet)
     # the tip sits on the centreline's free end, sqrt(3) x its uncertainty across: with half a footprint along
     # the tube, 0.05 mm of centreline keep the tip within its floor, 0.1 mm do not
-    assert not any(warning.startswith("the tip") for warning in quiet)
-    assert any(warning.startswith("the tip") and "and by 0.17 mm across it (the centreline's, at its free end)"
-               in warning for warning in warnings)
+    assert not _by_code(quiet).keys() & TIP_CODES
+    (tip,) = _tip_findings(warnings)
+    assert tip.figures["across_mm"] == pytest.approx(math.sqrt(3) * 0.1)
+    assert tip.figures["across_because"] == "free_end"  # the centreline's, at its free end
     assert quality["tip_across_uncertainty_mm"] == pytest.approx(math.sqrt(3) * 0.1)
     assert assessed(None, None)[0]["tip_across_uncertainty_mm"] is None  # nothing measured the centreline
     # where the cameras disagree more at the end than over the length, the tip is known no better than their axes
@@ -1851,16 +1894,17 @@ def test_quality_gives_the_centreline_an_uncertainty_and_warns_above_its_floor()
     ends_apart = assessed(0.03e-3, 0.04e-3, at_end=0.08e-3)
     assert ends_apart[0]["tip_across_uncertainty_mm"] == pytest.approx(0.16)
     assert ends_apart[0]["centerline_cross_view_at_tip_mm"] == pytest.approx(0.08)
-    assert any("and by 0.16 mm across it (the cameras' axes that far apart across their views at the end)" in warning
-               for warning in ends_apart[1])
+    (tip,) = _tip_findings(ends_apart[1])
+    assert tip.figures["across_mm"] == pytest.approx(0.16) and tip.figures["across_because"] == "cameras_apart"
     # the alignment's shift at the last wall it trusted, held unchecked to the tip, adds in quadrature to the free
     # end's: 0.05 x sqrt(3) and 0.12 mm make 0.15 mm
     held_quality, held = assessed(0.03e-3, 0.04e-3, held=(0.12e-3, 46e-3))
     assert held_quality["tip_across_uncertainty_mm"] == pytest.approx(math.hypot(math.sqrt(3) * 0.05, 0.12))
     assert held_quality["tip_held_shift_mm"] == pytest.approx(0.12)
     assert held_quality["tip_held_over_mm"] == pytest.approx(4.0)
-    assert any("and by 0.15 mm across it (the alignment moved the axis 0.12 mm at the last wall it trusted, and "
-               "held that shift unchecked over the 4.0 mm to the tip)" in warning for warning in held)
+    (tip,) = _tip_findings(held)  # the shift held unchecked over the tip_held_over_mm to the tip
+    assert tip.figures["across_mm"] == pytest.approx(held_quality["tip_across_uncertainty_mm"])
+    assert tip.figures["across_because"] == "held_shift"
     # the fit ended short of the tip (50 mm) and the centreline was carried on bending over the notches past its end
     # (centres 44.75 and 47.75 mm, 1.5 mm wide): each one's bend known as well as the turn over a pitch (0.05 / 3 mm),
     # its lever the rest to the tip: ended at 47.5 mm, two thirds of notch 14 at 2.25 mm add 0.025 mm in quadrature;
@@ -1871,12 +1915,12 @@ def test_quality_gives_the_centreline_an_uncertainty_and_warns_above_its_floor()
     assert near["tip_across_uncertainty_mm"] == pytest.approx(math.hypot(math.sqrt(3) * 0.05, 0.05 / 3 * 1.5))
     short_quality, short = assessed(0.03e-3, 0.04e-3, fitted_end=44e-3)
     assert short_quality["tip_across_uncertainty_mm"] == pytest.approx(math.hypot(math.sqrt(3) * 0.05, 0.125))
-    assert any("(the centreline carried on bending over the 6.0 mm past where its fit reached, at the bend of the "
-               "notches before)" in warning for warning in short)
+    assert short_quality["tip_carried_mm"] == pytest.approx(6.0)
+    assert [w.figures["across_because"] for w in _tip_findings(short)] == ["carried"]
     # looking into the slots, the deficit may lean the axis by twice it: 0.03 and 2 x 0.04 mm make 0.085 mm
     looking_quality, looking = assessed(0.03e-3, 0.04e-3, looking=("cam_a",))
     assert looking_quality["centerline_uncertainty_mm"] == pytest.approx(math.hypot(0.03, 0.08))
-    assert any("the centreline is uncertain by about 0.09 mm" in warning for warning in looking)
+    assert [round(w.figures["uncertainty_mm"], 2) for w in _by_code(looking)["CENTERLINE_UNCERTAIN"]] == [0.09]
     # over a distal stretch one camera alone saw, the axis along its view rests on the wall's level, which no
     # second view checks: a quarter of the length at -0.16 mm adds 0.08 mm in quadrature (as an RMS over the
     # length), and 0.05 mm become 0.094 mm, over the floor
@@ -1886,8 +1930,9 @@ def test_quality_gives_the_centreline_an_uncertainty_and_warns_above_its_floor()
     alone = one_quality["distal_one_camera_mm"]["cam_a"] / 50.0
     assert alone == pytest.approx(0.25, abs=0.02) and one_quality["wall_level_mm"] == pytest.approx(-0.16)
     assert one_quality["centerline_uncertainty_mm"] == pytest.approx(math.sqrt(0.05 ** 2 + alone * 0.16 ** 2))
-    assert any(warning.startswith("the centreline is uncertain by about 0.09 mm") and "seen by one camera alone, "
-               "the wall's level (-0.16 mm, the flattening of the views)" in warning for warning in one)
+    (uncertain,) = _by_code(one)["CENTERLINE_UNCERTAIN"]
+    assert round(uncertain.figures["uncertainty_mm"], 2) == 0.09
+    assert uncertain.figures["one_camera_wall_level_mm"] == pytest.approx(-0.16)  # seen by one camera alone
     # both cameras seeing the whole tube, the level adds nothing
     both_quality, _ = assessed(0.03e-3, 0.04e-3, cam_b_up_to=50e-3, wall_level=-0.16e-3)
     assert both_quality["centerline_uncertainty_mm"] == pytest.approx(0.05)
@@ -1896,22 +1941,26 @@ def test_quality_gives_the_centreline_an_uncertainty_and_warns_above_its_floor()
     sound_quality, sound = assessed(0.03e-3, 0.04e-3, outline=0.25e-3)
     assert sound_quality["centerline_outline_offset_mm"] == pytest.approx(0.25)
     assert sound_quality["centerline_uncertainty_mm"] == pytest.approx(0.05)
-    assert not any(warning.startswith("the centreline is uncertain") for warning in sound)
+    assert "CENTERLINE_UNCERTAIN" not in _by_code(sound)
     astray_quality, astray = assessed(0.03e-3, 0.04e-3, outline=0.5e-3)
-    print("\n".join(w for w in astray if w.startswith("the centreline")))
+    print("\n".join(str(w) for w in astray if w.code == "CENTERLINE_UNCERTAIN"))
     assert astray_quality["centerline_uncertainty_mm"] == pytest.approx(0.5)
-    assert any(warning.startswith("the centreline is uncertain by about 0.50 mm") and "the axis lies 0.50 mm (RMS) "
-               "from the middle of the tube's outline in the cameras' views, 2.5 px" in warning for warning in astray)
+    (uncertain,) = _by_code(astray)["CENTERLINE_UNCERTAIN"]
+    assert uncertain.figures["uncertainty_mm"] == pytest.approx(0.5)
+    assert uncertain.figures["outline_offset_mm"] == pytest.approx(0.5)  # from the outline's middle
+    assert uncertain.figures["outline_offset_mm"] / (FOOTPRINT * 1e3) == pytest.approx(2.5)  # px
     # the alignment astray (2.5 px) and the fit not (0.5 px): the fit placed the axis across the views, and the
     # result says so; the axis it gave (0.25 mm from the outline) is within what a sound one shows
     replaced_quality, replaced = assessed(0.03e-3, 0.04e-3, outline=0.25e-3, across_from_fit=(0.5e-3, 0.1e-3))
     assert replaced_quality["centerline_aligned_outline_offset_mm"] == pytest.approx(0.5)
     assert sound_quality["centerline_aligned_outline_offset_mm"] is None
     assert replaced_quality["centerline_uncertainty_mm"] == pytest.approx(0.05)
-    assert any(warning.startswith("the alignment moved the axis 0.50 mm (RMS) from the middle of the tube's outline")
-               and "(2.5 px, where a sound axis lies within 1.5)" in warning and "the axis is the fit's, which lies "
-               "0.5 px from that middle" in warning for warning in replaced)
-    assert not any(warning.startswith("the alignment moved the axis") for warning in sound)
+    (moved,) = _by_code(replaced)["ALIGNMENT_ASTRAY"]
+    assert moved.figures["aligned_offset_mm"] == pytest.approx(0.5)
+    assert moved.figures["aligned_offset_mm"] / (FOOTPRINT * 1e3) == pytest.approx(2.5)  # px, over OUTLINE_TOLERANCE_PX
+    assert moved.figures["aligned_offset_mm"] / (FOOTPRINT * 1e3) > OUTLINE_TOLERANCE_PX
+    assert moved.figures["fit_offset_mm"] / (FOOTPRINT * 1e3) == pytest.approx(0.5)  # the fit's axis, in px
+    assert "ALIGNMENT_ASTRAY" not in _by_code(sound)
 
 
 def test_a_camera_looks_into_the_slots_when_its_line_of_sight_through_them_meets_their_floor():

@@ -47,11 +47,12 @@ def test_a_tube_pointing_at_a_camera_is_followed_or_the_result_says_what_it_lost
           f"{tip * 1e3:.3f} mm; warnings: {list(relocation.warnings)}")
     assert rmse <= 0.08e-3
     assert found >= config.robot.notch_count - 2
-    text = " ".join(relocation.warnings)
+    codes = {w.code for w in relocation.warnings}
     if found < config.robot.notch_count:
-        assert f"{found} of {config.robot.notch_count} notches found" in text
-    if tip > 0.5e-3:  # a tip this far off is never silent
-        assert "the tip is uncertain" in text or "alone" in text
+        (missing,) = [w for w in relocation.warnings if w.code == "NOTCHES_MISSING"]
+        assert len(missing.figures["missing"]) == config.robot.notch_count - found
+    if tip > 0.5e-3:  # a tip this far off is never silent: the tube ends off its length, or one camera saw its end
+        assert codes & {"TUBE_ENDS_SHORT", "TIP_CARRIED", "DISTAL_ONE_CAMERA"}
     assert relocation.quality["length_seen_share"]["cam_a"] > 0.5
 
 
@@ -70,7 +71,7 @@ def test_a_camera_looking_into_the_slots_from_afar_never_leans_the_centreline_si
           f"{relocation.quality['notched_thinning_mm']:.3f} mm; warnings: {list(relocation.warnings)}")
     assert relocation.quality["cameras_looking_into_slots"] == ["cam_a"]
     if rmse > 0.08e-3:
-        assert any("cam_a looks into the notches' slots" in warning for warning in relocation.warnings)
+        assert any(w.code == "SLOTS_LEAN" and "cam_a" in w.figures["cameras"] for w in relocation.warnings)
 
 
 def test_a_tube_whose_wall_a_matcher_spoils_against_the_background_is_followed_and_what_is_unmeasured_said():
@@ -104,11 +105,11 @@ def test_a_tube_whose_wall_a_matcher_spoils_against_the_background_is_followed_a
           f"{stated * 1e3:.3f}); unsupported {unsupported} mm; worst error elsewhere "
           f"{error[~near_unsupported].max() * 1e3:.3f} mm")
     assert tip < 2e-3
-    assert unsupported and any("no camera saw the tube's wall facing it" in w for w in relocation.warnings)
+    assert unsupported and any(w.code == "CENTERLINE_UNSUPPORTED" for w in relocation.warnings)
     assert np.all(error[~near_unsupported] <= 3 * stated)
     # no depth image measured an edge band here (the end is coarse): no warning may say one did
     assert relocation.quality["tip_refinement"].startswith("coarse end")
-    assert not any("edge band measured" in warning for warning in relocation.warnings)
+    assert not any(w.figures.get("edge_band_measured") for w in relocation.warnings)
 
 
 @pytest.mark.parametrize("notch_side_deg", [90.0, -90.0])
@@ -129,7 +130,7 @@ def test_notches_facing_a_camera_keep_their_side_where_no_camera_sees_their_wind
     print(f"\nnotches facing a camera at {notch_side_deg:+.0f} deg: side measured {measured:+.1f} +- "
           f"{uncertainty:.1f} deg")
     assert abs(measured - notch_side_deg) <= 3.0
-    assert not any("rolled in its clamp" in warning for warning in relocation.warnings)
+    assert not any(w.code == "ROBOT_ROLLED" for w in relocation.warnings)
     # no camera sees the window's edges: the result says the side is known no better than the sectors allow,
     # wide enough for a robot rolled 15 deg in its clamp (which this pose cannot tell)
     assert uncertainty >= 15.0
@@ -182,8 +183,9 @@ def test_a_robot_curled_below_its_base_plane_is_followed_there_past_its_post_or_
     if clamp_radius:
         assert relocation.quality["notches_found"] == config.robot.notch_count
         assert errors.mean() <= 0.08e-3 and tip <= 0.15e-3
-        assert not any("crop box" in warning for warning in relocation.warnings)
+        assert not any(w.figures.get("at_crop_box") for w in relocation.warnings)
     else:
         assert tip > 3e-3
-        assert any("crop box's face z = 0.0 mm" in warning and "filters.clamp_radius" in warning
-                   for warning in relocation.warnings)
+        # cut on the crop box's face z = 0 (the base plane: filters.clamp_radius lets the box reach below it)
+        assert any(w.figures.get("at_crop_box") and w.figures["crop_box_face"] == "z"
+                   and w.figures["crop_box_face_mm"] == pytest.approx(0.0, abs=0.05) for w in relocation.warnings)

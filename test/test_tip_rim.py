@@ -197,20 +197,21 @@ def test_the_tip_weighs_the_end_seen_against_the_robots_known_length():
                       tip_along=along, outline_offset=0.02e-3, **more)  # (the outline checked the axis)
 
     quality, warnings = warnings_for(with_known_length(52.0e-3, 0.2e-3, geometry.length, 0.1e-3))
-    print("\n" + "\n".join(warnings))
-    assert any(w.startswith("the end seen lies 1.00 mm short of the robot's length") for w in warnings)
+    print("\n" + "\n".join(map(str, warnings)))
+    off = [w for w in warnings if w.code == "TIP_OFF_LENGTH"]
+    assert [round(w.figures["short_of_length_mm"], 2) for w in off] == [1.00]  # the end seen lies 1.00 mm short
     assert quality["tip_seen_s_mm"] == pytest.approx(52.0) and not quality["tip_length_weighed"]
     quality, warnings = warnings_for(with_known_length(53.1e-3, 0.12e-3, geometry.length, 0.1e-3))
     assert quality["tip_length_weighed"] and quality["tip_s_mm"] == pytest.approx(53.041, abs=1e-3)
-    assert not any("the end seen" in w or w.startswith("the tip") for w in warnings)
+    assert not {w.code for w in warnings} & {"TIP_OFF_LENGTH", "TIP_ON_ERODED_RIM", "TIP_ON_END_CAP"}
     # the tip the robot's length beyond the cap's points: said so (0.1 mm along, with the centreline's 0.1 mm
     # at the free end across, is over the tip's floor)
     _, warnings = warnings_for(with_known_length(52.7e-3, 0.2e-3, geometry.length, 0.1e-3, lower_bound=True),
                                tip_from_cap=True, cross_view_spread=0.1e-3)
-    print("\n".join(warnings))
-    assert any(w.startswith("the end cap's points stop 0.30 mm short of the robot's length at this bend (smeared "
-                            "over 0.20 mm") and "the tip is that length, uncertain by about 0.10 mm" in w
-               for w in warnings)
+    print("\n".join(map(str, warnings)))
+    cap = [w.figures for w in warnings if w.code == "TIP_ON_END_CAP"]
+    assert [round(f["short_of_length_mm"], 2) for f in cap] == [0.30]  # the cap's points stop that short
+    assert round(cap[0]["smeared_mm"], 2) == 0.20 and round(cap[0]["along_mm"], 2) == 0.10  # the tip: that length
 
 
 @pytest.mark.parametrize("bend_deg, notch_side_deg, noise_at_90mm", [(30.0, 0.0, 2e-5), (40.0, 90.0, 2e-5),
@@ -288,8 +289,8 @@ def test_an_edge_band_measured_elsewhere_places_the_tip_and_a_wrong_one_is_refus
 
 
 @pytest.mark.parametrize("erosion, uncertainty, warned", [
-    (0.45e-3, None, "uncertain by about 0.55 mm"),     # the silhouette give-back: the erosion itself is doubtful
-    (0.45e-3, 0.22e-3, "uncertain by about 0.22 mm"),  # measured in the depth images: to a pixel
+    (0.45e-3, None, 0.55),     # uncertain by about 0.55 mm: the silhouette give-back, the erosion itself doubtful
+    (0.45e-3, 0.22e-3, 0.22),  # uncertain by about 0.22 mm: measured in the depth images, to a pixel
     (0.0, 0.10e-3, None),                               # nothing given back, the end placed to half a pixel
 ])
 def test_tip_warning_states_how_well_the_erosion_is_known(erosion, uncertainty, warned):
@@ -303,10 +304,11 @@ def test_tip_warning_states_how_well_the_erosion_is_known(erosion, uncertainty, 
         camera=(np.arange(len(s)) % 2).astype(np.int8), tip_s=geometry.length, total_bend=0.0, footprint=0.2e-3,
         wall_residual=0.05e-3, notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0,
         depth_steps={}, tip_erosion=erosion, tip_uncertainty=uncertainty, outline_offset=0.02e-3)  # (checked)
-    tip = [w for w in warnings if "stereo-eroded rim" in w]
+    tip = [w for w in warnings if w.code == "TIP_ON_ERODED_RIM"]
     print(f"\ngiven back {erosion * 1e3:.2f} mm, uncertainty {uncertainty}: {tip}")
     if warned is None:
         assert not tip
     else:
-        assert len(tip) == 1 and warned in tip[0]
-        assert ("measured in the depth images" in tip[0]) == (uncertainty is not None)
+        assert len(tip) == 1 and tip[0].figures["along_mm"] == pytest.approx(warned, abs=0.005)
+        assert tip[0].figures["erosion_mm"] == pytest.approx(erosion * 1e3)
+        assert tip[0].figures["edge_band_measured"] == (uncertainty is not None)  # measured in the depth images

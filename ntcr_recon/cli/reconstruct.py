@@ -17,16 +17,20 @@ sees the old result or the new one and a failure leaves DIR as it was. An existi
 those files (not a previous result) is refused unless --overwrite: it would be replaced whole.
 result.json (lengths in the unit its key names):
 
-    {"frames", "frames_combined": {"first", "last", "count"} (1-based frame pairs), "notch_count_expected",
-     "notches": [{"index", "center_s_mm", "width_mm", "bend_deg"}],
+    {"status": "ok" | "warn" | "error"  (core.findings: ok only with every notch found, every stated
+                                          uncertainty within the rig's quality tolerances and no warn/error),
+     "frames", "frames_combined": {"first", "last", "count"} (1-based frame pairs), "notch_count_expected",
+     "notches": [{"index", "center_s_mm", "width_mm", "width_uncertainty_mm", "bend_deg"}],
      "centerline_m", "tip_m", "pdc": {"raw": {"mu", "sigma", "lambda"}, "relocated": {...}},
-     "quality": {notches found / expected / by signal, length seen per camera, fit residual, notch side,
-                 centreline bias, depth step, ...}  (core.quality), "warnings": [sentence, ...],
+     "quality": {"uncertainty_mm": {"centerline", "tip", "notch_width"} (90 % bounds), notches found /
+                 expected / by signal, length seen per camera, fit residual, notch side, centreline bias, depth
+                 step, ...}  (core.quality),
      "ground_truth": null | {"notches_detected", "width_mae_mm", "centerline_rmse_mm", "tip_error_mm",
                              "surface_error_mm": {"raw", "relocated"}},
      "timings_ms": {stage: median ms per frame pair, or ms for the combined steps},
-     "warnings": [str]}   # what makes the result less trustworthy: one camera only, a camera that saw
-                          # (next to) nothing, coarse or byte-swapped depth... (also printed on stderr)
+     "warnings": [{"code", "severity": "info" | "warn" | "error", "message", ...figures}]}
+        # what makes the result less trustworthy (codes: core.findings.CODES, the README's table), printed on
+        # stderr errors first
 
 Ground truth comes from `ground_truth.json` inside the bag directory when there is one (simulated bags).
 Exit status: 0 done, 2 bad configuration / bag / reconstruction (one message on stderr naming the cause).
@@ -82,8 +86,10 @@ def main(args: argparse.Namespace) -> int:
               f"{_millimetres(quality.get('centerline_uncertainty_mm'))}, tip by "
               f"{_millimetres(quality.get('tip_uncertainty_mm'))} along the tube and "
               f"{_millimetres(quality.get('tip_across_uncertainty_mm'))} across it", file=sys.stderr)
-    for warning in result["warnings"]:
-        print(f"ntcr-recon reconstruct: warning: {warning}", file=sys.stderr)
+    for warning in result["warnings"]:  # errors first (core.findings.sort_by_severity)
+        print(f"ntcr-recon reconstruct: {warning['severity']}: [{warning['code']}] {warning['message']}",
+              file=sys.stderr)
+    print(f"ntcr-recon reconstruct: status {result['status']}", file=sys.stderr)
     return 0
 
 
@@ -147,6 +153,7 @@ def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
 
     from ntcr_recon.core import figures
     from ntcr_recon.core.cloud import Cloud
+    from ntcr_recon.core.findings import finding, result_status, sort_by_severity
     from ntcr_recon.core.input_checks import input_warnings
     from ntcr_recon.core.metrics import pdc
     from ntcr_recon.core.pairing import pair_frame_stream
@@ -200,11 +207,12 @@ def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
     for index, count in zip(*np.unique(relocation.relocated.camera, return_counts=True), strict=True):
         cameras[config.camera_names[index]].relocated_points = int(count)
     # what the input lacks, the frames left out, then what the relocation's self-check found (core.quality)
-    left_out = ([f"{len(failed)} of {pair_count} frame pairs gave no result and are left out; {failed[0]}"]
-                if failed else [])
+    left_out = ([finding("FRAMES_LEFT_OUT", f"{len(failed)} of {pair_count} frame pairs gave no result and are "
+                         f"left out; {failed[0]}", pairs=len(failed), of=pair_count)] if failed else [])
     moved = combined.warning("frame pair")
-    warnings = (input_warnings(config, cameras, pair_count, one_camera_pairs) + left_out + ([moved] if moved else [])
-                + list(relocation.warnings))
+    warnings = sort_by_severity(input_warnings(config, cameras, pair_count, one_camera_pairs) + left_out
+                                + ([moved] if moved else []) + list(relocation.warnings))
+    quality = relocation.quality
     timings["relocate_combined"] = reconstructor.timings_ms["relocate"]
     steps.update()
     mesh = reconstructor.mesh(relocation)
@@ -214,17 +222,20 @@ def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
     geometry = config.robot
     voxel = config.metrics.pdc_voxel
     result = {
+        "status": result_status(warnings, quality["uncertainty_mm"], quality["notches_found"], geometry.notch_count,
+                                config.quality),
         "frames": pair_count,
         "frames_combined": {"first": combined.first + 1, "last": combined.last + 1, "count": len(combined.items())},
         "notch_count_expected": geometry.notch_count,
         "notches": [{"index": n.index, "center_s_mm": n.center_s * 1e3, "width_mm": n.width * 1e3,
+                     "width_uncertainty_mm": quality["notch_width_uncertainty_mm"][str(n.index)],
                      "bend_deg": None if n.bend is None else float(np.degrees(n.bend))} for n in relocation.notches],
         "centerline_m": relocation.centerline.points.tolist(),
         "tip_m": relocation.tip.tolist(),
         "pdc": {"raw": pdc(raw.xyz, voxel), "relocated": pdc(relocation.relocated.xyz, voxel)},
         "ground_truth": _ground_truth(args.bag, raw, relocation),
-        "quality": relocation.quality,      # the self-check (core.quality), from the data alone
-        "warnings": warnings,
+        "quality": quality,      # the self-check (core.quality), from the data alone
+        "warnings": [warning.as_dict() for warning in warnings],
     }
     steps.update()
 

@@ -50,6 +50,7 @@ from ntcr_recon.core.cloud import Cloud
 from ntcr_recon.core.comb import cut_intervals, expected_centres, inside_intervals
 from ntcr_recon.core.config import RigConfig
 from ntcr_recon.core.filters import filter_cloud
+from ntcr_recon.core.findings import Finding, result_status
 from ntcr_recon.core.fusion import FramePair, fuse
 from ntcr_recon.core.icp import (
     ReferenceMove,
@@ -122,8 +123,9 @@ class RelocationResult:
     part: np.ndarray | None = None  # (A,) robot_surface.PART_* of the surface each relocated point lies on
     relocated_coordinates: TubeCoordinates | None = None  # tube coordinates of the relocated points
     quality: dict = field(default_factory=dict)  # the self-check (core.quality): figures, units in the keys
-    warnings: tuple[str, ...] = ()               # what the self-check found doubtful, in plain words
+    warnings: tuple[Finding, ...] = ()           # what the self-check found doubtful, coded (core.findings)
     notch_side: float | None = None              # rad, the side the notches open to, as measured
+    status: str = "warn"                         # ok / warn / error (core.findings.status)
 
 
 @dataclass
@@ -377,9 +379,11 @@ class Reconstructor:
         self._prior = fitted.centerline
         self._update_roi(relocated)
         self._timed("relocate", start)
+        status = result_status(warnings, quality["uncertainty_mm"], quality["notches_found"], geometry.notch_count,
+                               self.config.quality)
         return RelocationResult(centerline.up_to(tip_s), tip, notches, relocated, moved.normals, moved.rejected,
                                 axis.coords, iterations, moved.part, moved.coordinates, quality, tuple(warnings),
-                                sided.notch_side)
+                                sided.notch_side, status)
 
     def _align(self, cloud: Cloud, fitted: _Axis, settings, seen_by: np.ndarray | None) -> _Aligned:
         """Step 2: the fitted axis moved onto the wall stereo measures without bias (core.alignment), checked
@@ -558,7 +562,7 @@ class Reconstructor:
 
     def _assess(self, axis: _Axis, aligned: _Aligned, sided: _Sided, end: _SeenEnd, length: _ByLength, *,
                 notches: list[Notch], settings, seen_by, tip: np.ndarray, thinning, looking, misread, unchecked,
-                comb_centres: np.ndarray, reference_moved: ReferenceMove | None) -> tuple[dict, list[str]]:
+                comb_centres: np.ndarray, reference_moved: ReferenceMove | None) -> tuple[dict, list[Finding]]:
         """Step 7: the self-check (core.quality): how sure this result is, in figures and in plain words."""
         geometry, alignment = self.geometry, aligned.alignment
         offset = axis.coords.radius - geometry.outer_radius

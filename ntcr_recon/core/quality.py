@@ -26,7 +26,9 @@ from scipy.ndimage import uniform_filter1d
 
 from ntcr_recon.core.centerline import cameras_round_tube
 from ntcr_recon.core.comb import expected_centres, inside_intervals
+from ntcr_recon.core.findings import Finding, finding, notch_width_uncertainties, uncertainty_mm
 from ntcr_recon.core.icp import ReferenceMove
+from ntcr_recon.core.notches import MISREAD_WIDTH_FRACTION
 from ntcr_recon.core.outline import OUTLINE_TOLERANCE_PX, went_astray
 from ntcr_recon.core.tip import LENGTH_AGREEMENT_SIGMAS, TipAlongTube
 from ntcr_recon.core.wall import median, surface_band
@@ -108,6 +110,16 @@ def where_notches_went_unseen(missing: list[int], centres: np.ndarray, half_widt
     return beyond, unseen
 
 
+def _unseen_figures(reach, names: list[str], start: float, end: float) -> dict:
+    """CameraReach.unseen as a warning's figures: per camera how near the stretch comes (too_near_mm) or how close
+    to its line of sight it points (end_on_deg); {} without a reach."""
+    if reach is None:
+        return {}
+    too_near, end_on = reach.unseen(names, start, end)
+    return {"too_near_mm": {k: v * 1e3 for k, v in too_near.items()},
+            "end_on_deg": {k: math.degrees(v) for k, v in end_on.items()}}
+
+
 def _notches_lie(indices: list[int]) -> str:
     """'notch 7 lies', 'notches 12, 14 and 15 lie', 'notches 13-19 lie': runs of three or more as first-last."""
     runs, start = [], 0
@@ -179,19 +191,26 @@ class CameraReach:
         start = float(self.s[inside][first])
         return tip_s - start, {name: self._least(self.sight_angle, name, start, tip_s) for name in self.sight_angle}
 
-    def why_unseen(self, names: list[str], start: float, end: float, continued: bool = False) -> str:
-        """The clause naming, of `names`, the cameras the stretch [start, end] comes nearer than any depth they
-        returned, or points at (END_ON_DEG) ('' for none); continued: the stretch is the tube continued at its
-        last bend, not seen."""
-        verb = "" if continued else "s"
-        reasons = []
+    def unseen(self, names: list[str], start: float, end: float) -> tuple[dict[str, float], dict[str, float]]:
+        """Of `names`, the cameras the stretch [start, end] comes nearer than any depth they returned (how near, m)
+        and those it points at (END_ON_DEG; the angle to the line of sight, rad)."""
+        too_near, end_on = {}, {}
         for name in names:
             if (near := self.too_near(name, start, end)) is not None:
-                reasons.append(f"come{verb} within {near * 1e3:.0f} mm of {name}, which returned no depth nearer "
-                               f"than {self.nearest_returned[name] * 1e3:.0f} mm")
+                too_near[name] = near
             elif (angle := self.end_on(name, start, end)) is not None:
-                reasons.append(f"point{verb} within {math.degrees(angle):.0f} deg of {name}'s line of sight, which "
-                               "sees its wall nearly edge-on")
+                end_on[name] = angle
+        return too_near, end_on
+
+    def why_unseen(self, names: list[str], start: float, end: float, continued: bool = False) -> str:
+        """The clause naming the cameras of `unseen` ('' for none); continued: the stretch is the tube continued at
+        its last bend, not seen."""
+        verb = "" if continued else "s"
+        too_near, end_on = self.unseen(names, start, end)
+        reasons = [f"come{verb} within {near * 1e3:.0f} mm of {name}, which returned no depth nearer than "
+                   f"{self.nearest_returned[name] * 1e3:.0f} mm" for name, near in too_near.items()]
+        reasons += [f"point{verb} within {math.degrees(angle):.0f} deg of {name}'s line of sight, which sees its wall "
+                    "nearly edge-on" for name, angle in end_on.items()]
         if not reasons:
             return ""
         return f"{'continued at its last bend, it would' if continued else 'it'} {'; and '.join(reasons)}"
@@ -292,7 +311,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
            misread_widths: dict[int, float] | None = None, unchecked: list[int] | None = None,
            reach: CameraReach | None = None, notch_centres: np.ndarray | None = None,
            wall_level: float | None = None, fitted_end: float | None = None,
-           reference_moved: ReferenceMove | None = None) -> tuple[dict, list[str]]:
+           reference_moved: ReferenceMove | None = None) -> tuple[dict, list[Finding]]:
     """The `quality` document and the warnings (see the module docstring). tip_uncertainty: how well the tip's
     refinement placed it along the tube, when it measured the erosion it gave back (else the erosion itself
     counts as uncertain, and half a footprint). tip_position, crop_box: where the tip is and the box the points
@@ -325,7 +344,7 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     (m), past which the centreline was carried on bending to the tip (carried_to_tip). reference_moved: relocated
     by ICP, how far it moved its reference off the pose the centreline gave it (icp.ReferenceMove): the tip moved
     with it, and the tip and the relocated surface are known no better than that move."""
-    warnings: list[str] = []
+    warnings: list[Finding] = []
     r_o, diameter = geometry.outer_radius, geometry.outer_diameter
     found = sorted(n.index for n in notches)
     missing = sorted(set(range(geometry.notch_count)) - set(found))
@@ -356,13 +375,16 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
                             f"marks {them} (a {geometry.notch_width * 1e3:.1f} mm cut spans "
                             f"{geometry.notch_width / footprint:.0f} px in the depth images there: a stereo matcher's "
                             f"window that wide or wider fills it; or it opens to a side no camera saw)")
-        warnings.append(warning)
+        warnings.append(finding("NOTCHES_MISSING", warning, missing=missing, beyond_end=beyond,
+                                unseen_by={name: list(indices) for name, indices in unseen.items()},
+                                unmarked=unmarked))
     dips = sorted(n.index for n in notches if n.signal == "dip")
     if dips:
-        warnings.append(f"notches {', '.join(str(i) for i in dips)} show only as a shallow dip of the wall's coverage "
-                        "where the comb puts them (slots narrower than the stereo matcher's window, which fills "
-                        "them): their edges were not measured, and their widths are what their measured bends "
-                        "imply")
+        warnings.append(finding("NOTCH_WIDTH_FROM_BEND",
+                                f"notches {', '.join(str(i) for i in dips)} show only as a shallow dip of the wall's "
+                                "coverage where the comb puts them (slots narrower than the stereo matcher's window, "
+                                "which fills them): their edges were not measured, and their widths are what their "
+                                "measured bends imply", notches=dips))
     # a notch's width follows from its cut and its measured bend (the gap on the outer wall of a notch of neutral
     # length h bent by theta): one read far off it was misread, and given its bend's (notches.calibrate_and_check);
     # per notch how far the width read is off it (a misread one's as read)
@@ -372,18 +394,26 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     if misread_widths:
         listed = ", ".join(f"{n.index} ({misread_widths[n.index] * 1e3:.2f} mm read, {n.width * 1e3:.2f} implied)"
                            for n in notches if n.index in misread_widths)
-        warnings.append(f"notches whose edges read a width their bends rule out: {listed}; their rims were misread "
-                        "(a slot seen through over a narrow run, a rim merged with a cut face, the last notch's distal "
-                        "rim where the tube seen thins out), and their widths are what their measured bends imply (for "
-                        "the last notch found, whose own bend no whole spine beyond measures, the bend of the two "
-                        "before it; a robot whose cuts are off its drawing would read so too)")
+        warnings.append(finding("NOTCH_WIDTH_MISREAD",
+                                f"notches whose edges read a width their bends rule out: {listed}; their rims were "
+                                "misread (a slot seen through over a narrow run, a rim merged with a cut face, the "
+                                "last notch's distal rim where the tube seen thins out), and their widths are what "
+                                "their measured bends imply (for the last notch found, whose own bend no whole spine "
+                                "beyond measures, the bend of the two before it; a robot whose cuts are off its "
+                                "drawing would read so too)",
+                                notches=sorted(misread_widths),
+                                read_width_mm={str(i): w * 1e3 for i, w in sorted(misread_widths.items())},
+                                implied_width_mm={str(n.index): n.width * 1e3 for n in notches
+                                                  if n.index in misread_widths}))
     # a notch whose next one is missing where the tube seen ends within a pitch: its bend is a chord that may run
     # into a tube cut short; with no measured notch before it either, its width, as read, was checked against nothing
     unchecked = list(unchecked or ())
     if unchecked:
-        warnings.append(f"widths not checked against their bends, as read: notches {', '.join(map(str, unchecked))} "
-                        "(the next notch was not found and the tube seen ends within a pitch: no whole spine beyond "
-                        "measures the bend, and no notch before it whose bend was measured)")
+        warnings.append(finding("NOTCH_WIDTH_UNCHECKED",
+                                "widths not checked against their bends, as read: notches "
+                                f"{', '.join(map(str, unchecked))} (the next notch was not found and the tube seen "
+                                "ends within a pitch: no whole spine beyond measures the bend, and no notch before it "
+                                "whose bend was measured)", notches=unchecked))
     # the tip's rim is a depth edge: it rests on the erosion given back, known to about that much unless the
     # refinement measured it
     measured = tip_uncertainty is not None
@@ -427,19 +457,25 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     tip_across = max(math.hypot(centreline_across, icp_across), end_spread)
     if end_spread >= tip_across:
         why = "the cameras' axes that far apart across their views at the end"
+        across_because = "cameras_apart"
     elif icp_across > max(free_end, held, carried_across, hidden_across):
         why = "ICP moved it that far off where the centreline placed it"
+        across_because = "icp"
     elif hidden_across > max(free_end, held, carried_across):
+        across_because = "hidden"
         why = (f"were the {(tip_s - seen_end) * 1e3:.1f} mm no camera saw straight, not bent as the notches seen, "
                "the tip would lie that far off")
     elif carried_across > max(free_end, held):
+        across_because = "carried"
         why = (f"the centreline carried on bending over the {carried * 1e3:.1f} mm past where its fit reached, at "
                "the bend of the notches before")
     elif held > free_end:
+        across_because = "held_shift"
         why = (f"the alignment moved the axis {held * 1e3:.2f} mm at the last wall it trusted, and held that shift "
                f"unchecked over the {max(tip_s - held_from, 0.0) * 1e3:.1f} mm to the tip")
     else:
         why = "the centreline's, at its free end"
+        across_because = "free_end"
     across = f", and by {tip_across * 1e3:.2f} mm across it ({why})" if tip_across else ""
     # the centreline runs on past the end seen to a carried tip: along that stretch a straight hidden part leaves it
     # off by up to hidden_across, growing with the square of the distance carried (a fifth of its square in the
@@ -460,36 +496,55 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     if reference_moved is not None and (reference_moved.rms > (stated_centreline or 0.0)
                                         or math.hypot(icp_along, icp_across)
                                         > math.hypot(centreline_tip_along, centreline_tip_across)):
-        warnings.append(f"relocated by ICP (relocation.method icp), which moved the reference "
-                        f"{reference_moved.rms * 1e3:.2f} mm (RMS) off the pose the centreline gave it, and the tip "
-                        f"{icp_along * 1e3:.2f} mm along the tube and {icp_across * 1e3:.2f} mm across it: further "
-                        "than the centreline or its tip is known to. The two relocations disagree by that much, "
-                        "and the relocated surface and the tip are known no better")
+        warnings.append(finding("ICP_MOVED_REFERENCE",
+                                "relocated by ICP (relocation.method icp), which moved the reference "
+                                f"{reference_moved.rms * 1e3:.2f} mm (RMS) off the pose the centreline gave it, and "
+                                f"the tip {icp_along * 1e3:.2f} mm along the tube and {icp_across * 1e3:.2f} mm across "
+                                "it: further than the centreline or its tip is known to. The two relocations disagree "
+                                "by that much, and the relocated surface and the tip are known no better",
+                                reference_move_mm=reference_moved.rms * 1e3))
     # (a tip carried past the end seen is not where the cameras saw it: the warning of the tube ending short says so)
     if tip_total > TIP_FLOOR and tip_from_cap and not hidden_across:
         if tip_along is not None and tip_along.beyond_seen:
-            warnings.append(f"the end cap's points stop {(tip_along.expected_s - tip_along.seen_s) * 1e3:.2f} mm short "
-                            f"of the robot's length at this bend (smeared over {tip_along.seen_uncertainty * 1e3:.2f} "
-                            "mm: the stereo matcher mixes the cap's ring with the bore behind it, and only ever moves "
-                            f"them towards the base): the tip is that length, uncertain by about "
-                            f"{tip_uncertainty * 1e3:.2f} mm along the tube{across}")
+            warnings.append(finding("TIP_ON_END_CAP",
+                                    f"the end cap's points stop {(tip_along.expected_s - tip_along.seen_s) * 1e3:.2f} "
+                                    "mm short of the robot's length at this bend (smeared over "
+                                    f"{tip_along.seen_uncertainty * 1e3:.2f} mm: the stereo matcher mixes the cap's "
+                                    "ring with the bore behind it, and only ever moves them towards the base): the "
+                                    f"tip is that length, uncertain by about {tip_uncertainty * 1e3:.2f} mm along the "
+                                    f"tube{across}",
+                                    short_of_length_mm=(tip_along.expected_s - tip_along.seen_s) * 1e3,
+                                    smeared_mm=tip_along.seen_uncertainty * 1e3, along_mm=tip_uncertainty * 1e3,
+                                    across_mm=tip_across * 1e3, across_because=across_because))
         else:
-            warnings.append(f"the tip is the end cap's plane, whose points the stereo matcher smeared over "
-                            f"{tip_uncertainty * 1e3:.2f} mm towards the bore behind its ring: its position is "
-                            f"uncertain by about {tip_uncertainty * 1e3:.2f} mm along the tube{weighed}{across}")
+            warnings.append(finding("TIP_ON_END_CAP",
+                                    "the tip is the end cap's plane, whose points the stereo matcher smeared over "
+                                    f"{tip_uncertainty * 1e3:.2f} mm towards the bore behind its ring: its position "
+                                    f"is uncertain by about {tip_uncertainty * 1e3:.2f} mm along the "
+                                    f"tube{weighed}{across}", along_mm=tip_uncertainty * 1e3,
+                                    across_mm=tip_across * 1e3, across_because=across_because))
     elif tip_total > TIP_FLOOR and not hidden_across:
         how = ", as the edge band measured in the depth images" if measured else ""
-        warnings.append(f"the tip rests on a stereo-eroded rim ({tip_erosion * 1e3:.2f} mm given back{how}): "
-                        f"its position is uncertain by about {tip_uncertainty * 1e3:.2f} mm along the tube{weighed}"
-                        f"{across}")
+        warnings.append(finding("TIP_ON_ERODED_RIM",
+                                f"the tip rests on a stereo-eroded rim ({tip_erosion * 1e3:.2f} mm given back{how}): "
+                                f"its position is uncertain by about {tip_uncertainty * 1e3:.2f} mm along the "
+                                f"tube{weighed}{across}", erosion_mm=tip_erosion * 1e3,
+                                edge_band_measured=measured, along_mm=tip_uncertainty * 1e3,
+                                across_mm=tip_across * 1e3, across_because=across_because))
     for name, length in one_sided.items():
         why = "" if reach is None else reach.why_unseen([n for n in camera_names if n != name], tip_s - length, tip_s)
-        warnings.append(f"the distal {length * 1e3:.0f} mm is seen by {name} alone{f' ({why})' if why else ''}: "
-                        "the tube's far side there is inferred, not measured, and the centreline there rests on "
-                        "one side, the tip with it: no second view checked where it lies across the tube")
+        warnings.append(finding("DISTAL_ONE_CAMERA",
+                                f"the distal {length * 1e3:.0f} mm is seen by {name} "
+                                f"alone{f' ({why})' if why else ''}: the tube's far side there is inferred, not "
+                                "measured, and the centreline there rests on one side, the tip with it: no second "
+                                "view checked where it lies across the tube",
+                                camera=name, length_mm=length * 1e3,
+                                **_unseen_figures(reach, [n for n in camera_names if n != name], tip_s - length,
+                                                  tip_s)))
     for name, fraction in share.items():
         if fraction < 0.5:
-            warnings.append(f"{name} saw only {fraction:.0%} of the robot's length")
+            warnings.append(finding("CAMERA_SHORT_VIEW", f"{name} saw only {fraction:.0%} of the robot's length",
+                                    camera=name, share=fraction))
     # bending shortens the centreline by ybar * theta: what the tip should read with the measured bend
     expected_length = geometry.bent_length(total_bend)
     short = expected_length - seen_end
@@ -499,18 +554,24 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     left_short = ends_off_length and not hidden_across
     if tip_along is not None and not tip_along.length_weighed and tip_along.tolerance is not None and (
             not ends_off_length and abs(tip_along.disagreement) > LENGTH_AGREEMENT_SIGMAS):
-        warnings.append(f"the end seen lies {abs(short) * 1e3:.2f} mm {'short of' if short > 0 else 'past'} the "
-                        f"robot's length at this bend ({expected_length * 1e3:.2f} mm), more than both are known to "
-                        f"({tip_along.seen_uncertainty * 1e3:.2f} and {tip_along.tolerance * 1e3:.2f} mm, "
-                        "robot.length_tolerance with the bend's): the tip is where the end was seen; check the robot's "
-                        "notch layout, its base position along it and robot.length_tolerance")
+        warnings.append(finding("TIP_OFF_LENGTH",
+                                f"the end seen lies {abs(short) * 1e3:.2f} mm {'short of' if short > 0 else 'past'} "
+                                f"the robot's length at this bend ({expected_length * 1e3:.2f} mm), more than both are "
+                                f"known to ({tip_along.seen_uncertainty * 1e3:.2f} and {tip_along.tolerance * 1e3:.2f} "
+                                "mm, robot.length_tolerance with the bend's): the tip is where the end was seen; "
+                                "check the robot's notch layout, its base position along it and robot.length_tolerance",
+                                short_of_length_mm=short * 1e3))
     if ends_off_length:
         where = "short of" if short > 0 else "past"
         warning = (f"the tube ends {abs(short) * 1e3:.1f} mm {where} the robot's length "
                    f"({expected_length * 1e3:.1f} mm at this bend): the tip is uncertain")
+        at_crop_box, crop_box_face, crop_box_face_mm = False, None, None
         if short > 0 and tip_position is not None and crop_box is not None:
             edge = _nearest_box_face(np.asarray(tip_position, float), crop_box)
-            if edge[2] < diameter:  # the points were cut there, not the robot
+            at_crop_box = bool(edge[2] < diameter)
+            if at_crop_box:
+                crop_box_face, crop_box_face_mm = "xyz"[edge[0]], float(edge[1]) * 1e3
+            if at_crop_box:  # the points were cut there, not the robot
                 warning += (f"; it ends on the crop box's face {'xyz'[edge[0]]} = {edge[1] * 1e3:.1f} mm: the robot "
                             "may go on outside the box (filters.crop_box_min / crop_box_max; below the base plane, "
                             "filters.clamp_radius lets the automatic box reach there)")
@@ -528,7 +589,11 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
         if left_short:
             warning += (f"; left at the end seen, the tip may lie up to {abs(short) * 1e3:.1f} mm off, along the tube "
                         "or across it, and its uncertainty is stated so")
-        warnings.append(warning)
+        warnings.append(finding("TIP_CARRIED" if why and hidden_across else "TUBE_ENDS_SHORT", warning,
+                                short_of_length_mm=short * 1e3, at_crop_box=at_crop_box,
+                                crop_box_face=crop_box_face, crop_box_face_mm=crop_box_face_mm,
+                                **({} if reach is None or short < 0 else
+                                   _unseen_figures(reach, list(camera_names), seen_end, expected_length))))
     # such a tip states so in its figures too, up to the shortfall along the tube or across it (a robot controller
     # reads those, not the warning)
     if left_short:
@@ -536,74 +601,101 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
     side_off = math.degrees(math.remainder(notch_side - configured_side, 2 * math.pi))
     if side_unsettled is not None:
         first, then = (math.degrees(angle) for angle in side_unsettled)
-        warnings.append(f"the notches' side measured {first:+.0f} deg from the configured robot.notch_side, then "
-                        f"{then:+.0f} deg more in the frame turned to it: no consistent measurement, the configured "
-                        "side is kept (check the robot's roll in its clamp)")
+        warnings.append(finding("NOTCH_SIDE_UNSETTLED",
+                                f"the notches' side measured {first:+.0f} deg from the configured robot.notch_side, "
+                                f"then {then:+.0f} deg more in the frame turned to it: no consistent measurement, the "
+                                "configured side is kept (check the robot's roll in its clamp)",
+                                side_off_deg=[first, then]))
     if abs(side_off) > SIDE_OFF_DEG:
         known = "" if side_uncertainty is None else f" (known to +-{math.degrees(side_uncertainty):.0f} deg)"
         rolled = ("is rolled in its clamp" if side_uncertainty is None or abs(side_off) > math.degrees(side_uncertainty)
                   else "may be rolled in its clamp: the offset is within what the side is known to")
-        warnings.append(f"the notches open {side_off:+.0f} deg from the configured robot.notch_side{known}: the robot "
-                        f"{rolled} (measured side used)")
+        warnings.append(finding("ROBOT_ROLLED",
+                                f"the notches open {side_off:+.0f} deg from the configured robot.notch_side{known}: "
+                                f"the robot {rolled} (measured side used)", side_off_deg=side_off,
+                                side_uncertainty_deg=None if side_uncertainty is None
+                                else math.degrees(side_uncertainty)))
     if footprint > FOOTPRINT_RADIUS_FRACTION * r_o:
-        warnings.append(f"a depth pixel covers {footprint * 1e3:.2f} mm, the tube is only "
-                        f"{diameter / footprint:.0f} px across: expect errors above 0.1 mm (a higher depth "
-                        "resolution, or cameras closer, down to the D405's minimum depth of about 70 mm)")
-    warnings += [w for name, step in depth_steps.items() if (w := depth_quantisation_warning(name, step, geometry))]
+        warnings.append(finding("PIXEL_FOOTPRINT_COARSE",
+                                f"a depth pixel covers {footprint * 1e3:.2f} mm, the tube is only "
+                                f"{diameter / footprint:.0f} px across: expect errors above 0.1 mm (a higher depth "
+                                "resolution, or cameras closer, down to the D405's minimum depth of about 70 mm)",
+                                pixel_footprint_mm=footprint * 1e3))
+    warnings += [finding("DEPTH_QUANTISED", w, camera=name, depth_step_mm=step * 1e3)
+                 for name, step in depth_steps.items() if (w := depth_quantisation_warning(name, step, geometry))]
     if uncertainty is not None and uncertainty > CENTERLINE_FLOOR:
-        warnings.append(f"the centreline is uncertain by about {uncertainty * 1e3:.2f} mm: stereo matching beside "
-                        f"the notches moves the wall it sees (the cameras place the axis "
-                        f"{(cross_view_spread or 0.0) * 1e3:.2f} mm apart across their views, and the wall between "
-                        f"the notches reads {(notched_thinning or 0.0) * 1e3:+.2f} mm deeper than the plain tube); "
-                        f"{abs(bias_notch_side) * 1e3:.2f} mm of lean towards the notch side was removed"
-                        + (f", a correction that varies along the tube by {alignment_scatter * 1e3:.2f} mm (RMS), "
-                           "which the wall facing the cameras cannot tell from a wall stereo moved alike in every view"
-                           if alignment_scatter else "")
-                        + (f"; over the distal {sum(one_sided.values()) * 1e3:.0f} mm seen by one camera alone, the "
-                           f"wall's level ({wall_level * 1e3:+.2f} mm, the flattening of the views) places the axis "
-                           "along that camera's view, and no second view checked it" if resting_on_level else "")
-                        + (f"; the axis lies {astray * 1e3:.2f} mm (RMS) from the middle of the tube's outline in "
-                           f"the cameras' views, {astray / footprint:.1f} px where a sound one lies within "
-                           f"{OUTLINE_TOLERANCE_PX:g}: the fit and the alignment followed a wall stereo moved that far"
-                           if astray is not None else ""))
+        message = (f"the centreline is uncertain by about {uncertainty * 1e3:.2f} mm: stereo matching beside the "
+                   f"notches moves the wall it sees (the cameras place the axis {(cross_view_spread or 0.0) * 1e3:.2f} "
+                   "mm apart across their views, and the wall between the notches reads "
+                   f"{(notched_thinning or 0.0) * 1e3:+.2f} mm deeper than the plain tube); "
+                   f"{abs(bias_notch_side) * 1e3:.2f} mm of lean towards the notch side was removed")
+        if alignment_scatter:
+            message += (f", a correction that varies along the tube by {alignment_scatter * 1e3:.2f} mm (RMS), which "
+                        "the wall facing the cameras cannot tell from a wall stereo moved alike in every view")
+        if resting_on_level:
+            message += (f"; over the distal {sum(one_sided.values()) * 1e3:.0f} mm seen by one camera alone, the "
+                        f"wall's level ({wall_level * 1e3:+.2f} mm, the flattening of the views) places the axis along "
+                        "that camera's view, and no second view checked it")
+        if astray is not None:
+            message += (f"; the axis lies {astray * 1e3:.2f} mm (RMS) from the middle of the tube's outline in the "
+                        f"cameras' views, {astray / footprint:.1f} px where a sound one lies within "
+                        f"{OUTLINE_TOLERANCE_PX:g}: the fit and the alignment followed a wall stereo moved that far")
+        warnings.append(finding("CENTERLINE_UNCERTAIN", message, uncertainty_mm=uncertainty * 1e3,
+                                outline_offset_mm=None if astray is None else astray * 1e3,
+                                cross_view_mm=(cross_view_spread or 0.0) * 1e3,
+                                notched_thinning_mm=(notched_thinning or 0.0) * 1e3,
+                                alignment_scatter_mm=(alignment_scatter or 0.0) * 1e3,
+                                one_camera_wall_level_mm=wall_level * 1e3 if resting_on_level else None))
     if outline_unchecked:
         # the check ran (points carry their camera) and no window's outline spanned the tube's diameter: the
         # matcher spoiled the silhouettes (a wide window over a near backdrop); in the sweeps only such scenes,
         # 10 of 26 on the second renderer over the centreline's floor, 2 of them beyond what the spread stated
-        warnings.append("no camera's view showed the tube's outline whole (across each view its wall points spanned "
-                        "no diameter: the matcher spoiled the silhouettes' pixels): the centreline was not checked "
-                        "against the middle of the outline, and across the views it, and the tip at its free end, "
-                        "may lie further off than the cameras' spread says: they are stated as uncertain as a pixel "
-                        f"footprint at least ({footprint * 1e3:.2f} mm), what that check resolves")
+        warnings.append(finding("OUTLINE_UNCHECKED",
+                                "no camera's view showed the tube's outline whole (across each view its wall points "
+                                "spanned no diameter: the matcher spoiled the silhouettes' pixels): the centreline "
+                                "was not checked against the middle of the outline, and across the views it, and the "
+                                "tip at its free end, may lie further off than the cameras' spread says: they are "
+                                f"stated as uncertain as a pixel footprint at least ({footprint * 1e3:.2f} mm), what "
+                                "that check resolves", pixel_footprint_mm=footprint * 1e3))
     if across_from_fit is not None:
         aligned, fit = across_from_fit
-        warnings.append(f"the alignment moved the axis {aligned * 1e3:.2f} mm (RMS) from the middle of the tube's "
-                        f"outline in the cameras' views ({aligned / footprint:.1f} px, where a sound axis lies within "
-                        f"{OUTLINE_TOLERANCE_PX:g}): it followed a wall stereo moved across the views, and across them "
-                        f"the axis is the fit's, which lies {fit / footprint:.1f} px from that middle")
+        warnings.append(finding("ALIGNMENT_ASTRAY",
+                                f"the alignment moved the axis {aligned * 1e3:.2f} mm (RMS) from the middle of the "
+                                f"tube's outline in the cameras' views ({aligned / footprint:.1f} px, where a sound "
+                                f"axis lies within {OUTLINE_TOLERANCE_PX:g}): it followed a wall stereo moved across "
+                                f"the views, and across them the axis is the fit's, which lies {fit / footprint:.1f} "
+                                "px from that middle",
+                                aligned_offset_mm=aligned * 1e3, fit_offset_mm=fit * 1e3))
     unsupported_to_tip = bool(unsupported) and unsupported[-1][1] >= tip_s - geometry.notch_pitch
     if unsupported:
         listed = ", ".join(f"{start * 1e3:.0f}-{end * 1e3:.0f}" for start, end in unsupported)
         to_tip = " (and the tip with it)" if unsupported_to_tip else ""
-        warnings.append(f"over s = {listed} mm no camera saw the tube's wall facing it on the tube's radius: the "
-                        f"centreline there{to_tip} follows points off the wall (pixels a matcher mixed with the "
-                        "background, a wall seen edge-on), and how far off it is was not measured")
+        warnings.append(finding("CENTERLINE_UNSUPPORTED",
+                                f"over s = {listed} mm no camera saw the tube's wall facing it on the tube's radius: "
+                                f"the centreline there{to_tip} follows points off the wall (pixels a matcher mixed "
+                                "with the background, a wall seen edge-on), and how far off it is was not measured",
+                                stretches_mm=[[a * 1e3, b * 1e3] for a, b in unsupported], to_tip=unsupported_to_tip))
     # a distal stretch every camera sees nearly end-on: no camera's view of its wall faces it, and nothing placed
     # the axis there across the tube as well as elsewhere (in the sweeps, most such tips missed their floor); said
     # unless an unsupported stretch reaching the tip says as much already
     if end_on_warned and not unsupported_to_tip:
         angles = " and ".join(f"{math.degrees(angle):.0f} deg of {name}'s" for name, angle in end_on_angles.items())
-        warnings.append(f"the distal {end_on * 1e3:.0f} mm points within {angles} line of sight: every camera sees its "
-                        "wall nearly edge-on there, and the centreline there and the tip with it rest on that wall: "
-                        "how far off across the tube they are was not measured")
+        warnings.append(finding("DISTAL_END_ON",
+                                f"the distal {end_on * 1e3:.0f} mm points within {angles} line of sight: every camera "
+                                "sees its wall nearly edge-on there, and the centreline there and the tip with it "
+                                "rest on that wall: how far off across the tube they are was not measured",
+                                length_mm=end_on * 1e3,
+                                angles_deg={name: math.degrees(angle) for name, angle in end_on_angles.items()}))
     if lean > BIAS_WARN_FOOTPRINTS * footprint:
         names = " and ".join(looking_into_slots)
         consequence = (f"a camera facing the backbone placed the axis along its line of sight instead, by its level on "
                        f"the plain tube ({backbone_shift * 1e3:.2f} mm moved)" if levelled else
                        f"the centreline there may lean up to {lean * 1e3:.2f} mm away from {names}")
-        warnings.append(f"{names} looks into the notches' slots, and the wall between them reads "
-                        f"{notched_thinning * 1e3:.2f} mm deeper than the plain tube (its matcher averages the spines "
-                        f"with the slot floors): {consequence}")
+        warnings.append(finding("SLOTS_LEAN", f"{names} looks into the notches' slots, and the wall between them reads "
+                                f"{notched_thinning * 1e3:.2f} mm deeper than the plain tube (its matcher averages the "
+                                f"spines with the slot floors): {consequence}",
+                                cameras=list(looking_into_slots), lean_mm=lean * 1e3,
+                                notched_thinning_mm=notched_thinning * 1e3, levelled=levelled))
     quality = {
         "notches_found": len(found), "notches_expected": geometry.notch_count, "notches_missing": missing,
         "notches_missing_beyond_end": beyond, "notches_missing_unseen_by": unseen,
@@ -648,6 +740,11 @@ def assess(*, geometry, camera_names: tuple[str, ...], notches: list,
         "tube_nearest_depth_mm": {} if reach is None else {
             k: float(v[reach.s <= seen_end].min()) * 1e3 for k, v in reach.depth.items()},
     }
+    # each width's 90 % bound, from how the widths read (those still the rims') disagree with their bends'
+    width_known = notch_width_uncertainties({i: d for i, d in off_model.items() if i not in misread_widths}, found,
+                                            MISREAD_WIDTH_FRACTION * geometry.notch_width)
+    quality["notch_width_uncertainty_mm"] = {str(i): width_known[i] * 1e3 for i in found}
+    quality["uncertainty_mm"] = uncertainty_mm(quality, quality["notch_width_uncertainty_mm"].values())
     return quality, warnings
 
 

@@ -14,6 +14,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ntcr_recon.core.findings import Finding, finding
+
 # A tip further off the stretch's than this many of the two tips' combined stated uncertainties has moved.
 MOVE_SIGMAS = 3.0
 
@@ -131,14 +133,16 @@ class StillStretch:
         """The chosen stretch's kept items, in order."""
         return [] if self._chosen is None else self._chosen.kept.items()
 
-    def warning(self, name: str = "frame") -> str | None:
+    def warning(self, name: str = "frame") -> Finding | None:
         """What a result combining the chosen stretch should say of the frames it left out (None: none); frames
         are named `name` and numbered from 1."""
         if not self.moves:
             return None
         largest = max(self.moves, key=lambda move: move.distance)
         times = "once" if len(self.moves) == 1 else f"{len(self.moves)} times"
-        return (f"the robot moved during the recording ({times}; its tip by {'up to ' * (len(self.moves) > 1)}"
-                f"{largest.distance * 1e3:.2f} mm at {name} {largest.frame + 1}): the result combines {name}s "
-                f"{self.first + 1}-{self.last + 1} only, the longest stretch over which it stood still; a result "
-                "of every frame is relocation_node's (`ntcr-recon run`)")
+        return finding("ROBOT_MOVED", f"the robot moved during the recording ({times}; its tip by "
+                       f"{'up to ' * (len(self.moves) > 1)}{largest.distance * 1e3:.2f} mm at {name} "
+                       f"{largest.frame + 1}): the result combines {name}s {self.first + 1}-{self.last + 1} only, the "
+                       "longest stretch over which it stood still; a result of every frame is relocation_node's "
+                       "(`ntcr-recon run`)", moves=len(self.moves), largest_move_mm=largest.distance * 1e3,
+                       combined=[self.first + 1, self.last + 1])

@@ -9,8 +9,11 @@ Publishes (reliable, depth 1; all in the base frame, stamped with the input clou
   `<ns>/notches`            std_msgs/Float64MultiArray, rows [index, center_s_m, width_m, bend_rad] (layout in
                             ntcr_recon.ros.messages; readable without this package)
   `<ns>/notches/markers`    visualization_msgs/MarkerArray for RViz (a disc per notch, its width in mm)
-  `/diagnostics`            diagnostic_msgs/DiagnosticArray: the result's self-check (core.quality), WARN with
-                            its warnings, OK without
+  `/diagnostics`            diagnostic_msgs/DiagnosticArray, per frame: its status as the level (ok OK, warn
+                            WARN, error ERROR; a cloud without a result ERROR), the frame's stamp and warning
+                            codes in the message, and as key-values `status`, `stamp_ns`, `codes`,
+                            `uncertainty_mm.<centerline|tip|notch_width>`, `warning.<CODE>` (severity: sentence)
+                            and the rest of the self-check (core.quality); codes: core.findings
 The relocation warm-starts from the previous frame's centreline, as the offline command does over a bag. The
 tip is placed with each camera's edge band (`<ns>/<cam>/edge_band`, from camera_node, which sees the depth
 images), as the offline command places it; until a camera's band arrives (or with a source that publishes none)
@@ -109,6 +112,8 @@ class RelocationNode(RigNode):
         try:
             relocation = self._reconstructor.relocate(cloud, warm_start=self._params["warm_start"])
         except ReconstructionError as error:
+            self._diagnostics.publish(DiagnosticArray(header=msg.header, status=[quality_status(
+                self.get_name(), msg.header.stamp, None, error=str(error))]))
             raise ValueError(f"cannot reconstruct the cloud of {len(cloud)} points: {error}") from error
         frame, stamp = self.rig.base_frame, cloud.stamp_ns
         centerline = relocation.centerline
@@ -130,13 +135,9 @@ class RelocationNode(RigNode):
             self._write(PathLib(self._params["output_dir"]).expanduser() / "relocated.ply", relocation)
 
     def _publish_quality(self, relocation, header) -> None:
-        """The core's self-check, copied onto /diagnostics."""
-        warnings = list(relocation.warnings)
-        status = DiagnosticStatus(level=DiagnosticStatus.WARN if warnings else DiagnosticStatus.OK,
-                                  name=f"{self.get_name()}: reconstruction quality", hardware_id="ntcr",
-                                  message="; ".join(warnings) if warnings else "ok")
-        status.values = [KeyValue(key=str(key), value=str(value)) for key, value in relocation.quality.items()]
-        self._diagnostics.publish(DiagnosticArray(header=header, status=[status]))
+        """The frame's status and self-check on /diagnostics (quality_status)."""
+        self._diagnostics.publish(DiagnosticArray(header=header, status=[quality_status(self.get_name(), header.stamp,
+                                                                                        relocation)]))
 
     def _write(self, path: PathLib, relocation) -> None:
         from ntcr_recon.io.files import write_cloud_ply
@@ -145,6 +146,32 @@ class RelocationNode(RigNode):
             write_cloud_ply(path, relocation.relocated.xyz, relocation.relocated.rgb, relocation.normals)
         except (OSError, ValueError) as error:
             self.get_logger().error(f"could not write the relocated cloud to {path}: {error}")
+
+
+LEVELS = {"ok": DiagnosticStatus.OK, "warn": DiagnosticStatus.WARN, "error": DiagnosticStatus.ERROR}
+
+
+def quality_status(node_name: str, stamp, relocation, error: str | None = None) -> DiagnosticStatus:
+    """A frame's result as a control node reads it without parsing text: the level is its status (a frame without a
+    result, `error` naming why, is ERROR), the message its stamp and codes, the figures key-values."""
+    stamp_ns = stamp.sec * 1_000_000_000 + stamp.nanosec
+    when = f"frame {stamp.sec}.{stamp.nanosec:09d}"
+    status = DiagnosticStatus(name=f"{node_name}: reconstruction quality", hardware_id="ntcr")
+    if relocation is None:
+        status.level, status.message = DiagnosticStatus.ERROR, f"error at {when}: no result ({error})"
+        status.values = [KeyValue(key="status", value="error"), KeyValue(key="stamp_ns", value=str(stamp_ns))]
+        return status
+    codes = ",".join(dict.fromkeys(f.code for f in relocation.warnings))
+    status.level = LEVELS[relocation.status]
+    status.message = f"{relocation.status} at {when}" + (f": {codes}" if codes else "")
+    uncertainty = relocation.quality.get("uncertainty_mm", {})
+    values = {"status": relocation.status, "stamp_ns": stamp_ns, "codes": codes,
+              **{f"uncertainty_mm.{name}": "" if value is None else f"{value:.4f}"
+                 for name, value in uncertainty.items()},
+              **{f"warning.{f.code}": f"{f.severity}: {f.message}" for f in relocation.warnings},
+              **{key: value for key, value in relocation.quality.items() if key != "uncertainty_mm"}}
+    status.values = [KeyValue(key=str(key), value=str(value)) for key, value in values.items()]
+    return status
 
 
 def main(args: list[str] | None = None) -> int:

@@ -1,0 +1,94 @@
+"""core.findings: coded warnings, the result's status and its stated bounds (issue 63)."""
+
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+
+import pytest
+
+from ntcr_recon.core.config import QualityConfig
+from ntcr_recon.core.findings import (
+    CODES,
+    Z90,
+    codes_table,
+    finding,
+    notch_width_uncertainties,
+    result_status,
+    sort_by_severity,
+    uncertainty_mm,
+)
+
+REPO = Path(__file__).resolve().parents[1]
+WITHIN = {"centerline": 0.05, "tip": 0.10, "notch_width": 0.05}  # mm, within the default tolerances
+
+
+def test_a_finding_is_a_record_with_its_codes_severity():
+    record = finding("ROBOT_ROLLED", "the notches open +15 deg ...", side_off_deg=15.0).as_dict()
+    assert record == {"code": "ROBOT_ROLLED", "severity": "warn", "message": "the notches open +15 deg ...",
+                      "side_off_deg": 15.0}
+    with pytest.raises(ValueError, match="NO_SUCH_CODE"):
+        finding("NO_SUCH_CODE", "text")
+
+
+def test_findings_sort_errors_first_then_warnings_then_notes():
+    notes = [finding("FRAMES_LEFT_OUT", "a"), finding("NOTCHES_MISSING", "b"), finding("CAMERA_NO_FRAMES", "c"),
+             finding("ROBOT_MOVED", "d")]
+    assert [f.code for f in sort_by_severity(notes)] == ["CAMERA_NO_FRAMES", "NOTCHES_MISSING", "FRAMES_LEFT_OUT",
+                                                         "ROBOT_MOVED"]
+
+
+@pytest.mark.parametrize(("findings", "uncertainty", "found", "expected"), [
+    ((), WITHIN, 16, "ok"),
+    ((finding("FRAMES_LEFT_OUT", "1 of 4 frame pairs ..."),), WITHIN, 16, "ok"),   # a note keeps ok
+    ((finding("TIP_CARRIED", "..."),), WITHIN, 16, "warn"),
+    ((finding("CAMERA_NO_POINTS", "..."), finding("ROBOT_MOVED", "...")), WITHIN, 16, "error"),
+    ((), WITHIN, 15, "warn"),                                                        # a notch missing
+    ((), {**WITHIN, "tip": 0.151}, 16, "warn"),                                      # past the tip's tolerance
+    ((), {**WITHIN, "centerline": 0.081}, 16, "warn"),
+    ((), {**WITHIN, "notch_width": 0.201}, 16, "warn"),
+    ((), {**WITHIN, "centerline": None}, 16, "warn"),                                # not measured is not ok
+])
+def test_status_is_ok_only_with_every_notch_every_bound_within_tolerance_and_no_warning(findings, uncertainty, found,
+                                                                                       expected):
+    assert result_status(findings, uncertainty, found, 16, QualityConfig()) == expected
+
+
+def test_status_follows_the_rigs_own_tolerance():
+    strict = QualityConfig(centerline_tolerance=0.04e-3)
+    assert result_status((), WITHIN, 16, 16, QualityConfig()) == "ok"
+    assert result_status((), WITHIN, 16, 16, strict) == "warn"
+
+
+def test_notch_width_bounds_come_from_the_widths_disagreement_with_their_bends():
+    # read - implied per notch (m): the spread bounds every notch; one further off is known no better than that
+    disagreement = {0: 0.02e-3, 1: -0.03e-3, 2: 0.01e-3, 3: 0.09e-3}
+    rms = math.sqrt(sum(d * d for d in disagreement.values()) / 4)
+    bounds = notch_width_uncertainties(disagreement, [0, 1, 2, 3, 4], limit=0.15e-3)
+    assert bounds[0] == bounds[4] == pytest.approx(Z90 * rms)
+    assert bounds[3] == pytest.approx(max(Z90 * rms, 0.09e-3))
+    # too few notches checked to know the spread: the check's own limit
+    assert notch_width_uncertainties({0: 0.01e-3}, [0, 1], limit=0.15e-3) == {0: 0.15e-3, 1: 0.15e-3}
+
+
+def test_the_tips_bound_is_along_and_across_in_quadrature():
+    quality = {"centerline_uncertainty_mm": 0.04, "tip_uncertainty_mm": 0.06, "tip_across_uncertainty_mm": 0.08}
+    assert uncertainty_mm(quality, [0.03, 0.05]) == {"centerline": 0.04, "tip": pytest.approx(0.1),
+                                                     "notch_width": 0.05}
+    assert uncertainty_mm({"tip_uncertainty_mm": None}, []) == {"centerline": None, "tip": None, "notch_width": None}
+
+
+def test_every_code_raised_is_listed_and_every_listed_code_is_raised():
+    raised = set()
+    for path in (REPO / "ntcr_recon").rglob("*.py"):
+        raised |= set(re.findall(r'finding\(\s*"([A-Z_]+)"', path.read_text()))
+        # a code chosen by a condition: finding("A" if ... else "B", ...)
+        raised |= {code for pair in re.findall(r'finding\(\s*"([A-Z_]+)" if [^,]* else "([A-Z_]+)"', path.read_text())
+                   for code in pair}
+    assert raised == set(CODES)
+
+
+def test_the_readme_lists_the_codes_as_the_module_does():
+    assert codes_table() in (REPO / "README.md").read_text(), (
+        "README's table of warning codes differs: paste core.findings.codes_table()")
