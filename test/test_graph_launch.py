@@ -1,6 +1,6 @@
-"""The ways to start the graph: launch files (`launch` is not on PyPI, so they are checked as Python and against
-the package: executables, configuration files), the RViz configuration (the topics the nodes publish), and
-`ntcr-recon run`'s command lines and refusals."""
+"""The ways to start the graph: launch files (checked as Python and against the package: executables,
+configuration files; run under ROS 2's own launch in test_launch_files.py), the RViz configuration (the topics
+the nodes publish), and `ntcr-recon run`'s command lines and refusals."""
 
 from __future__ import annotations
 
@@ -189,110 +189,6 @@ def node_names(run_pid: int) -> dict[int, str]:
         if name is not None:  # None: forked, not yet exec'd (still the runner's command line)
             names[pid] = name
     return names
-
-
-def launch_stubs() -> dict:
-    """Just enough of `launch`, `launch_ros` and `ament_index_python` (not on PyPI) to run the launch files'
-    functions and see the nodes they would start, with the arguments they would get."""
-    import types
-
-    class Recorded:
-        def __init__(self, *args, **kwargs):
-            self.args, self.kwargs = args, kwargs
-
-    class LaunchConfiguration(Recorded):
-        def perform(self, context):
-            return context.launch_configurations[self.args[0]]
-
-    modules = {name: types.ModuleType(name) for name in (
-        "launch", "launch.actions", "launch.substitutions", "launch.conditions", "launch.event_handlers",
-        "launch.events", "launch_ros", "launch_ros.actions", "ament_index_python", "ament_index_python.packages")}
-    modules["launch"].LaunchDescription = lambda entities: list(entities)
-    for action in ("DeclareLaunchArgument", "OpaqueFunction", "RegisterEventHandler", "EmitEvent"):
-        setattr(modules["launch.actions"], action, type(action, (Recorded,), {}))
-    modules["launch.event_handlers"].OnProcessExit = type("OnProcessExit", (Recorded,), {})
-    modules["launch.events"].Shutdown = type("Shutdown", (Recorded,), {})
-    modules["launch.substitutions"].LaunchConfiguration = LaunchConfiguration
-    modules["launch.substitutions"].PathJoinSubstitution = type("PathJoinSubstitution", (Recorded,), {})
-    modules["launch.conditions"].IfCondition = type("IfCondition", (Recorded,), {})
-    modules["launch_ros.actions"].Node = type("Node", (Recorded,), {})
-    modules["ament_index_python.packages"].get_package_share_directory = lambda package: str(REPO)
-    return modules
-
-
-def launch_module(path: Path):
-    """The launch file `path` imported as a module (with the stubs in sys.modules)."""
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location(f"launch_{path.stem.replace('.', '_')}", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-def launched_nodes(path: Path, monkeypatch, **arguments) -> list:
-    """The ntcr_recon Node actions `path` yields for `arguments` (defaults as declared)."""
-    import types
-
-    for name, module in launch_stubs().items():
-        monkeypatch.setitem(sys.modules, name, module)
-    entities = launch_module(path).generate_launch_description()
-    context = types.SimpleNamespace(launch_configurations={})
-    nodes = []
-    for entity in entities:
-        kind = type(entity).__name__
-        if kind == "DeclareLaunchArgument":
-            name = entity.args[0]
-            context.launch_configurations[name] = arguments.get(name, entity.kwargs.get("default_value"))
-        elif kind == "OpaqueFunction":
-            nodes += entity.kwargs["function"](context) or []
-    return [n for n in nodes if n.kwargs.get("package") == "ntcr_recon"]
-
-
-def test_launch_files_respawn_every_node(monkeypatch):
-    # issue 11: a node that dies is started again by the launch file, as by `ntcr-recon run`.
-    nodes = launched_nodes(REPO / "launch" / "rig.launch.py", monkeypatch, config="config/sim_rig.yaml")
-    assert sorted(n.kwargs["executable"] for n in nodes) == sorted(["camera_node", "camera_node",
-                                                                    *graph.STAGE_NODES])
-    assert all(n.kwargs["respawn"] is True and n.kwargs["respawn_delay"] > 0 for n in nodes)
-
-
-@pytest.mark.parametrize("name", ["rig.launch.py", "replay.launch.py"])
-def test_launch_files_shut_down_when_a_node_refuses_its_configuration(monkeypatch, name):
-    # review: respawn restarted a node that refused its configuration (exit 2) forever, while `ntcr-recon run`
-    # stops the graph; an OnProcessExit handler now emits Shutdown for exit code 2 (checked against the stubs:
-    # `launch` is not on PyPI)
-    import types
-
-    for module_name, module in launch_stubs().items():
-        monkeypatch.setitem(sys.modules, module_name, module)
-    handlers = [entity for entity in launch_module(REPO / "launch" / name).generate_launch_description()
-                if type(entity).__name__ == "RegisterEventHandler"]
-    on_exit = [h.args[0].kwargs["on_exit"] for h in handlers if type(h.args[0]).__name__ == "OnProcessExit"]
-    assert len(on_exit) == 1
-    refused = on_exit[0](types.SimpleNamespace(returncode=graph.CONFIG_REFUSED, name="mesh_node-6"), None)
-    assert [type(a).__name__ for a in refused] == ["EmitEvent"]
-    shutdown = refused[0].kwargs["event"]
-    assert type(shutdown).__name__ == "Shutdown" and "mesh_node-6" in shutdown.kwargs["reason"]
-    for code in (0, 1, -9):  # a crash or a kill: respawn does its work
-        assert not on_exit[0](types.SimpleNamespace(returncode=code, name="mesh_node-6"), None)
-    assert all(n.kwargs["respawn_delay"] == graph.RESPAWN_DELAY_S for n in
-               launched_nodes(REPO / "launch" / name, monkeypatch, config="config/sim_rig.yaml",
-                              bag=str(REPO / "bags" / "bend45")))
-
-
-def test_replay_launch_gives_the_cameras_one_start_time_as_run_does(monkeypatch):
-    # issue 11: without one start_time the cameras replayed out of step.
-    import time
-
-    before = time.time()  # the start time is START_DELAY_S after the launch, not after this assertion
-    nodes = launched_nodes(REPO / "launch" / "replay.launch.py", monkeypatch, bag=str(REPO / "bags" / "bend45"),
-                           loop="true")
-    cameras = [dict(n.kwargs["parameters"][1]) for n in nodes if n.kwargs["executable"] == "camera_node"]
-    assert len(cameras) == 2 and all(n.kwargs["respawn"] is True for n in nodes)
-    assert cameras[0]["start_time"] == cameras[1]["start_time"] >= before + graph.START_DELAY_S - 0.001
-    assert all(c["loop"] is True and c["source"] == "bag" for c in cameras)
-    assert [c["publish_clock"] for c in cameras] == [True, False]
 
 
 def test_readme_replay_example_loops():

@@ -1,0 +1,73 @@
+"""launch_testing: replay.launch.py on bags/bend45 in a loop, as `ros2 launch ntcr_recon replay.launch.py` starts
+it from a colcon build: once the tips flow, >= 97 % of the frame pairs the cameras publish reach /ntcr/tip.
+
+Run by test/test_launch_files.py (`python -m launch_testing.launch_test`, in the build's environment;
+NTCR_TEST_BAG names the bag)."""
+
+import os
+import time
+import unittest
+
+import launch_testing
+import launch_testing.asserts
+import pytest
+import rclpy
+from ament_index_python.packages import get_package_share_directory
+from geometry_msgs.msg import PoseStamped
+from launch.actions import IncludeLaunchDescription
+from launch.launch_description_sources import PythonLaunchDescriptionSource
+from launch_testing_ros import WaitForTopics
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import PointCloud2
+
+from launch import LaunchDescription
+
+WINDOW_S = 12.0
+
+
+@pytest.mark.launch_test
+def generate_test_description():
+    replay = os.path.join(get_package_share_directory("ntcr_recon"), "launch", "replay.launch.py")
+    return LaunchDescription([
+        IncludeLaunchDescription(PythonLaunchDescriptionSource(replay),
+                                 launch_arguments={"bag": os.environ["NTCR_TEST_BAG"], "loop": "true"}.items()),
+        launch_testing.actions.ReadyToTest(),
+    ])
+
+
+class TestReplay(unittest.TestCase):
+    def test_frame_pairs_reach_the_tip(self, proc_output):
+        with WaitForTopics([("/ntcr/tip", PoseStamped)], timeout=120.0):
+            pass  # the graph is running: the first tip came
+        rclpy.init()
+        node = rclpy.create_node("replay_launch_test")
+        tips, pairs = set(), []
+        node.create_subscription(PoseStamped, "/ntcr/tip",
+                                 lambda m: tips.add(m.header.stamp.sec * 10**9 + m.header.stamp.nanosec), 10)
+        node.create_subscription(PointCloud2, "/ntcr/cam_a/depth/color/points",
+                                 lambda m: pairs.append(m.header.stamp.sec * 10**9 + m.header.stamp.nanosec),
+                                 qos_profile_sensor_data)
+        try:
+            end = time.monotonic() + WINDOW_S
+            while time.monotonic() < end:
+                rclpy.spin_once(node, timeout_sec=0.1)
+            counted = pairs[5:-5]  # the window's edges: a pair under way when it opened or closed
+            end = time.monotonic() + 2.0  # the last pairs' tips are still on their way
+            while time.monotonic() < end:
+                rclpy.spin_once(node, timeout_sec=0.1)
+        finally:
+            node.destroy_node()
+            rclpy.shutdown()
+        reached = sum(stamp in tips for stamp in counted)
+        print(f"replay.launch.py: {reached} of {len(counted)} frame pairs reached /ntcr/tip "
+              f"({100.0 * reached / max(len(counted), 1):.1f} %) over {WINDOW_S:.0f} s", flush=True)
+        self.assertGreater(len(counted), 0.7 * 30 * WINDOW_S)  # the cameras published at about 30 Hz
+        self.assertGreaterEqual(reached, 0.97 * len(counted))
+
+
+@launch_testing.post_shutdown_test()
+class TestShutdown(unittest.TestCase):
+    def test_every_node_ends_cleanly_on_sigint(self, proc_info, proc_output):
+        launch_testing.asserts.assertExitCodes(proc_info)
+        for output in proc_output:
+            self.assertNotIn("Traceback", output.text.decode())

@@ -1,0 +1,101 @@
+"""The launch files under ROS 2's own launch system, as a rig starts them: `launch_testing` tests (test/launch/,
+with launch_testing_ros's WaitForTopics) run by `launch_test` against a `colcon build` of the package, the way
+`colcon test` runs a package's launch tests.
+
+ROS 2's launch comes with ROS on a rig; elsewhere scripts/setup_env.sh (the README's test command runs it)
+installs it into the test environment from ../shared/ros2-launch-jazzy. Where neither is there, these tests
+are skipped and say so. The build is made once per session, in ~/.cache/ntcr_recon/launch-tests (kept while the
+sources are unchanged, so is its kernel cache), and its kernels compiled there before the first launch."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+LAUNCH_TESTS = REPO / "test" / "launch"
+BIN = Path(sys.executable).parent
+CACHE = Path(os.environ.get("NTCR_LAUNCH_TEST_DIR", Path.home() / ".cache" / "ntcr_recon" / "launch-tests"))
+
+pytestmark = pytest.mark.launch
+
+try:
+    import launch_testing  # noqa: F401
+    import launch_testing_ros  # noqa: F401
+    import ros2launch  # noqa: F401
+    MISSING = None
+except ImportError as error:
+    MISSING = (f"ROS 2's launch is not installed ({error}): source ROS 2 Jazzy, or run scripts/setup_env.sh with "
+               "NTCR_EXTRAS=test beside ../shared/ros2-launch-jazzy")
+
+
+def _sources() -> list[Path]:
+    listed = subprocess.run(["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"], cwd=REPO,
+                            capture_output=True, check=True).stdout.decode().split("\0")
+    return sorted(REPO / name for name in listed if name and not name.startswith(("bags/", "test/", "benchmarks/"))
+                  and (REPO / name).is_file())
+
+
+@pytest.fixture(scope="session")
+def colcon_install() -> dict[str, str]:
+    """The environment of a colcon build of this checkout (`source install/setup.bash`), its kernels compiled."""
+    if MISSING:
+        pytest.skip(MISSING)
+    if not (BIN / "colcon").exists():
+        pytest.skip("colcon is not installed in the test environment (requirements-test.txt)")
+    sources = _sources()
+    digest = hashlib.sha1()
+    for path in sources:
+        digest.update(str(path.relative_to(REPO)).encode() + b"\0" + path.read_bytes())
+    ws = CACHE / "ws"
+    stamp = ws / f".built-{digest.hexdigest()[:16]}"
+    if not stamp.exists():
+        shutil.rmtree(ws, ignore_errors=True)
+        package = ws / "src" / "ntcr_recon"
+        for path in sources:
+            target = package / path.relative_to(REPO)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(path, target)
+        env = {**os.environ, "PATH": f"{BIN}:{os.environ['PATH']}"}
+        build = subprocess.run([str(BIN / "colcon"), "build", "--event-handlers", "console_direct-"], cwd=ws,
+                               env=env, capture_output=True, text=True, timeout=600)
+        assert build.returncode == 0, build.stdout[-3000:] + build.stderr[-3000:]
+        stamp.touch()
+    dump = subprocess.run(["bash", "-c", f"source {ws}/install/setup.bash && env -0"], capture_output=True,
+                          check=True, env={**os.environ, "PATH": f"{BIN}:{os.environ['PATH']}"}).stdout
+    env = dict(line.split("=", 1) for line in dump.decode().split("\0") if "=" in line)
+    # the build's kernels compiled once, before any launch (a node would do it at its first start, as on a rig)
+    warm = subprocess.run([sys.executable, "-m", "ntcr_recon.sim.warm_up"], env=env, capture_output=True, text=True,
+                          timeout=900, cwd=ws)
+    assert warm.returncode == 0, warm.stdout + warm.stderr
+    assert str(ws / "install") in warm.stdout or "ntcr_recon" in warm.stdout, warm.stdout
+    print(warm.stdout.strip())
+    return env
+
+
+def launch_test(env: dict[str, str], name: str, domain: int, timeout: float = 420) -> str:
+    """`launch_test test/launch/<name>` in the build's environment, in DDS domain `domain`; its output."""
+    run_env = {**env, "ROS_DOMAIN_ID": str(domain), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
+               "NTCR_TEST_BAG": str(REPO / "bags" / "bend45"), "PYTHONUNBUFFERED": "1"}
+    result = subprocess.run([sys.executable, "-m", "launch_testing.launch_test", str(LAUNCH_TESTS / name)],
+                            env=run_env, capture_output=True, text=True, timeout=timeout, cwd=REPO)
+    output = result.stdout + result.stderr
+    assert result.returncode == 0, output[-6000:]
+    return output
+
+
+def test_replay_launch_brings_97_percent_of_frame_pairs_to_the_tip(colcon_install):
+    output = launch_test(colcon_install, "replay_launch.py", 71)
+    assert "frame pairs reached /ntcr/tip" in output, output[-3000:]
+    assert "compiling the numba kernels" not in output  # compiled before, never inside the frames
+
+
+def test_rig_launch_without_cameras_waits_and_ends_on_ctrl_c(colcon_install):
+    output = launch_test(colcon_install, "rig_no_camera_launch.py", 72)
+    assert "waiting for the device" in output and "/diagnostics" in output, output[-3000:]
