@@ -13,6 +13,7 @@ from ntcr_recon.core.findings import (
     CODES,
     Z90,
     codes_table,
+    every_notch_factor,
     finding,
     notch_width_uncertainties,
     result_status,
@@ -72,10 +73,17 @@ def test_notch_width_bounds_come_from_the_widths_disagreement_with_their_bends()
     assert notch_width_uncertainties({0: 0.01e-3}, [0, 1], limit=0.15e-3) == {0: 0.15e-3, 1: 0.15e-3}
 
 
+def test_a_bound_on_every_notch_is_wider_the_more_notches_there_are():
+    # all of n independent errors within a bound 90 % of the time: each within it 0.9 ** (1 / n) of the time
+    assert every_notch_factor(1) == 1.0
+    assert every_notch_factor(16) == pytest.approx(2.48 / Z90, rel=0.01)
+    assert 1.0 < every_notch_factor(10) < every_notch_factor(20)
+
+
 def test_the_tips_bound_is_along_and_across_in_quadrature():
     quality = {"centerline_uncertainty_mm": 0.04, "tip_uncertainty_mm": 0.06, "tip_across_uncertainty_mm": 0.08}
     assert uncertainty_mm(quality, [0.03, 0.05]) == {"centerline": 0.04, "tip": pytest.approx(0.1),
-                                                     "notch_width": 0.05}
+                                                     "notch_width": pytest.approx(0.05 * every_notch_factor(2))}
     assert uncertainty_mm({"tip_uncertainty_mm": None}, []) == {"centerline": None, "tip": None, "notch_width": None}
 
 
