@@ -39,6 +39,7 @@ Exit status: 0 done, 2 bad configuration / bag / reconstruction (one message on 
 from __future__ import annotations
 
 import argparse
+import errno
 import json
 import sys
 import time
@@ -67,7 +68,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--topic", action="append", default=[], metavar="CAM.KIND=TOPIC",
                         help="remap a camera topic, e.g. cam_a.depth=/cam_a/depth/image_rect_raw "
                              "(kinds: depth, depth_info, color, points); repeatable")
-    parser.add_argument("--max-frames", type=int, default=0, help="use only the first N frames of each camera")
+    parser.add_argument("--max-frames", type=_positive_int, default=None, metavar="N",
+                        help="use only the first N frames of each camera (N >= 1; default: all)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -91,6 +93,17 @@ def main(args: argparse.Namespace) -> int:
               file=sys.stderr)
     print(f"ntcr-recon reconstruct: status {result['status']}", file=sys.stderr)
     return 0
+
+
+def _positive_int(text: str) -> int:
+    """argparse type of --max-frames: 0 read as 'all' and -3 as 'no depth frame' before (issue 66)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number of frames, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1 (leave it out to use every frame), got {value}")
+    return value
 
 
 def _millimetres(value: float | None) -> str:
@@ -117,12 +130,7 @@ def run(args: argparse.Namespace) -> dict:
     except ConfigError as error:  # an unreadable file says so itself; a bad one is named as such
         unreadable = isinstance(error.__cause__, OSError)
         raise ReconstructCommandError(str(error) if unreadable else f"bad rig configuration: {error}") from error
-    overrides = {}
-    for item in args.topic:
-        key, sep, topic = item.partition("=")
-        if not sep or not key or not topic:
-            raise ReconstructCommandError(f"--topic expects CAM.KIND=TOPIC, got {item!r}")
-        overrides[key] = topic
+    overrides = _topic_overrides(args.topic, config)
     try:
         with staged_directory(args.out) as staging:  # refuses a target no directory may replace (root, ...)
             if not args.overwrite:
@@ -130,8 +138,49 @@ def run(args: argparse.Namespace) -> dict:
             return _reconstruct(args, config, overrides, staging)
     except StagingError as error:
         raise ReconstructCommandError(f"--out: {error}") from error
-    except (BagError, ReconstructionError, ValueError, OSError) as error:
+    except (BagError, ReconstructionError, ValueError) as error:
         raise ReconstructCommandError(str(error)) from error
+    except OSError as error:  # a full disk, a folder made read-only meanwhile: named as --out, not its staging
+        raise ReconstructCommandError(_output_error(args.out, error)) from error
+
+
+def _topic_overrides(items: list[str], config) -> dict[str, str]:
+    """--topic CAM.KIND=TOPIC (or OLD_TOPIC=TOPIC) items checked against the rig: a camera or kind it does not
+    have, or a topic it does not read, remapped nothing and was accepted silently (issue 66)."""
+    from ntcr_recon.io.bag import camera_topics
+
+    kinds = ("depth", "depth_info", "color", "points")
+    configured = {topic for name in config.camera_names for topic in camera_topics(config, name).values()}
+    overrides = {}
+    for item in items:
+        key, sep, topic = item.partition("=")
+        if not sep or not key or not topic:
+            raise ReconstructCommandError(f"--topic expects CAM.KIND=TOPIC, got {item!r}")
+        if key.startswith("/"):
+            if key not in configured:
+                raise ReconstructCommandError(f"--topic {item}: the rig reads no topic {key} "
+                                              f"(it reads {', '.join(sorted(configured))})")
+        else:
+            camera, dot, kind = key.partition(".")
+            if camera not in config.camera_names:
+                raise ReconstructCommandError(f"--topic {item}: the rig has no camera {camera!r} "
+                                              f"(cameras: {', '.join(config.camera_names)})")
+            if not dot or kind not in kinds:
+                raise ReconstructCommandError(f"--topic {item}: kind must be one of {', '.join(kinds)}, "
+                                              f"got {kind!r}")
+        overrides[key] = topic
+    return overrides
+
+
+def _output_error(out, error: OSError) -> str:
+    """An output error named by --out (the files are written in a staging directory beside it, whose name
+    means nothing to the user), the file being written when known; --out itself is left as it was."""
+    name = Path(error.filename).name if error.filename else None
+    cause = error.strerror or str(error)
+    if error.errno == errno.ENOSPC:
+        cause = "no space left on the device"
+    return (f"--out {out}: could not write {name + ' there' if name else 'the result'}: {cause} "
+            f"(--out is left as it was)")
 
 
 def _refuse_other_files(out: Path) -> None:
@@ -164,7 +213,7 @@ def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
 
     started = time.perf_counter()
     cameras = {}  # camera -> CameraInput, filled as the frames stream by
-    frames = iter_camera_frames(args.bag, config, args.source, overrides, args.max_frames, cameras)
+    frames = iter_camera_frames(args.bag, config, args.source, overrides, args.max_frames or 0, cameras)
     pairs = pair_frame_stream(frames, int(round(config.fusion.slop * 1e9)),
                               int(round(config.fusion.camera_timeout * 1e9)))
     reconstructor = Reconstructor(config)

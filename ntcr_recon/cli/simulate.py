@@ -12,7 +12,7 @@ from ntcr_recon.core.config import ConfigError, load_robot_geometry
 from ntcr_recon.core.geometry import TubeGeometry
 from ntcr_recon.core.kinematics import TubeShape
 from ntcr_recon.sim.camera import D405Intrinsics
-from ntcr_recon.sim.simulate import Simulation, notch_side_angle
+from ntcr_recon.sim.simulate import Simulation, check_bag_space, notch_side_angle
 from ntcr_recon.sim.stereo import StereoEmulation
 
 
@@ -90,9 +90,19 @@ def build_simulation(args: argparse.Namespace) -> Simulation:
     intrinsics = D405Intrinsics()
     if args.intrinsics:
         width, height, fx, fy, cx, cy = _numbers("--intrinsics", args.intrinsics, 6)
-        intrinsics = dataclasses.replace(intrinsics, width=int(width), height=int(height), fx=fx, fy=fy, cx=cx, cy=cy)
+        if not (width.is_integer() and height.is_integer()):
+            raise ValueError(f"--intrinsics {args.intrinsics}: width and height are whole pixels")
+        try:
+            intrinsics = dataclasses.replace(intrinsics, width=int(width), height=int(height), fx=fx, fy=fy, cx=cx,
+                                             cy=cy)
+        except ValueError as error:
+            raise ValueError(f"--intrinsics {args.intrinsics}: {error}") from None
     if args.depth_unit is not None:
         intrinsics = dataclasses.replace(intrinsics, depth_unit=args.depth_unit)
+    if args.frames < 1:
+        raise ValueError(f"--frames {args.frames}: must be at least 1")
+    # before anything is rendered or written: a bag that may not fit, or longer than a test scene needs
+    check_bag_space(args.output, intrinsics, args.frames, 2, args.with_points)
     distances = tuple(_numbers("--camera-distances", args.camera_distances, 2)) if args.camera_distances else None
     return Simulation(shape, scene_name=args.scene or args.output.name, camera_distance=args.camera_distance,
                       camera_distances=distances, intrinsics=intrinsics,
@@ -108,7 +118,7 @@ def _numbers(option: str, text: str, count: int) -> list[float]:
         values = [float(v) for v in text.split(",")]
     except ValueError:
         raise ValueError(f"{option} must be {count} comma-separated numbers, got {text!r}") from None
-    if len(values) != count:
+    if len(values) != count or not all(math.isfinite(v) for v in values):
         raise ValueError(f"{option} must be {count} comma-separated numbers, got {text!r}")
     return values
 
@@ -121,6 +131,10 @@ def main(args: argparse.Namespace) -> int:
         path = simulation.write_bag(args.output, overwrite=args.overwrite, progress=not args.no_progress)
     except (ValueError, ConfigError, FileExistsError, StagingError) as error:
         print(f"ntcr-recon simulate: {error}", file=sys.stderr)
+        return 2
+    except OSError as error:  # a disk that filled up after all, a folder that became read-only: nothing was kept
+        print(f"ntcr-recon simulate: error: writing {args.output}: {error.strerror or error} (nothing was written)",
+              file=sys.stderr)
         return 2
     camera, near, where = simulation.nearest_approach()
     if near < simulation.intrinsics.min_depth:

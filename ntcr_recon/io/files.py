@@ -24,6 +24,11 @@ def write_atomically(path, write) -> None:
         write(Path(temp))
         os.chmod(temp, 0o644)  # mkstemp's 0600 is for the temporary file, not the result
         os.replace(temp, path)
+    except OSError as error:  # named by the file meant, not its temporary name (a full disk, a writer's refusal)
+        Path(temp).unlink(missing_ok=True)
+        if error.filename == str(path):
+            raise
+        raise OSError(error.errno, error.strerror or str(error), str(path)) from error
     except BaseException:
         Path(temp).unlink(missing_ok=True)
         raise

@@ -24,12 +24,19 @@ import ctypes
 import errno
 import os
 import shutil
+import signal
 import tempfile
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 
 STAGING_INFIX = ".partial-"   # .<target name>.partial-<pid>-<random>
 PREVIOUS_INFIX = ".previous-"  # .<target name>.previous-<pid>-<random>: the old result, moved aside
+
+# Held while a result is swapped in: the CLI's Ctrl-C handling (cli/__init__) waits for it before it ends the
+# process, so an interrupted run leaves the old result or the new one in place, never neither.
+SWAP_LOCK = threading.Lock()
+_ACTIVE: set[Path] = set()  # this process's staging directories, for remove_active_staging
 
 _AT_FDCWD = -100
 _RENAME_EXCHANGE = 2
@@ -48,10 +55,15 @@ def staged_directory(target: str | os.PathLike, *, created_by_writer: bool = Fal
     staging directory, for a writer that creates its own directory and names its files after it (rosbags).
     """
     target = _checked_target(target)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    remove_stale_staging(target)
-    staging = Path(tempfile.mkdtemp(dir=target.parent, prefix=f".{target.name}{STAGING_INFIX}{os.getpid()}-"))
+    try:  # said of the target, before any work: not "Permission denied: .../.out.partial-1234-x" at the end
+        target.parent.mkdir(parents=True, exist_ok=True)
+        remove_stale_staging(target)
+        staging = Path(tempfile.mkdtemp(dir=target.parent, prefix=f".{target.name}{STAGING_INFIX}{os.getpid()}-"))
+    except OSError as error:
+        raise StagingError(error.errno, f"{target} cannot be written: {error.strerror or error} in "
+                           f"{target.parent}") from error
     result = staging / target.name if created_by_writer else staging
+    _ACTIVE.add(staging)
     try:
         if target.exists() and os.stat(target).st_dev != os.stat(staging).st_dev:
             raise StagingError(f"{target} is on another file system than its parent directory "
@@ -60,9 +72,22 @@ def staged_directory(target: str | os.PathLike, *, created_by_writer: bool = Fal
         if not result.is_dir():
             raise StagingError(f"nothing was written for {target}")
         result.chmod(0o755)  # mkdtemp makes it private; the result is an ordinary directory
-        swap_in(result, target)
+        # Ctrl-C / SIGTERM wait until the swap is done (its fallback's two renames must not be parted)
+        blocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+        try:
+            with SWAP_LOCK:
+                swap_in(result, target)
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
     finally:
         shutil.rmtree(staging, ignore_errors=True)  # the new result on failure, the old one after a swap
+        _ACTIVE.discard(staging)
+
+
+def remove_active_staging() -> None:
+    """Remove this process's staging directories (a process ending on Ctrl-C: its targets stay as they were)."""
+    for staging in list(_ACTIVE):
+        shutil.rmtree(staging, ignore_errors=True)
 
 
 def _checked_target(target: str | os.PathLike) -> Path:
@@ -75,10 +100,32 @@ def _checked_target(target: str | os.PathLike) -> Path:
                            "it is replaced whole, so name a directory of its own")
     if path.exists() and not path.is_dir():
         raise StagingError(f"{text} exists and is not a directory")
-    if os.path.ismount(path):
+    if is_mount_point(path):
         raise StagingError(f"{text} is a mount point: it cannot be replaced by a rename; give a "
                            "directory inside it")
     return path
+
+
+def is_mount_point(path: Path, mountinfo: str | os.PathLike = "/proc/self/mountinfo") -> bool:
+    """os.path.ismount, and (Linux) any mount point the kernel lists: a bind mount of a folder of the same file
+    system is none to ismount, and was refused by the final rename only, after the whole computation."""
+    if os.path.ismount(path):
+        return True
+    try:
+        lines = Path(mountinfo).read_text().splitlines()
+    except OSError:
+        return False
+    wanted = os.path.realpath(path)
+    for line in lines:
+        fields = line.split(" ")
+        if len(fields) > 4 and _unescape_mount(fields[4]) == wanted:
+            return True
+    return False
+
+
+def _unescape_mount(field: str) -> str:
+    """A mountinfo path: space, tab, newline and backslash are written as octal escapes (\\040 ...)."""
+    return field.encode("latin-1").decode("unicode_escape") if "\\" in field else field
 
 
 def swap_in(staging: Path, target: Path) -> None:

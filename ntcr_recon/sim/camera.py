@@ -6,11 +6,15 @@ Pixel convention (ROS / OpenCV): pixel (row v, column u) is centred on image coo
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from ntcr_recon.core.transforms import matrix_to_quaternion
+
+MAX_IMAGE_SIDE = 4096
+MAX_IMAGE_PIXELS = 1920 * 1200
 
 
 @dataclass(frozen=True)
@@ -28,6 +32,20 @@ class D405Intrinsics:
     fps: float = 30.0
     min_depth: float = 0.07  # m: nearer than this the disparity search range (848x480) is exceeded
     max_depth: float = 0.5  # m: beyond this the D405 reports nothing useful
+
+    def __post_init__(self) -> None:
+        """Refuse an image the renderer cannot hold: it keeps some tens of float arrays of the image's size
+        (40000x40000 asked for 35.8 GiB at once, issue 66); the D405 itself streams at most 1280x720."""
+        if not all(isinstance(v, int) and 1 <= v <= MAX_IMAGE_SIDE for v in (self.width, self.height)):
+            raise ValueError(f"image size {self.width}x{self.height} px: each side must be 1 to {MAX_IMAGE_SIDE} px")
+        if self.width * self.height > MAX_IMAGE_PIXELS:
+            raise ValueError(f"image size {self.width}x{self.height} px is {self.width * self.height / 1e6:.1f} "
+                             f"megapixels, more than the simulator renders ({MAX_IMAGE_PIXELS / 1e6:.1f}, e.g. "
+                             "1920x1200; a D405 streams at most 1280x720)")
+        if not all(math.isfinite(v) and v > 0 for v in (self.fx, self.fy)):
+            raise ValueError(f"focal lengths must be finite and > 0 px, got fx={self.fx}, fy={self.fy}")
+        if not all(math.isfinite(v) for v in (self.cx, self.cy)):
+            raise ValueError(f"principal point must be finite, got cx={self.cx}, cy={self.cy}")
 
     @property
     def focal_baseline(self) -> float:

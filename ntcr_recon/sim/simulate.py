@@ -13,6 +13,7 @@ Public API:
 from __future__ import annotations
 
 import math
+import shutil
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -34,6 +35,47 @@ START_STAMP_NS = 1_767_225_600_000_000_000  # 2026-01-01T00:00:00Z: fixed, so a 
 CAMERA_STAGGER_NS = 4_300_000  # no hardware sync: each further camera's frames come this much later
 STAMP_JITTER_NS = 300_000  # +- per frame, from the seed
 CLAMP_EDGE_MARGIN = 1.0e-3  # filters.clamp_radius: the post's radius and this (depth edges fly)
+MAX_FRAMES = 10_000  # frames per camera: 5.5 min at 30 Hz; a bag longer than that is not a test scene
+DISK_RESERVE_BYTES = 64 * 2**20  # left free on the output's file system beyond the bag's estimate
+
+
+def _size(count: float) -> str:
+    for unit in ("B", "kB", "MB", "GB", "TB"):
+        if count < 1000 or unit == "TB":
+            return f"{count:.1f} {unit}"
+        count /= 1000
+    return f"{count:.1f} TB"
+
+
+def estimated_bag_bytes(intrinsics: D405Intrinsics, frames: int, cameras: int, with_points: bool) -> int:
+    """The most a bag can take (its messages before compression: depth 2 bytes, colour 3 a pixel, the cloud 16
+    a point, every camera's every frame)."""
+    per_frame = intrinsics.width * intrinsics.height * (2 + 3 + (16 if with_points else 0)) + 4096  # + headers
+    return per_frame * frames * cameras
+
+
+def check_bag_space(out_dir: str | Path, intrinsics: D405Intrinsics, frames: int, cameras: int,
+                    with_points: bool) -> None:
+    """ValueError naming the bag's estimate and the free space when the one may exceed the other, and when
+    `frames` exceeds MAX_FRAMES (with both figures too)."""
+    where = _existing_ancestor(Path(out_dir).parent)
+    free = shutil.disk_usage(where).free
+    needed = estimated_bag_bytes(intrinsics, frames, cameras, with_points)
+    sizes = (f"{frames} frames x {cameras} cameras at {intrinsics.width}x{intrinsics.height} may take up to "
+             f"{_size(needed)} and {where} has {_size(free)} free")
+    if frames > MAX_FRAMES:
+        raise ValueError(f"--frames {frames}: at most {MAX_FRAMES} frames per camera ({MAX_FRAMES / 30 / 60:.1f} min "
+                         f"at 30 Hz) are rendered; {sizes}")
+    if needed + DISK_RESERVE_BYTES > free:
+        raise ValueError(f"--frames {frames}: {sizes} (keeping {_size(DISK_RESERVE_BYTES)}): render fewer frames "
+                         "or write elsewhere")
+
+
+def _existing_ancestor(path: Path) -> Path:
+    path = Path(path).absolute()
+    while not path.exists() and path.parent != path:
+        path = path.parent
+    return path
 
 
 def notch_side_angle(value: str) -> float:
@@ -72,8 +114,8 @@ class Simulation:
     camera_pitch_deg: tuple[float, float] = (0.0, 0.0)   # per camera, turned about its image's right axis
 
     def __post_init__(self) -> None:
-        if self.frame_count < 1:
-            raise ValueError(f"frames must be >= 1, got {self.frame_count}")
+        if not 1 <= self.frame_count <= MAX_FRAMES:
+            raise ValueError(f"frames must be 1 to {MAX_FRAMES} per camera, got {self.frame_count}")
         if len(self.camera_names) != 2 or len(set(self.camera_names)) != 2 or not all(self.camera_names):
             raise ValueError(f"the rig has two cameras with distinct names, got {self.camera_names}")
         if self.color_noise < 0:
@@ -157,8 +199,15 @@ class Simulation:
         return truth_document(self.shape, self.cameras, self.intrinsics, self.scene_name, self.seed,
                               self.base_frame, extra)
 
+    def check_space(self, out_dir: str | Path) -> None:
+        """ValueError naming both figures when the bag may not fit the free space where it goes: rendering
+        then fails after minutes or hours, having filled the disk first (issue 66)."""
+        check_bag_space(out_dir, self.intrinsics, self.frame_count, len(self.cameras), self.with_points)
+
     def write_bag(self, out_dir: str | Path, overwrite: bool = False, progress: bool = True) -> Path:
         import json
+
+        self.check_space(out_dir)
 
         header = (f"# Rig configuration of the simulated scene '{self.scene_name}' (written by ntcr-recon simulate).\n"
                   "# Camera poses are exact; stage sections (fusion, filters, ...) take their defaults, but for a\n"
