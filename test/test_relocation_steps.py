@@ -20,6 +20,7 @@ from ntcr_recon.core.centerline import (
     settings_for,
     turn_from_base,
 )
+from ntcr_recon.core.checks import Trace, assess
 from ntcr_recon.core.comb import clear_of_cuts, cut_intervals, expected_centres, inside_intervals, near_cuts
 from ntcr_recon.core.config import RelocationConfig
 from ntcr_recon.core.geometry import TubeGeometry
@@ -27,7 +28,6 @@ from ntcr_recon.core.kinematics import TubeShape
 from ntcr_recon.core.notches import Notch, detect_notches
 from ntcr_recon.core.outline import OUTLINE_TOLERANCE_PX, across_views_from, outline_offset
 from ntcr_recon.core.quality import (
-    assess,
     camera_coverage,
     camera_reach,
     cameras_looking_into_slots,
@@ -641,11 +641,11 @@ def test_a_notch_read_at_a_width_its_bend_rules_out_is_given_its_bends_and_its_n
     assert 6 not in flagged and next(n for n in unchecked if n.index == 6).signal == "coverage"
     assert not_checked == [6]
     # ... and the result says its width was checked against nothing
-    quality, said = assess(
+    quality, said = assess(Trace(
         geometry=geometry, camera_names=("cam_a", "cam_b"), notches=unchecked,
         coords_s=np.linspace(0.0, centres[7], 500), camera=None, tip_s=centres[7],
         total_bend=bend * geometry.notch_count, footprint=FOOTPRINT, wall_residual=0.0, notch_side=0.0,
-        configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0, depth_steps={}, unchecked=not_checked)
+        configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0, depth_steps={}, unchecked=not_checked))
     assert quality["notches_unchecked"] == [6]
     assert [w.figures["notches"] for w in said if w.code == "NOTCH_WIDTH_UNCHECKED"] == [[6]]
 
@@ -654,11 +654,11 @@ def test_a_notch_read_at_a_width_its_bend_rules_out_is_given_its_bends_and_its_n
     kept, none, _ = calibrate_and_check(wide, geometry)
     assert none == {} and {n.signal for n in kept} == {"coverage"}
     assert max(n.width for n in kept) - width > 0.04e-3  # still read wider: measured, not overwritten
-    warnings = assess(
+    warnings = assess(Trace(
         geometry=geometry, camera_names=("cam_a", "cam_b"), notches=checked, coords_s=np.linspace(0.0, 50e-3, 500),
         camera=None, tip_s=50e-3, total_bend=bend * geometry.notch_count, footprint=FOOTPRINT, wall_residual=0.0,
         notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0, depth_steps={},
-        misread_widths=misread)[1]
+        misread_widths=misread))[1]
     print("\n" + " ".join(map(str, warnings)))
     (misread_finding,) = [w for w in warnings if w.code == "NOTCH_WIDTH_MISREAD"]
     assert misread_finding.figures["notches"] == [6]
@@ -1452,11 +1452,11 @@ def test_quality_says_what_is_doubtful():
                                                50e-3, 0.25e-3, pool=3.5e-3)
     assert alone_stray["cam_b"] == pytest.approx(10e-3, abs=1e-3)
     assert share_stray["cam_a"] == pytest.approx(0.8, abs=0.04)
-    quality, warnings = assess(
+    quality, warnings = assess(Trace(
         geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=notches, coords_s=s,
         camera=camera, tip_s=50e-3, total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.05e-3,
         notch_side=math.radians(20), configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0,
-        depth_steps={"cam_a": 1e-3, "cam_b": 1e-4})
+        depth_steps={"cam_a": 1e-3, "cam_b": 1e-4}))
     print("\n" + "\n".join(map(str, warnings)))
     said = _by_code(warnings)
     assert said["NOTCHES_MISSING"][0].figures["missing"] == list(range(16))
@@ -1473,19 +1473,19 @@ def test_quality_says_what_is_doubtful():
     assert rolled.figures["side_uncertainty_deg"] is None
     # a side measured +20 deg off yet known only to +-25 deg (one edge of the window placed it) is no proof of a roll
     for known_deg, rolled_beyond in ((5.0, True), (25.0, False)):  # is rolled / may be rolled
-        side_warnings = assess(
+        side_warnings = assess(Trace(
             geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=notches, coords_s=s, camera=camera,
             tip_s=50e-3, total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.05e-3, notch_side=math.radians(20),
             configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0, depth_steps={},
-            side_uncertainty=math.radians(known_deg))[1]
+            side_uncertainty=math.radians(known_deg)))[1]
         (side,) = _by_code(side_warnings)["ROBOT_ROLLED"]
         assert side.figures["side_uncertainty_deg"] == pytest.approx(known_deg)
         assert (abs(side.figures["side_off_deg"]) > side.figures["side_uncertainty_deg"]) == rolled_beyond
-    cap_warnings = assess(
+    cap_warnings = assess(Trace(
         geometry=GEOMETRY, camera_names=("cam_a",), notches=[], coords_s=s,
         camera=np.zeros(len(s), np.int8), tip_s=50e-3, total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.0,
         notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0, depth_steps={},
-        tip_uncertainty=0.26e-3, tip_from_cap=True)[1]
+        tip_uncertainty=0.26e-3, tip_from_cap=True))[1]
     (cap,) = _by_code(cap_warnings)["TIP_ON_END_CAP"]
     assert cap.figures["along_mm"] == pytest.approx(0.26)  # the cap's points smeared over that much
     assert "TIP_ON_ERODED_RIM" not in _by_code(cap_warnings)
@@ -1496,11 +1496,11 @@ def test_quality_tells_a_tube_cut_short_by_the_crop_box_from_one_that_ends_insid
     s = np.linspace(0.0, 30e-3, 3000)
 
     def warnings_for(tip):
-        return _by_code(assess(
+        return _by_code(assess(Trace(
             geometry=GEOMETRY, camera_names=("cam_a",), notches=[], coords_s=s,
             camera=np.zeros(len(s), np.int8), tip_s=30e-3, total_bend=0.0, footprint=FOOTPRINT,
             wall_residual=0.0, notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0,
-            depth_steps={}, tip_position=np.array(tip), crop_box=box)[1])
+            depth_steps={}, tip_position=np.array(tip), crop_box=box))[1])
 
     (on_face,) = warnings_for([0.02, 0.0, 0.5e-3])["TUBE_ENDS_SHORT"]    # the robot curled down to the base plane
     print("\n" + str(on_face))
@@ -1520,11 +1520,11 @@ def test_quality_says_when_no_camera_showed_the_tubes_outline_whole():
     s = np.linspace(0.0, 30e-3, 3000)
 
     def assessed(camera, outline_offset):
-        quality, warnings = assess(
+        quality, warnings = assess(Trace(
             geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=[], coords_s=s, camera=camera,
             tip_s=30e-3, total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.0, notch_side=0.0, configured_side=0.0,
             bias_notch_side=0.0, bias_binormal=0.0, depth_steps={}, outline_offset=outline_offset,
-            cross_view_spread=0.02e-3)
+            cross_view_spread=0.02e-3))
         return quality, _by_code(warnings)
 
     cameras = (np.arange(len(s)) % 2).astype(np.int8)
@@ -1656,12 +1656,12 @@ def test_a_camera_that_missed_a_stretch_is_named_with_why_too_near_or_end_on():
                                           continued_bend(true_centerline(shape).up_to(tip_s), GEOMETRY.reach,
                                                          centres, GEOMETRY))
             tip_s, total_bend = tip_along.s, math.radians(90.0)
-        quality, warnings = assess(
+        quality, warnings = assess(Trace(
             geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=[], coords_s=s, camera=camera,
             tip_s=tip_s, total_bend=total_bend, footprint=FOOTPRINT, tip_along=tip_along,
             wall_residual=0.0, notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0,
             depth_steps={}, reach=reach, notch_centres=expected_centres(shape.geometry, true_centerline(shape)),
-            unsupported=unsupported)
+            unsupported=unsupported))
         return quality, _by_code(warnings)
 
     quality, seen_alone = warned(-90.0)
@@ -1761,11 +1761,11 @@ def test_missing_notches_are_placed_beyond_the_end_seen_or_where_a_camera_did_no
     assert beyond == [14, 15] and unseen == {"cam_a": [12, 13]}
     width = GEOMETRY.notch_width
     found = [Notch(i, c, c - width / 2, c + width / 2, width, 0.0) for i, c in enumerate(centres) if i not in missing]
-    quality, warnings = assess(
+    quality, warnings = assess(Trace(
         geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=found,
         coords_s=s, camera=camera, tip_s=45e-3, total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.0,
         notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0, depth_steps={},
-        notch_centres=centres)
+        notch_centres=centres))
     print("\n" + str(warnings[0]))
     assert warnings[0].code == "NOTCHES_MISSING" and warnings[0].severity == "warn"
     assert dict(warnings[0].figures) == {"missing": [3, 12, 13, 14, 15], "beyond_end": [14, 15],
@@ -1795,11 +1795,11 @@ def test_quality_measures_a_wall_that_reads_deeper_between_the_notches_than_on_t
     assert notched_thinning(np.zeros(len(s)), s, cuts[:0], 50e-3, 0.6e-3, FOOTPRINT) is None
 
     def warnings_for(deep, looking=("cam_a",)):
-        quality, warnings = assess(
+        quality, warnings = assess(Trace(
             geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=[], coords_s=s,
             camera=np.zeros(len(s), np.int8), tip_s=50e-3, total_bend=0.0, footprint=FOOTPRINT,
             wall_residual=0.0, notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0,
-            depth_steps={}, notched_thinning=thinning(deep), looking_into_slots=looking)
+            depth_steps={}, notched_thinning=thinning(deep), looking_into_slots=looking))
         return quality, _by_code(warnings)
 
     quality, text = warnings_for(0.3e-3)
@@ -1823,13 +1823,13 @@ def test_a_centreline_over_stretches_nothing_measured_is_stated_as_uncertain_as_
     assert unmeasured_share(((30e-3, 35e-3),), 8e-3, 50e-3) == pytest.approx(0.26)  # and a distal end-on stretch
 
     def stated(unsupported):
-        quality, warnings = assess(
+        quality, warnings = assess(Trace(
             geometry=dataclasses.replace(GEOMETRY, proximal_length=GEOMETRY.proximal_length - 3e-3),
             camera_names=("cam_a", "cam_b"), notches=[], coords_s=np.linspace(0.0, 50e-3, 1000),
             camera=np.zeros(1000, np.int8), tip_s=50e-3, total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.0,
             notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0, depth_steps={},
             cross_view_spread=0.03e-3, notched_thinning=0.04e-3, outline_offset=0.02e-3, unsupported=unsupported,
-            notch_centres=GEOMETRY.notch_centers_s)
+            notch_centres=GEOMETRY.notch_centers_s))
         return quality["centerline_uncertainty_mm"], _by_code(warnings)
 
     measured, quiet = stated(())
@@ -1863,13 +1863,13 @@ def test_quality_gives_the_centreline_an_uncertainty_and_warns_above_its_floor()
         if cam_b_up_to is not None:  # cam_a sees the whole tube, cam_b up to there
             s = np.concatenate([s, np.linspace(0.0, cam_b_up_to, 750)])
             seen_by = np.concatenate([seen_by, np.ones(750, np.int8)])
-        return assess(geometry=seen_to_tip, camera_names=("cam_a", "cam_b"), notches=[],
+        return assess(Trace(geometry=seen_to_tip, camera_names=("cam_a", "cam_b"), notches=[],
                       coords_s=s, camera=seen_by, tip_s=50e-3, wall_level=wall_level,
                       total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.0, notch_side=0.0, configured_side=0.0,
                       bias_notch_side=0.1e-3, bias_binormal=0.0, depth_steps={}, notched_thinning=thinning,
                       looking_into_slots=looking, cross_view_spread=spread, distal_cross_view=at_end,
                       held_shift=held, outline_offset=outline, across_from_fit=across_from_fit,
-                      fitted_end=fitted_end, notch_centres=GEOMETRY.notch_centers_s)
+                      fitted_end=fitted_end, notch_centres=GEOMETRY.notch_centers_s))
 
     quality, warnings = assessed(0.06e-3, 0.08e-3)
     print("\n" + "\n".join(map(str, warnings)))

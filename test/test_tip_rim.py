@@ -13,9 +13,9 @@ import pytest
 from synthetic_views import posed_scene, render_pair
 
 from ntcr_recon.core.centerline import Centerline
+from ntcr_recon.core.checks import Trace, assess
 from ntcr_recon.core.geometry import TubeGeometry
 from ntcr_recon.core.pipeline import Reconstructor
-from ntcr_recon.core.quality import assess
 from ntcr_recon.core.tip import edge_band, half_density_end, rim_erosion, rim_tip, with_known_length
 
 UNIT = 1e-4
@@ -190,11 +190,11 @@ def test_the_tip_weighs_the_end_seen_against_the_robots_known_length():
     geometry = TubeGeometry()  # 53 mm straight
 
     def warnings_for(along, **more):
-        return assess(geometry=geometry, camera_names=("cam_a", "cam_b"), notches=[],
+        return assess(Trace(geometry=geometry, camera_names=("cam_a", "cam_b"), notches=[],
                       coords_s=np.linspace(0.0, along.s, 100), camera=np.arange(100) % 2, tip_s=along.s,
                       total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.0, notch_side=0.0, configured_side=0.0,
                       bias_notch_side=0.0, bias_binormal=0.0, depth_steps={}, tip_uncertainty=along.seen_uncertainty,
-                      tip_along=along, outline_offset=0.02e-3, **more)  # (the outline checked the axis)
+                      tip_along=along, outline_offset=0.02e-3, **more))  # (the outline checked the axis)
 
     quality, warnings = warnings_for(with_known_length(52.0e-3, 0.2e-3, geometry.length, 0.1e-3))
     print("\n" + "\n".join(map(str, warnings)))
@@ -295,15 +295,13 @@ def test_an_edge_band_measured_elsewhere_places_the_tip_and_a_wrong_one_is_refus
 ])
 def test_tip_warning_states_how_well_the_erosion_is_known(erosion, uncertainty, warned):
     from ntcr_recon.core.geometry import TubeGeometry
-    from ntcr_recon.core.quality import assess
-
     geometry = TubeGeometry()
     s = np.linspace(0.0, geometry.length, 2000)
-    _, warnings = assess(
+    _, warnings = assess(Trace(
         geometry=geometry, camera_names=("cam_a", "cam_b"), notches=[], coords_s=s,
         camera=(np.arange(len(s)) % 2).astype(np.int8), tip_s=geometry.length, total_bend=0.0, footprint=0.2e-3,
         wall_residual=0.05e-3, notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0,
-        depth_steps={}, tip_erosion=erosion, tip_uncertainty=uncertainty, outline_offset=0.02e-3)  # (checked)
+        depth_steps={}, tip_erosion=erosion, tip_uncertainty=uncertainty, outline_offset=0.02e-3))  # (checked)
     tip = [w for w in warnings if w.code == "TIP_ON_ERODED_RIM"]
     print(f"\ngiven back {erosion * 1e3:.2f} mm, uncertainty {uncertainty}: {tip}")
     if warned is None:

@@ -46,6 +46,7 @@ from ntcr_recon.core.centerline import (
     settings_for,
     turn_from_base,
 )
+from ntcr_recon.core.checks import Trace, assess
 from ntcr_recon.core.cloud import Cloud
 from ntcr_recon.core.comb import cut_intervals, expected_centres, inside_intervals
 from ntcr_recon.core.config import RigConfig
@@ -64,7 +65,6 @@ from ntcr_recon.core.notches import Notch, calibrate_and_check, detect_notches, 
 from ntcr_recon.core.outline import across_views_from, outline_offset, went_astray
 from ntcr_recon.core.quality import (
     CameraReach,
-    assess,
     camera_reach,
     cameras_looking_into_slots,
     centerline_uncertainty,
@@ -569,7 +569,7 @@ class Reconstructor:
         level, _ = surface_band(offset, settings.gate)
         near_wall = np.abs(offset - level) < settings.gate
         wall_residual = float(np.sqrt(np.mean((offset[near_wall] - level) ** 2))) if np.any(near_wall) else 0.0
-        quality, warnings = assess(
+        quality, warnings = assess(Trace(
             geometry=geometry, camera_names=self.config.camera_names, notches=notches,
             coords_s=axis.measured.s, camera=seen_by, tip_s=length.along.s, total_bend=length.total_bend,
             footprint=settings.cell, wall_residual=wall_residual, notch_side=sided.notch_side,
@@ -585,7 +585,8 @@ class Reconstructor:
             unsupported=aligned.cross_view.unsupported, backbone_shift=aligned.backbone_shift, misread_widths=misread,
             held_shift=None if alignment is None else (alignment.end_shift, alignment.held_from),
             unchecked=unchecked, reach=length.reach,
-            notch_centres=comb_centres, wall_level=level, fitted_end=length.fitted_end, reference_moved=reference_moved)
+            notch_centres=comb_centres, wall_level=level, fitted_end=length.fitted_end,
+            reference_moved=reference_moved))
         backbone_shift, side_uncertainty = aligned.backbone_shift, sided.side_uncertainty
         quality = {**quality, "tip_refinement": end.refinement,
                    "centerline_backbone_shift_mm": None if backbone_shift is None else backbone_shift * 1e3,

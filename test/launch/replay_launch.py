@@ -23,6 +23,10 @@ from sensor_msgs.msg import PointCloud2
 from launch import LaunchDescription
 
 WINDOW_S = 12.0
+# A quarter of the recorded rate, as the graph test of `ntcr-recon run` replays: a test checks that every pair the
+# graph can keep up with arrives, on 2 cores shared with the test runner; whether it keeps up with 30 Hz is
+# benchmarks/bench_graph.py's to measure (a speed target in a test fails on a loaded machine, not on slow code)
+RATE = 0.25
 
 
 @pytest.mark.launch_test
@@ -30,7 +34,8 @@ def generate_test_description():
     replay = os.path.join(get_package_share_directory("ntcr_recon"), "launch", "replay.launch.py")
     return LaunchDescription([
         IncludeLaunchDescription(PythonLaunchDescriptionSource(replay),
-                                 launch_arguments={"bag": os.environ["NTCR_TEST_BAG"], "loop": "true"}.items()),
+                                 launch_arguments={"bag": os.environ["NTCR_TEST_BAG"], "loop": "true",
+                                                   "rate": str(RATE)}.items()),
         launch_testing.actions.ReadyToTest(),
     ])
 
@@ -61,7 +66,7 @@ class TestReplay(unittest.TestCase):
         reached = sum(stamp in tips for stamp in counted)
         print(f"replay.launch.py: {reached} of {len(counted)} frame pairs reached /ntcr/tip "
               f"({100.0 * reached / max(len(counted), 1):.1f} %) over {WINDOW_S:.0f} s", flush=True)
-        self.assertGreater(len(counted), 0.7 * 30 * WINDOW_S)  # the cameras published at about 30 Hz
+        self.assertGreater(len(counted), 0.7 * 30 * RATE * WINDOW_S)  # the cameras published at about 30 Hz x RATE
         self.assertGreaterEqual(reached, 0.97 * len(counted))
 
 
