@@ -40,3 +40,11 @@ def test_core_io_and_sim_import_no_ros_module():
     result = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip() == "", f"ROS modules loaded by the core/io/sim: {result.stdout.strip()}"
+
+
+def test_every_module_the_tiers_name_is_a_test_module():
+    from conftest import REPO, TIERS
+
+    named = set().union(*TIERS.values())
+    assert named and all((REPO / "test" / f"{name}.py").is_file() for name in named), sorted(
+        name for name in named if not (REPO / "test" / f"{name}.py").is_file())
