@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import copy
 
+import numpy as np
 import pytest
 import tiny_rig
 from nav_msgs.msg import Path
@@ -15,7 +16,9 @@ from stage_probe import StageProbe
 from ntcr_recon.core.config import load_rig_config
 from ntcr_recon.core.pairing import FramePairer
 from ntcr_recon.core.pipeline import Reconstructor
+from ntcr_recon.io.pointcloud import cloud_to_msg
 from ntcr_recon.ros.messages import (
+    RCLPY,
     centerline_path_msg,
     relocation_cloud_msg,
     stage_cloud_from_msg,
@@ -23,6 +26,7 @@ from ntcr_recon.ros.messages import (
 )
 from ntcr_recon.ros.node_support import LATCHED_QOS, STAGE_QOS
 
+BIG_POINTS = 5_000_000  # 60 MB, as the issue sent: in fragments, over a while
 FUTURE_NS = 3_000 * 1_000_000_000  # an hour ahead of the bag's clock, as a wall-clock stamp on a replay would be
 
 
@@ -76,6 +80,43 @@ def test_mesh_node_meshes_on_after_future_stamped_clouds_and_after_a_jump_back(r
         assert len(probe.received) == count + 1
         assert "stamps jumped back by 3000" in graph.log_of(process)
         assert send(*_stamped(frames[-1], 33_000_000)) is not None
+        # a cloud too large, followed at once by an ordinary one: looked at only at the tick, it was never seen
+        log_before = len(graph.log_of(process))
+        probe.publisher.publish(big_cloud())
+        assert send(*frames[0]) is not None
+        assert graph.spin_until(lambda: "dropped a message (oversized)" in graph.log_of(process)[log_before:], 10), \
+            graph.log_of(process)[log_before:]
+        assert process.poll() is None
+
+
+def big_cloud():
+    return cloud_to_msg(np.zeros((BIG_POINTS, 3), np.float32), msgtypes=RCLPY, frame_id="ntcr_base", stamp_ns=7)
+
+
+def test_a_cloud_too_large_amid_the_stream_is_dropped_as_oversized(bags_dir):
+    # issue 66: sent into the running graph, a 5-million-point cloud was pushed out of the node's depth-1 queue by
+    # the next frame before its last fragment came: never taken, neither logged nor counted, memory held
+    rng = np.random.default_rng(0)
+    ordinary = cloud_to_msg(rng.uniform(-1e-3, 1e-3, (5000, 3)) + [0, 0, 0.01], msgtypes=RCLPY,
+                            frame_id="ntcr_base", stamp_ns=1)
+    big = big_cloud()
+    with RosGraph() as graph:
+        process = graph.start("filter_node", "--params-file", str(bags_dir / "bend45" / "rig.yaml"),
+                              "-p", f"max_points:={BIG_POINTS // 10}")
+        probe = StageProbe(graph, process, "/ntcr/fused/points", "/ntcr/filtered/points")
+        stream = graph.node.create_publisher(type(ordinary), "/ntcr/fused/points", STAGE_QOS)
+        graph.wait_for_subscribers(stream)
+        for k in range(450):  # a 30 Hz stream that goes on, the large cloud from another publisher after 1 s
+            stream.publish(ordinary)
+            if k == 30:
+                probe.publisher.publish(big)
+            graph.spin_until(lambda: False, 0.033)
+            if k % 15 == 0 and "oversized" in graph.log_of(process):
+                break
+        log = graph.log_of(process)
+        assert f"cloud of {BIG_POINTS}x1 = {BIG_POINTS} points exceeds max_points" in log, log
+        count = len(probe.received)
+        assert probe.send_and_wait(ordinary) is not None and len(probe.received) > count
         assert process.poll() is None
 
 

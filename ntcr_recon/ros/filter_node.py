@@ -1,7 +1,8 @@
 """filter_node: `<ns>/fused/points` -> `<ns>/filtered/points`, the core's filter chain (crop box, colour
 condition, statistical outlier removal Eq. 5, moving least squares Eq. 6, voxel grid) as the rig
 configuration's `filters` section sets it. Clouds must be in the configured base frame; a cloud of more than
-`max_points` points is dropped before it is read (logged, counted on /diagnostics).
+`max_points` points is dropped before it is decoded (logged, counted on /diagnostics): the subscription takes
+the serialized bytes, whose header gives the size, and decodes only what it keeps.
 """
 
 from __future__ import annotations
@@ -12,9 +13,9 @@ import time
 from sensor_msgs.msg import PointCloud2
 
 from ntcr_recon.core.pipeline import Reconstructor
-from ntcr_recon.ros.messages import check_point_count, stage_cloud_from_msg, stage_cloud_to_msg
+from ntcr_recon.ros.messages import check_raw_point_count, decode_cloud, stage_cloud_from_msg, stage_cloud_to_msg
 from ntcr_recon.ros.node_stats import NodeStats
-from ntcr_recon.ros.node_support import STAGE_QOS, RigNode, guarded, max_points_parameter, run_node
+from ntcr_recon.ros.node_support import STAGE_INPUT_QOS, STAGE_QOS, RigNode, guarded, max_points_parameter, run_node
 from ntcr_recon.ros.topics import stage_topic
 
 PARAMETERS = {
@@ -28,17 +29,20 @@ class FilterNode(RigNode):
         self.stats = NodeStats(self, "ntcr_recon: filter")
         self._publisher = self.create_publisher(PointCloud2, stage_topic(self.rig.topics, "filtered/points"),
                                                 STAGE_QOS)
-        self.create_subscription(PointCloud2, stage_topic(self.rig.topics, "fused/points"), self._on_cloud, STAGE_QOS)
+        self.create_subscription(PointCloud2, stage_topic(self.rig.topics, "fused/points"), self._on_cloud,
+                                 STAGE_INPUT_QOS,
+                                 raw=True)
         self.get_logger().info("filtering fused clouds")
 
     def configure(self, rig, params: dict) -> None:
         self.rig, self._reconstructor, self._params = rig, Reconstructor(rig), params
 
     @guarded
-    def _on_cloud(self, msg: PointCloud2) -> None:
+    def _on_cloud(self, raw: bytes) -> None:
         self.stats.received()
         started = time.perf_counter()
-        check_point_count(msg, self._params["max_points"])
+        check_raw_point_count(raw, self._params["max_points"])
+        msg = decode_cloud(raw)
         cloud = self._reconstructor.filter(stage_cloud_from_msg(msg, self.rig.base_frame, self.rig))
         self._publisher.publish(stage_cloud_to_msg(cloud, self.rig.base_frame))
         self.stats.published(cloud.stamp_ns, started)

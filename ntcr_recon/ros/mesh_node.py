@@ -35,6 +35,7 @@ from ntcr_recon.io.files import write_mesh
 from ntcr_recon.io.pointcloud import stamp_to_ns
 from ntcr_recon.ros.messages import (
     check_point_count,
+    check_raw_point_count,
     mesh_marker_bytes,
     mesh_msg_bytes,
     relocation_from_msgs,
@@ -43,7 +44,7 @@ from ntcr_recon.ros.messages import (
 from ntcr_recon.ros.node_stats import NodeStats
 from ntcr_recon.ros.node_support import (
     LATCHED_QOS,
-    STAGE_QOS,
+    STAGE_INPUT_QOS,
     ParameterError,
     RigNode,
     describe,
@@ -86,9 +87,9 @@ class MeshNode(RigNode):
         self._raw = self.create_publisher(Mesh, stage_topic(self.rig.topics, "mesh/raw"), LATCHED_QOS)
         self._newest_raw: bytes | None = None
         self.create_subscription(PointCloud2, stage_topic(self.rig.topics, "relocated/points"), self._on_cloud,
-                                 STAGE_QOS, raw=True)
-        self.create_subscription(Path, stage_topic(self.rig.topics, "centerline"), self._on_centerline, STAGE_QOS,
-                                 raw=True)
+                                 STAGE_INPUT_QOS, raw=True)
+        self.create_subscription(Path, stage_topic(self.rig.topics, "centerline"), self._on_centerline,
+                                 STAGE_INPUT_QOS, raw=True)
         self.get_logger().info(f"meshing relocated clouds at {self._params['rate']} Hz")
 
     def configure(self, rig, params: dict) -> None:
@@ -116,6 +117,9 @@ class MeshNode(RigNode):
     @guarded
     def _on_cloud(self, raw: bytes) -> None:
         self.stats.received()
+        # sized here, not at the tick: a cloud replaced by the next before the tick was never looked at, an
+        # oversized one then neither logged nor counted (issue 66)
+        check_raw_point_count(raw, self._params["max_points"])
         self._newest_raw = raw
 
     @guarded
