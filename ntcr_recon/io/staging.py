@@ -60,8 +60,9 @@ def staged_directory(target: str | os.PathLike, *, created_by_writer: bool = Fal
         remove_stale_staging(target)
         staging = Path(tempfile.mkdtemp(dir=target.parent, prefix=f".{target.name}{STAGING_INFIX}{os.getpid()}-"))
     except OSError as error:
-        raise StagingError(error.errno, f"{target} cannot be written: {error.strerror or error} in "
-                           f"{target.parent}") from error
+        refusal = StagingError(f"{target} cannot be written: {error.strerror or error} in {target.parent}")
+        refusal.errno = error.errno
+        raise refusal from error
     result = staging / target.name if created_by_writer else staging
     _ACTIVE.add(staging)
     try:
