@@ -99,3 +99,12 @@ def test_replay_launch_brings_97_percent_of_frame_pairs_to_the_tip(colcon_instal
 def test_rig_launch_without_cameras_waits_and_ends_on_ctrl_c(colcon_install):
     output = launch_test(colcon_install, "rig_no_camera_launch.py", 72)
     assert "waiting for the device" in output and "/diagnostics" in output, output[-3000:]
+
+
+def test_a_node_refusing_its_configuration_shuts_the_launch_down_with_the_reason(colcon_install):
+    output = launch_test(colcon_install, "refused_config_launch.py", 73, timeout=300)
+    # the reason, as the launch's own log line says it (test/launch/refused_config_launch.py logs it: launch does not)
+    assert "launch shut down: mesh_node-" in output and "refused its configuration (exit code 2)" in output, \
+        output[-3000:]
+    assert "process has died" in output and "exit code 2" in output, output[-3000:]  # launch's line for the exit
+    assert "robot.notch_count must be > 0" in output, output[-3000:]
