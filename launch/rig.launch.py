@@ -15,7 +15,7 @@ import os
 
 import yaml
 from ament_index_python.packages import get_package_share_directory
-from launch.actions import DeclareLaunchArgument, EmitEvent, OpaqueFunction, RegisterEventHandler
+from launch.actions import DeclareLaunchArgument, EmitEvent, LogInfo, OpaqueFunction, RegisterEventHandler
 from launch.conditions import IfCondition
 from launch.event_handlers import OnProcessExit
 from launch.events import Shutdown
@@ -60,7 +60,9 @@ def shutdown_on_refused_configuration(event, context) -> list:
     every respawn, forever; shut the launch down instead, naming it. Any other exit: respawn does its work."""
     if event.returncode != CONFIG_REFUSED:
         return []
-    return [EmitEvent(event=Shutdown(reason=f"{event.name} refused its configuration (exit code {CONFIG_REFUSED})"))]
+    # (event.name is the event's type; the process is event.process_name.) launch logs no shutdown's reason: say it
+    reason = f"{event.process_name} refused its configuration (exit code {CONFIG_REFUSED})"
+    return [LogInfo(msg=f"shutting the launch down: {reason}"), EmitEvent(event=Shutdown(reason=reason))]
 
 
 def common_arguments(default_config: str) -> list:
