@@ -55,6 +55,18 @@ def test_simulate_refuses_intrinsics_it_cannot_render_before_allocating(capsys, 
     assert code == 2 and "focal" in err
 
 
+@pytest.mark.parametrize("option, expected", [
+    (["--depth-unit", "0"], "cam_a.depth_unit must be > 0"),  # wrote a bag whose rig.yaml no reader accepts
+    (["--camera-distance", "1e6"], "cam_a.translation must lie in"),
+    (["--color-noise", "inf"], "colour noise must be finite"),
+    (["--seed", "-1"], "--seed -1"),
+])
+def test_simulate_refuses_what_the_rig_schema_refuses_before_rendering(capsys, tmp_path, option, expected):
+    code, err = run(capsys, "simulate", str(tmp_path / "bag"), *option, "--no-progress")
+    assert code == 2 and expected in err
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_simulate_into_a_full_disk_names_the_bag_and_leaves_nothing(capsys, tmp_path, monkeypatch):
     from ntcr_recon.sim import bag
 

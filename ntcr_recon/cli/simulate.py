@@ -99,6 +99,8 @@ def build_simulation(args: argparse.Namespace) -> Simulation:
             raise ValueError(f"--intrinsics {args.intrinsics}: {error}") from None
     if args.depth_unit is not None:
         intrinsics = dataclasses.replace(intrinsics, depth_unit=args.depth_unit)
+    if args.seed < 0:
+        raise ValueError(f"--seed {args.seed}: must be >= 0")
     if args.frames < 1:
         raise ValueError(f"--frames {args.frames}: must be at least 1")
     # before anything is rendered or written: a bag that may not fit, or longer than a test scene needs

@@ -118,17 +118,28 @@ class Simulation:
             raise ValueError(f"frames must be 1 to {MAX_FRAMES} per camera, got {self.frame_count}")
         if len(self.camera_names) != 2 or len(set(self.camera_names)) != 2 or not all(self.camera_names):
             raise ValueError(f"the rig has two cameras with distinct names, got {self.camera_names}")
-        if self.color_noise < 0:
-            raise ValueError(f"colour noise must be >= 0, got {self.color_noise}")
+        if not (math.isfinite(self.color_noise) and self.color_noise >= 0):
+            raise ValueError(f"colour noise must be finite and >= 0, got {self.color_noise}")
         self.emulation.validate()
         self.cameras: list[CameraPose] = facing_pair(self.camera_distance, names=self.camera_names,
                                                      distances=self.camera_distances, yaw_deg=self.camera_yaw_deg,
                                                      pitch_deg=self.camera_pitch_deg)
         self.scene = Scene(self.shape, self.cameras, self.intrinsics, self.props)
+        self._check_rig()
         clearance, where = self.scene.props_clearance()
         if clearance < 0:
             raise ValueError(f"the robot passes {-clearance * 1e3:.2f} mm into its clamp post or the table at "
                              f"{where * 1e3:.1f} mm along it: no rig holds this pose (bend it less)")
+
+    def _check_rig(self) -> None:
+        """The rig.yaml this scene writes, checked by the rig schema before anything is rendered: a value its
+        loader refuses (a depth unit of 0, say) made a bag that no reader could use."""
+        from ntcr_recon.core.config import ConfigError, rig_config_from_mapping
+
+        try:
+            rig_config_from_mapping(self.rig_parameters()["/**"]["ros__parameters"])
+        except ConfigError as error:
+            raise ValueError(f"the bag's rig configuration would be refused: {error}") from error
 
     @cached_property
     def exact(self) -> dict[str, ExactFrame]:
