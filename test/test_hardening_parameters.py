@@ -33,6 +33,20 @@ def test_a_bad_override_of_a_key_in_the_file_is_refused_naming_it(bags_dir, over
     assert expected in result.stderr
 
 
+@pytest.mark.parametrize("override, expected", [
+    ("max_points:=abc", "-p max_points:=abc: Wrong parameter type"),  # the node's own parameter, in the file too
+    ("max_points:=16.5", "-p max_points:=16.5: Wrong parameter type"),
+])
+def test_a_bad_override_of_a_nodes_own_parameter_in_the_file_is_refused(bags_dir, tmp_path, override, expected):
+    own = tmp_path / "own.yaml"
+    own.write_text("/**:\n  ros__parameters:\n    max_points: 60000\n")
+    argv = [str(VENV_BIN / "filter_node"), "--ros-args", "--params-file", str(bags_dir / "bend45" / "rig.yaml"),
+            "--params-file", str(own), "-p", override]
+    with RosGraph() as graph:
+        result = subprocess.run(argv, capture_output=True, text=True, timeout=60, env=graph.env)
+    assert result.returncode == 2 and expected in result.stderr
+
+
 def test_an_override_of_another_type_than_the_files_value_is_applied(bags_dir):
     # rcl kept the file's 16 for `-p robot.notch_count:=12.0` (a double for an integer) without a word
     with RosGraph() as graph:

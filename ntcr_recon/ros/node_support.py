@@ -386,15 +386,25 @@ class RigNode(Node):
         from ntcr_recon.core.schema import convert
 
         for target, name, text in COMMAND_LINE_OVERRIDES:
-            if not _targets(self, target) or name not in rig_keys:
+            if not _targets(self, target) or not self.has_parameter(name):
                 continue
-            try:
-                value = convert(name, rig_keys[name], ros_argument_value(text))
-            except ConfigError as error:
-                raise ParameterError(f"-p {name}:={text}: rig configuration: {error}") from error
-            value = list(value) if isinstance(value, tuple) else value
-            if self.get_parameter(name).value != value:
-                Node.set_parameters(self, [Parameter(name, value=value)])
+            value, current = ros_argument_value(text), self.get_parameter(name).value
+            if name in rig_keys:
+                try:
+                    value = convert(name, rig_keys[name], value)
+                except ConfigError as error:
+                    raise ParameterError(f"-p {name}:={text}: rig configuration: {error}") from error
+                value = list(value) if isinstance(value, tuple) else value
+            elif isinstance(current, float) and isinstance(value, int) and not isinstance(value, bool):
+                value = float(value)  # `-p rate:=2` for a double parameter
+            if current == value and type(current) is type(value):
+                continue
+            try:  # a node's own parameter: its declared type and range decide
+                result = Node.set_parameters(self, [Parameter(name, value=value)])[0]
+            except (ParameterException, TypeError, ValueError) as error:
+                raise ParameterError(f"-p {name}:={text}: {error}") from error
+            if not result.successful:
+                raise ParameterError(f"-p {name}:={text}: {result.reason}")
 
     def set_parameters_atomically(self, parameter_list):
         """The schema checks a rig parameter's new value first, so a refusal names the key, its unit and range
