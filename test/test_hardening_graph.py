@@ -4,12 +4,14 @@ large for a stage is dropped as oversized whichever node receives it."""
 from __future__ import annotations
 
 import copy
+import re
 
 import numpy as np
 import pytest
 import tiny_rig
 from nav_msgs.msg import Path
 from ros_graph import RosGraph
+from sensor_msgs.msg import PointCloud2
 from shape_msgs.msg import Mesh
 from stage_probe import StageProbe
 
@@ -78,11 +80,14 @@ def test_mesh_node_meshes_on_after_future_stamped_clouds_and_after_a_jump_back(r
         count = len(probe.received)
         assert send(*frames[0]) is not None  # the bag's own clock again: a jump back of an hour
         assert len(probe.received) == count + 1
-        assert "stamps jumped back by 3000" in graph.log_of(process)
+        jumps = [float(j) for j in re.findall(r"stamps jumped back by ([0-9.]+) s", graph.log_of(process))]
+        assert any(j > 2999 for j in jumps), graph.log_of(process)
         assert send(*_stamped(frames[-1], 33_000_000)) is not None
         # a cloud too large, followed at once by an ordinary one: looked at only at the tick, it was never seen
         log_before = len(graph.log_of(process))
-        probe.publisher.publish(big_cloud())
+        hostile = graph.node.create_publisher(PointCloud2, "/ntcr/relocated/points", STAGE_QOS)  # its own writer
+        graph.wait_for_subscribers(hostile)
+        hostile.publish(big_cloud())
         assert send(*frames[0]) is not None
         assert graph.spin_until(lambda: "dropped a message (oversized)" in graph.log_of(process)[log_before:], 10), \
             graph.log_of(process)[log_before:]
