@@ -169,6 +169,7 @@ def test_relocation_node_survives_malformed_clouds(scene, relocation_probe, defe
 def test_relocation_node_logs_a_cloud_without_a_robot_and_goes_on(scene, relocation_probe):
     probe = relocation_probe
     stray = stage_cloud_to_msg(stage_cloud_from_msg(scene[3][0], "ntcr_base").subset(np.arange(10)), "ntcr_base")
+    stray.header.stamp.sec += 7  # a stamp of its own, whose /diagnostics status is this cloud's alone
     log_before = len(probe.graph.log_of(probe.process))
     count = len(probe.received)
     probe.publisher.publish(stray)
@@ -180,6 +181,27 @@ def test_relocation_node_logs_a_cloud_without_a_robot_and_goes_on(scene, relocat
     status, values = quality_of(probe, stamp_to_ns(stray.header.stamp))
     assert status.level == DiagnosticStatus.ERROR and values["status"] == "error"
     assert probe.send_and_wait(scene[3][0]) is not None
+
+
+def test_relocation_node_drops_a_cloud_over_max_points_before_decoding_it(scene, relocation_probe):
+    probe, good = relocation_probe, scene[3][1]
+    big = stage_cloud_to_msg(stage_cloud_from_msg(good, "ntcr_base").subset(np.zeros(900_000, int)), "ntcr_base")
+    log_before = len(probe.graph.log_of(probe.process))
+    probe.publisher.publish(big)
+    assert probe.graph.spin_until(lambda: "exceeds max_points" in probe.graph.log_of(probe.process)[log_before:], 20)
+    assert stamp_to_ns(probe.send_and_wait(good).header.stamp) == stamp_to_ns(good.header.stamp)
+
+
+def test_relocation_node_starts_afresh_after_its_stamps_jump(scene, relocation_probe):
+    # a cloud an hour ahead, then the data's own clock again: neither frame starts from the other's centreline
+    probe, good = relocation_probe, scene[3][1]
+    ahead = stage_cloud_to_msg(stage_cloud_from_msg(good, "ntcr_base"), "ntcr_base")
+    ahead.header.stamp.sec += 3600
+    log_before = len(probe.graph.log_of(probe.process))
+    probe.send_and_wait(ahead)
+    probe.send_and_wait(good)
+    log = probe.graph.log_of(probe.process)[log_before:]
+    assert "stamps jumped ahead by 3600.000 s" in log and "stamps jumped back by 3600.000 s" in log, log
 
 
 def test_mesh_node_meshes_as_the_core_and_late_subscribers_get_it(scene, mesh_probe):

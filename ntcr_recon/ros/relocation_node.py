@@ -42,7 +42,8 @@ from ntcr_recon.core.pipeline import ReconstructionError, Reconstructor
 from ntcr_recon.ros.messages import (
     NotchMarkers,
     centerline_path_bytes,
-    check_point_count,
+    check_raw_point_count,
+    decode_cloud,
     frame_rotations,
     notches_array,
     pose_stamped,
@@ -52,6 +53,7 @@ from ntcr_recon.ros.messages import (
 from ntcr_recon.ros.node_stats import NodeStats
 from ntcr_recon.ros.node_support import (
     LATCHED_QOS,
+    STAGE_INPUT_QOS,
     STAGE_QOS,
     ParameterError,
     RigNode,
@@ -82,7 +84,9 @@ class RelocationNode(RigNode):
         self._notches = self.create_publisher(Float64MultiArray, stage_topic(topic, "notches"), STAGE_QOS)
         self._markers = self.create_publisher(MarkerArray, stage_topic(topic, "notches/markers"), STAGE_QOS)
         self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.create_subscription(PointCloud2, stage_topic(topic, "filtered/points"), self._on_cloud, STAGE_QOS)
+        self.create_subscription(PointCloud2, stage_topic(topic, "filtered/points"), self._on_cloud, STAGE_INPUT_QOS,
+                                 raw=True)
+        self._last_stamp_ns: int | None = None  # the previous cloud's, to start afresh after a jump of the stamps
         for camera in self.rig.camera_names:
             self.create_subscription(Float64, edge_band_topic(topic, camera),
                                      functools.partial(self._on_edge_band, camera), LATCHED_QOS)
@@ -104,13 +108,14 @@ class RelocationNode(RigNode):
         self.get_logger().info(f"edge band of '{camera}' received: {msg.data * 1e3:.2f} mrad")
 
     @guarded
-    def _on_cloud(self, msg: PointCloud2) -> None:
+    def _on_cloud(self, raw: bytes) -> None:
         self.stats.received()
         started = time.perf_counter()
-        check_point_count(msg, self._params["max_points"])
+        check_raw_point_count(raw, self._params["max_points"])  # before decoding it
+        msg = decode_cloud(raw)
         cloud = stage_cloud_from_msg(msg, self.rig.base_frame, self.rig)
         try:
-            relocation = self._reconstructor.relocate(cloud, warm_start=self._params["warm_start"])
+            relocation = self._reconstructor.relocate(cloud, warm_start=self._warm_start(cloud.stamp_ns))
         except ReconstructionError as error:
             self._diagnostics.publish(DiagnosticArray(header=msg.header, status=[quality_status(
                 self.get_name(), msg.header.stamp, None, error=str(error))]))
@@ -133,6 +138,20 @@ class RelocationNode(RigNode):
         self._publish_quality(relocation, msg.header)
         if self._params["output_dir"]:
             self._write(PathLib(self._params["output_dir"]).expanduser() / "relocated.ply", relocation)
+
+    def _warm_start(self, stamp_ns: int) -> bool:
+        """Whether this frame starts from the previous frame's centreline: not after a jump of the stamps either way
+        (a replay looping back, a camera reset, one stray cloud from the future), longer than fusion.camera_timeout,
+        which would start it from a robot of another time; a line says so."""
+        last, self._last_stamp_ns = self._last_stamp_ns, stamp_ns
+        if not self._params["warm_start"] or last is None:
+            return bool(self._params["warm_start"])
+        jump = (stamp_ns - last) * 1e-9
+        if jump < 0 or jump > self.rig.fusion.camera_timeout:
+            self.get_logger().info(f"stamps jumped {'back' if jump < 0 else 'ahead'} by {abs(jump):.3f} s: this "
+                                   "frame's centreline starts afresh, not from the previous frame's")
+            return False
+        return True
 
     def _publish_quality(self, relocation, header) -> None:
         """The frame's status and self-check on /diagnostics (quality_status)."""
