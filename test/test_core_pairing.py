@@ -92,3 +92,17 @@ def test_stamps_jumping_back_restart_the_pairing():
 def test_an_unknown_camera_is_refused_by_name():
     with pytest.raises(ValueError, match="'cam_z'"):
         pairer().add("cam_z", 0, None)
+
+
+def test_what_was_in_force_at_a_stamp_whatever_order_it_came_in():
+    from ntcr_recon.core.pairing import InForce
+
+    infos = InForce(history=3)
+    assert infos.at(10) is None and not infos
+    infos.add(20, "b")               # came after data stamped 10: the nearest later one is in force there
+    assert infos.at(10) == (20, "b") and infos.any_after(10) and not infos.any_after(20)
+    infos.add(10, "a")               # written after the later one, as a recording may
+    assert infos.at(10) == (10, "a") and infos.at(15) == (10, "a") and infos.at(25) == (20, "b")
+    infos.add(30, "c")
+    infos.add(40, "d")               # bounded: the first to come goes first (20 here)
+    assert infos.at(25) == (10, "a") and infos.at(45) == (40, "d")

@@ -237,3 +237,33 @@ def test_camera_info_with_an_impossible_value_is_dropped_naming_it(fusion, field
     assert "Traceback" not in fusion.graph.log_of(fusion.process)
     fusion.graph.node.destroy_publisher(publisher)
     test_a_pair_is_fused_as_the_core_fuses_it(fusion)  # the last good camera_info still serves
+
+
+def test_each_cloud_takes_the_camera_info_in_force_at_its_own_stamp(fusion):
+    # issue 65: a camera_info stamped later that came first (recordings give no order within an instant, a replay
+    # may deliver it ahead) is not the one in force for an earlier cloud; the newest received was taken before
+    publishers = {c: fusion.graph.node.create_publisher(CameraInfo, f"/ntcr/{c}/depth/camera_info", SENSOR_QOS)
+                  for c in tiny_rig.CAMERAS}
+    later, earlier = 5_000 * PERIOD, 4_990 * PERIOD
+    for camera, publisher in publishers.items():
+        fusion.graph.wait_for_subscribers(publisher)
+        info = CameraInfo(header=header(f"{camera}_optical_frame", later), width=tiny_rig.INTRINSICS.width,
+                          height=tiny_rig.INTRINSICS.height)
+        info.k = np.array([2 * tiny_rig.INTRINSICS.fx, 0, tiny_rig.INTRINSICS.cx, 0, 2 * tiny_rig.INTRINSICS.fy,
+                           tiny_rig.INTRINSICS.cy, 0, 0, 1], float)  # a focal length twice as long from `later` on
+        for _ in range(3):
+            publisher.publish(info)
+            fusion.graph.spin_until(lambda: False, 0.1)
+
+    def footprint_at(stamp: int) -> float:
+        count = len(fusion.received)
+        for _ in range(20):
+            send_pair(fusion, stamp, stamp + 1_000_000)
+            if fusion.graph.spin_until(lambda: any(stamp_to_ns(m.header.stamp) == stamp
+                                                   for m in fusion.received[count:]), 0.5):
+                break
+        out = next(m for m in fusion.received[count:] if stamp_to_ns(m.header.stamp) == stamp)
+        return stage_cloud_from_msg(out, "ntcr_base").pixel_footprint
+
+    before, after = footprint_at(earlier), footprint_at(later)
+    assert before > 0 and after == pytest.approx(before / 2, rel=1e-5)

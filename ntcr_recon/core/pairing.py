@@ -35,6 +35,32 @@ import numpy as np
 from ntcr_recon.core.fusion import CameraFrame, FramePair
 
 
+class InForce:
+    """What was in force at a stamp, of items stamped as they came (a camera's camera_info): the newest stamped at
+    or before it, else (it came after the data it belongs to: recordings give no order among the messages of one
+    instant) the nearest later one. Keeps the last `history` items, whatever the order they came in."""
+
+    def __init__(self, history: int = 8) -> None:
+        self._items: deque[tuple[int, Any]] = deque(maxlen=history)
+
+    def __bool__(self) -> bool:
+        return bool(self._items)
+
+    def add(self, stamp_ns: int, item: Any) -> None:
+        self._items.append((stamp_ns, item))
+
+    def at(self, stamp_ns: int) -> tuple[int, Any] | None:
+        """(its stamp, the item) in force at stamp_ns; None when nothing came yet."""
+        if not self._items:
+            return None
+        earlier = [entry for entry in self._items if entry[0] <= stamp_ns]
+        return (max(earlier, key=lambda e: e[0]) if earlier else min(self._items, key=lambda e: e[0]))
+
+    def any_after(self, stamp_ns: int) -> bool:
+        """Whether an item stamped after stamp_ns came (so nothing of stamp_ns itself is still to come, in order)."""
+        return any(entry[0] > stamp_ns for entry in self._items)
+
+
 def pair_frames(streams: dict[str, list[CameraFrame]], slop_ns: int) -> list[FramePair]:
     """Pair frames of several cameras whose stamps differ by at most slop_ns (approximate time).
 

@@ -32,6 +32,7 @@ from ntcr_recon.core.config import RigConfig
 from ntcr_recon.core.deproject import Intrinsics
 from ntcr_recon.core.fusion import CameraFrame
 from ntcr_recon.core.input_checks import CameraInput
+from ntcr_recon.core.pairing import InForce
 from ntcr_recon.io.pointcloud import cloud_from_msg, stamp_to_ns
 
 _KINDS = ("depth", "depth_info", "color", "points")
@@ -119,7 +120,7 @@ class DepthFrameMatcher:
     def __init__(self, has_color: bool) -> None:
         self.has_color = has_color
         self.frames_without_info = 0
-        self._infos: deque[tuple[int, Any, Intrinsics]] = deque(maxlen=INFO_HISTORY)
+        self._infos = InForce(INFO_HISTORY)  # (camera_info, its Intrinsics) by stamp
         self._colors: dict[int, Any] = {}
         self._pending: deque[_PendingDepth] = deque()  # depth images not yet released, in their order
 
@@ -127,7 +128,7 @@ class DepthFrameMatcher:
         """Take one message; returns the frames it completes (in the order of their depth images)."""
         stamp = stamp_to_ns(msg.header.stamp)
         if kind == "depth_info":
-            self._infos.append((stamp, msg, Intrinsics.from_camera_info(msg)))
+            self._infos.add(stamp, (msg, Intrinsics.from_camera_info(msg)))
         elif kind == "color":
             waiting = next((p for p in self._pending if p.stamp_ns == stamp and p.color is None), None)
             if waiting is not None:
@@ -154,7 +155,7 @@ class DepthFrameMatcher:
             pending = self._pending[0]
             info = self._info_at(pending.stamp_ns)
             own_info = info is not None and (info[0] == pending.stamp_ns
-                                             or any(entry[0] > pending.stamp_ns for entry in self._infos))
+                                             or self._infos.any_after(pending.stamp_ns))
             complete = own_info and (pending.color is not None or not self.has_color)
             if not (complete or pending.superseded and info is not None):
                 if pending.superseded < INFO_WAIT:
@@ -167,10 +168,8 @@ class DepthFrameMatcher:
         return done
 
     def _info_at(self, stamp: int) -> tuple[int, Any, Intrinsics] | None:
-        if not self._infos:
-            return None
-        earlier = [entry for entry in self._infos if entry[0] <= stamp]
-        return max(earlier, key=lambda e: e[0]) if earlier else min(self._infos, key=lambda e: e[0])
+        entry = self._infos.at(stamp)
+        return None if entry is None else (entry[0], *entry[1])
 
 
 @dataclass

@@ -28,7 +28,7 @@ from sensor_msgs.msg import CameraInfo, PointCloud2
 
 from ntcr_recon.core.deproject import Intrinsics
 from ntcr_recon.core.fusion import FramePair, fuse
-from ntcr_recon.core.pairing import FramePairer, Release
+from ntcr_recon.core.pairing import FramePairer, InForce, Release
 from ntcr_recon.io.pointcloud import stamp_to_ns
 from ntcr_recon.ros.messages import (
     RefusedInputError,
@@ -78,7 +78,8 @@ class FusionNode(RigNode):
     def __init__(self, node_name: str = "fusion_node") -> None:
         self._pairer: FramePairer | None = None
         super().__init__(node_name, PARAMETERS)
-        self._intrinsics: dict[str, Intrinsics] = {}
+        # each camera's camera_infos by stamp: a cloud takes the one in force at its own stamp, whichever came first
+        self._intrinsics: dict[str, InForce] = {name: InForce() for name in self.rig.camera_names}
         self._publisher = self.create_publisher(PointCloud2, stage_topic(self.rig.topics, "fused/points"), STAGE_QOS)
         self.stats = NodeStats(self, DIAGNOSTIC_NAME, diagnostics_period=self._params["diagnostics_period"],
                                status=self._status)
@@ -113,7 +114,8 @@ class FusionNode(RigNode):
     def _on_info(self, item) -> None:
         name, msg = item
         try:
-            self._intrinsics[name] = intrinsics_from_camera_info(msg)
+            intrinsics = intrinsics_from_camera_info(msg)
+            self._intrinsics.setdefault(name, InForce()).add(stamp_to_ns(msg.header.stamp), intrinsics)
         except RefusedInputError as error:
             raise RefusedInputError(f"camera_info of {name}: {error}", error.reason) from error
 
@@ -125,11 +127,12 @@ class FusionNode(RigNode):
         check_raw_point_count(raw, self._params["max_points"])
         msg = decode_cloud(raw)
         xyz, rgb, pixel, organised_width = camera_cloud_from_msg(msg, self.rig.cameras[name].frame_id)
+        stamp = stamp_to_ns(msg.header.stamp)
         if pixel is not None:  # before camera_frame lays them out on a grid of their span
             camera = self.rig.cameras[name]
-            size = self._intrinsics.get(name) or Intrinsics(camera.width, camera.height, 1.0, 1.0, 0.0, 0.0)
+            size = self._intrinsics_at(name, stamp) or Intrinsics(camera.width, camera.height, 1.0, 1.0, 0.0, 0.0)
             check_pixels(pixel, size.width, size.height, f"camera {name}")
-        step = self._pairer.add(name, stamp_to_ns(msg.header.stamp), (xyz, rgb, pixel, organised_width))
+        step = self._pairer.add(name, stamp, (xyz, rgb, pixel, organised_width))
         if step.restarted_after_jump_s is not None:
             self.get_logger().warning(f"camera '{name}' stamps jumped back by {step.restarted_after_jump_s:.3f} s: "
                                       "pairing starts afresh")
@@ -147,7 +150,8 @@ class FusionNode(RigNode):
 
     def _publish(self, release: Release, started: float) -> None:
         # with camera_info known, the core gives the fused cloud its pixel footprint (0 until then)
-        frames = {name: camera_frame(name, release.stamp_ns, xyz, rgb, pixel, width, self._intrinsics.get(name))
+        frames = {name: camera_frame(name, release.stamp_ns, xyz, rgb, pixel, width,
+                                     self._intrinsics_at(name, release.stamp_ns))
                   for name, (xyz, rgb, pixel, width) in release.items.items()}
         cloud = fuse(FramePair(release.stamp_ns, frames), self.rig)
         if not len(cloud):  # no camera saw anything in the crop box: nothing for the stages (counted, not logged)
@@ -155,6 +159,11 @@ class FusionNode(RigNode):
             return
         self._publisher.publish(stage_cloud_to_msg(cloud, self.rig.base_frame))
         self.stats.published(release.stamp_ns, started)
+
+    def _intrinsics_at(self, name: str, stamp_ns: int) -> Intrinsics | None:
+        """The camera's intrinsics in force at stamp_ns (core.pairing.InForce); None before any camera_info."""
+        entry = self._intrinsics.get(name, InForce()).at(stamp_ns)
+        return None if entry is None else entry[1]
 
     def _status(self) -> tuple[bytes | None, str, dict[str, object]]:
         pairer = self._pairer
