@@ -385,7 +385,9 @@ class RigNode(Node):
         from ntcr_recon.core.config import ConfigError
         from ntcr_recon.core.schema import convert
 
-        for target, name, text in COMMAND_LINE_OVERRIDES:
+        # as rcl does, the last `-p` of a name is the one in force (an earlier one of it is no error)
+        last = {(target, name): (target, name, text) for target, name, text in COMMAND_LINE_OVERRIDES}
+        for target, name, text in last.values():
             if not _targets(self, target) or not self.has_parameter(name):
                 continue
             value, current = ros_argument_value(text), self.get_parameter(name).value
