@@ -100,3 +100,30 @@ def test_every_code_raised_is_listed_and_every_listed_code_is_raised():
 def test_the_readme_lists_the_codes_as_the_module_does():
     assert codes_table() in (REPO / "README.md").read_text(), (
         "README's table of warning codes differs: paste core.findings.codes_table()")
+
+
+def _trace_with_offsets(offsets, reach=None):
+    from ntcr_recon.core.checks import Trace
+
+    return Trace(geometry=None, camera_names=("cam_a", "cam_b"), notches=[], coords_s=None, camera=None, tip_s=0.05,
+                 total_bend=0.0, footprint=0.2e-3, wall_residual=0.0, notch_side=0.0, configured_side=0.0,
+                 bias_notch_side=0.0, bias_binormal=0.0, depth_steps={}, cross_view_offsets=offsets,
+                 centerline_tolerance=0.08e-3, reach=reach)
+
+
+@pytest.mark.parametrize(("offsets", "warned"), [
+    (((-0.007e-3, 0.005e-3), (-0.009e-3, 0.004e-3)), False),  # exact extrinsics (matrix row straight)
+    (((0.138e-3, 0.005e-3), (0.128e-3, 0.006e-3)), True),     # cam_b turned 0.3 deg: 0.266 mm apart, 34 sigma
+    (((0.138e-3, 0.07e-3), (0.128e-3, 0.08e-3)), False),      # as far apart, but within the windows' noise
+    (((0.06e-3, 0.002e-3), (0.06e-3, 0.002e-3)), False),      # significant, the axis 0.06 mm off: within 0.08
+    (((0.138e-3, 0.005e-3), None), False),                    # one camera placed too few windows
+])
+def test_extrinsics_disagree_where_the_cameras_shifts_are_rigid_and_matter(offsets, warned):
+    from ntcr_recon.core.checks import extrinsics
+
+    figures, found = extrinsics(_trace_with_offsets(offsets), None)
+    assert [f.code for f in found] == (["EXTRINSICS_DISAGREE"] if warned else [])
+    if offsets[1] is not None:
+        assert figures["cameras_across_view_offset_mm"] == pytest.approx(abs(offsets[0][0] + offsets[1][0]) * 1e3)
+    if warned:
+        assert found[0].figures["offset_mm"] == pytest.approx(0.266) and found[0].figures["turn_deg"] is None

@@ -292,6 +292,13 @@ class CrossView:
     unsupported: tuple[tuple[float, float], ...] = ()  # s intervals (m) of two windows or more where no camera
                                                          # holds enough trusted wall points to place the axis
     distal: float | None = None  # m, the same RMS over the cameras in the last window where any places the axis
+    # per camera (in camera order) its shift's mean over the windows and that mean's standard error (m); None for a
+    # camera placing the axis in fewer than MIN_OFFSET_WINDOWS windows. What the windows share is rigid: a pose
+    # in the rig file off the camera's (matcher noise varies window to window)
+    offsets: tuple[tuple[float, float] | None, ...] = ()
+
+
+MIN_OFFSET_WINDOWS = 4  # windows a camera's mean shift across its view is taken over, at least
 
 
 def cross_view_spread(centerline: Centerline, coords: TubeCoordinates, frames: tuple, viewpoints: np.ndarray,
@@ -330,8 +337,10 @@ def cross_view_spread(centerline: Centerline, coords: TubeCoordinates, frames: t
     slope = np.full(count.shape, np.nan)
     slope[solvable] = (count * sine_offset - sine * offset)[solvable] / spread[solvable]
     last = slope[np.flatnonzero(solvable.any(axis=1))[-1]]
+    offsets = tuple((float(np.mean(b)), float(np.std(b, ddof=1) / np.sqrt(len(b))))
+                    if len(b := column[~np.isnan(column)]) >= MIN_OFFSET_WINDOWS else None for column in slope.T)
     return CrossView(float(np.sqrt(np.nanmean(slope ** 2))), unsupported,
-                     float(np.sqrt(np.nanmean(last ** 2))))
+                     float(np.sqrt(np.nanmean(last ** 2))), offsets)
 
 
 def _unsupported(best_count: np.ndarray, window: float, margin: float, end_s: float, minimum_points: int

@@ -97,6 +97,9 @@ CODES: dict[str, Code] = {
                               "a pose both cameras see, or cameras further back (70 mm minimum depth)"),
     "CAMERA_SHORT_VIEW": Code("warn", "a camera saw under half of the robot's length", "check its view of "
                               "the robot"),
+    "EXTRINSICS_DISAGREE": Code("warn", "the cameras place the axis apart across their views alike all along the "
+                                "tube: their poses in the rig file disagree (figures: the offset, as a turn)",
+                                "recalibrate the rig's extrinsics; check the cameras' mounts"),
     # the tip
     "TIP_ON_ERODED_RIM": Code("info", "the tip rests on a stereo-eroded rim, uncertain as stated", "none"),
     "TIP_ON_END_CAP": Code("info", "the tip is the end cap's plane (the tube points at a camera), uncertain as "

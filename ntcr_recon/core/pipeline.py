@@ -581,6 +581,8 @@ class Reconstructor:
             notched_thinning=thinning, looking_into_slots=looking, tip_from_cap=end.from_cap,
             side_unsettled=sided.unsettled, side_uncertainty=sided.side_uncertainty,
             cross_view_spread=aligned.cross_view.spread, distal_cross_view=aligned.cross_view.distal,
+            cross_view_offsets=aligned.cross_view.offsets,
+            centerline_tolerance=self.config.quality.centerline_tolerance,
             alignment_scatter=aligned.scatter, outline_offset=aligned.outline, across_from_fit=aligned.across_from_fit,
             unsupported=aligned.cross_view.unsupported, backbone_shift=aligned.backbone_shift, misread_widths=misread,
             held_shift=None if alignment is None else (alignment.end_shift, alignment.held_from),
