@@ -152,3 +152,22 @@ def test_bags_written_either_way_give_every_frame(bags_dir, tmp_path, order):
     source = list(BagSource(bag, "cam_a", TopicConfig()))
     assert [f.stamp_ns for f in source] == [f.stamp_ns for f in reference["cam_a"]]
     assert all(f.color is not None and _stamp(f.camera_info) == f.stamp_ns for f in source)
+
+
+def test_a_replays_pacing_starts_afresh_where_its_stamps_jump():
+    from ntcr_recon.io.camera_sources import Pacer
+
+    period = 33_333_333
+    pacer = Pacer(rate=0.5, start_wall=100.0, jump_s=0.5)
+    assert pacer.due(10 * period, now=100.0) == 100.0
+    assert pacer.due(11 * period, now=100.0) == pytest.approx(100.0 + 2 * period * 1e-9)  # half speed
+    assert pacer.due(11 * period, now=101.0) == pytest.approx(100.0 + 2 * period * 1e-9) and pacer.jumped is None
+    # a camera reset: its stamps start again from 0. Due now, not 0.7 s before the replay began (every later frame
+    # would have been skipped as late)
+    assert pacer.due(0, now=105.0) == 105.0 and pacer.jumped == pytest.approx(-11 * period * 1e-9)
+    assert pacer.due(period, now=105.0) == pytest.approx(105.0 + 2 * period * 1e-9) and pacer.jumped is None
+    # an hour's gap in the recording: due now, not an hour on (the replay stalled for it)
+    hour = 3600 * 10**9
+    assert pacer.due(period + hour, now=106.0) == 106.0 and pacer.jumped == pytest.approx(3600.0)
+    # a gap within the jump bound is waited for, as recorded
+    assert pacer.due(period + hour + 10 * period, now=106.0) == pytest.approx(106.0 + 20 * period * 1e-9)

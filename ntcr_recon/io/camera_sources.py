@@ -136,3 +136,31 @@ class BagSource:
                                   intrinsics=item.intrinsics, color=color, camera_info=item.info)
         except BagError as error:
             raise SourceError(str(error)) from error
+
+
+class Pacer:
+    """When each frame of a replay is due on the wall clock (s), at `rate` times the recorded speed, from the first
+    frame's stamp and `start_wall`. Its stamps jumping back, or ahead by more than `jump_s` (a recording with a gap
+    or a camera reset, stamps of another clock), would make every later frame due long ago (all skipped as late)
+    or far ahead (the replay stalled for the gap): pacing starts afresh there, due now, and `jumped` says by how
+    far (s; None: no jump at the last frame)."""
+
+    def __init__(self, rate: float, start_wall: float, jump_s: float) -> None:
+        self.rate, self.start_wall, self.jump_s = rate, start_wall, jump_s
+        self._origin: tuple[float, int] | None = None
+        self._last: int | None = None
+        self.jumped: float | None = None
+
+    def due(self, stamp_ns: int, now: float) -> float:
+        """The wall time the frame of stamp_ns is due (the same frame asked again: the same answer)."""
+        self.jumped = None
+        if self._origin is None:
+            self._origin = (self.start_wall, stamp_ns)
+        elif stamp_ns != self._last:
+            jump = (stamp_ns - self._last) * 1e-9
+            if jump < 0 or jump > self.jump_s:
+                self._origin, self.jumped = (now, stamp_ns), jump
+        self._last = stamp_ns
+        start_wall, start_stamp = self._origin
+        return start_wall + (stamp_ns - start_stamp) * 1e-9 / self.rate
+

@@ -48,7 +48,7 @@ from ntcr_recon.core.filters import crop_mask
 from ntcr_recon.core.quality import depth_quantisation_warning, depth_step
 from ntcr_recon.core.tip import EDGE_BAND_ATTEMPTS, edge_band_angle
 from ntcr_recon.core.transforms import transform_points
-from ntcr_recon.io.camera_sources import BagSource, SourceError, SourceFrame
+from ntcr_recon.io.camera_sources import BagSource, Pacer, SourceError, SourceFrame
 from ntcr_recon.ros.graph import START_DELAY_S
 from ntcr_recon.ros.messages import RCLPY, camera_cloud_to_msg, checked_intrinsics, header, stamp_msg
 from ntcr_recon.ros.node_stats import NodeStats
@@ -181,12 +181,21 @@ class CameraNode(RigNode):
 
     # ---- the producer thread -------------------------------------------------------------------------------
     def _due(self, stamp_ns: int) -> float | None:
-        """Wall-clock time (s) at which the frame of `stamp_ns` is due at `rate`; None when not paced."""
+        """Wall-clock time (s) at which the frame of `stamp_ns` is due at `rate` (io.camera_sources.Pacer: afresh
+        after a jump of the stamps, said in a line); None when not paced."""
         rate = self._params["rate"]
-        if rate <= 0 or self._params["source"] == "realsense" or self._pace_origin is None:
+        if rate <= 0 or self._params["source"] == "realsense":
             return None
-        start_wall, start_stamp = self._pace_origin
-        return start_wall + (stamp_ns - start_stamp) * 1e-9 / rate
+        if self._pacer is None:  # the first frame is due at start_time (even if that has passed: then this node
+            # skips frames to catch up, in step with the others) or now
+            self._pacer = Pacer(rate, self._start_time(), self.rig.fusion.camera_timeout)
+        self._pacer.rate = rate  # as set now
+        due = self._pacer.due(stamp_ns, time.time())
+        if self._pacer.jumped is not None:
+            jump = self._pacer.jumped
+            self.get_logger().info(f"camera '{self.camera}': stamps jumped {'back' if jump < 0 else 'ahead'} by "
+                                   f"{abs(jump):.3f} s: the replay's pacing starts afresh")
+        return due
 
     def _start_time(self) -> float:
         """When the first frame is due: `start_time` (one instant for every camera of the graph), or now. When the
@@ -259,7 +268,7 @@ class CameraNode(RigNode):
         return False
 
     def _pump(self) -> None:
-        self._pace_origin = None
+        self._pacer = None
         if self._source is None and not self._wait_for_device():
             return
         if self._params["wait_for_subscriber"] and self._params["source"] != "realsense":
@@ -273,9 +282,6 @@ class CameraNode(RigNode):
             for frame in self._source:
                 if self._stop.is_set():
                     return
-                if self._pace_origin is None:  # the first frame is due at start_time (even if that has passed:
-                    # then this node skips frames to catch up, in step with the others) or now
-                    self._pace_origin = (self._start_time(), frame.stamp_ns)
                 due = self._due(frame.stamp_ns)
                 if due is not None and due > time.time() and self._stop.wait(due - time.time()):
                     return
