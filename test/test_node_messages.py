@@ -14,7 +14,7 @@ from nav_msgs.msg import Path
 from rclpy.serialization import deserialize_message, serialize_message
 from sensor_msgs.msg import CameraInfo, PointCloud2
 from shape_msgs.msg import Mesh, MeshTriangle
-from std_msgs.msg import ColorRGBA
+from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker
 
 from ntcr_recon.core.transforms import matrix_to_quaternion
@@ -95,6 +95,12 @@ def test_an_oversized_cloud_is_refused_from_its_header():
         messages.check_point_count(msg, 1000)
     assert error.value.reason == "oversized"
     messages.check_point_count(PointCloud2(width=1000, height=1), 1000)
+    # still serialized: the same rule read from the CDR header, whatever the frame_id's length pads it to
+    raw = serialize_message(PointCloud2(header=Header(frame_id="ntcr_base"), width=5_000, height=2))
+    with pytest.raises(messages.RefusedInputError, match="5000x2 = 10000 points exceeds max_points 1000"):
+        messages.check_point_count(raw, 1000)
+    messages.check_point_count(raw, 10_000)
+    messages.check_point_count(raw[:20], 1000)  # no header to read: decoding refuses it by its fault
 
 
 def test_pixels_outside_the_camera_image_are_refused():

@@ -8,7 +8,8 @@ field is exactly what rclpy writes), and the per-point arrays are spliced in wit
 
 CDR (XCDR1, little endian, as rmw_fastrtps writes it): a 4-byte encapsulation header, then the fields in order,
 each primitive aligned to its size relative to the end of that header; a sequence is a uint32 count and its
-elements; a string a uint32 length (with the terminating NUL) and its bytes.
+elements; a string a uint32 length (with the terminating NUL) and its bytes. The readers (`header_stamp_ns`,
+`cloud_size`) take either byte order, as the encapsulation says, and read a header before a message is decoded.
 """
 
 from __future__ import annotations
@@ -29,6 +30,32 @@ def _align(offset: int, size: int) -> int:
 
 
 _PROBE = (1.2345678901234567e-300, -9.87654321e-299, 3.14159e-301)  # a point no message holds by chance
+
+
+def _byte_order(raw: bytes) -> str:
+    """struct's byte order of a serialized message: encapsulation CDR_BE (0x0000) or CDR_LE (0x0001)."""
+    return ">" if raw[1] == 0 else "<"
+
+
+def header_stamp_ns(raw: bytes) -> int:
+    """The header stamp of a serialized message that starts with a std_msgs/Header (int32 sec, uint32 nanosec
+    right after the encapsulation); ValueError for bytes too short for it."""
+    if len(raw) < ENCAPSULATION + 8:
+        raise ValueError(f"message of {len(raw)} bytes is too short for a header stamp")
+    seconds, nanoseconds = struct.unpack_from(_byte_order(raw) + "iI", raw, ENCAPSULATION)
+    return seconds * 1_000_000_000 + nanoseconds
+
+
+def cloud_size(raw: bytes) -> tuple[int, int]:
+    """(height, width) of a serialized PointCloud2: after its header (stamp, then the string frame_id), two uint32
+    4-aligned; ValueError for bytes too short for them."""
+    try:
+        order = _byte_order(raw)
+        (length,) = struct.unpack_from(order + "I", raw, ENCAPSULATION + 8)
+        height, width = struct.unpack_from(order + "II", raw, _align(ENCAPSULATION + 12 + length, 4))
+    except (IndexError, struct.error):
+        raise ValueError(f"a PointCloud2 of {len(raw)} bytes is too short for its header") from None
+    return int(height), int(width)
 
 
 def _points_count_offset(empty_bytes: bytes, one_point_bytes: bytes) -> int:

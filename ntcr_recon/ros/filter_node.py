@@ -13,7 +13,7 @@ import time
 from sensor_msgs.msg import PointCloud2
 
 from ntcr_recon.core.pipeline import Reconstructor
-from ntcr_recon.ros.messages import check_raw_point_count, decode_cloud, stage_cloud_from_msg, stage_cloud_to_msg
+from ntcr_recon.ros.messages import decode_cloud, stage_cloud_from_msg, stage_cloud_to_msg
 from ntcr_recon.ros.node_stats import NodeStats
 from ntcr_recon.ros.node_support import STAGE_INPUT_QOS, STAGE_QOS, RigNode, guarded, max_points_parameter, run_node
 from ntcr_recon.ros.topics import stage_topic
@@ -41,8 +41,7 @@ class FilterNode(RigNode):
     def _on_cloud(self, raw: bytes) -> None:
         self.stats.received()
         started = time.perf_counter()
-        check_raw_point_count(raw, self._params["max_points"])
-        msg = decode_cloud(raw)
+        msg = decode_cloud(raw, self._params["max_points"])  # refused when oversized before decoding
         cloud = self._reconstructor.filter(stage_cloud_from_msg(msg, self.rig.base_frame, self.rig))
         self._publisher.publish(stage_cloud_to_msg(cloud, self.rig.base_frame))
         self.stats.published(cloud.stamp_ns, started)

@@ -35,7 +35,6 @@ from ntcr_recon.ros.messages import (
     camera_cloud_from_msg,
     camera_frame,
     check_pixels,
-    check_raw_point_count,
     decode_cloud,
     intrinsics_from_camera_info,
     stage_cloud_to_msg,
@@ -124,8 +123,7 @@ class FusionNode(RigNode):
         name, raw = item
         self.stats.received()
         started = time.perf_counter()
-        check_raw_point_count(raw, self._params["max_points"])
-        msg = decode_cloud(raw)
+        msg = decode_cloud(raw, self._params["max_points"])  # refused when oversized before decoding
         xyz, rgb, pixel, organised_width = camera_cloud_from_msg(msg, self.rig.cameras[name].frame_id)
         stamp = stamp_to_ns(msg.header.stamp)
         if pixel is not None:  # before camera_frame lays them out on a grid of their span

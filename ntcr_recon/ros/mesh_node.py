@@ -18,14 +18,12 @@ every new mesh is also written to `<output_dir>/mesh.ply`.
 from __future__ import annotations
 
 import os
-import struct
 import sys
 import time
 from pathlib import Path as PathLib
 
 import numpy as np
 from nav_msgs.msg import Path
-from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import PointCloud2
 from shape_msgs.msg import Mesh
 from visualization_msgs.msg import Marker
@@ -33,9 +31,10 @@ from visualization_msgs.msg import Marker
 from ntcr_recon.core.pipeline import Reconstructor
 from ntcr_recon.io.files import write_mesh
 from ntcr_recon.io.pointcloud import stamp_to_ns
+from ntcr_recon.ros import cdr
 from ntcr_recon.ros.messages import (
     check_point_count,
-    check_raw_point_count,
+    decode,
     mesh_marker_bytes,
     mesh_msg_bytes,
     relocation_from_msgs,
@@ -119,7 +118,7 @@ class MeshNode(RigNode):
         self.stats.received()
         # sized here, not at the tick: a cloud replaced by the next before the tick was never looked at, an
         # oversized one then neither logged nor counted (issue 66)
-        check_raw_point_count(raw, self._params["max_points"])
+        check_point_count(raw, self._params["max_points"])
         self._newest_raw = raw
 
     @guarded
@@ -128,7 +127,7 @@ class MeshNode(RigNode):
         stamped in the future (a wrong clock, a replay looping, sim time starting) held the node's only places
         for good and no later cloud found its centreline (issue 66). A jump back of the stamps starts afresh,
         as fusion's pairing does; a jump forward ages out after CENTERLINES_KEPT arrivals."""
-        stamp = _header_stamp_ns(raw)
+        stamp = cdr.header_stamp_ns(raw)
         previous, self._last_centerline_ns = self._last_centerline_ns, stamp
         if previous is not None and stamp < previous - STAMP_JUMP_NS:
             self.get_logger().warning(f"centreline stamps jumped back by {(previous - stamp) / 1e9:.3f} s: "
@@ -143,8 +142,7 @@ class MeshNode(RigNode):
         """Decode and check the newest cloud (a bad one is logged by cause, counted and dropped)."""
         raw, self._newest_raw = self._newest_raw, None
         try:
-            msg = _deserialize(raw, PointCloud2, "relocated cloud")
-            check_point_count(msg, self._params["max_points"])
+            msg = decode(raw, PointCloud2, "relocated cloud")  # its size was checked as it came (_on_cloud)
             _, normals = stage_cloud_and_normals(msg, self.rig.base_frame, self.rig)  # refuse a bad cloud by name
             if normals is None:
                 raise ValueError("relocated cloud has no normal_x/normal_y/normal_z fields (is it relocation_node's?)")
@@ -164,7 +162,7 @@ class MeshNode(RigNode):
         if centerline is None:
             return  # its centreline is on the way (published right after the cloud)
         msg, self._newest = self._newest, None  # consumed first: a bad pair is not retried every tick
-        centerline = _deserialize(centerline, Path, "centreline")
+        centerline = decode(centerline, Path, "centreline")
         started = time.perf_counter()
         try:
             relocation = relocation_from_msgs(msg, centerline, self.rig.base_frame, self.rig)
@@ -197,24 +195,6 @@ class MeshNode(RigNode):
             return
         self.get_logger().info(f"wrote the mesh of {stamp} ns ({len(mesh.vertices)} vertices, "
                                f"{len(mesh.triangles)} triangles) to {path}")
-
-
-def _header_stamp_ns(raw: bytes) -> int:
-    """The header stamp of a serialized message that starts with a std_msgs/Header (after the 4-byte CDR
-    encapsulation: int32 sec, uint32 nanosec)."""
-    if len(raw) < 12:
-        raise ValueError(f"message of {len(raw)} bytes is too short for a header stamp")
-    big_endian = raw[1] == 0  # encapsulation CDR_BE (0x0000) or CDR_LE (0x0001)
-    seconds, nanoseconds = struct.unpack_from(">iI" if big_endian else "<iI", raw, 4)
-    return seconds * 1_000_000_000 + nanoseconds
-
-
-def _deserialize(raw: bytes, kind, what: str):
-    """A serialized message decoded, or a ValueError naming it (rclpy raises its own errors for broken bytes)."""
-    try:
-        return deserialize_message(raw, kind)
-    except Exception as error:
-        raise ValueError(f"{what} cannot be decoded: {type(error).__name__}: {error}") from error
 
 
 def main(args: list[str] | None = None) -> int:

@@ -69,52 +69,39 @@ class RefusedInputError(ValueError):
         self.reason = reason
 
 
-def check_point_count(msg: PointCloud2, max_points: int) -> None:
-    """Refuse a cloud of more than `max_points` points from its header alone, before a byte of it is read."""
-    count = int(msg.width) * int(msg.height)
-    if count > max_points:
-        raise RefusedInputError(f"cloud of {msg.width}x{msg.height} = {count} points exceeds max_points {max_points}",
-                             "oversized")
-
-
-def check_raw_point_count(raw: bytes, max_points: int) -> None:
-    """check_point_count on a serialized PointCloud2 (a raw subscription's bytes), before it is decoded: rclpy's
-    own decoding of a 5-million-point cloud took 75-150 MB that the process kept (issue 66). Bytes that are no
-    PointCloud2 header pass: decoding them refuses them by their fault."""
-    try:
-        height, width = raw_cloud_size(raw)
-    except RefusedInputError:
-        return
+def check_point_count(cloud: PointCloud2 | bytes, max_points: int) -> None:
+    """Refuse a cloud of more than `max_points` points from its header alone, before a byte of it is read: a
+    PointCloud2, or one still serialized (a raw subscription's bytes, whose decoding by rclpy took 75-150 MB for a
+    5-million-point cloud, which the process kept: issue 66). Bytes that hold no PointCloud2 header pass: decoding
+    them refuses them by their fault."""
+    if isinstance(cloud, bytes):
+        try:
+            height, width = cdr.cloud_size(cloud)
+        except ValueError:
+            return
+    else:
+        height, width = int(cloud.height), int(cloud.width)
     if height * width > max_points:
         raise RefusedInputError(f"cloud of {width}x{height} = {width * height} points exceeds max_points "
                                 f"{max_points}", "oversized")
 
 
-def decode_cloud(raw: bytes) -> PointCloud2:
-    """A serialized PointCloud2 decoded, or a RefusedInputError saying it cannot be (rclpy raises its own errors
-    for broken bytes)."""
+def decode(raw: bytes, kind, what: str):
+    """A serialized message of type `kind` decoded, or a RefusedInputError naming it as `what` (rclpy raises its
+    own errors for broken bytes)."""
     from rclpy.serialization import deserialize_message
 
     try:
-        return deserialize_message(raw, PointCloud2)
+        return deserialize_message(raw, kind)
     except Exception as error:
-        raise RefusedInputError(f"cloud cannot be decoded: {type(error).__name__}: {error}", "invalid") from error
+        raise RefusedInputError(f"{what} cannot be decoded: {type(error).__name__}: {error}", "invalid") from error
 
 
-def raw_cloud_size(raw: bytes) -> tuple[int, int]:
-    """(height, width) of a serialized PointCloud2 read from its CDR bytes (4 bytes of encapsulation, then the
-    header: int32 sec, uint32 nanosec, string frame_id; then uint32 height, width, 4-aligned)."""
-    import struct
-
-    try:
-        order = ">" if raw[1] == 0 else "<"  # CDR_BE (0x0000) or CDR_LE (0x0001)
-        (length,) = struct.unpack_from(order + "I", raw, 12)
-        offset = 16 + length
-        offset += -(offset - 4) % 4
-        height, width = struct.unpack_from(order + "II", raw, offset)
-    except (IndexError, struct.error):
-        raise RefusedInputError(f"a PointCloud2 of {len(raw)} bytes is too short for its header", "invalid") from None
-    return int(height), int(width)
+def decode_cloud(raw: bytes, max_points: int) -> PointCloud2:
+    """A stage's serialized input cloud: refused when oversized before it is decoded (check_point_count), then
+    decoded."""
+    check_point_count(raw, max_points)
+    return decode(raw, PointCloud2, "cloud")
 
 
 def check_pixels(pixel: np.ndarray, width: int, height: int, what: str) -> None:

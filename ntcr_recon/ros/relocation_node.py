@@ -42,7 +42,6 @@ from ntcr_recon.core.pipeline import ReconstructionError, Reconstructor
 from ntcr_recon.ros.messages import (
     NotchMarkers,
     centerline_path_bytes,
-    check_raw_point_count,
     decode_cloud,
     frame_rotations,
     notches_array,
@@ -113,8 +112,7 @@ class RelocationNode(RigNode):
     def _on_cloud(self, raw: bytes) -> None:
         self.stats.received()
         started = time.perf_counter()
-        check_raw_point_count(raw, self._params["max_points"])  # before decoding it
-        msg = decode_cloud(raw)
+        msg = decode_cloud(raw, self._params["max_points"])  # refused when oversized before decoding
         cloud = stage_cloud_from_msg(msg, self.rig.base_frame, self.rig)
         try:
             relocation = self._reconstructor.relocate(cloud, warm_start=self._warm_start(cloud.stamp_ns))
