@@ -25,6 +25,11 @@ REPO = Path(__file__).resolve().parents[1]
 WITHIN = {"centerline": 0.05, "tip": 0.10, "notch_width": 0.05}  # mm, within the default tolerances
 
 
+def _quality(uncertainty, found: int, expected: int = 16) -> dict:
+    """What result_status reads of a result's quality section."""
+    return {"uncertainty_mm": uncertainty, "notches_found": found, "notches_expected": expected}
+
+
 def test_a_finding_is_a_record_with_its_codes_severity():
     record = finding("ROBOT_ROLLED", "the notches open +15 deg ...", side_off_deg=15.0).as_dict()
     assert record == {"code": "ROBOT_ROLLED", "severity": "warn", "message": "the notches open +15 deg ...",
@@ -53,13 +58,13 @@ def test_findings_sort_errors_first_then_warnings_then_notes():
 ])
 def test_status_is_ok_only_with_every_notch_every_bound_within_tolerance_and_no_warning(findings, uncertainty, found,
                                                                                        expected):
-    assert result_status(findings, uncertainty, found, 16, QualityConfig()) == expected
+    assert result_status(findings, _quality(uncertainty, found), QualityConfig()) == expected
 
 
 def test_status_follows_the_rigs_own_tolerance():
     strict = QualityConfig(centerline_tolerance=0.04e-3)
-    assert result_status((), WITHIN, 16, 16, QualityConfig()) == "ok"
-    assert result_status((), WITHIN, 16, 16, strict) == "warn"
+    assert result_status((), _quality(WITHIN, 16), QualityConfig()) == "ok"
+    assert result_status((), _quality(WITHIN, 16), strict) == "warn"
 
 
 def test_notch_width_bounds_come_from_the_widths_disagreement_with_their_bends():

@@ -271,8 +271,7 @@ def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
     geometry = config.robot
     voxel = config.metrics.pdc_voxel
     result = {
-        "status": result_status(warnings, quality["uncertainty_mm"], quality["notches_found"], geometry.notch_count,
-                                config.quality),
+        "status": result_status(warnings, quality, config.quality),
         "frames": pair_count,
         "frames_combined": {"first": combined.first + 1, "last": combined.last + 1, "count": len(combined.items())},
         "notch_count_expected": geometry.notch_count,
@@ -283,7 +282,7 @@ def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
         "tip_m": relocation.tip.tolist(),
         "pdc": {"raw": pdc(raw.xyz, voxel), "relocated": pdc(relocation.relocated.xyz, voxel)},
         "ground_truth": _ground_truth(args.bag, raw, relocation),
-        "quality": quality,      # the self-check (core.quality), from the data alone
+        "quality": quality,      # the self-check (core.checks), from the data alone
         "warnings": [warning.as_dict() for warning in warnings],
     }
     steps.update()

@@ -19,7 +19,7 @@ Public API:
     CODES, Finding, finding(code, message, **figures), sort_by_severity(findings)
     notch_width_uncertainties(width_vs_bend, indices, limit), every_notch_factor(count)
     uncertainty_mm(quality, notch_uncertainties_mm) -> {"centerline", "tip", "notch_width"}
-    result_status(findings, uncertainty, notches_found, notches_expected, tolerance) -> "ok" | "warn" | "error"
+    result_status(findings, quality, tolerance) -> "ok" | "warn" | "error"
     codes_table() -> str  (the README's table)
 """
 
@@ -188,17 +188,18 @@ def uncertainty_mm(quality: Mapping[str, Any], notch_uncertainties_mm: Iterable[
             "notch_width": max(widths) * every_notch_factor(len(widths)) if widths else None}
 
 
-def result_status(findings: Iterable[Finding], uncertainty: Mapping[str, float | None], notches_found: int,
-           notches_expected: int, tolerance) -> str:
-    """ok / warn / error (module docstring). tolerance: config.QualityConfig (m)."""
+def result_status(findings: Iterable[Finding], quality: Mapping[str, Any], tolerance) -> str:
+    """ok / warn / error (module docstring) of a result's findings and its `quality` (its uncertainty_mm,
+    notches_found and notches_expected). tolerance: config.QualityConfig (m)."""
     severities = {f.severity for f in findings}
     if "error" in severities:
         return "error"
+    uncertainty, expected = quality["uncertainty_mm"], quality["notches_expected"]
     limits_mm = {"centerline": tolerance.centerline_tolerance * 1e3, "tip": tolerance.tip_tolerance * 1e3,
                  "notch_width": tolerance.notch_width_tolerance * 1e3}
     within = all(uncertainty.get(name) is not None and uncertainty[name] <= limit
-                 for name, limit in limits_mm.items() if name != "notch_width" or notches_expected)
-    return "ok" if within and notches_found >= notches_expected and "warn" not in severities else "warn"
+                 for name, limit in limits_mm.items() if name != "notch_width" or expected)
+    return "ok" if within and quality["notches_found"] >= expected and "warn" not in severities else "warn"
 
 
 def codes_table() -> str:

@@ -379,8 +379,7 @@ class Reconstructor:
         self._prior = fitted.centerline
         self._update_roi(relocated)
         self._timed("relocate", start)
-        status = result_status(warnings, quality["uncertainty_mm"], quality["notches_found"], geometry.notch_count,
-                               self.config.quality)
+        status = result_status(warnings, quality, self.config.quality)
         return RelocationResult(centerline.up_to(tip_s), tip, notches, relocated, moved.normals, moved.rejected,
                                 axis.coords, iterations, moved.part, moved.coordinates, quality, tuple(warnings),
                                 sided.notch_side, status)

@@ -40,8 +40,8 @@ DISK_RESERVE_BYTES = 64 * 2**20  # left free on the output's file system beyond 
 
 
 def _size(count: float) -> str:
-    for unit in ("B", "kB", "MB", "GB", "TB"):
-        if count < 1000 or unit == "TB":
+    for unit in ("B", "kB", "MB", "GB"):
+        if count < 1000:
             return f"{count:.1f} {unit}"
         count /= 1000
     return f"{count:.1f} TB"
