@@ -35,6 +35,16 @@ import numpy as np
 from ntcr_recon.core.fusion import CameraFrame, FramePair
 
 
+def stamp_jump(previous_ns: int | None, stamp_ns: int, ahead_s: float) -> float | None:
+    """How far (s; negative: back) the stamps jumped from previous_ns to stamp_ns, when they went back or ahead by
+    more than ahead_s (a replay looping, a camera reset, a frame of another clock); None when they did not, or
+    there is no previous stamp."""
+    if previous_ns is None:
+        return None
+    jump = (stamp_ns - previous_ns) * 1e-9
+    return jump if jump < 0 or jump > ahead_s else None
+
+
 class InForce:
     """What was in force at a stamp, of items stamped as they came (a camera's camera_info): the newest stamped at
     or before it, else (it came after the data it belongs to: recordings give no order among the messages of one

@@ -21,6 +21,7 @@ import numpy as np
 
 from ntcr_recon.core.config import TopicConfig
 from ntcr_recon.core.deproject import Intrinsics
+from ntcr_recon.core.pairing import stamp_jump
 from ntcr_recon.io.bag import BagError, BagStream, open_bag
 from ntcr_recon.io.pointcloud import stamp_to_ns
 
@@ -156,10 +157,8 @@ class Pacer:
         self.jumped = None
         if self._origin is None:
             self._origin = (self.start_wall, stamp_ns)
-        elif stamp_ns != self._last:
-            jump = (stamp_ns - self._last) * 1e-9
-            if jump < 0 or jump > self.jump_s:
-                self._origin, self.jumped = (now, stamp_ns), jump
+        elif stamp_ns != self._last and (jump := stamp_jump(self._last, stamp_ns, self.jump_s)) is not None:
+            self._origin, self.jumped = (now, stamp_ns), jump
         self._last = stamp_ns
         start_wall, start_stamp = self._origin
         return start_wall + (stamp_ns - start_stamp) * 1e-9 / self.rate

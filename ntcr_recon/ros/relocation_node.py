@@ -38,6 +38,7 @@ from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Float64, Float64MultiArray
 from visualization_msgs.msg import MarkerArray
 
+from ntcr_recon.core.pairing import stamp_jump
 from ntcr_recon.core.pipeline import ReconstructionError, Reconstructor
 from ntcr_recon.ros.messages import (
     NotchMarkers,
@@ -144,10 +145,9 @@ class RelocationNode(RigNode):
         (a replay looping back, a camera reset, one stray cloud from the future), longer than fusion.camera_timeout,
         which would start it from a robot of another time; a line says so."""
         last, self._last_stamp_ns = self._last_stamp_ns, stamp_ns
-        if not self._params["warm_start"] or last is None:
-            return bool(self._params["warm_start"])
-        jump = (stamp_ns - last) * 1e-9
-        if jump < 0 or jump > self.rig.fusion.camera_timeout:
+        if not self._params["warm_start"]:
+            return False
+        if (jump := stamp_jump(last, stamp_ns, self.rig.fusion.camera_timeout)) is not None:
             self.get_logger().info(f"stamps jumped {'back' if jump < 0 else 'ahead'} by {abs(jump):.3f} s: this "
                                    "frame's centreline starts afresh, not from the previous frame's")
             return False
