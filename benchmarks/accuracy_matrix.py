@@ -144,8 +144,8 @@ def print_details(figures: dict, args: argparse.Namespace) -> None:
 def simulation_for(row: Row, seed: int, frames: int):
     """The row's Simulation, built by `ntcr-recon simulate`'s own parser and builder."""
     from ntcr_recon.cli import simulate as simulate_command
-    from ntcr_recon.core.geometry import TubeGeometry
-    from ntcr_recon.core.kinematics import TubeShape
+    from ntcr_recon.core.robot.geometry import TubeGeometry
+    from ntcr_recon.core.robot.kinematics import TubeShape
     from ntcr_recon.sim.scene import Scene
 
     parser = argparse.ArgumentParser()
@@ -176,9 +176,9 @@ def simulation_for(row: Row, seed: int, frames: int):
 
 def frame_pairs(simulation) -> list:
     """The simulation's frames as the core's FramePairs (what reading its bag gives)."""
-    from ntcr_recon.core.deproject import Intrinsics
-    from ntcr_recon.core.fusion import CameraFrame
-    from ntcr_recon.core.pairing import pair_frames
+    from ntcr_recon.core.cloud.deproject import Intrinsics
+    from ntcr_recon.core.cloud.fusion import CameraFrame
+    from ntcr_recon.core.cloud.pairing import pair_frames
 
     k = simulation.intrinsics
     intrinsics = Intrinsics(k.width, k.height, k.fx, k.fy, k.cx, k.cy)
@@ -192,7 +192,7 @@ def frame_pairs(simulation) -> list:
 
 def rig_config(simulation, side_error_deg: float = 0.0, method: str | None = None,
                extrinsics_off: tuple[float, float] = (0.0, 0.0)):
-    from ntcr_recon.core.config import rig_config_from_mapping
+    from ntcr_recon.core.config.rig import rig_config_from_mapping
 
     parameters = simulation.rig_parameters()["/**"]["ros__parameters"]
     parameters["robot"]["notch_side"] = parameters["robot"]["notch_side"] + math.radians(side_error_deg)
@@ -208,7 +208,7 @@ def rig_config(simulation, side_error_deg: float = 0.0, method: str | None = Non
 def perturbed_pose(translation, rotation_xyzw, turn_deg: float, along_mm: float) -> tuple[list, list]:
     """A camera pose (optical frame in the base frame) turned turn_deg about the base's z axis through its optical
     centre and moved along_mm along its line of sight: a rig file whose extrinsics are that far off."""
-    from ntcr_recon.core.transforms import matrix_to_quaternion, quaternion_to_matrix
+    from ntcr_recon.core.base.transforms import matrix_to_quaternion, quaternion_to_matrix
 
     angle = math.radians(turn_deg)
     turn = np.array([[math.cos(angle), -math.sin(angle), 0.0], [math.sin(angle), math.cos(angle), 0.0],
@@ -220,8 +220,8 @@ def perturbed_pose(translation, rotation_xyzw, turn_deg: float, along_mm: float)
 
 def reconstruct(config, pairs):
     """As `ntcr-recon reconstruct`: each pair through the chain, then the combined filtered clouds relocated."""
-    from ntcr_recon.core.cloud import Cloud
-    from ntcr_recon.core.pipeline import Reconstructor
+    from ntcr_recon.core.cloud.points import Cloud
+    from ntcr_recon.core.reconstruction.reconstructor import Reconstructor
 
     reconstructor = Reconstructor(config)
     filtered = [reconstructor.process(pair).filtered for pair in pairs]
@@ -231,7 +231,7 @@ def reconstruct(config, pairs):
 def measure(shape, relocation, viewpoints: np.ndarray | None = None) -> dict:
     """Errors against the ground truth (metres), notches matched to the truth by position; with the cameras'
     optical centres (`viewpoints`), the centreline's error also along and across their views."""
-    from ntcr_recon.core.metrics import centerline_error_by_view, centerline_rmse
+    from ntcr_recon.core.quality.metrics import centerline_error_by_view, centerline_rmse
 
     truth = shape.notch_table()
     true_centres = np.array([n["center_s"] for n in truth])
@@ -284,7 +284,7 @@ def misses(figures: dict) -> list[str]:
     return missed
 
 
-# What a warning must speak of for a missed floor to count as said: the codes (core.findings) that do. The input's
+# What a warning must speak of for a missed floor to count as said: the codes (quality.findings) that do. The input's
 # faults (a camera that gave nothing or little, coarse depth) speak of every figure.
 _INPUT = {"CAMERA_NO_FRAMES", "CAMERA_NO_POINTS", "CAMERA_FEW_POINTS", "CAMERA_SHORT_VIEW", "DEPTH_BIG_ENDIAN",
           "DEPTH_COARSER_THAN_UNIT", "DEPTH_QUANTISED", "PIXEL_FOOTPRINT_COARSE"}
@@ -358,7 +358,7 @@ def reconstruct_and_measure(name: str, shape, config, pairs: list, distance: flo
     """Reconstruct a rendered scene (its true `shape`, the rig `config` it is reconstructed with, its frame pairs,
     the farthest camera's distance) and measure it: the figures, the misses and the result's warnings. The
     simulator's rows and the sweep's second renderer alike."""
-    from ntcr_recon.core.pipeline import ReconstructionError
+    from ntcr_recon.core.reconstruction.reconstructor import ReconstructionError
 
     started = time.perf_counter()
     try:
@@ -426,7 +426,7 @@ def print_status(results: list[dict]) -> None:
     results saying ok that miss the tolerance (at most 5 %), the share of those within it that say ok (at least
     80 %), and per stated bound how often it covers the error (at least 90 %) and the median of stated over
     measured (at most 3); per notch too."""
-    from ntcr_recon.core.config import QualityConfig
+    from ntcr_recon.core.config.rig import QualityConfig
 
     tolerance = QualityConfig()
     judged = [r for r in results if r.get("status")]

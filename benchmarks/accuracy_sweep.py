@@ -34,7 +34,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "test"))
 import accuracy_matrix as matrix  # noqa: E402
 import synthetic_views as views  # noqa: E402
 
-from ntcr_recon.core.deproject import Intrinsics  # noqa: E402
+from ntcr_recon.core.cloud.deproject import Intrinsics  # noqa: E402
 
 ROBOTS = {"default": {}, "od2.5": matrix.THIN, "od4.0": matrix.THICK, "notches10": matrix.TEN,
           "notches20": matrix.TWENTY, "width1.8": matrix.WIDE}
@@ -89,8 +89,8 @@ def run_views_scene(index: int, frames: int = 2) -> dict:
     window, not the simulator's stereo matcher), with its own artefacts drawn per scene - the window (3-7 px),
     the noise (1-3 x 0.02 mm at 90 mm), a backdrop 50 mm behind the robot or none, and the camera's resolution
     (VIEWS_INTRINSICS) - then reconstructed and measured as a matrix row."""
-    from ntcr_recon.core.config import rig_config_from_mapping
-    from ntcr_recon.core.kinematics import TubeShape
+    from ntcr_recon.core.config.rig import rig_config_from_mapping
+    from ntcr_recon.core.robot.kinematics import TubeShape
 
     scene = draw_scene(index)
     draw = random.Random(f"views-{index}")

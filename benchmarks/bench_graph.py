@@ -218,7 +218,7 @@ def main(argv: list[str] | None = None) -> int:
 def report(args, client: Client, start: float, end: float, processes, cpu_start, cpu_end, rss, window_log) -> int:
     seconds = end - start
     in_window = {topic: [(t, s) for t, s in items if start <= t < end] for topic, items in client.received.items()}
-    from ntcr_recon.core.config import load_rig_config
+    from ntcr_recon.core.config.rig import load_rig_config
     from ntcr_recon.io.camera_sources import BagSource
 
     # The frames the bag has in the window, per camera: looped as camera_node loops it (each pass shifted by

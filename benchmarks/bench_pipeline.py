@@ -48,10 +48,10 @@ def main() -> int:
     parser.add_argument("--threads", type=int, default=2, help="threads for BLAS/OpenMP (the target: 2 cores)")
     args = parser.parse_args()
 
-    from ntcr_recon.core.config import load_rig_config
-    from ntcr_recon.core.mesh import poisson_mesh
-    from ntcr_recon.core.pairing import pair_frames
-    from ntcr_recon.core.pipeline import Reconstructor
+    from ntcr_recon.core.cloud.pairing import pair_frames
+    from ntcr_recon.core.config.rig import load_rig_config
+    from ntcr_recon.core.reconstruction.mesh import poisson_mesh
+    from ntcr_recon.core.reconstruction.reconstructor import Reconstructor
     from ntcr_recon.io.bag import read_camera_frames
 
     bags = sorted(p for p in args.bags.iterdir() if (p / "metadata.yaml").exists())
@@ -125,7 +125,7 @@ def plain_open3d(pair, config) -> dict[str, float]:
     """The paper's pipeline with open3d built-ins on one frame pair; ms per stage."""
     import open3d as o3d
 
-    from ntcr_recon.core.kinematics import TubeShape
+    from ntcr_recon.core.robot.kinematics import TubeShape
 
     o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
     timings = {}

@@ -14,8 +14,8 @@ import time
 import numpy as np
 from scipy.ndimage import uniform_filter
 
-from ntcr_recon.core.geometry import TubeGeometry
-from ntcr_recon.core.kinematics import TubeShape
+from ntcr_recon.core.robot.geometry import TubeGeometry
+from ntcr_recon.core.robot.kinematics import TubeShape
 from ntcr_recon.sim.simulate import Simulation
 from ntcr_recon.sim.stereo import StereoEmulation, emulate_depth
 

@@ -9,7 +9,7 @@ a loaded machine does not disturb as it does wall-clock times.
     done
 
 A stage's instructions per frame pair: (its largest "Collected" - none's) / the pairs printed. Both runs do
-one warm-up call of each stage, so imports and first-call caches cancel. The compiled kernels (core.compiled)
+one warm-up call of each stage, so imports and first-call caches cancel. The compiled kernels (core.base.compiled)
 are cached per CPU, and valgrind's simulated CPU is not the host's: the first run under valgrind compiles them
 (seconds of instructions in that run only), so run the loop once before counting.
 """
@@ -22,9 +22,9 @@ from pathlib import Path
 
 
 def record(path: Path, bags: Path) -> None:
-    import ntcr_recon.core.pipeline as pipeline
-    from ntcr_recon.core.config import load_rig_config
-    from ntcr_recon.core.pairing import pair_frames
+    import ntcr_recon.core.reconstruction.reconstructor as pipeline
+    from ntcr_recon.core.cloud.pairing import pair_frames
+    from ntcr_recon.core.config.rig import load_rig_config
     from ntcr_recon.io.bag import read_camera_frames
 
     calls = []
@@ -47,8 +47,8 @@ def record(path: Path, bags: Path) -> None:
 
 
 def run(path: Path, stage: str) -> None:
-    from ntcr_recon.core.filters import filter_cloud
-    from ntcr_recon.core.fusion import fuse
+    from ntcr_recon.core.cloud.filters import filter_cloud
+    from ntcr_recon.core.cloud.fusion import fuse
 
     with open(path, "rb") as f:
         calls = pickle.load(f)

@@ -15,8 +15,8 @@ from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
-from ntcr_recon.core.config import load_rig_config
-from ntcr_recon.core.fusion import FramePair, fuse
+from ntcr_recon.core.cloud.fusion import FramePair, fuse
+from ntcr_recon.core.config.rig import load_rig_config
 from ntcr_recon.io.bag import read_camera_frames
 from ntcr_recon.io.pointcloud import stamp_to_ns
 

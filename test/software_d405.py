@@ -13,7 +13,7 @@ import numpy as np
 import pyrealsense2 as rs
 
 if TYPE_CHECKING:  # only its fields are read: test/data/make_legacy_bag.py runs this without the package
-    from ntcr_recon.core.deproject import Intrinsics
+    from ntcr_recon.core.cloud.deproject import Intrinsics
 
 
 def rs_intrinsics(intrinsics: Intrinsics, scale: int = 1) -> rs.intrinsics:

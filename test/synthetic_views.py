@@ -14,10 +14,10 @@ import numpy as np
 from scipy.ndimage import uniform_filter
 from scipy.spatial.transform import Rotation
 
-from ntcr_recon.core.config import rig_config_from_mapping
-from ntcr_recon.core.deproject import Intrinsics
-from ntcr_recon.core.fusion import CameraFrame, FramePair
-from ntcr_recon.core.transforms import invert_transform, matrix_to_quaternion, transform_points
+from ntcr_recon.core.base.transforms import invert_transform, matrix_to_quaternion, transform_points
+from ntcr_recon.core.cloud.deproject import Intrinsics
+from ntcr_recon.core.cloud.fusion import CameraFrame, FramePair
+from ntcr_recon.core.config.rig import rig_config_from_mapping
 
 INTRINSICS = Intrinsics(848, 480, 430.0, 430.0, 424.0, 240.0)
 DEPTH_UNIT = 1e-4
@@ -125,7 +125,7 @@ def posed_scene(robot: dict, bend_deg: float, notch_side_deg: float, distance: f
                 seed: int = 0):
     """(config, shape, frame pair) of a robot (geometry fields) with its notches opening `notch_side_deg` from
     base +x (towards +y; cam_a sits at -y, cam_b at +y), bent by `bend_deg` shared evenly by its notches."""
-    from ntcr_recon.core.kinematics import TubeShape
+    from ntcr_recon.core.robot.kinematics import TubeShape
 
     config = make_config({**robot, "notch_side": float(np.radians(notch_side_deg))}, distance=distance, height=height)
     shape = TubeShape.from_bend_angle(config.robot, np.radians(bend_deg))

@@ -12,13 +12,13 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import accuracy_matrix  # noqa: E402
 
-from ntcr_recon.core.findings import finding  # noqa: E402
+from ntcr_recon.core.quality.findings import finding  # noqa: E402
 
 ROWS = {row.name: row for row in accuracy_matrix.ROWS}
 
 
 def _listed(warnings) -> str:
-    """A result's warnings (core.findings.Finding), one a line, as --warnings prints them."""
+    """A result's warnings (core.quality.findings.Finding), one a line, as --warnings prints them."""
     return "\n".join(f"[{w.code}] {w}" for w in warnings)
 
 

@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 import yaml
 
-from ntcr_recon.core.config import (
+from ntcr_recon.core.cloud.filters import crop_mask
+from ntcr_recon.core.config.document import document_rig_config
+from ntcr_recon.core.config.rig import (
     ConfigError,
     config_to_mapping,
     flatten_parameters,
@@ -16,9 +18,7 @@ from ntcr_recon.core.config import (
     rig_config_from_mapping,
     rig_parameter_keys,
 )
-from ntcr_recon.core.config_doc import document_rig_config
-from ntcr_recon.core.filters import crop_mask
-from ntcr_recon.core.geometry import TubeGeometry
+from ntcr_recon.core.robot.geometry import TubeGeometry
 
 
 @pytest.fixture(scope="module")
@@ -154,12 +154,12 @@ def test_digit_only_serial_number_is_read_as_text(sim_mapping):
 
 
 def test_sim_rig_yaml_is_the_schema_documentation_of_its_values(repo_root):
-    """config/sim_rig.yaml is written from the schema (`python -m ntcr_recon.core.config_doc config/sim_rig.yaml`):
+    """config/sim_rig.yaml is written from the schema (`python -m ntcr_recon.core.config.document config/sim_rig.yaml`):
     every key, each with its description, unit and range as the loader applies them."""
     path = repo_root / "config" / "sim_rig.yaml"
     text = path.read_text()
     expected = document_rig_config(load_rig_config(path), text[: text.index("/**:")])
-    assert text == expected, "regenerate: python -m ntcr_recon.core.config_doc config/sim_rig.yaml"
+    assert text == expected, "regenerate: python -m ntcr_recon.core.config.document config/sim_rig.yaml"
     assert "      # outer diameter of the tube; [0.0005, 0.02] m\n      outer_diameter: 0.0035\n" in text
     assert "      # octree depth of the Poisson solve (memory grows 8x a level); [1, 12]\n" in text
 

@@ -9,8 +9,8 @@ import tracemalloc
 import pytest
 import yaml
 
-from ntcr_recon.core.config import ConfigError, load_rig_config, load_robot_geometry, rig_config_from_mapping
-from ntcr_recon.core.geometry import TubeGeometry
+from ntcr_recon.core.config.rig import ConfigError, load_rig_config, load_robot_geometry, rig_config_from_mapping
+from ntcr_recon.core.robot.geometry import TubeGeometry
 
 
 @pytest.fixture(scope="module")

@@ -7,9 +7,8 @@ import numpy as np
 import pytest
 from synthetic_views import INTRINSICS, make_config
 
-from ntcr_recon.core.cloud import Cloud, pack_rgb
-from ntcr_recon.core.deproject import Intrinsics, PixelWindow, crop_window, depth_to_points
-from ntcr_recon.core.filters import (
+from ntcr_recon.core.cloud.deproject import Intrinsics, PixelWindow, crop_window, depth_to_points
+from ntcr_recon.core.cloud.filters import (
     _image_window_neighbours,
     _mean_neighbour_distances,
     _neighbours_among_kept,
@@ -23,8 +22,9 @@ from ntcr_recon.core.filters import (
     statistical_outlier_mask,
     voxel_downsample,
 )
-from ntcr_recon.core.fusion import CameraFrame, fuse
-from ntcr_recon.core.pairing import pair_frames
+from ntcr_recon.core.cloud.fusion import CameraFrame, fuse
+from ntcr_recon.core.cloud.pairing import pair_frames
+from ntcr_recon.core.cloud.points import Cloud, pack_rgb
 
 
 def test_depth_to_points_inverts_the_pinhole_projection():

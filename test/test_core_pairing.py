@@ -1,4 +1,4 @@
-"""core.pairing.FramePairer without ROS: pairs by stamp within the slop, a lost partner counted (or released
+"""core.cloud.pairing.FramePairer without ROS: pairs by stamp within the slop, a lost partner counted (or released
 alone on request), a silent camera judged by the other cameras' stamps and its own rate, bounded buffers, a
 jump back of the stamps restarting the pairing."""
 
@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from ntcr_recon.core.pairing import FramePairer
+from ntcr_recon.core.cloud.pairing import FramePairer
 
 PERIOD = 33_333_333  # 30 Hz
 SLOP = 10_000_000
@@ -95,7 +95,7 @@ def test_an_unknown_camera_is_refused_by_name():
 
 
 def test_what_was_in_force_at_a_stamp_whatever_order_it_came_in():
-    from ntcr_recon.core.pairing import InForce
+    from ntcr_recon.core.cloud.pairing import InForce
 
     infos = InForce(history=3)
     assert infos.at(10) is None and not infos

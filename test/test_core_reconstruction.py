@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from synthetic_views import make_config, render_pair
 
-from ntcr_recon.core.fusion import FramePair
-from ntcr_recon.core.kinematics import TubeShape
-from ntcr_recon.core.mesh import poisson_mesh
-from ntcr_recon.core.metrics import centerline_rmse
-from ntcr_recon.core.pipeline import ReconstructionError, Reconstructor
+from ntcr_recon.core.cloud.fusion import FramePair
+from ntcr_recon.core.quality.metrics import centerline_rmse
+from ntcr_recon.core.reconstruction.mesh import poisson_mesh
+from ntcr_recon.core.reconstruction.reconstructor import ReconstructionError, Reconstructor
+from ntcr_recon.core.robot.kinematics import TubeShape
 
 SCENES = {
     # name: (robot mapping, total bend in degrees or each notch's, camera distance m, camera height m)

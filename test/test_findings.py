@@ -1,4 +1,4 @@
-"""core.findings: coded warnings, the result's status and its stated bounds (issue 63)."""
+"""core.quality.findings: coded warnings, the result's status and its stated bounds (issue 63)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from ntcr_recon.core.config import QualityConfig
-from ntcr_recon.core.findings import (
+from ntcr_recon.core.config.rig import QualityConfig
+from ntcr_recon.core.quality.findings import (
     CODES,
     Z90,
     codes_table,
@@ -104,11 +104,11 @@ def test_every_code_raised_is_listed_and_every_listed_code_is_raised():
 
 def test_the_readme_lists_the_codes_as_the_module_does():
     assert codes_table() in (REPO / "README.md").read_text(), (
-        "README's table of warning codes differs: paste core.findings.codes_table()")
+        "README's table of warning codes differs: paste core.quality.findings.codes_table()")
 
 
 def _trace_with_offsets(offsets, reach=None):
-    from ntcr_recon.core.checks import Trace
+    from ntcr_recon.core.quality.checks import Trace
 
     return Trace(geometry=None, camera_names=("cam_a", "cam_b"), notches=[], coords_s=None, camera=None, tip_s=0.05,
                  total_bend=0.0, footprint=0.2e-3, wall_residual=0.0, notch_side=0.0, configured_side=0.0,
@@ -124,7 +124,7 @@ def _trace_with_offsets(offsets, reach=None):
     (((0.138e-3, 0.005e-3), None), False),                    # one camera placed too few windows
 ])
 def test_extrinsics_disagree_where_the_cameras_shifts_are_rigid_and_matter(offsets, warned):
-    from ntcr_recon.core.checks import extrinsics
+    from ntcr_recon.core.quality.checks import extrinsics
 
     figures, found = extrinsics(_trace_with_offsets(offsets), None)
     assert [f.code for f in found] == (["EXTRINSICS_DISAGREE"] if warned else [])

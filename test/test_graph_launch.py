@@ -17,7 +17,7 @@ import pytest
 import yaml
 
 from ntcr_recon.cli import run as run_command
-from ntcr_recon.core.config import TopicConfig
+from ntcr_recon.core.config.rig import TopicConfig
 from ntcr_recon.ros import graph
 from ntcr_recon.ros.topics import stage_topic
 

@@ -23,9 +23,9 @@ from stage_probe import COLLECT_RELIABLE, ply_face_count
 from std_msgs.msg import Float64MultiArray
 from visualization_msgs.msg import Marker
 
-from ntcr_recon.core.config import load_rig_config
-from ntcr_recon.core.fusion import FramePair
-from ntcr_recon.core.pipeline import Reconstructor
+from ntcr_recon.core.cloud.fusion import FramePair
+from ntcr_recon.core.config.rig import load_rig_config
+from ntcr_recon.core.reconstruction.reconstructor import Reconstructor
 from ntcr_recon.io.camera_sources import BagSource
 from ntcr_recon.io.pointcloud import stamp_to_ns
 from ntcr_recon.ros.messages import mesh_from_msg, notches_from_array, stage_cloud_and_normals

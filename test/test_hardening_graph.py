@@ -15,9 +15,9 @@ from sensor_msgs.msg import PointCloud2
 from shape_msgs.msg import Mesh
 from stage_probe import StageProbe
 
-from ntcr_recon.core.config import load_rig_config
-from ntcr_recon.core.pairing import FramePairer
-from ntcr_recon.core.pipeline import Reconstructor
+from ntcr_recon.core.cloud.pairing import FramePairer
+from ntcr_recon.core.config.rig import load_rig_config
+from ntcr_recon.core.reconstruction.reconstructor import Reconstructor
 from ntcr_recon.io.pointcloud import cloud_to_msg
 from ntcr_recon.ros.messages import (
     RCLPY,

@@ -29,12 +29,12 @@ def test_the_ros_module_rule_flags_every_ros_family():
 
 
 def _modules(package) -> list[str]:
-    return [f"{package.__name__}.{info.name}" for info in pkgutil.iter_modules(package.__path__)]
+    return [info.name for info in pkgutil.walk_packages(package.__path__, f"{package.__name__}.")]
 
 
 def test_core_io_and_sim_import_no_ros_module():
     modules = _modules(ntcr_recon.core) + _modules(ntcr_recon.io) + _modules(ntcr_recon.sim)
-    assert "ntcr_recon.core.pipeline" in modules and "ntcr_recon.io.pointcloud" in modules
+    assert "ntcr_recon.core.reconstruction.reconstructor" in modules and "ntcr_recon.io.pointcloud" in modules
     probe = (f"import importlib, re, sys\nfor name in {modules!r}:\n    importlib.import_module(name)\n"
              f"loaded = sorted(m for m in sys.modules if re.match({ROS_PATTERN!r}, m))\nprint(','.join(loaded))")
     result = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120)

@@ -12,9 +12,9 @@ from ros_graph import RosGraph
 from sensor_msgs.msg import CameraInfo, PointCloud2
 from stage_probe import COLLECT_RELIABLE, StageProbe, set_parameter
 
-from ntcr_recon.core.config import load_rig_config
-from ntcr_recon.core.deproject import depth_to_points
-from ntcr_recon.core.fusion import CameraFrame, FramePair, fuse
+from ntcr_recon.core.cloud.deproject import depth_to_points
+from ntcr_recon.core.cloud.fusion import CameraFrame, FramePair, fuse
+from ntcr_recon.core.config.rig import load_rig_config
 from ntcr_recon.io.pointcloud import cloud_to_msg, stamp_to_ns
 from ntcr_recon.ros.messages import RCLPY, camera_cloud_to_msg, header, stage_cloud_from_msg
 from ntcr_recon.ros.node_support import SENSOR_QOS

@@ -17,7 +17,7 @@ from shape_msgs.msg import Mesh, MeshTriangle
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker
 
-from ntcr_recon.core.transforms import matrix_to_quaternion
+from ntcr_recon.core.base.transforms import matrix_to_quaternion
 from ntcr_recon.ros import cdr, messages
 
 RNG = np.random.default_rng(7)
@@ -165,7 +165,7 @@ def test_notch_markers_kept_between_frames_show_only_the_current_notches():
 
 def stage_cloud(pixels, camera, footprint=1e-4) -> PointCloud2:
     """A stage cloud of len(pixels) points in ntcr_base with the given pixels, camera index and footprint."""
-    from ntcr_recon.core.cloud import Cloud
+    from ntcr_recon.core.cloud.points import Cloud
 
     pixels = np.asarray(pixels, dtype=np.int32)
     cloud = Cloud(RNG.normal(size=(len(pixels), 3)) * 1e-3, None, np.full(len(pixels), camera, np.int8), 5,
@@ -177,7 +177,7 @@ def stage_cloud(pixels, camera, footprint=1e-4) -> PointCloud2:
 def rig():
     import tiny_rig
 
-    from ntcr_recon.core.config import rig_config_from_mapping
+    from ntcr_recon.core.config.rig import rig_config_from_mapping
 
     return rig_config_from_mapping(tiny_rig.rig_parameters())
 

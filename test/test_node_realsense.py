@@ -16,8 +16,8 @@ from ros_graph import VENV_BIN, RosGraph
 from sensor_msgs.msg import CameraInfo, PointCloud2
 from software_d405 import SoftwareD405
 
-from ntcr_recon.core.config import load_rig_config
-from ntcr_recon.core.deproject import crop_window, depth_to_points
+from ntcr_recon.core.cloud.deproject import crop_window, depth_to_points
+from ntcr_recon.core.config.rig import load_rig_config
 from ntcr_recon.io.pointcloud import cloud_from_msg, stamp_to_ns
 from ntcr_recon.io.realsense import NO_DEVICE
 from ntcr_recon.ros.camera_node import WAITING_LOG_PERIOD_S

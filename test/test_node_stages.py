@@ -15,8 +15,8 @@ from stage_probe import COLLECT_RELIABLE, StageProbe, ply_face_count, set_parame
 from std_msgs.msg import Float64MultiArray
 from visualization_msgs.msg import Marker, MarkerArray
 
-from ntcr_recon.core.config import load_rig_config
-from ntcr_recon.core.pipeline import Reconstructor
+from ntcr_recon.core.config.rig import load_rig_config
+from ntcr_recon.core.reconstruction.reconstructor import Reconstructor
 from ntcr_recon.io.pointcloud import stamp_to_ns
 from ntcr_recon.ros.messages import (
     centerline_path_msg,

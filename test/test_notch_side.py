@@ -9,9 +9,9 @@ import math
 import numpy as np
 import pytest
 
-from ntcr_recon.core.centerline import Centerline
-from ntcr_recon.core.geometry import TubeGeometry
-from ntcr_recon.core.notches import Notch, SideMeasurement, measure_notch_side
+from ntcr_recon.core.relocation.centerline import Centerline
+from ntcr_recon.core.relocation.notches import Notch, SideMeasurement, measure_notch_side
+from ntcr_recon.core.robot.geometry import TubeGeometry
 
 GEOMETRY = TubeGeometry()   # 3.5 mm, 16 notches, configured to open towards +x
 FOOTPRINT = 0.2e-3          # a D405 pixel at 90 mm
@@ -91,8 +91,8 @@ def test_a_side_that_does_not_settle_in_the_turned_frame_keeps_the_configured_on
 
     import tiny_rig
 
-    import ntcr_recon.core.pipeline as pipeline
-    from ntcr_recon.core.config import load_rig_config
+    import ntcr_recon.core.reconstruction.reconstructor as pipeline
+    from ntcr_recon.core.config.rig import load_rig_config
 
     bag = Path(__file__).resolve().parents[1] / "bags" / "bend45"
     config = load_rig_config(bag / "rig.yaml")

@@ -9,7 +9,7 @@ from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import PointCloud2, PointField
 
-from ntcr_recon.core.cloud import pack_rgb, unpack_rgb
+from ntcr_recon.core.cloud.points import pack_rgb, unpack_rgb
 from ntcr_recon.io.pointcloud import (
     ROSBAGS,
     CloudFormatError,

@@ -13,10 +13,10 @@ import pytest
 import tiny_rig
 from software_d405 import SoftwareD405
 
-from ntcr_recon.core.config import CameraConfig
-from ntcr_recon.core.deproject import Intrinsics, depth_to_points
-from ntcr_recon.core.geometry import TubeGeometry
-from ntcr_recon.core.kinematics import TubeShape
+from ntcr_recon.core.cloud.deproject import Intrinsics, depth_to_points
+from ntcr_recon.core.config.rig import CameraConfig
+from ntcr_recon.core.robot.geometry import TubeGeometry
+from ntcr_recon.core.robot.kinematics import TubeShape
 from ntcr_recon.io.camera_sources import SourceError
 from ntcr_recon.io.realsense import NO_DEVICE, RealSenseSource, RecordingSource
 from ntcr_recon.sim.simulate import Simulation

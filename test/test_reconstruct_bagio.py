@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from bag_edit import DEPTH_FIRST, INFO_FIRST, rewrite_bag
 
-from ntcr_recon.core.config import load_rig_config
+from ntcr_recon.core.config.rig import load_rig_config
 from ntcr_recon.io.bag import INFO_WAIT, BagError, DepthFrameMatcher, camera_topics, image_to_array, read_camera_frames
 
 
@@ -129,7 +129,7 @@ def test_matcher_waits_a_bounded_time_for_what_never_comes(bags_dir):
 def test_bags_written_either_way_give_every_frame(bags_dir, tmp_path, order):
     # the offline command's reader and camera_node's bag source, on bags whose instants are written in either
     # order: the same four frames per camera, each with its camera_info and colour, and no warning for it
-    from ntcr_recon.core.config import TopicConfig
+    from ntcr_recon.core.config.rig import TopicConfig
     from ntcr_recon.io.bag import iter_camera_frames
     from ntcr_recon.io.camera_sources import BagSource
 

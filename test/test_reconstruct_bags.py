@@ -14,7 +14,7 @@ import yaml
 
 from ntcr_recon.cli import main as cli_main
 from ntcr_recon.cli.reconstruct import OUTPUT_FILES
-from ntcr_recon.core.findings import CODES, SEVERITIES
+from ntcr_recon.core.quality.findings import CODES, SEVERITIES
 
 # Another robot through the same stereo emulation, rendered here: thinner (2.5 mm), fewer and narrower
 # notches (10 of 1.0 mm), a 60 degree bend and the cameras nearer (80 mm). Nothing in the configuration is
@@ -61,7 +61,7 @@ def test_outputs_and_schema(reconstruction):
     assert result["status"] in ("ok", "warn", "error")
     assert set(result["quality"]["uncertainty_mm"]) == {"centerline", "tip", "notch_width"}
     assert result["quality"]["notches_found"] == len(result["notches"])
-    # coded records (core.findings), errors first
+    # coded records (core.quality.findings), errors first
     for warning in result["warnings"]:
         assert warning["code"] in CODES and warning["severity"] == CODES[warning["code"]].severity
         assert isinstance(warning["message"], str)

@@ -165,7 +165,7 @@ def test_the_side_views_frame_the_robot_not_the_raw_clouds_far_points(tmp_path):
     few pixels; framed on the relocated robot it fills most of the panel's height."""
     from PIL import Image
 
-    from ntcr_recon.core import figures
+    from ntcr_recon.io import figures
 
     along = np.linspace(0.0, 0.05, 2000)
     robot = np.stack([0.002 * np.sin(40 * along), np.zeros_like(along), along], axis=1)

@@ -15,11 +15,11 @@ import pytest
 from bag_edit import rewrite_bag
 
 from ntcr_recon.cli.reconstruct import COMBINED_FRAMES_MAX
-from ntcr_recon.core.config import load_rig_config
-from ntcr_recon.core.fusion import CameraFrame
-from ntcr_recon.core.input_checks import CameraInput
-from ntcr_recon.core.pairing import pair_frame_stream, pair_frames
-from ntcr_recon.core.still import EvenlySpread, StillStretch
+from ntcr_recon.core.cloud.fusion import CameraFrame
+from ntcr_recon.core.cloud.pairing import pair_frame_stream, pair_frames
+from ntcr_recon.core.config.rig import load_rig_config
+from ntcr_recon.core.quality.inputs import CameraInput
+from ntcr_recon.core.reconstruction.still import EvenlySpread, StillStretch
 from ntcr_recon.io.bag import iter_camera_frames, read_camera_frames
 from ntcr_recon.io.camera_sources import BagSource
 

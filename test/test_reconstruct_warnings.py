@@ -13,7 +13,7 @@ import yaml
 from bag_edit import depth_edit, depth_values, rewrite_bag, with_depth_values
 
 from ntcr_recon.cli import main as cli_main
-from ntcr_recon.core.findings import CODES
+from ntcr_recon.core.quality.findings import CODES
 
 FRAMES = "2"  # frame pairs per run: enough to show each fault, quick
 
@@ -28,7 +28,7 @@ def _reconstruct(bag, out, capsys, *extra):
 
 def _warned(result, stderr, code, **figures) -> list[dict]:
     """The warnings of `code` whose figures are `figures` (a value or a pytest.approx); each is also printed on
-    stderr as `<severity>: [<CODE>] <message>`, with the severity core.findings gives the code."""
+    stderr as `<severity>: [<CODE>] <message>`, with the severity core.quality.findings gives the code."""
     found = [w for w in result["warnings"] if w["code"] == code and all(w.get(k) == v for k, v in figures.items())]
     assert found, result["warnings"]
     for warning in found:
@@ -118,7 +118,7 @@ def test_a_wrong_big_endian_flag_is_reported_or_refused(bags_dir, tmp_path, caps
 
 
 def test_no_point_after_relocation_is_refused(bags_dir, tmp_path, capsys, monkeypatch):
-    from ntcr_recon.core import pipeline
+    from ntcr_recon.core.reconstruction import reconstructor as pipeline
 
     relocate = pipeline.Reconstructor.relocate
 

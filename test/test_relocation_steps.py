@@ -10,24 +10,9 @@ import math
 import numpy as np
 import pytest
 
-from ntcr_recon.core import alignment
-from ntcr_recon.core.alignment import align_to_trusted_wall, cross_view_spread, level_by_backbone
-from ntcr_recon.core.centerline import (
-    Centerline,
-    continued_bend,
-    estimate_centerline,
-    held_bend,
-    settings_for,
-    turn_from_base,
-)
-from ntcr_recon.core.checks import Trace, assess
-from ntcr_recon.core.comb import clear_of_cuts, cut_intervals, expected_centres, inside_intervals, near_cuts
-from ntcr_recon.core.config import RelocationConfig
-from ntcr_recon.core.geometry import TubeGeometry
-from ntcr_recon.core.kinematics import TubeShape
-from ntcr_recon.core.notches import Notch, detect_notches
-from ntcr_recon.core.outline import OUTLINE_TOLERANCE_PX, across_views_from, outline_offset
-from ntcr_recon.core.quality import (
+from ntcr_recon.core.config.rig import RelocationConfig
+from ntcr_recon.core.quality.checks import Trace, assess
+from ntcr_recon.core.quality.measures import (
     camera_coverage,
     camera_reach,
     cameras_looking_into_slots,
@@ -38,16 +23,31 @@ from ntcr_recon.core.quality import (
     unmeasured_share,
     where_notches_went_unseen,
 )
-from ntcr_recon.core.tip import TipAlongTube, carried_to_length, tube_end, visible_sectors
+from ntcr_recon.core.relocation.alignment import align_to_trusted_wall, cross_view_spread, level_by_backbone
+from ntcr_recon.core.relocation.centerline import (
+    Centerline,
+    continued_bend,
+    estimate_centerline,
+    held_bend,
+    settings_for,
+    turn_from_base,
+)
+from ntcr_recon.core.relocation.notches import Notch, detect_notches
+from ntcr_recon.core.relocation.outline import OUTLINE_TOLERANCE_PX, across_views_from, outline_offset
+from ntcr_recon.core.relocation import alignment
+from ntcr_recon.core.relocation.tip import TipAlongTube, carried_to_length, tube_end, visible_sectors
+from ntcr_recon.core.robot.comb import clear_of_cuts, cut_intervals, expected_centres, inside_intervals, near_cuts
+from ntcr_recon.core.robot.geometry import TubeGeometry
+from ntcr_recon.core.robot.kinematics import TubeShape
 
 GEOMETRY = TubeGeometry()   # 3.5 mm, 16 notches, straight along base +z, notches towards +x
 FOOTPRINT = 0.2e-3          # a D405 pixel at 90 mm
-# the findings (core.findings) that state how well the tip is placed, along the tube and across it
+# the findings (core.quality.findings) that state how well the tip is placed, along the tube and across it
 TIP_CODES = {"TIP_ON_ERODED_RIM", "TIP_ON_END_CAP"}
 
 
 def _by_code(warnings) -> dict:
-    """The findings by code (core.findings), each code's in the order raised."""
+    """The findings by code (core.quality.findings), each code's in the order raised."""
     found: dict = {}
     for warning in warnings:
         found.setdefault(warning.code, []).append(warning)
@@ -308,7 +308,7 @@ def test_a_slot_the_matcher_filled_is_found_by_its_dip_and_given_its_bends_width
     never crosses the half-plateau edge level; the notch is still found where the comb puts it ("dip"), its arc
     and width those its bend implies (straight: the configured width). Left at 85%, the dip is under DIP_PEAK:
     no notch is made of it."""
-    from ntcr_recon.core.notches import DIP_PEAK
+    from ntcr_recon.core.relocation.notches import DIP_PEAK
 
     found = {}
     for filled in (0.6, 0.85):
@@ -330,7 +330,7 @@ def test_a_dips_width_is_its_bend_taken_with_its_neighbours_not_one_chords_wobbl
     10 (where its support changes from two cameras to one): that spine's chord turns 3.8 deg, notch 9 reads 7.6
     deg and notch 10 0 deg. Notch 9 is a dip (the matcher filled its slot: no edges), so its width is the one its
     bend implies: with its own chord's bend 0.2 mm narrow, with the median of its own and its neighbours' true."""
-    from ntcr_recon.core.notches import _measure
+    from ntcr_recon.core.relocation.notches import _measure
 
     geometry = GEOMETRY
     shape = TubeShape.from_bend_angle(geometry, math.radians(60))
@@ -460,7 +460,7 @@ def test_a_rim_the_matcher_mixed_with_the_floor_behind_it_is_measured_where_its_
     camera, is seen beside its rim down to 1 mm deep. Judged where they were seen, the mixed rim pixels widen
     the notch by 0.3 mm; moved along their rays they land on the wall past the end rim and give it back, and the
     face's points, which land inside the gap short of the end rim, leave the start where it is."""
-    from ntcr_recon.core.centerline import TubeCoordinates
+    from ntcr_recon.core.relocation.centerline import TubeCoordinates
 
     geometry = TubeGeometry(notch_count=16)
     start = geometry.notch_centers_s[5] - geometry.notch_width / 2
@@ -508,7 +508,7 @@ def test_rim_calibration_gives_back_the_cut_faces_the_cameras_see(reach):
     (0.14 mm at the end notches) - or, where a matcher averages the face's depth into the rim, uncovers as much
     (reach < 0). The spines' known length gives back both: the widths come out exact, where one erosion for every
     edge leaves the end notches 0.08 mm off (their seen face's cover is read as erosion spread over both edges)."""
-    from ntcr_recon.core.notches import Notch, calibrate_rims, face_view_tangent
+    from ntcr_recon.core.relocation.notches import Notch, calibrate_rims, face_view_tangent
 
     geometry = TubeGeometry()
     centerline = straight_centerline(geometry.length + 1e-3)
@@ -549,7 +549,7 @@ def test_each_spine_is_given_its_known_length_its_two_rims_sharing_what_it_reads
     spine between two measured notches is its nominal length, and the widths' error falls by about 1/sqrt(2) (the
     two rims of a spine are one unknown seen twice). A dip bounds no spine: its neighbours' far rims stay as they
     were measured, and one rim read 0.4 mm off is shared by the two notches it bounds."""
-    from ntcr_recon.core.notches import Notch, calibrate_rims
+    from ntcr_recon.core.relocation.notches import Notch, calibrate_rims
 
     geometry = TubeGeometry()
     nominal = geometry.notch_pitch - geometry.notch_width
@@ -609,7 +609,7 @@ def test_a_notch_read_at_a_width_its_bend_rules_out_is_given_its_bends_and_its_n
     notch is missing near the tube's end, by the bend of the two notches before it, and with those missing too not
     at all (a warning names it unchecked). A notch read 0.1 mm wide - under a
     tenth of the cut width off its bend, a reading a robot could hold - is kept as measured."""
-    from ntcr_recon.core.notches import MISREAD_WIDTH_FRACTION, calibrate_and_check, calibrate_rims
+    from ntcr_recon.core.relocation.notches import MISREAD_WIDTH_FRACTION, calibrate_and_check, calibrate_rims
 
     geometry, bend = TubeGeometry(), math.radians(6.0)
     arc, width = geometry.notch_arc_at_bend(bend), geometry.notch_width_at_bend(bend)
@@ -671,7 +671,7 @@ def test_the_last_notch_found_is_checked_against_the_bend_of_the_notches_before_
     notch's distal rim reads late (0.25-0.4 mm in the sweeps) and no whole spine beyond measures its own bend (its
     chord runs into a tube cut short: here it reads 4 deg for 2). Checked against the bend of the two notches before
     it, it is given the true width, not its own chord's bend's."""
-    from ntcr_recon.core.notches import calibrate_and_check
+    from ntcr_recon.core.relocation.notches import calibrate_and_check
 
     geometry, bend = TubeGeometry(), math.radians(2.0)
     width = geometry.notch_width_at_bend(bend)
@@ -698,7 +698,7 @@ def test_a_notch_bent_much_sharper_than_its_neighbours_keeps_the_width_it_reads(
     bump's own excess raises the scatter of all the chords (it is measured without the bump's span). The same width
     read where the chords show no bump is misread, and so is one where the chords scatter as much as the bump
     (noise, not a kink). A chord that wobbles turns two neighbours opposite ways: no bump."""
-    from ntcr_recon.core.notches import bump_at, calibrate_and_check, chord_scatter
+    from ntcr_recon.core.relocation.notches import bump_at, calibrate_and_check, chord_scatter
 
     geometry = TubeGeometry()
     true_bends = np.radians(np.where(np.arange(geometry.notch_count) == 7, 12.0, 2.0))
@@ -755,7 +755,7 @@ def test_a_kink_read_wide_is_given_the_bend_its_chords_gather_back_and_its_neigh
     judged by the steady bend, keep theirs. Those bends are the ones reported. So with the chords as read under the
     simulator's own matcher, and under one without its left-right check (the far neighbour's chord then only 2.9
     times the scatter beyond the steady bend: the bump of three chords each beyond three missed it)."""
-    from ntcr_recon.core.notches import bend_implied, bump_at, calibrate_and_check
+    from ntcr_recon.core.relocation.notches import bend_implied, bump_at, calibrate_and_check
 
     geometry = TubeGeometry()
     true_bends = np.radians(np.where(np.arange(geometry.notch_count) == 7, 12.0, 2.0))
@@ -797,7 +797,7 @@ def test_a_misread_notch_is_given_the_width_of_its_bend_taken_with_its_neighbour
     4 deg and notch 7 one of 8 (one chord turned, the two notches it joins off opposite ways). Notch 6's rims are
     misread (only the middle 0.3 mm of its slot seen through): the width it is given is the one the median of its
     own and its neighbours' bends implies, the true one, not its own bend's (0.1 mm wide)."""
-    from ntcr_recon.core.notches import calibrate_and_check
+    from ntcr_recon.core.relocation.notches import calibrate_and_check
 
     geometry, bend = TubeGeometry(), math.radians(6.0)
     width = geometry.notch_width_at_bend(bend)
@@ -826,7 +826,7 @@ def test_centreline_of_a_known_arc():
     centerline, iterations, _ = estimate_centerline(sample.points[outer], GEOMETRY, settings)
     s = np.linspace(0.0, shape.length, 4000)
     truth, _ = shape.centerline(s)
-    from ntcr_recon.core.metrics import centerline_rmse
+    from ntcr_recon.core.quality.metrics import centerline_rmse
 
     rmse = centerline_rmse(centerline.points[centerline.s <= shape.length], truth)
     print(f"\n60 deg arc from its exact outer wall: centreline RMSE {rmse * 1e3:.4f} mm in {iterations} iterations, "
@@ -840,7 +840,7 @@ def test_the_centreline_reaches_the_tube_end_the_cold_start_march_stopped_short_
     open end. The march from the base stops short of the end (1.9 mm here) and its first refit moves the curve
     within the convergence tolerance everywhere but at the end: a fit settled on the interior alone returned the
     march's extent. Settled only once its extent holds to a slab, the curve reaches the tip."""
-    from ntcr_recon.core.robot_surface import PART_END_CAP, PART_INNER_WALL, PART_OUTER_WALL
+    from ntcr_recon.core.robot.surface import PART_END_CAP, PART_INNER_WALL, PART_OUTER_WALL
 
     shape = TubeShape.from_bend_angle(GEOMETRY, math.radians(18))
     sample = shape.sample_surface_parts(0.1e-3)
@@ -864,7 +864,7 @@ def test_a_warm_start_whose_free_end_is_off_is_refitted_there_not_returned_as_it
     interior less than the convergence tolerance: a fit settled on the interior alone returned the prior as it
     came, bow and all, and the tip's direction with it (second renderer, scene 5018: tip 0.24 mm off, 0.08 mm
     once refitted). Judged at the free end too, the fit ends on the arc."""
-    from ntcr_recon.core.metrics import centerline_rmse
+    from ntcr_recon.core.quality.metrics import centerline_rmse
 
     shape = TubeShape.from_bend_angle(GEOMETRY, math.radians(30))
     sample = shape.sample_surface_parts(0.1e-3)
@@ -890,7 +890,7 @@ def test_the_centreline_error_splits_into_along_and_across_the_cameras_views():
     """A straight axis along z, the estimate 0.05 mm off along y (towards the cameras) and 0.12 mm along x: for
     cameras facing each other along y the error is 0.05 along their views and 0.12 across; for cameras along x it
     is the other way round; the two parts add up to centerline_rmse."""
-    from ntcr_recon.core.metrics import centerline_error_by_view, centerline_rmse
+    from ntcr_recon.core.quality.metrics import centerline_error_by_view, centerline_rmse
 
     z = np.linspace(0.0, 30e-3, 301)
     truth = np.stack([np.zeros_like(z), np.zeros_like(z), z], axis=1)
@@ -927,7 +927,7 @@ def test_the_smoothing_does_not_straighten_the_free_end_of_an_arc():
     end (no curvature) and swings it out of the bend (155 um); penalising only the curvature's departure from
     the steady bend the curve holds leaves an exact arc where it is, to its end, while noise on it is smoothed
     (a third of what was added, at the end as within)."""
-    from ntcr_recon.core.centerline import _smooth_update
+    from ntcr_recon.core.relocation.centerline import _smooth_update
 
     radius, step, count = 20e-3, 0.4e-3, 100
     phi = np.arange(count) * step / radius
@@ -1081,7 +1081,7 @@ def test_the_alignments_shift_varying_along_the_tube_is_its_scatter_about_the_me
     """A lean the same all along (the fit shifted 0.1 mm towards the notch side everywhere) scatters by nothing;
     one that changes over the distal 40 % of the tube (0.1 mm there, none before) by sqrt(0.4) x 0.1 mm about the
     median, none; measured up to the end seen only."""
-    from ntcr_recon.core.alignment import shift_scatter
+    from ntcr_recon.core.relocation.alignment import shift_scatter
 
     fit = straight_centerline(30e-3)
 
@@ -1318,7 +1318,7 @@ def test_a_camera_that_sees_wall_clear_of_the_slots_in_one_window_only_levels_by
 def test_trusted_points_lie_pixels_inside_the_silhouette():
     """The facing zone is set in pixels: 4 footprints inside the silhouette of a 1.75 mm tube is 32.9 deg of view
     angle at 0.2 mm a pixel, 24.2 deg at 0.258 mm, never wider than the cap, and empty for a tube 4 px wide."""
-    from ntcr_recon.core.alignment import facing_cosine
+    from ntcr_recon.core.relocation.alignment import facing_cosine
 
     cap = math.radians(45.0)
     for footprint, expected in ((0.2e-3, 32.9), (0.258e-3, 24.2)):
@@ -1334,7 +1334,7 @@ def test_trusted_points_lie_pixels_inside_the_silhouette():
 def test_smoothed_shifts_share_noise_between_windows_and_keep_a_common_shift():
     """Windows each see a noisy copy of one shift: solved alone they scatter, solved jointly they agree, and a
     shift every window sees is kept whole (the smoothness prior only penalises differences)."""
-    from ntcr_recon.core.alignment import smoothed_shifts
+    from ntcr_recon.core.relocation.alignment import smoothed_shifts
 
     rng = np.random.default_rng(11)
     windows, true_shift = 12, np.array([0.08e-3, -0.03e-3])
@@ -1605,7 +1605,7 @@ def test_a_pile_up_on_the_wall_or_at_a_notch_face_is_no_end_cap():
     """A tube pointing at a camera whose last 5 mm lie nearer it than its depth range: the wall stops at 25 mm
     with its points piled up there (a ring at the wall's radius), and a notch's cut face turned to the camera piles
     its points up on a half annulus at 23.5 mm. Neither is the cap: a cap fills the annulus, past the last notch."""
-    from ntcr_recon.core.tip import end_cap_plane
+    from ntcr_recon.core.relocation.tip import end_cap_plane
 
     centerline = straight_centerline(35e-3)
     rng = np.random.default_rng(7)
@@ -1734,7 +1734,7 @@ def test_the_distal_stretch_every_camera_sees_end_on_is_measured_from_the_tip_ba
     """Sight angles sampled along s: cam_a's axis turns within 30 deg of its line of sight from 30 mm on, cam_b's
     from 25 mm on, and back out of it past 45 mm. Seen to 40 mm, the distal 10 mm is end-on to both (least angles
     20 and 10 deg); seen to 50 mm, the tube ends outside it: none."""
-    from ntcr_recon.core.quality import CameraReach
+    from ntcr_recon.core.quality.measures import CameraReach
 
     s = np.arange(0.0, 50.25e-3, 0.25e-3)
     past = s > 45e-3
@@ -1987,8 +1987,8 @@ def test_depth_step_is_read_from_the_data():
 
 
 def test_icp_recovers_a_known_motion_of_the_reference_and_relocates_onto_it():
-    from ntcr_recon.core.icp import icp, posed_reference, relocate_onto_reference
-    from ntcr_recon.core.transforms import quaternion_to_matrix
+    from ntcr_recon.core.base.transforms import quaternion_to_matrix
+    from ntcr_recon.core.relocation.icp import icp, posed_reference, relocate_onto_reference
 
     shape = TubeShape.from_bend_angle(GEOMETRY, math.radians(45))
     centerline = true_centerline(shape)
@@ -2016,8 +2016,8 @@ def test_icp_recovers_a_known_motion_of_the_reference_and_relocates_onto_it():
 def test_the_reference_move_is_how_far_icp_moved_the_reference_and_the_tip_along_and_across_the_tube():
     """A straight reference along z turned 0.1 deg about x through its base and shifted 0.1 mm along z: at the 30 mm
     tip that is 0.1 mm along the tube and 0.052 mm across it; over the points, their RMS move."""
-    from ntcr_recon.core.icp import reference_move
-    from ntcr_recon.core.transforms import quaternion_to_matrix
+    from ntcr_recon.core.base.transforms import quaternion_to_matrix
+    from ntcr_recon.core.relocation.icp import reference_move
 
     reference = wall_points(30e-3, spacing=0.5e-3)
     angle = math.radians(0.1)
@@ -2049,7 +2049,7 @@ def test_alignment_leaves_a_tube_seen_from_one_side_alone():
 
 def test_end_cap_of_a_tube_pointing_at_a_camera_places_the_tip():
     """Thin wall, a dense cap at 25 mm and a few flying pixels trailing behind it along the axis."""
-    from ntcr_recon.core.tip import cap_faces_a_camera, end_cap_plane
+    from ntcr_recon.core.relocation.tip import cap_faces_a_camera, end_cap_plane
 
     length = 25e-3
     centerline = straight_centerline(length + 5e-3)
@@ -2105,7 +2105,7 @@ def test_projection_starts_from_the_nearest_sample_even_where_the_curve_comes_ba
 
 @pytest.mark.parametrize("count", [1, 2, 7, 5400, 5401])
 def test_median_is_numpys_median(count):
-    from ntcr_recon.core.wall import median
+    from ntcr_recon.core.relocation.wall import median
 
     rng = np.random.default_rng(count)
     for values in (rng.normal(size=count), np.round(rng.normal(size=count), 1), np.sort(rng.normal(size=count)),
@@ -2116,7 +2116,7 @@ def test_median_is_numpys_median(count):
 
 @pytest.mark.parametrize("count", [1, 2, 7, 100, 5401])
 def test_quantile_is_numpys_quantile(count):
-    from ntcr_recon.core.wall import quantile
+    from ntcr_recon.core.relocation.wall import quantile
 
     rng = np.random.default_rng(count)
     for values in (rng.normal(size=count), np.round(rng.normal(size=count), 1), np.full(count, 0.25)):
@@ -2127,8 +2127,8 @@ def test_quantile_is_numpys_quantile(count):
 
 def test_compiled_steps_keep_the_edges_of_the_numpy_code_they_replaced():
     """The kernels check no index and unify types: their wrappers refuse or handle what numpy did."""
-    from ntcr_recon.core.centerline import fixed_radius_circle_fit
-    from ntcr_recon.core.wall import median, surface_band
+    from ntcr_recon.core.relocation.centerline import fixed_radius_circle_fit
+    from ntcr_recon.core.relocation.wall import median, surface_band
 
     curve = Centerline.from_points(np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.01], [1e-3, 0.0, 0.02]]),
                                    np.array([0.0, 1.0, 0.0]), 1e-3)
@@ -2147,8 +2147,8 @@ def test_compiled_steps_keep_the_edges_of_the_numpy_code_they_replaced():
 def test_coverage_counts_bin_as_numpys_histogram_and_runs_are_found_around_their_centre():
     """The compiled counts put every value in the bin np.histogram does (values on an edge, beyond the last
     edge, NaN); a run of evidence is found from the cell nearest the centre, and none that touches an end."""
-    from ntcr_recon.core.notches import _run_around
-    from ntcr_recon.core.profile import _counts_in_bins
+    from ntcr_recon.core.relocation.notches import _run_around
+    from ntcr_recon.core.relocation.profile import _counts_in_bins
 
     rng = np.random.default_rng(3)
     cell = FOOTPRINT / 8

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from ntcr_recon.core.geometry import TubeGeometry
-from ntcr_recon.core.kinematics import TubeShape
-from ntcr_recon.core.transforms import quaternion_to_matrix
+from ntcr_recon.core.base.transforms import quaternion_to_matrix
+from ntcr_recon.core.robot.geometry import TubeGeometry
+from ntcr_recon.core.robot.kinematics import TubeShape
 
 
 def neutral_axis_by_hand(r_o, r_i, g):

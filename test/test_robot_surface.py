@@ -5,9 +5,9 @@ import math
 import numpy as np
 import pytest
 
-from ntcr_recon.core.geometry import TubeGeometry
-from ntcr_recon.core.kinematics import TubeShape
-from ntcr_recon.core.robot_surface import PART_CUT_FACE, PART_OUTER_WALL
+from ntcr_recon.core.robot.geometry import TubeGeometry
+from ntcr_recon.core.robot.kinematics import TubeShape
+from ntcr_recon.core.robot.surface import PART_CUT_FACE, PART_OUTER_WALL
 
 SPACING = 0.05e-3
 

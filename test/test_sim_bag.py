@@ -10,9 +10,9 @@ from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
 from ntcr_recon import cli
-from ntcr_recon.core.config import load_rig_config
-from ntcr_recon.core.geometry import TubeGeometry
-from ntcr_recon.core.kinematics import TubeShape
+from ntcr_recon.core.config.rig import load_rig_config
+from ntcr_recon.core.robot.geometry import TubeGeometry
+from ntcr_recon.core.robot.kinematics import TubeShape
 from ntcr_recon.io.pointcloud import cloud_from_msg
 from ntcr_recon.io.staging import StagingError
 from ntcr_recon.sim.bag import TOPIC_KINDS, BagContents, topic_name, write_rig_bag

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from ntcr_recon.core.geometry import TubeGeometry
-from ntcr_recon.core.kinematics import TubeShape
-from ntcr_recon.core.robot_surface import PART_OUTER_WALL
+from ntcr_recon.core.robot.geometry import TubeGeometry
+from ntcr_recon.core.robot.kinematics import TubeShape
+from ntcr_recon.core.robot.surface import PART_OUTER_WALL
 from ntcr_recon.sim.camera import D405Intrinsics, deproject, facing_pair
 from ntcr_recon.sim.scene import LABEL_BACKDROP, LABEL_ROBOT, Scene
 from ntcr_recon.sim.stereo import StereoEmulation, emulate_depth, occluded_in_right_imager

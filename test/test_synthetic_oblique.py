@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from synthetic_views import posed_scene
 
-from ntcr_recon.core.metrics import centerline_rmse
-from ntcr_recon.core.pipeline import Reconstructor
+from ntcr_recon.core.quality.metrics import centerline_rmse
+from ntcr_recon.core.reconstruction.reconstructor import Reconstructor
 
 
 def _figures(config, shape, pair):
@@ -62,7 +62,7 @@ def test_a_camera_looking_into_the_slots_from_afar_never_leans_the_centreline_si
     result must say so and name the camera."""
     from synthetic_views import make_config, render_pair
 
-    from ntcr_recon.core.kinematics import TubeShape
+    from ntcr_recon.core.robot.kinematics import TubeShape
 
     config = make_config({"notch_side": float(np.radians(-90.0))}, distance=0.11)
     shape = TubeShape.from_bend_angle(config.robot, 0.0)
@@ -83,8 +83,8 @@ def test_a_tube_whose_wall_a_matcher_spoils_against_the_background_is_followed_a
     within a notch pitch."""
     from synthetic_views import make_config, render_pair
 
-    from ntcr_recon.core.centerline import Centerline, base_pose
-    from ntcr_recon.core.kinematics import TubeShape
+    from ntcr_recon.core.relocation.centerline import Centerline, base_pose
+    from ntcr_recon.core.robot.kinematics import TubeShape
 
     config = make_config({"notch_side": 0.0}, distance=0.09)
     shape = TubeShape.from_bend_angle(config.robot, np.radians(45.0))
@@ -121,7 +121,7 @@ def test_notches_facing_a_camera_keep_their_side_where_no_camera_sees_their_wind
     uncertainty says that a roll of 15 deg would go unseen here."""
     from synthetic_views import make_config, render_pair
 
-    from ntcr_recon.core.kinematics import TubeShape
+    from ntcr_recon.core.robot.kinematics import TubeShape
 
     config = make_config({"notch_side": float(np.radians(notch_side_deg))}, distance=0.09)
     shape = TubeShape.from_bend_angle(config.robot, 0.0)
@@ -144,8 +144,8 @@ def test_a_rig_file_rolled_15_deg_is_corrected_though_a_7px_window_thins_the_rin
     measured to within 3 deg."""
     from synthetic_views import make_config, render_pair
 
-    from ntcr_recon.core.kinematics import TubeShape
-    from ntcr_recon.core.pipeline import Reconstructor
+    from ntcr_recon.core.reconstruction.reconstructor import Reconstructor
+    from ntcr_recon.core.robot.kinematics import TubeShape
 
     truth = make_config({"notch_side": float(np.radians(notch_side_deg))}, distance=0.09)
     shape = TubeShape.from_bend_angle(truth.robot, np.radians(30.0))
@@ -166,8 +166,8 @@ def test_a_robot_curled_below_its_base_plane_is_followed_there_past_its_post_or_
     the box reach on."""
     from synthetic_views import render_pair, rig_mapping
 
-    from ntcr_recon.core.config import rig_config_from_mapping
-    from ntcr_recon.core.kinematics import TubeShape
+    from ntcr_recon.core.config.rig import rig_config_from_mapping
+    from ntcr_recon.core.robot.kinematics import TubeShape
 
     mapping = rig_mapping({"notch_side": 0.0}, distance=0.09)
     mapping["filters"] = {"clamp_radius": clamp_radius}

@@ -1,4 +1,4 @@
-"""The tip's refinement (core.tip) on known inputs: the band a stereo matcher spoils at a depth edge, measured
+"""The tip's refinement (relocation.tip) on known inputs: the band a stereo matcher spoils at a depth edge, measured
 in a depth image; how much of an end that band takes in a camera's image; the half-density end; and the tip
 from analytic wall points cut short by a known band. Then the whole reconstruction on the tests' own renderer
 (not the package's simulator) given a backdrop, whose blur spoils edges differently from the simulator's
@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 from synthetic_views import posed_scene, render_pair
 
-from ntcr_recon.core.centerline import Centerline
-from ntcr_recon.core.checks import Trace, assess
-from ntcr_recon.core.geometry import TubeGeometry
-from ntcr_recon.core.pipeline import Reconstructor
-from ntcr_recon.core.tip import edge_band, half_density_end, rim_erosion, rim_tip, with_known_length
+from ntcr_recon.core.quality.checks import Trace, assess
+from ntcr_recon.core.reconstruction.reconstructor import Reconstructor
+from ntcr_recon.core.relocation.centerline import Centerline
+from ntcr_recon.core.relocation.tip import edge_band, half_density_end, rim_erosion, rim_tip, with_known_length
+from ntcr_recon.core.robot.geometry import TubeGeometry
 
 UNIT = 1e-4
 R_O = 1.75e-3
@@ -253,7 +253,7 @@ def test_without_a_far_background_the_tip_falls_back_to_the_silhouettes_and_says
 
 def test_a_camera_without_a_far_background_is_tried_a_few_frames_then_left_alone(monkeypatch):
     """Measuring a band costs most of a frame: a scene that shows none is not measured on every frame."""
-    import ntcr_recon.core.pipeline as pipeline
+    import ntcr_recon.core.reconstruction.reconstructor as pipeline
 
     config, _, pair = posed_scene({}, 30.0, 0.0, seed=2)
     measured = []
@@ -294,7 +294,7 @@ def test_an_edge_band_measured_elsewhere_places_the_tip_and_a_wrong_one_is_refus
     (0.0, 0.10e-3, None),                               # nothing given back, the end placed to half a pixel
 ])
 def test_tip_warning_states_how_well_the_erosion_is_known(erosion, uncertainty, warned):
-    from ntcr_recon.core.geometry import TubeGeometry
+    from ntcr_recon.core.robot.geometry import TubeGeometry
     geometry = TubeGeometry()
     s = np.linspace(0.0, geometry.length, 2000)
     _, warnings = assess(Trace(

@@ -10,7 +10,7 @@ from ros_graph import VENV_BIN, RosGraph
 from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import PointCloud2
 
-from ntcr_recon.core.cloud import pack_rgb
+from ntcr_recon.core.cloud.points import pack_rgb
 from ntcr_recon.io.pointcloud import cloud_from_msg, cloud_to_msg, stamp_to_ns
 from ntcr_recon.ros.messages import RCLPY
 from ntcr_recon.ros.node_support import SENSOR_QOS, STAGE_QOS

@@ -14,8 +14,8 @@ import yaml
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
-from ntcr_recon.core.deproject import Intrinsics
-from ntcr_recon.core.transforms import rigid_transform
+from ntcr_recon.core.base.transforms import rigid_transform
+from ntcr_recon.core.cloud.deproject import Intrinsics
 from ntcr_recon.io.pointcloud import ROSBAGS, cloud_to_msg
 from ntcr_recon.ros.messages import RCLPY
 
@@ -121,7 +121,7 @@ def write_bag(path: Path, frames: int = 10, fps: float = 30.0, encoding: str = "
                 depth_m = render_tube(camera)
                 messages = {}
                 if points_only:
-                    from ntcr_recon.core.deproject import depth_to_points
+                    from ntcr_recon.core.cloud.deproject import depth_to_points
                     xyz, rgb, _ = depth_to_points(depth_m, INTRINSICS, 1.0, frame_color(camera, index))
                     messages["points"] = cloud_to_msg(xyz, rgb, frame_id=frame_id, stamp_ns=stamp, msgtypes=ROSBAGS)
                 else:
@@ -183,7 +183,7 @@ def simulated_bag(tmp_path_factory, frames: int = 2, bend_deg: float = 45.0) -> 
 
 def bag_frame_pairs(bag: Path, config) -> list:
     """The bag's frame pairs as the offline command pairs them (the core's bag reader, not camera_node's)."""
-    from ntcr_recon.core.pairing import pair_frames
+    from ntcr_recon.core.cloud.pairing import pair_frames
     from ntcr_recon.io.bag import read_camera_frames
 
     return pair_frames(read_camera_frames(bag, config), int(config.fusion.slop * 1e9))

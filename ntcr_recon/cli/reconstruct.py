@@ -2,9 +2,9 @@
 
 Streams the cameras' depth images (or PointCloud2) from a rosbag2 bag: each frame is decoded, paired with
 the other camera's by stamp as they come, run through fusion, filtering and relocation
-(core.pipeline.Reconstructor) and released, so memory does not grow with the bag's length; a pair without a
+(core.reconstruction.Reconstructor) and released, so memory does not grow with the bag's length; a pair without a
 result (the robot out of view, say) is left out and named in a warning, and only a bag of which no pair gives one
-is refused, with the first pair's cause. The frames over which the robot stood still longest (core.still: all
+is refused, with the first pair's cause. The frames over which the robot stood still longest (reconstruction.still: all
 of them when it never moved, else the longest stretch, the latest of equals, and a warning says so) are then
 combined (at most COMBINED_FRAMES_MAX of them, evenly spread over the stretch) into one relocated cloud, meshed
 and measured, and DIR gets:
@@ -17,19 +17,19 @@ sees the old result or the new one and a failure leaves DIR as it was. An existi
 those files (not a previous result) is refused unless --overwrite: it would be replaced whole.
 result.json (lengths in the unit its key names):
 
-    {"status": "ok" | "warn" | "error"  (core.findings: ok only with every notch found, every stated
+    {"status": "ok" | "warn" | "error"  (core.quality.findings: ok only with every notch found, every stated
                                           uncertainty within the rig's quality tolerances and no warn/error),
      "frames", "frames_combined": {"first", "last", "count"} (1-based frame pairs), "notch_count_expected",
      "notches": [{"index", "center_s_mm", "width_mm", "width_uncertainty_mm", "bend_deg"}],
      "centerline_m", "tip_m", "pdc": {"raw": {"mu", "sigma", "lambda"}, "relocated": {...}},
      "quality": {"uncertainty_mm": {"centerline", "tip", "notch_width"} (90 % bounds), notches found /
                  expected / by signal, length seen per camera, fit residual, notch side, centreline bias, depth
-                 step, ...}  (core.quality),
+                 step, ...}  (core.quality.measures),
      "ground_truth": null | {"notches_detected", "width_mae_mm", "centerline_rmse_mm", "tip_error_mm",
                              "surface_error_mm": {"raw", "relocated"}},
      "timings_ms": {stage: median ms per frame pair, or ms for the combined steps},
      "warnings": [{"code", "severity": "info" | "warn" | "error", "message", ...figures}]}
-        # what makes the result less trustworthy (codes: core.findings.CODES, the README's table), printed on
+        # what makes the result less trustworthy (codes: core.quality.findings.CODES, the README's table), printed on
         # stderr errors first
 
 Ground truth comes from `ground_truth.json` inside the bag directory when there is one (simulated bags).
@@ -88,7 +88,7 @@ def main(args: argparse.Namespace) -> int:
               f"{_millimetres(quality.get('centerline_uncertainty_mm'))}, tip by "
               f"{_millimetres(quality.get('tip_uncertainty_mm'))} along the tube and "
               f"{_millimetres(quality.get('tip_across_uncertainty_mm'))} across it", file=sys.stderr)
-    for warning in result["warnings"]:  # errors first (core.findings.sort_by_severity)
+    for warning in result["warnings"]:  # errors first (core.quality.findings.sort_by_severity)
         print(f"ntcr-recon reconstruct: {warning['severity']}: [{warning['code']}] {warning['message']}",
               file=sys.stderr)
     print(f"ntcr-recon reconstruct: status {result['status']}", file=sys.stderr)
@@ -116,8 +116,8 @@ class ReconstructCommandError(Exception):
 
 def run(args: argparse.Namespace) -> dict:
     """The whole command; raises ReconstructCommandError with the cause. Returns the result document."""
-    from ntcr_recon.core.config import ConfigError, load_rig_config
-    from ntcr_recon.core.pipeline import ReconstructionError
+    from ntcr_recon.core.config.rig import ConfigError, load_rig_config
+    from ntcr_recon.core.reconstruction.reconstructor import ReconstructionError
     from ntcr_recon.io.bag import BagError, bag_problem
     from ntcr_recon.io.staging import StagingError, staged_directory
 
@@ -200,14 +200,14 @@ def _bag_dir(bag: Path) -> Path:
 def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
     from tqdm import tqdm
 
-    from ntcr_recon.core import figures
-    from ntcr_recon.core.cloud import Cloud
-    from ntcr_recon.core.findings import finding, result_status, sort_by_severity
-    from ntcr_recon.core.input_checks import input_warnings
-    from ntcr_recon.core.metrics import pdc
-    from ntcr_recon.core.pairing import pair_frame_stream
-    from ntcr_recon.core.pipeline import ReconstructionError, Reconstructor
-    from ntcr_recon.core.still import StillStretch, stated_tip_uncertainty
+    from ntcr_recon.core.cloud.pairing import pair_frame_stream
+    from ntcr_recon.core.cloud.points import Cloud
+    from ntcr_recon.core.quality.findings import finding, result_status, sort_by_severity
+    from ntcr_recon.core.quality.inputs import input_warnings
+    from ntcr_recon.core.quality.metrics import pdc
+    from ntcr_recon.core.reconstruction.reconstructor import ReconstructionError, Reconstructor
+    from ntcr_recon.core.reconstruction.still import StillStretch, stated_tip_uncertainty
+    from ntcr_recon.io import figures
     from ntcr_recon.io.bag import iter_camera_frames
     from ntcr_recon.io.files import write_cloud_ply, write_mesh
 
@@ -255,7 +255,7 @@ def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
         raise ReconstructionError(str(error) + "".join(f"; {w}" for w in warnings)) from error
     for index, count in zip(*np.unique(relocation.relocated.camera, return_counts=True), strict=True):
         cameras[config.camera_names[index]].relocated_points = int(count)
-    # what the input lacks, the frames left out, then what the relocation's self-check found (core.quality)
+    # what the input lacks, the frames left out, then what the relocation's self-check found (core.quality.measures)
     left_out = ([finding("FRAMES_LEFT_OUT", f"{len(failed)} of {pair_count} frame pairs gave no result and are "
                          f"left out; {failed[0]}", pairs=len(failed), of=pair_count)] if failed else [])
     moved = combined.warning("frame pair")
@@ -282,7 +282,7 @@ def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
         "tip_m": relocation.tip.tolist(),
         "pdc": {"raw": pdc(raw.xyz, voxel), "relocated": pdc(relocation.relocated.xyz, voxel)},
         "ground_truth": _ground_truth(args.bag, raw, relocation),
-        "quality": quality,      # the self-check (core.checks), from the data alone
+        "quality": quality,      # the self-check (core.quality.checks), from the data alone
         "warnings": [warning.as_dict() for warning in warnings],
     }
     steps.update()
@@ -318,14 +318,14 @@ VIEW_AXIS_LABELS = ("towards the configured notch side (mm)", "along the robot's
 
 def _view_axes(geometry) -> np.ndarray:
     """The bending plane: the robot's notch side and its axis, in the base frame."""
-    from ntcr_recon.core.centerline import base_pose
+    from ntcr_recon.core.relocation.centerline import base_pose
 
     _, axis, binormal = base_pose(geometry)
     return np.stack([np.cross(binormal, axis), axis])
 
 
 def _ground_truth(bag: Path, raw, relocation) -> dict | None:
-    from ntcr_recon.core.metrics import centerline_rmse, notch_width_errors
+    from ntcr_recon.core.quality.metrics import centerline_rmse, notch_width_errors
 
     truth_file = _bag_dir(Path(bag)) / "ground_truth.json"
     if not truth_file.exists():

@@ -37,10 +37,10 @@ def render_bag(bag: Path, out: Path, config_path: Path | None = None, frame_inde
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ntcr_recon.core.config import load_rig_config
-    from ntcr_recon.core.deproject import crop_window, depth_to_points
-    from ntcr_recon.core.filters import crop_mask
-    from ntcr_recon.core.transforms import transform_points
+    from ntcr_recon.core.base.transforms import transform_points
+    from ntcr_recon.core.cloud.deproject import crop_window, depth_to_points
+    from ntcr_recon.core.cloud.filters import crop_mask
+    from ntcr_recon.core.config.rig import load_rig_config
 
     config = load_rig_config(config_path or bag / "rig.yaml")
     box_min, box_max = config.crop_box()

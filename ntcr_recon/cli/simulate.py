@@ -8,9 +8,9 @@ import math
 import sys
 from pathlib import Path
 
-from ntcr_recon.core.config import ConfigError, load_robot_geometry
-from ntcr_recon.core.geometry import TubeGeometry
-from ntcr_recon.core.kinematics import TubeShape
+from ntcr_recon.core.config.rig import ConfigError, load_robot_geometry
+from ntcr_recon.core.robot.geometry import TubeGeometry
+from ntcr_recon.core.robot.kinematics import TubeShape
 from ntcr_recon.sim.camera import D405Intrinsics
 from ntcr_recon.sim.simulate import Simulation, check_bag_space, notch_side_angle
 from ntcr_recon.sim.stereo import StereoEmulation

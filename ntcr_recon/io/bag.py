@@ -13,7 +13,7 @@ Public API:
                                                           stamp in whatever order the bag holds them
     BagStream(bag, topics_by_camera, mode)                 iterate: (camera, DepthMessages | PointCloud2 message)
     iter_camera_frames(bag, config, source="auto", topic_overrides=None, max_frames=0, facts=None)
-        -> iterator of core.fusion.CameraFrame, in the bag's order
+        -> iterator of core.cloud.fusion.CameraFrame, in the bag's order
     read_camera_frames(...) -> dict[camera, list[CameraFrame]]   the same, collected (small bags, tests)
 """
 
@@ -28,11 +28,11 @@ from typing import Any
 
 import numpy as np
 
-from ntcr_recon.core.config import RigConfig
-from ntcr_recon.core.deproject import Intrinsics
-from ntcr_recon.core.fusion import CameraFrame
-from ntcr_recon.core.input_checks import CameraInput
-from ntcr_recon.core.pairing import InForce
+from ntcr_recon.core.cloud.deproject import Intrinsics
+from ntcr_recon.core.cloud.fusion import CameraFrame
+from ntcr_recon.core.cloud.pairing import InForce
+from ntcr_recon.core.config.rig import RigConfig
+from ntcr_recon.core.quality.inputs import CameraInput
 from ntcr_recon.io.pointcloud import cloud_from_msg, stamp_to_ns
 
 _KINDS = ("depth", "depth_info", "color", "points")

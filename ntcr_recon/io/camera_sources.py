@@ -19,9 +19,9 @@ from typing import Any
 
 import numpy as np
 
-from ntcr_recon.core.config import TopicConfig
-from ntcr_recon.core.deproject import Intrinsics
-from ntcr_recon.core.pairing import stamp_jump
+from ntcr_recon.core.cloud.deproject import Intrinsics
+from ntcr_recon.core.cloud.pairing import stamp_jump
+from ntcr_recon.core.config.rig import TopicConfig
 from ntcr_recon.io.bag import BagError, BagStream, open_bag
 from ntcr_recon.io.pointcloud import stamp_to_ns
 

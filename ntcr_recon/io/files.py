@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ntcr_recon.core.cloud import unpack_rgb
+from ntcr_recon.core.cloud.points import unpack_rgb
 
 
 def write_atomically(path, write) -> None:
@@ -62,7 +62,7 @@ def write_cloud_ply(path, xyz: np.ndarray, rgb: np.ndarray | None = None, normal
 
 
 def write_mesh(path, mesh) -> None:
-    """A core.mesh.Mesh as PLY or STL (by the file's extension), written atomically."""
+    """A core.reconstruction.mesh.Mesh as PLY or STL (by the file's extension), written atomically."""
     import open3d as o3d
 
     path = Path(path)

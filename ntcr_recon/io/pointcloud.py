@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from ntcr_recon.core.cloud import finite_rows
+from ntcr_recon.core.cloud.points import finite_rows
 
 # sensor_msgs/PointField datatype constants
 INT8, UINT8, INT16, UINT16, INT32, UINT32, FLOAT32, FLOAT64 = range(1, 9)
@@ -189,7 +189,7 @@ def cloud_to_msg(xyz: np.ndarray, rgb: np.ndarray | None = None, *, frame_id: st
     the flavour of `msgtypes`.
 
     `xyz` is (N, 3) for an unorganised cloud or (H, W, 3) for an organised one; `rgb` is uint32 0x00RRGGBB
-    of the same leading shape (see `core.cloud.pack_rgb`); each column is one value per point or a scalar.
+    of the same leading shape (see `core.cloud.points.pack_rgb`); each column is one value per point or a scalar.
     """
     xyz = np.asarray(xyz, dtype=np.float32)
     if xyz.ndim not in (2, 3) or xyz.shape[-1] != 3:

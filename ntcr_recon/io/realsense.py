@@ -24,7 +24,7 @@ from pathlib import Path
 
 import pyrealsense2 as rs
 
-from ntcr_recon.core.config import CameraConfig
+from ntcr_recon.core.config.rig import CameraConfig
 from ntcr_recon.io.camera_sources import SourceError, SourceFrame
 from ntcr_recon.io.realsense_streams import (
     DepthFilters,

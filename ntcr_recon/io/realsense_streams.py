@@ -19,7 +19,7 @@ from collections.abc import Callable, Iterator, Sequence
 import numpy as np
 import pyrealsense2 as rs
 
-from ntcr_recon.core.deproject import Intrinsics
+from ntcr_recon.core.cloud.deproject import Intrinsics
 from ntcr_recon.io.camera_sources import SourceError, SourceFrame
 
 _POLL_MS = 50  # how often a wait for frames looks at the stop flag / the end of a recording

@@ -8,14 +8,14 @@ One instance per camera (parameter `camera`, a name of the rig's camera_names). 
   realsense a live D405 (pyrealsense2), picked by the configuration's serial_number, at its width/height/fps,
             depth unit kept at the configured value (0.1 mm on a D405);
   file      a librealsense recording (`file_path`) played back through pyrealsense2.
-Every depth frame goes through the core's deprojection (`ntcr_recon.core.deproject`): with `crop_to_robot`
+Every depth frame goes through the core's deprojection (`ntcr_recon.core.cloud.deproject`): with `crop_to_robot`
 only the image window that can see the robot's crop box is deprojected, as the offline pipeline does, and only
 the points inside the box are published (what fusion keeps anyway; a fifth of the bytes on the wire). The
 cloud holds the valid points with their pixel (fields pixel_u, pixel_v: the later stages find neighbours in
 the image by it), in the camera's optical frame (the configuration's frame_id), with the frame's own stamp.
 The first frame's depth step is measured (`depth_step_mm` on /diagnostics): depth too coarse for the tube (a
 realsense-ros recording's 1 mm unit) is a WARN there and a log line, the warning the offline command gives.
-So is the band its stereo matcher spoils at depth edges (`core.tip.edge_band_angle`, rad: on the first frames
+So is the band its stereo matcher spoils at depth edges (`core.relocation.tip.edge_band_angle`, rad: on the first frames
 until one shows a far background, at most EDGE_BAND_ATTEMPTS): published once on `<ns>/<cam>/edge_band`
 (std_msgs/Float64, transient local) for relocation_node, which places the tip with it as the offline command
 does with the depth images (`edge_band_mrad` on /diagnostics).
@@ -41,13 +41,13 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, PointCloud2
 from std_msgs.msg import Float64
 
-from ntcr_recon.core import compiled
-from ntcr_recon.core.cloud import rows
-from ntcr_recon.core.deproject import Intrinsics, crop_window, depth_to_points
-from ntcr_recon.core.filters import crop_mask
-from ntcr_recon.core.quality import depth_quantisation_warning, depth_step
-from ntcr_recon.core.tip import EDGE_BAND_ATTEMPTS, edge_band_angle
-from ntcr_recon.core.transforms import transform_points
+from ntcr_recon.core.base import compiled
+from ntcr_recon.core.base.transforms import transform_points
+from ntcr_recon.core.cloud.deproject import Intrinsics, crop_window, depth_to_points
+from ntcr_recon.core.cloud.filters import crop_mask
+from ntcr_recon.core.cloud.points import rows
+from ntcr_recon.core.quality.measures import depth_quantisation_warning, depth_step
+from ntcr_recon.core.relocation.tip import EDGE_BAND_ATTEMPTS, edge_band_angle
 from ntcr_recon.io.camera_sources import BagSource, Pacer, SourceError, SourceFrame
 from ntcr_recon.ros.graph import START_DELAY_S
 from ntcr_recon.ros.messages import RCLPY, camera_cloud_to_msg, checked_intrinsics, header, stamp_msg
@@ -199,7 +199,7 @@ class CameraNode(RigNode):
 
     def _start_time(self) -> float:
         """When the first frame is due: `start_time` (one instant for every camera of the graph), or now. When the
-        kernels were compiled at this start (a first start after an install, core/compiled.py), not before
+        kernels were compiled at this start (a first start after an install, core/base/compiled.py), not before
         START_DELAY_S after they were ready: every camera reads the same instant from the cache, so they stay in
         step, and no frame is skipped as late for the compilation."""
         start = self._params["start_time"]

@@ -12,7 +12,7 @@ import time
 
 from sensor_msgs.msg import PointCloud2
 
-from ntcr_recon.core.pipeline import Reconstructor
+from ntcr_recon.core.reconstruction.reconstructor import Reconstructor
 from ntcr_recon.ros.messages import decode_cloud, stage_cloud_from_msg, stage_cloud_to_msg
 from ntcr_recon.ros.node_stats import NodeStats
 from ntcr_recon.ros.node_support import STAGE_INPUT_QOS, STAGE_QOS, RigNode, guarded, max_points_parameter, run_node

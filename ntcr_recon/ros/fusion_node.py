@@ -3,9 +3,9 @@
 Subscribes every configured camera's `<ns>/<cam>/depth/color/points` (sensor-data QoS; the cloud must carry
 the camera's configured frame_id) and `<ns>/<cam>/depth/camera_info` (its focal length gives the pixel
 footprint the later stages scale with, its size bounds the clouds' pixel fields). When a buffered frame is
-released, and alone or not, is the core's `core.pairing.FramePairer` (pairs within `fusion.slop`, a camera
+released, and alone or not, is the core's `core.cloud.pairing.FramePairer` (pairs within `fusion.slop`, a camera
 silent past `fusion.camera_timeout` of the cameras' own stamps, `queue_size` frames per camera, superseded
-pairs, a jump back of the stamps); the fusion is `core.fusion.fuse` with each camera's extrinsics. This node
+pairs, a jump back of the stamps); the fusion is `core.cloud.fusion.fuse` with each camera's extrinsics. This node
 converts, calls them and publishes; a silent camera is logged and named on `/diagnostics` (WARN) until it
 returns (OK).
 
@@ -26,9 +26,9 @@ import time
 from diagnostic_msgs.msg import DiagnosticStatus
 from sensor_msgs.msg import CameraInfo, PointCloud2
 
-from ntcr_recon.core.deproject import Intrinsics
-from ntcr_recon.core.fusion import FramePair, fuse
-from ntcr_recon.core.pairing import FramePairer, InForce, Release
+from ntcr_recon.core.cloud.deproject import Intrinsics
+from ntcr_recon.core.cloud.fusion import FramePair, fuse
+from ntcr_recon.core.cloud.pairing import FramePairer, InForce, Release
 from ntcr_recon.io.pointcloud import stamp_to_ns
 from ntcr_recon.ros.messages import (
     RefusedInputError,
@@ -159,7 +159,7 @@ class FusionNode(RigNode):
         self.stats.published(release.stamp_ns, started)
 
     def _intrinsics_at(self, name: str, stamp_ns: int) -> Intrinsics | None:
-        """The camera's intrinsics in force at stamp_ns (core.pairing.InForce); None before any camera_info."""
+        """The camera's intrinsics in force at stamp_ns (core.cloud.pairing.InForce); None before any camera_info."""
         entry = self._intrinsics.get(name, InForce()).at(stamp_ns)
         return None if entry is None else entry[1]
 

@@ -109,7 +109,7 @@ def _argv(executable: str, node_name: str, config: Path, parameters: dict[str, o
 
 
 def main(args: argparse.Namespace) -> int:
-    from ntcr_recon.core.config import ConfigError, load_rig_config
+    from ntcr_recon.core.config.rig import ConfigError, load_rig_config
     from ntcr_recon.io.bag import bag_problem
 
     try:

@@ -1,6 +1,6 @@
 """mesh_node: `<ns>/relocated/points` + `<ns>/centerline` of the same stamp -> the core's mesh, at `rate`.
 
-The mesher is the rig configuration's `mesh.method` (core.pipeline.Reconstructor.mesh: `tube`, the relocated
+The mesher is the rig configuration's `mesh.method` (core.reconstruction.Reconstructor.mesh: `tube`, the relocated
 outer wall on the tube's own grid, or `poisson`, Eq. 7-8); relocation_node's cloud carries what it reads
 (normals, surface parts, tube coordinates), the Path the centreline.
 
@@ -28,7 +28,7 @@ from sensor_msgs.msg import PointCloud2
 from shape_msgs.msg import Mesh
 from visualization_msgs.msg import Marker
 
-from ntcr_recon.core.pipeline import Reconstructor
+from ntcr_recon.core.reconstruction.reconstructor import Reconstructor
 from ntcr_recon.io.files import write_mesh
 from ntcr_recon.io.pointcloud import stamp_to_ns
 from ntcr_recon.ros import cdr
@@ -67,7 +67,7 @@ PARAMETERS = {
 class MeshNode(RigNode):
     def __init__(self, node_name: str = "mesh_node") -> None:
         self._timer = None
-        self._mesh = None  # (core.mesh.Mesh, stamp) of the newest mesh
+        self._mesh = None  # (core.reconstruction.mesh.Mesh, stamp) of the newest mesh
         self._pending_save: Path | None = None
         self._params = {"save_ply_path": ""}
         # open3d (the Poisson mesher, the mesh writer) loads in seconds: at start-up, not in the first tick.

@@ -9,7 +9,7 @@ the same frames, all float32 and declared once in `io.pointcloud.STAGE_FIELDS`:
                       it); absent when the camera's cloud had no pixel layout
   `normal_x/y/z`      relocated cloud only: the reference surface's outward normal (the mesh is oriented by it)
   `part`, `tube_s`, `tube_x`, `tube_y`   relocated cloud only: the robot surface each point lies on
-                      (core.robot_surface.PART_*) and its tube coordinates (arc length, offset towards the notch side,
+                      (core.robot.surface.PART_*) and its tube coordinates (arc length, offset towards the notch side,
                       offset along the binormal): with the centreline Path, what the mesh stage needs
 Readers that know only x, y, z (and rgb) are unaffected.
 
@@ -39,10 +39,10 @@ from shape_msgs.msg import Mesh
 from std_msgs.msg import ColorRGBA, Float64MultiArray, Header, MultiArrayDimension, MultiArrayLayout
 from visualization_msgs.msg import Marker, MarkerArray
 
-from ntcr_recon.core.cloud import Cloud, finite_rows
-from ntcr_recon.core.deproject import Intrinsics
-from ntcr_recon.core.fusion import CameraFrame
-from ntcr_recon.core.transforms import matrix_to_quaternion, quaternion_to_matrix
+from ntcr_recon.core.base.transforms import matrix_to_quaternion, quaternion_to_matrix
+from ntcr_recon.core.cloud.deproject import Intrinsics
+from ntcr_recon.core.cloud.fusion import CameraFrame
+from ntcr_recon.core.cloud.points import Cloud, finite_rows
 from ntcr_recon.io.pointcloud import (
     STAGE_FIELDS,
     MessageTypes,
@@ -177,7 +177,7 @@ def stage_cloud_to_msg(cloud: Cloud, frame_id: str, normals: np.ndarray | None =
 
 
 def relocation_cloud_msg(relocation, frame_id: str) -> PointCloud2:
-    """The relocated cloud of a core.pipeline.RelocationResult with its normals, the surface `part` of each
+    """The relocated cloud of a core.reconstruction.RelocationResult with its normals, the surface `part` of each
     point and its tube coordinates `tube_s`, `tube_x`, `tube_y` (what the mesh stage needs besides the
     centreline)."""
     extra = {}
@@ -193,8 +193,8 @@ def relocation_from_msgs(cloud_msg: PointCloud2, path: Path, expected_frame: str
     """A core RelocationResult rebuilt from relocation_node's cloud (`relocation_cloud_msg`) and centreline Path of
     the same stamp: what the core's mesher reads (centreline, relocated cloud, normals, parts, tube
     coordinates). Notches and rejected counts are not carried (0 / empty)."""
-    from ntcr_recon.core.centerline import Centerline, TubeCoordinates
-    from ntcr_recon.core.pipeline import RelocationResult
+    from ntcr_recon.core.reconstruction.reconstructor import RelocationResult
+    from ntcr_recon.core.relocation.centerline import Centerline, TubeCoordinates
 
     require_frame(path, expected_frame)
     cloud, columns = _stage_cloud(cloud_msg, expected_frame, rig)

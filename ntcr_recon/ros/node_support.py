@@ -176,13 +176,13 @@ def run_nodes(node_factories: Sequence[Callable[[], Node]], args: list[str] | No
     KeyboardInterrupt inside it, which the EventsExecutor reports as a FATAL traceback, and shut the context
     down under a take); then the nodes are destroyed and rclpy shut down in order."""
     # one thread per node's kernels: the graph already runs a process per stage on every core there is (the
-    # offline pipeline splits the filter's kernels over the cores instead; core/compiled.py)
+    # offline pipeline splits the filter's kernels over the cores instead; core/base/compiled.py)
     numba.set_num_threads(1)
     COMMAND_LINE_OVERRIDES[:] = command_line_overrides(sys.argv if args is None else args)
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     context = rclpy.get_default_context()
     # the numba kernels compiled (first start after an install: one log line) and loaded before any node
-    # subscribes, never inside the first frames (core/compiled.py); a Ctrl-C meanwhile ends the process cleanly
+    # subscribes, never inside the first frames (core/base/compiled.py); a Ctrl-C meanwhile ends the process cleanly
     try:
         from ntcr_recon.sim.warm_up import ready_kernels
 
@@ -297,7 +297,7 @@ def refuse_unknown_overrides(nodes: Sequence[Node]) -> None:
 # the dotted key, its unit and its range.
 
 def rig_parameter_descriptor(key) -> ParameterDescriptor:
-    """The ParameterDescriptor of a schema Key (ntcr_recon.core.schema): its description, unit and range, the
+    """The ParameterDescriptor of a schema Key (ntcr_recon.core.base.schema): its description, unit and range, the
     range also as integer_range / floating_point_range for scalars so `ros2 param describe` shows the bounds."""
     setting = key.setting
     limits = setting.range_text()
@@ -331,7 +331,7 @@ class RigNode(Node):
     """
 
     def __init__(self, node_name: str, own_parameters: dict[str, tuple[Any, ParameterDescriptor]]) -> None:
-        from ntcr_recon.core.config import rig_parameter_keys
+        from ntcr_recon.core.config.rig import rig_parameter_keys
 
         super().__init__(node_name)
         # read-only, as the topics: the subscriptions and publishers are made once, from the start values
@@ -367,7 +367,7 @@ class RigNode(Node):
     def _refuse_unknown_rig_keys(self, rig_keys) -> None:
         """A key of a rig section (a camera's, robot, filters...) this node does not know, from the parameter
         file or the command line, is a typo: refused naming the nearest, as the rig file's loader refuses it."""
-        from ntcr_recon.core.config import STAGE_SECTIONS
+        from ntcr_recon.core.config.rig import STAGE_SECTIONS
 
         sections = {"robot", *STAGE_SECTIONS, *self._camera_names}
         for name in self._parameter_overrides:
@@ -382,8 +382,8 @@ class RigNode(Node):
         parameter file's value when the `-p` value's type differs (an integer for a double key, say)."""
         from rclpy.parameter import Parameter
 
-        from ntcr_recon.core.config import ConfigError
-        from ntcr_recon.core.schema import convert
+        from ntcr_recon.core.base.schema import convert
+        from ntcr_recon.core.config.rig import ConfigError
 
         # as rcl does, the last `-p` of a name is the one in force (an earlier one of it is no error)
         last = {(target, name): (target, name, text) for target, name, text in COMMAND_LINE_OVERRIDES}
@@ -418,8 +418,8 @@ class RigNode(Node):
         return [self.set_parameters_atomically([parameter]) for parameter in parameter_list]
 
     def _schema_refusal(self, parameter_list) -> SetParametersResult | None:
-        from ntcr_recon.core.config import ConfigError, parameter_key
-        from ntcr_recon.core.schema import convert
+        from ntcr_recon.core.base.schema import convert
+        from ntcr_recon.core.config.rig import ConfigError, parameter_key
 
         for parameter in parameter_list:
             key = parameter_key(parameter.name, self._camera_names)
@@ -433,7 +433,7 @@ class RigNode(Node):
         return None
 
     def _configure_from(self, values: dict[str, Any]) -> None:
-        from ntcr_recon.core.config import ConfigError, rig_config_from_mapping, unflatten_parameters
+        from ntcr_recon.core.config.rig import ConfigError, rig_config_from_mapping, unflatten_parameters
 
         rig_values = {name: values[name] for name in self._rig_names if values[name] is not None}
         try:

@@ -13,7 +13,7 @@ Publishes (reliable, depth 1; all in the base frame, stamped with the input clou
                             WARN, error ERROR; a cloud without a result ERROR), the frame's stamp and warning
                             codes in the message, and as key-values `status`, `stamp_ns`, `codes`,
                             `uncertainty_mm.<centerline|tip|notch_width>`, `warning.<CODE>` (severity: sentence)
-                            and the rest of the self-check (core.quality); codes: core.findings
+                            and the rest of the self-check (core.quality.measures); codes: core.quality.findings
 The relocation warm-starts from the previous frame's centreline, as the offline command does over a bag. The
 tip is placed with each camera's edge band (`<ns>/<cam>/edge_band`, from camera_node, which sees the depth
 images), as the offline command places it; until a camera's band arrives (or with a source that publishes none)
@@ -38,8 +38,8 @@ from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Float64, Float64MultiArray
 from visualization_msgs.msg import MarkerArray
 
-from ntcr_recon.core.pairing import stamp_jump
-from ntcr_recon.core.pipeline import ReconstructionError, Reconstructor
+from ntcr_recon.core.cloud.pairing import stamp_jump
+from ntcr_recon.core.reconstruction.reconstructor import ReconstructionError, Reconstructor
 from ntcr_recon.ros.messages import (
     NotchMarkers,
     centerline_path_bytes,

@@ -7,7 +7,7 @@ Camera topics follow realsense-ros (`TopicConfig.camera_topic`): `<ns>/<cam>/dep
 
 from __future__ import annotations
 
-from ntcr_recon.core.config import TopicConfig
+from ntcr_recon.core.config.rig import TopicConfig
 
 
 def stage_topic(topics: TopicConfig, name: str) -> str:

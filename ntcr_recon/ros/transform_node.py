@@ -12,7 +12,7 @@ import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import PointCloud2
 
-from ntcr_recon.core.transforms import rigid_transform, transform_points
+from ntcr_recon.core.base.transforms import rigid_transform, transform_points
 from ntcr_recon.io.pointcloud import cloud_from_msg, cloud_to_msg, stamp_to_ns
 from ntcr_recon.ros.messages import RCLPY
 from ntcr_recon.ros.node_support import (

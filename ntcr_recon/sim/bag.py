@@ -25,7 +25,7 @@ import numpy as np
 from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
-from ntcr_recon.core.deproject import Intrinsics, depth_to_points
+from ntcr_recon.core.cloud.deproject import Intrinsics, depth_to_points
 from ntcr_recon.io.pointcloud import ROSBAGS, cloud_to_msg
 from ntcr_recon.io.staging import staged_directory
 from ntcr_recon.sim.camera import CameraPose, D405Intrinsics

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ntcr_recon.core.transforms import matrix_to_quaternion
+from ntcr_recon.core.base.transforms import matrix_to_quaternion
 
 MAX_IMAGE_SIDE = 4096
 MAX_IMAGE_PIXELS = 1920 * 1200

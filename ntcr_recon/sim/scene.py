@@ -15,8 +15,8 @@ from functools import cached_property
 
 import numpy as np
 
-from ntcr_recon.core.kinematics import TubeShape
-from ntcr_recon.core.robot_surface import PART_OUTER_WALL
+from ntcr_recon.core.robot.kinematics import TubeShape
+from ntcr_recon.core.robot.surface import PART_OUTER_WALL
 from ntcr_recon.sim.camera import CameraPose, D405Intrinsics
 
 LABEL_NONE = 0

@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from ntcr_recon.core.kinematics import TubeShape
-from ntcr_recon.core.quality import surface_depth
+from ntcr_recon.core.quality.measures import surface_depth
+from ntcr_recon.core.robot.kinematics import TubeShape
 from ntcr_recon.sim.bag import BagContents, CameraFrame, write_rig_bag
 from ntcr_recon.sim.camera import CameraPose, D405Intrinsics, facing_pair
 from ntcr_recon.sim.scene import ExactFrame, RigProps, Scene
@@ -134,7 +134,7 @@ class Simulation:
     def _check_rig(self) -> None:
         """The rig.yaml this scene writes, checked by the rig schema before anything is rendered: a value its
         loader refuses (a depth unit of 0, say) made a bag that no reader could use."""
-        from ntcr_recon.core.config import ConfigError, rig_config_from_mapping
+        from ntcr_recon.core.config.rig import ConfigError, rig_config_from_mapping
 
         try:
             rig_config_from_mapping(self.rig_parameters()["/**"]["ros__parameters"])

@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ntcr_recon.core.geometry import TubeGeometry
-from ntcr_recon.core.kinematics import TubeShape
-from ntcr_recon.core.transforms import matrix_to_quaternion
+from ntcr_recon.core.base.transforms import matrix_to_quaternion
+from ntcr_recon.core.robot.geometry import TubeGeometry
+from ntcr_recon.core.robot.kinematics import TubeShape
 from ntcr_recon.sim.camera import CameraPose, D405Intrinsics
 
 TRUTH_FILE = "ground_truth.json"

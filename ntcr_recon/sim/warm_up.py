@@ -2,7 +2,7 @@
 
 `python -m ntcr_recon.sim.warm_up` compiles (or, when cached, checks) every kernel the nodes and the offline
 command use, as scripts/setup_env.sh does at install; a node does the same at its start through
-`core.compiled.ensure_compiled(workload)` before it subscribes to anything. The workload is the reconstruction
+`core.base.compiled.ensure_compiled(workload)` before it subscribes to anything. The workload is the reconstruction
 of one rendered frame pair (a 45-degree bend seen by the two cameras), fused, filtered, relocated and meshed by
 the same `Reconstructor` the nodes wrap, so each kernel is compiled for the argument types the frames give it.
 """
@@ -20,12 +20,12 @@ def workload() -> None:
     """Reconstruct one rendered frame pair (every stage, the mesh too): compiles each kernel the chain calls."""
     import yaml
 
-    from ntcr_recon.core.config import rig_config_from_mapping
-    from ntcr_recon.core.deproject import Intrinsics
-    from ntcr_recon.core.fusion import CameraFrame, FramePair
-    from ntcr_recon.core.geometry import TubeGeometry
-    from ntcr_recon.core.kinematics import TubeShape
-    from ntcr_recon.core.pipeline import Reconstructor
+    from ntcr_recon.core.cloud.deproject import Intrinsics
+    from ntcr_recon.core.cloud.fusion import CameraFrame, FramePair
+    from ntcr_recon.core.config.rig import rig_config_from_mapping
+    from ntcr_recon.core.reconstruction.reconstructor import Reconstructor
+    from ntcr_recon.core.robot.geometry import TubeGeometry
+    from ntcr_recon.core.robot.kinematics import TubeShape
     from ntcr_recon.sim.simulate import Simulation
 
     simulation = Simulation(TubeShape.from_bend_angle(TubeGeometry(), math.radians(45.0)), frame_count=1,
@@ -45,7 +45,7 @@ def workload() -> None:
 def ready_kernels(log) -> None:
     """Before a node subscribes: the kernels compiled (when this install's cache is not complete; one log
     line) and the cached ones this process uses loaded."""
-    from ntcr_recon.core import compiled
+    from ntcr_recon.core.base import compiled
 
     compiled.ensure_compiled(workload, lambda line: log(f"{line}, before subscribing"))
     compiled.load_cached()
@@ -54,7 +54,7 @@ def ready_kernels(log) -> None:
 def main() -> int:
     import numba
 
-    from ntcr_recon.core import compiled
+    from ntcr_recon.core.base import compiled
 
     started = time.monotonic()
     spent = compiled.ensure_compiled(workload, log=lambda line: print(f"[warm-up] {line}", flush=True))

@@ -1,0 +1,1 @@
+"""Foundations every layer uses: compiled kernels, rigid transforms, the configuration schema's machinery."""

@@ -1,0 +1,1 @@
+"""The rig configuration: reading, validating and documenting the parameter file."""

@@ -1,0 +1,718 @@
+"""The self-check of a reconstruction as a list of checks: how sure the result is, in figures and coded warnings.
+
+`assess(trace)` looks only at what the reconstruction's steps recorded (a `Trace`) and the configuration, never at
+ground truth. The figures several checks rest on (the centreline's and the tip's stated uncertainties, the end seen
+against the robot's length, each camera's share of the tube) are derived once (`derive`); then each check of
+CHECKS returns its figures for the `quality` document and its warnings (quality.findings). Adding a check touches one
+place: a function and its entry in CHECKS. The helpers the checks measure with live in core.quality.measures.
+
+    notches_found           NOTCHES_MISSING, NOTCH_WIDTH_FROM_BEND
+    widths_against_bends    NOTCH_WIDTH_MISREAD, NOTCH_WIDTH_UNCHECKED; each width's 90 % bound
+    icp_reference           ICP_MOVED_REFERENCE
+    tip_end                 TIP_ON_END_CAP, TIP_ON_ERODED_RIM
+    camera_views            DISTAL_ONE_CAMERA, CAMERA_SHORT_VIEW
+    tip_against_length      TIP_OFF_LENGTH, TUBE_ENDS_SHORT, TIP_CARRIED
+    notch_side              NOTCH_SIDE_UNSETTLED, ROBOT_ROLLED
+    depth_resolution        PIXEL_FOOTPRINT_COARSE, DEPTH_QUANTISED
+    centerline              CENTERLINE_UNCERTAIN, OUTLINE_UNCHECKED, ALIGNMENT_ASTRAY, CENTERLINE_UNSUPPORTED,
+                            DISTAL_END_ON, SLOTS_LEAN
+    extrinsics              EXTRINSICS_DISAGREE
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from ntcr_recon.core.quality.findings import Finding, finding, notch_width_uncertainties, uncertainty_mm
+from ntcr_recon.core.quality.measures import (
+    CameraReach,
+    camera_coverage,
+    carried_to_tip,
+    centerline_uncertainty,
+    depth_quantisation_warning,
+    nearest_box_face,
+    notches_lie,
+    unmeasured_share,
+    unseen_figures,
+    where_notches_went_unseen,
+)
+from ntcr_recon.core.relocation.icp import ReferenceMove
+from ntcr_recon.core.relocation.notches import MISREAD_WIDTH_FRACTION
+from ntcr_recon.core.relocation.outline import OUTLINE_TOLERANCE_PX, went_astray
+from ntcr_recon.core.relocation.tip import LENGTH_AGREEMENT_SIGMAS, TipAlongTube
+
+# Thresholds, relative to the robot and the camera so that no robot is special.
+ONE_CAMERA_RUN_DIAMETERS = 1.0     # a distal stretch longer than this many diameters seen by one camera: warn
+SIDE_OFF_DEG = 10.0                # measured notch side this far from the configured one: warn
+TIP_SHORT_DIAMETERS = 0.5          # tip this many diameters short of (or past) the robot's length: warn
+FOOTPRINT_RADIUS_FRACTION = 1 / 7  # pixel footprint above this fraction of r_o: too few pixels across
+BIAS_WARN_FOOTPRINTS = 0.5         # a lean into the slots above this many footprints: warn
+END_ON_PITCHES = 2.0  # a distal stretch this many notch pitches long that every camera sees end-on: warn
+# The project's floors (issue 9): a figure whose uncertainty exceeds its floor is worth a note.
+TIP_FLOOR = 0.15e-3
+CENTERLINE_FLOOR = 0.08e-3
+# An error growing linearly from the clamped base to the free end is sqrt(3) times its RMS over the length there.
+FREE_END_FACTOR = math.sqrt(3.0)
+# Two cameras whose own axes at the end lie +-b about the fused one (an RMS of b) lie 2 b apart: the free end
+# follows whichever wall the matcher biased there, and nothing beyond it holds the axis.
+DISTAL_CROSS_VIEW_FACTOR = 2.0
+# A mean shift across the views this many standard errors from none is rigid, not the matcher's noise.
+EXTRINSICS_SIGMAS = 3.0
+
+
+@dataclass(frozen=True)
+class Trace:
+    """What the reconstruction's steps recorded of one result (m, rad), for the checks.
+
+    tip_uncertainty: how well the tip's refinement placed it along the tube, when it measured the erosion it gave
+    back (else the erosion itself counts as uncertain, and half a footprint). tip_position, crop_box: where the tip
+    is and the box the points were cropped to (base frame), to tell a tube cut off by the box. notched_thinning:
+    quality.notched_thinning's figure, when it could be measured; looking_into_slots:
+    quality.cameras_looking_into_slots; tip_from_cap: the tip is the end cap's plane (tip.end_cap_plane),
+    tip_uncertainty the smear of its points; side_unsettled: the notch side measured off the configured one, then
+    off again in the frame turned to it, when the configured one was kept for it; side_uncertainty: how well the
+    side measured is known (None: not measured). tip_along: the tip between the end seen and the robot's length
+    (tip.TipAlongTube); its uncertainty is the tip's then, and the end seen is what is judged against the robot's
+    length. backbone_shift: how far alignment.level_by_backbone moved the axis (None or 0: no camera faced the
+    backbone). unsupported: the stretches of s where no camera saw trusted wall (alignment.CrossView).
+    distal_cross_view: CrossView.distal, the cameras' spread across their views in the last window, which bounds
+    the tip across the tube from below. alignment_scatter: how much the alignment's shift of the fit varies along
+    the tube (alignment.shift_scatter). misread_widths: the width each notch notches.calibrate_and_check found
+    misread was read at (by index), now its bend's; unchecked: the notches it could not check. held_shift: (how far
+    the alignment moved the end, the s beyond which it held that shift unmeasured) (alignment.Alignment's end_shift
+    and held_from). reach: how near the tube comes to each camera (quality.CameraReach). notch_centres: the comb's
+    notch centres along s (comb.expected_centres). wall_level: the outer wall's level about the r_o circle
+    (wall.surface_band of all points). outline_offset: how far the axis lies from the middle of the tube's outline
+    in the cameras' views (RMS; outline.outline_offset). across_from_fit: (the aligned axis's outline offset, the
+    fit's) when the alignment went astray and the fit placed the axis across the views (outline.across_views_from).
+    fitted_end: where the fitted curve ended, past which the centreline was carried on bending to the tip.
+    reference_moved: relocated by ICP, how far it moved its reference off the centreline's pose (icp.ReferenceMove).
+    """
+
+    geometry: object
+    camera_names: tuple[str, ...]
+    notches: list
+    coords_s: np.ndarray
+    camera: np.ndarray | None
+    tip_s: float
+    total_bend: float
+    footprint: float
+    wall_residual: float
+    notch_side: float
+    configured_side: float
+    bias_notch_side: float
+    bias_binormal: float
+    depth_steps: dict[str, float]
+    tip_erosion: float = 0.0
+    tip_uncertainty: float | None = None
+    tip_position: np.ndarray | None = None
+    crop_box: tuple[np.ndarray, np.ndarray] | None = None
+    notched_thinning: float | None = None
+    looking_into_slots: tuple[str, ...] = ()
+    tip_from_cap: bool = False
+    side_unsettled: tuple[float, float] | None = None
+    side_uncertainty: float | None = None
+    cross_view_spread: float | None = None
+    distal_cross_view: float | None = None
+    alignment_scatter: float | None = None
+    outline_offset: float | None = None
+    across_from_fit: tuple[float, float] | None = None
+    tip_along: TipAlongTube | None = None
+    backbone_shift: float | None = None
+    held_shift: tuple[float, float] | None = None
+    unsupported: tuple[tuple[float, float], ...] = ()
+    misread_widths: dict[int, float] | None = None
+    unchecked: list[int] | None = None
+    reach: CameraReach | None = None
+    notch_centres: np.ndarray | None = None
+    wall_level: float | None = None
+    fitted_end: float | None = None
+    reference_moved: ReferenceMove | None = None
+    cross_view_offsets: tuple[tuple[float, float] | None, ...] = ()  # alignment.CrossView.offsets
+    centerline_tolerance: float | None = None  # config.QualityConfig's, which the extrinsics check weighs against
+
+
+@dataclass(frozen=True)
+class Derived:
+    """The figures several checks rest on, derived once from the trace (m)."""
+
+    found: list[int]
+    missing: list[int]
+    cell: float                 # the coverage cells' length: a footprint, at least an eighth of the radius
+    seen_end: float             # the end the cameras saw (the tip, unless carried on or weighed with the length)
+    share: dict[str, float]     # each camera's share of the length
+    alone: dict[str, float]     # the distal stretch each camera alone saw
+    one_sided: dict[str, float]  # those longer than ONE_CAMERA_RUN_DIAMETERS diameters
+    resting_on_level: tuple[float, float] | None  # (their share of the length, the wall's level the axis rests on)
+    astray: float | None        # the outline offset, where the axis went astray
+    lean: float                 # how far the slots' deficit may lean the axis
+    levelled: bool              # a camera facing the backbone placed the axis along its view
+    uncertainty: float | None   # the centreline's own (quality.centerline_uncertainty)
+    outline_unchecked: bool
+    centreline_known: float | None   # with the outline check's resolution where it could not run
+    stated_centreline: float | None  # with the hidden part and the unmeasured stretches: what the result states
+    end_on: float
+    end_on_angles: dict[str, float]
+    end_on_warned: bool
+    unsupported_to_tip: bool
+    tip: TipBounds
+
+
+@dataclass(frozen=True)
+class TipBounds:
+    """How well the tip is known along and across the tube (m), and what the across bound rests on."""
+
+    along: float                 # before a tube ending short widened it (what the rim's or cap's note says)
+    across: float
+    measured: bool               # the tip's refinement measured the erosion it gave back
+    weighed: bool                # the robot's length was weighed in
+    because: str                 # cameras_apart | icp | hidden | carried | held_shift | free_end
+    why: str                     # the same, in words
+    icp_along: float
+    icp_across: float
+    centreline_along: float      # the centreline's tip bounds, before ICP moved it
+    centreline_across: float
+    held: float
+    held_from: float
+    carried: float
+    hidden_across: float
+    expected_length: float       # the robot's length at the bend measured
+    short: float                 # the expected length less the end seen
+    ends_off_length: bool
+    left_short: bool             # a tip left at an end seen far off the length: bounded by the shortfall
+
+    @property
+    def stated_along(self) -> float:
+        return max(self.along, abs(self.short)) if self.left_short else self.along
+
+    @property
+    def stated_across(self) -> float:
+        return max(self.across, abs(self.short)) if self.left_short else self.across
+
+
+Check = Callable[[Trace, Derived], tuple[dict, list[Finding]]]
+
+
+def assess(trace: Trace) -> tuple[dict, list[Finding]]:
+    """The `quality` document and the warnings: every check of CHECKS over the trace, then the result's bounds."""
+    derived = derive(trace)
+    quality: dict = {}
+    warnings: list[Finding] = []
+    for check in CHECKS:
+        figures, found = check(trace, derived)
+        quality.update(figures)
+        warnings += found
+    quality["uncertainty_mm"] = uncertainty_mm(quality, quality["notch_width_uncertainty_mm"].values())
+    return quality, warnings
+
+
+def derive(t: Trace) -> Derived:
+    """The figures several checks share: who saw how much of the tube, the centreline's and the tip's bounds."""
+    geometry, footprint, diameter = t.geometry, t.footprint, t.geometry.outer_diameter
+    found = sorted(n.index for n in t.notches)
+    cell = max(footprint, geometry.outer_radius / 8)
+    seen_end = t.tip_s if t.tip_along is None else t.tip_along.seen_s
+    share, alone = camera_coverage(t.coords_s, t.camera, t.camera_names, t.tip_s, cell, pool=diameter)
+    one_sided = {name: length for name, length in alone.items() if length > ONE_CAMERA_RUN_DIAMETERS * diameter}
+    resting_on_level = ((min(sum(one_sided.values()) / max(seen_end, cell), 1.0), t.wall_level)
+                        if one_sided and t.wall_level is not None else None)
+    astray = t.outline_offset if went_astray(t.outline_offset, footprint) else None
+    levelled = bool(t.backbone_shift)
+    uncertainty = centerline_uncertainty(t.cross_view_spread, t.notched_thinning, t.looking_into_slots, levelled,
+                                         one_sided=resting_on_level, astray=astray, varying_lean=t.alignment_scatter)
+    # where no camera's view showed the tube's outline whole, nothing checked the axis across the views (outline.py):
+    # it is known there no better than that check resolves, a pixel footprint, whatever the cameras' spread says
+    outline_unchecked = t.camera is not None and t.outline_offset is None
+    centreline_known = max(uncertainty or 0.0, footprint) if outline_unchecked else uncertainty
+    tip = tip_bounds(t, seen_end, centreline_known)
+    # the centreline runs on past the end seen to a carried tip: along that stretch a straight hidden part leaves it
+    # off by up to hidden_across, growing with the square of the distance carried (a fifth of its square in the
+    # mean): the RMS over the robot's length
+    stated_centreline = centreline_known
+    if tip.hidden_across:
+        hidden_share = (t.tip_s - seen_end) / t.tip_s
+        stated_centreline = math.sqrt((centreline_known or 0.0) ** 2 + hidden_share * tip.hidden_across**2 / 5)
+    # over the stretches where no camera saw the wall facing it, or every camera sees it end-on (both warned),
+    # nothing measured how far off the axis is: known there no better than a pixel footprint, their share of the
+    # length weighs that in the RMS
+    end_on, end_on_angles = (0.0, {}) if t.reach is None else t.reach.end_on_to_every_camera(t.tip_s)
+    end_on_warned = end_on >= END_ON_PITCHES * geometry.notch_pitch
+    unmeasured = unmeasured_share(t.unsupported, end_on if end_on_warned else 0.0, t.tip_s)
+    if unmeasured and stated_centreline is not None:
+        stated_centreline = math.sqrt(stated_centreline**2 + unmeasured * footprint**2)
+    # pooled over two cameras, a deficit one of them carries alone reads half: the lean may reach twice it
+    lean = 2.0 * t.notched_thinning if t.notched_thinning is not None and t.looking_into_slots else 0.0
+    return Derived(
+        found=found, missing=sorted(set(range(geometry.notch_count)) - set(found)), cell=cell, seen_end=seen_end,
+        share=share, alone=alone, one_sided=one_sided, resting_on_level=resting_on_level, astray=astray, lean=lean,
+        levelled=levelled, uncertainty=uncertainty, outline_unchecked=outline_unchecked,
+        centreline_known=centreline_known, stated_centreline=stated_centreline, end_on=end_on,
+        end_on_angles=end_on_angles, end_on_warned=end_on_warned,
+        unsupported_to_tip=bool(t.unsupported) and t.unsupported[-1][1] >= t.tip_s - geometry.notch_pitch, tip=tip)
+
+
+def tip_bounds(t: Trace, seen_end: float, centreline_known: float | None) -> TipBounds:
+    """How well the tip is known: along the tube, the rim's or cap's refinement (or the length weighed in), across
+    it the centreline's free end with the alignment's held shift, what it was carried over, a hidden part and ICP's
+    move; where the cameras disagree in the last window, their own axes' distance apart."""
+    measured = t.tip_uncertainty is not None
+    # the tip's rim is a depth edge: it rests on the erosion given back, known to about that much unless the
+    # refinement measured it
+    along = t.tip_uncertainty if measured else abs(t.tip_erosion) + t.footprint / 2
+    if t.tip_along is not None:
+        along = t.tip_along.uncertainty
+    icp_along, icp_across = ((t.reference_moved.tip_along, t.reference_moved.tip_across)
+                             if t.reference_moved is not None else (0.0, 0.0))
+    # the tip sits on the centreline's free end, where an error growing along the tube is sqrt(3) its RMS, with the
+    # shift the alignment measured last and held unchecked to the tip (the fit's lean it corrected there may differ
+    # beyond)
+    end_spread = DISTAL_CROSS_VIEW_FACTOR * (t.distal_cross_view or 0.0)
+    free_end = FREE_END_FACTOR * (centreline_known or 0.0)
+    held, held_from = t.held_shift if t.held_shift is not None and t.held_shift[1] is not None else (0.0, t.tip_s)
+    carried, carried_across = carried_to_tip(t.fitted_end, t.tip_s, t.notch_centres, t.geometry,
+                                             centreline_known or 0.0)
+    # carried past an end hidden from every camera: the hidden notches may bend otherwise than the ones seen
+    hidden_across = 0.0 if t.tip_along is None or t.tip_along.hidden_across is None else t.tip_along.hidden_across
+    centreline_across = math.hypot(free_end, held, carried_across, hidden_across)
+    across = max(math.hypot(centreline_across, icp_across), end_spread)
+    # named by the largest term, each weighed against those after it (ICP's move first, the free end last)
+    terms = [("icp", icp_across), ("hidden", hidden_across), ("carried", carried_across), ("held_shift", held)]
+    because = "cameras_apart" if end_spread >= across else next(
+        (name for i, (name, value) in enumerate(terms) if value > max([v for _, v in terms[i + 1:]] + [free_end])),
+        "free_end")
+    why = {"cameras_apart": "the cameras' axes that far apart across their views at the end",
+           "icp": "ICP moved it that far off where the centreline placed it",
+           "hidden": f"were the {(t.tip_s - seen_end) * 1e3:.1f} mm no camera saw straight, not bent as the notches "
+                     "seen, the tip would lie that far off",
+           "carried": f"the centreline carried on bending over the {carried * 1e3:.1f} mm past where its fit reached, "
+                      "at the bend of the notches before",
+           "held_shift": f"the alignment moved the axis {held * 1e3:.2f} mm at the last wall it trusted, and held that "
+                         f"shift unchecked over the {max(t.tip_s - held_from, 0.0) * 1e3:.1f} mm to the tip",
+           "free_end": "the centreline's, at its free end"}[because]
+    # bending shortens the centreline by ybar * theta: what the tip should read with the measured bend
+    expected_length = t.geometry.bent_length(t.total_bend)
+    short = expected_length - seen_end
+    ends_off_length = abs(short) > TIP_SHORT_DIAMETERS * t.geometry.outer_diameter
+    return TipBounds(
+        along=math.hypot(along, icp_along), across=across, measured=measured,
+        weighed=bool(t.tip_along is not None and t.tip_along.length_weighed), because=because, why=why,
+        icp_along=icp_along, icp_across=icp_across, centreline_along=along,
+        centreline_across=max(centreline_across, end_spread), held=held, held_from=held_from, carried=carried,
+        hidden_across=hidden_across, expected_length=expected_length, short=short, ends_off_length=ends_off_length,
+        # a tip left at an end seen far short of (or past) the robot's length (not carried on) lies wherever the
+        # rest of the robot reaches
+        left_short=ends_off_length and not hidden_across)
+
+
+def notches_found(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
+    """Notches found of expected, by which signal, and where the comb puts the missing ones: past the end seen,
+    where a camera did not see the tube, or where the cameras saw it and nothing in its wall marked the cut."""
+    geometry, found, missing = t.geometry, d.found, d.missing
+    beyond, unseen, unmarked, warnings = [], {}, [], []
+    by_signal: dict[str, int] = {}
+    for notch in t.notches:
+        by_signal[notch.signal] = by_signal.get(notch.signal, 0) + 1
+    if missing:
+        warning = (f"{len(found)} of {geometry.notch_count} notches found (missing: "
+                   f"{', '.join(str(i) for i in missing)}): their widths are unknown")
+        if t.notch_centres is not None:  # where the comb puts them: past the end seen, or out of a camera's view
+            half = geometry.notch_width / 2
+            beyond, unseen = where_notches_went_unseen(missing, t.notch_centres, half, t.coords_s, t.camera,
+                                                       t.camera_names, d.seen_end, d.cell,
+                                                       pool=geometry.outer_diameter)
+            for name, indices in unseen.items():
+                why = "" if t.reach is None else t.reach.why_unseen(
+                    [name], t.notch_centres[indices[0]] - half, min(t.notch_centres[indices[-1]] + half, d.seen_end))
+                warning += f"; {notches_lie(indices)} where {name} did not see the tube{f' ({why})' if why else ''}"
+            if beyond:
+                warning += f"; {notches_lie(beyond)} beyond the end seen ({d.seen_end * 1e3:.1f} mm along the tube)"
+            if t.camera is not None:  # seen, yet not found: what a depth pixel there is against the cut
+                unmarked = [i for i in missing if i not in beyond and not any(i in v for v in unseen.values())]
+            if unmarked:
+                them = "it" if len(unmarked) == 1 else "them"
+                warning += (f"; {notches_lie(unmarked)} where the cameras saw the tube, yet no gap or dip of the wall "
+                            f"marks {them} (a {geometry.notch_width * 1e3:.1f} mm cut spans "
+                            f"{geometry.notch_width / t.footprint:.0f} px in the depth images there: a stereo "
+                            "matcher's window that wide or wider fills it; or it opens to a side no camera saw)")
+        warnings.append(finding("NOTCHES_MISSING", warning, missing=missing, beyond_end=beyond,
+                                unseen_by={name: list(indices) for name, indices in unseen.items()},
+                                unmarked=unmarked))
+    dips = sorted(n.index for n in t.notches if n.signal == "dip")
+    if dips:
+        warnings.append(finding("NOTCH_WIDTH_FROM_BEND",
+                                f"notches {', '.join(str(i) for i in dips)} show only as a shallow dip of the wall's "
+                                "coverage where the comb puts them (slots narrower than the stereo matcher's window, "
+                                "which fills them): their edges were not measured, and their widths are what their "
+                                "measured bends imply", notches=dips))
+    return {"notches_found": len(found), "notches_expected": geometry.notch_count, "notches_missing": missing,
+            "notches_missing_beyond_end": beyond, "notches_missing_unseen_by": unseen,
+            "notches_missing_unmarked": unmarked, "notches_by_signal": by_signal,
+            "notch_signal": {str(n.index): n.signal for n in sorted(t.notches, key=lambda n: n.index)}}, warnings
+
+
+def widths_against_bends(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
+    """Each notch's width against the one its measured bend implies (the gap on the outer wall of a notch of neutral
+    length h bent by theta: notches.calibrate_and_check gave a misread one its bend's), the notches that could not
+    be checked so, and each width's 90 % bound from how the widths read disagree with their bends'."""
+    geometry, misread, warnings = t.geometry, t.misread_widths or {}, []
+    # per notch how far the width read is off its bend's (a misread one's as read)
+    off_model = {n.index: misread.get(n.index, n.width) - geometry.notch_width_at_bend(n.bend or 0.0)
+                 for n in t.notches if n.edges_measured or n.index in misread}
+    if misread:
+        listed = ", ".join(f"{n.index} ({misread[n.index] * 1e3:.2f} mm read, {n.width * 1e3:.2f} implied)"
+                           for n in t.notches if n.index in misread)
+        warnings.append(finding("NOTCH_WIDTH_MISREAD",
+                                f"notches whose edges read a width their bends rule out: {listed}; their rims were "
+                                "misread (a slot seen through over a narrow run, a rim merged with a cut face, the "
+                                "last notch's distal rim where the tube seen thins out), and their widths are what "
+                                "their measured bends imply (for the last notch found, whose own bend no whole spine "
+                                "beyond measures, the bend of the two before it; a robot whose cuts are off its "
+                                "drawing would read so too)",
+                                notches=sorted(misread),
+                                read_width_mm={str(i): w * 1e3 for i, w in sorted(misread.items())},
+                                implied_width_mm={str(n.index): n.width * 1e3 for n in t.notches
+                                                  if n.index in misread}))
+    # a notch whose next one is missing where the tube seen ends within a pitch: its bend is a chord that may run
+    # into a tube cut short; with no measured notch before it either, its width, as read, was checked against nothing
+    unchecked = list(t.unchecked or ())
+    if unchecked:
+        warnings.append(finding("NOTCH_WIDTH_UNCHECKED",
+                                "widths not checked against their bends, as read: notches "
+                                f"{', '.join(map(str, unchecked))} (the next notch was not found and the tube seen "
+                                "ends within a pitch: no whole spine beyond measures the bend, and no notch before it "
+                                "whose bend was measured)", notches=unchecked))
+    width_known = notch_width_uncertainties({i: off for i, off in off_model.items() if i not in misread}, d.found,
+                                            MISREAD_WIDTH_FRACTION * geometry.notch_width)
+    return {"notch_width_vs_bend_mm": {str(i): off * 1e3 for i, off in sorted(off_model.items())},
+            "notches_unchecked": unchecked,
+            "notch_width_uncertainty_mm": {str(i): width_known[i] * 1e3 for i in d.found}}, warnings
+
+
+def icp_reference(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
+    """Relocated by ICP: how far it moved its reference off the pose the centreline gave it, and the tip with it;
+    a warning where that is further than the centreline or its tip is known to."""
+    moved, tip = t.reference_moved, d.tip
+    if moved is None:
+        return {"relocation_reference_move_mm": None}, []
+    warnings = []
+    if moved.rms > (d.stated_centreline or 0.0) or (math.hypot(tip.icp_along, tip.icp_across)
+                                                    > math.hypot(tip.centreline_along, tip.centreline_across)):
+        warnings.append(finding("ICP_MOVED_REFERENCE",
+                                "relocated by ICP (relocation.method icp), which moved the reference "
+                                f"{moved.rms * 1e3:.2f} mm (RMS) off the pose the centreline gave it, and the tip "
+                                f"{tip.icp_along * 1e3:.2f} mm along the tube and {tip.icp_across * 1e3:.2f} mm across "
+                                "it: further than the centreline or its tip is known to. The two relocations disagree "
+                                "by that much, and the relocated surface and the tip are known no better",
+                                reference_move_mm=moved.rms * 1e3))
+    return {"relocation_reference_move_mm": {"rms": moved.rms * 1e3, "tip_along": tip.icp_along * 1e3,
+                                             "tip_across": tip.icp_across * 1e3}}, warnings
+
+
+def tip_end(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
+    """A tip uncertain beyond its floor: what it rests on, the end cap's plane or a stereo-eroded rim (a tip carried
+    past the end seen is not where the cameras saw it: tip_against_length says so)."""
+    tip = d.tip
+    if math.hypot(tip.along, tip.across) <= TIP_FLOOR or tip.hidden_across:
+        return {}, []
+    weighed = " (the robot's known length weighed in)" if tip.weighed else ""
+    across = f", and by {tip.across * 1e3:.2f} mm across it ({tip.why})" if tip.across else ""
+    figures = {"along_mm": tip.along * 1e3, "across_mm": tip.across * 1e3, "across_because": tip.because}
+    along = t.tip_along
+    if t.tip_from_cap and along is not None and along.beyond_seen:
+        return {}, [finding("TIP_ON_END_CAP",
+                            f"the end cap's points stop {(along.expected_s - along.seen_s) * 1e3:.2f} mm short of the "
+                            f"robot's length at this bend (smeared over {along.seen_uncertainty * 1e3:.2f} mm: the "
+                            "stereo matcher mixes the cap's ring with the bore behind it, and only ever moves them "
+                            f"towards the base): the tip is that length, uncertain by about {tip.along * 1e3:.2f} mm "
+                            f"along the tube{across}", short_of_length_mm=(along.expected_s - along.seen_s) * 1e3,
+                            smeared_mm=along.seen_uncertainty * 1e3, **figures)]
+    if t.tip_from_cap:
+        return {}, [finding("TIP_ON_END_CAP",
+                            f"the tip is the end cap's plane, whose points the stereo matcher smeared over "
+                            f"{tip.along * 1e3:.2f} mm towards the bore behind its ring: its position is uncertain by "
+                            f"about {tip.along * 1e3:.2f} mm along the tube{weighed}{across}", **figures)]
+    how = ", as the edge band measured in the depth images" if tip.measured else ""
+    return {}, [finding("TIP_ON_ERODED_RIM",
+                        f"the tip rests on a stereo-eroded rim ({t.tip_erosion * 1e3:.2f} mm given back{how}): its "
+                        f"position is uncertain by about {tip.along * 1e3:.2f} mm along the tube{weighed}{across}",
+                        erosion_mm=t.tip_erosion * 1e3, edge_band_measured=tip.measured, **figures)]
+
+
+def camera_views(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
+    """Each camera's share of the length and a distal stretch one camera alone saw (with why the other did not);
+    the nearest depth each returned and the nearest the tube comes to it."""
+    warnings = []
+    for name, length in d.one_sided.items():
+        others = [n for n in t.camera_names if n != name]
+        why = "" if t.reach is None else t.reach.why_unseen(others, t.tip_s - length, t.tip_s)
+        warnings.append(finding("DISTAL_ONE_CAMERA",
+                                f"the distal {length * 1e3:.0f} mm is seen by {name} "
+                                f"alone{f' ({why})' if why else ''}: the tube's far side there is inferred, not "
+                                "measured, and the centreline there rests on one side, the tip with it: no second "
+                                "view checked where it lies across the tube",
+                                camera=name, length_mm=length * 1e3,
+                                **unseen_figures(t.reach, others, t.tip_s - length, t.tip_s)))
+    for name, fraction in d.share.items():
+        if fraction < 0.5:
+            warnings.append(finding("CAMERA_SHORT_VIEW", f"{name} saw only {fraction:.0%} of the robot's length",
+                                    camera=name, share=fraction))
+    reach = t.reach
+    return {"length_seen_share": d.share, "distal_one_camera_mm": {k: v * 1e3 for k, v in d.alone.items()},
+            # per camera the nearest depth it returned, and the tube seen's nearest to it (its surface, optical axis)
+            "camera_nearest_depth_mm": {} if reach is None else {
+                k: v * 1e3 for k, v in reach.nearest_returned.items()},
+            "tube_nearest_depth_mm": {} if reach is None else {
+                k: float(v[reach.s <= d.seen_end].min()) * 1e3 for k, v in reach.depth.items()}}, warnings
+
+
+def tip_against_length(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
+    """The end seen against the robot's length at the bend measured: off it beyond both their uncertainties, or
+    far short of (past) it, with why (the crop box, a camera too near or pointed at); a tip left there is stated as
+    uncertain as the shortfall (a controller reads the figures, not the warning). The tip's figures."""
+    tip, along, warnings = d.tip, t.tip_along, []
+    short, expected = tip.short, tip.expected_length
+    if along is not None and not along.length_weighed and along.tolerance is not None and (
+            not tip.ends_off_length and abs(along.disagreement) > LENGTH_AGREEMENT_SIGMAS):
+        warnings.append(finding("TIP_OFF_LENGTH",
+                                f"the end seen lies {abs(short) * 1e3:.2f} mm {'short of' if short > 0 else 'past'} "
+                                f"the robot's length at this bend ({expected * 1e3:.2f} mm), more than both are known "
+                                f"to ({along.seen_uncertainty * 1e3:.2f} and {along.tolerance * 1e3:.2f} mm, "
+                                "robot.length_tolerance with the bend's): the tip is where the end was seen; check the "
+                                "robot's notch layout, its base position along it and robot.length_tolerance",
+                                short_of_length_mm=short * 1e3))
+    if tip.ends_off_length:
+        warnings.append(_tube_ends_off_length(t, d))
+    held_over = max(t.tip_s - tip.held_from, 0.0)
+    return {"tip_s_mm": t.tip_s * 1e3, "tip_seen_s_mm": d.seen_end * 1e3, "expected_length_mm": expected * 1e3,
+            "tip_length_weighed": tip.weighed, "tip_uncertainty_mm": tip.stated_along * 1e3,
+            "tip_across_uncertainty_mm": None if d.centreline_known is None and not tip.held
+            and not tip.hidden_across and not tip.left_short else tip.stated_across * 1e3,
+            "tip_held_shift_mm": tip.held * 1e3, "tip_held_over_mm": held_over * 1e3,
+            "tip_carried_mm": tip.carried * 1e3,
+            # how far past the end seen the tip was carried, where every camera was kept from the rest (0: it was not)
+            "tip_hidden_mm": (t.tip_s - d.seen_end) * 1e3 if tip.hidden_across else 0.0}, warnings
+
+
+def _tube_ends_off_length(t: Trace, d: Derived) -> Finding:
+    """TUBE_ENDS_SHORT (or TIP_CARRIED where every camera was kept from the rest and the tip carried on there)."""
+    tip, short, expected = d.tip, d.tip.short, d.tip.expected_length
+    warning = (f"the tube ends {abs(short) * 1e3:.1f} mm {'short of' if short > 0 else 'past'} the robot's length "
+               f"({expected * 1e3:.1f} mm at this bend): the tip is uncertain")
+    face = None
+    if short > 0 and t.tip_position is not None and t.crop_box is not None:
+        axis, plane, distance = nearest_box_face(np.asarray(t.tip_position, float), t.crop_box)
+        if distance < t.geometry.outer_diameter:  # the points were cut there, not the robot
+            face = ("xyz"[axis], plane)
+            warning += (f"; it ends on the crop box's face {face[0]} = {plane * 1e3:.1f} mm: the robot may go on "
+                        "outside the box (filters.crop_box_min / crop_box_max; below the base plane, "
+                        "filters.clamp_radius lets the automatic box reach there)")
+    reached = t.reach is not None and short >= 0
+    why = t.reach.why_unseen(list(t.camera_names), d.seen_end, expected, continued=True) if reached else ""
+    carried = bool(why and tip.hidden_across)
+    if carried:
+        warning = (f"the tube seen ends {short * 1e3:.1f} mm short of the robot's length ({expected * 1e3:.1f} mm "
+                   f"at this bend); {why}: that hides the rest, and the tip is carried on there, bending as the "
+                   f"notches seen did, to the robot's length: uncertain by about {tip.along * 1e3:.2f} mm along the "
+                   f"tube and {tip.across * 1e3:.2f} mm across it, the centreline with it by "
+                   f"{d.stated_centreline * 1e3:.2f} mm (RMS over the robot's length)")
+    elif why:
+        warning += f"; {why}: that may hide the rest"
+    if tip.left_short:
+        warning += (f"; left at the end seen, the tip may lie up to {abs(short) * 1e3:.1f} mm off, along the tube "
+                    "or across it, and its uncertainty is stated so")
+    return finding("TIP_CARRIED" if carried else "TUBE_ENDS_SHORT", warning, short_of_length_mm=short * 1e3,
+                   at_crop_box=face is not None, crop_box_face=None if face is None else face[0],
+                   crop_box_face_mm=None if face is None else float(face[1]) * 1e3,
+                   **(unseen_figures(t.reach, list(t.camera_names), d.seen_end, expected) if reached else {}))
+
+
+def notch_side(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
+    """The measured notch side against the configured one: no consistent measurement, or the robot rolled in its
+    clamp (or maybe, within what the side is known to)."""
+    warnings = []
+    side_off = math.degrees(math.remainder(t.notch_side - t.configured_side, 2 * math.pi))
+    if t.side_unsettled is not None:
+        first, then = (math.degrees(angle) for angle in t.side_unsettled)
+        warnings.append(finding("NOTCH_SIDE_UNSETTLED",
+                                f"the notches' side measured {first:+.0f} deg from the configured robot.notch_side, "
+                                f"then {then:+.0f} deg more in the frame turned to it: no consistent measurement, the "
+                                "configured side is kept (check the robot's roll in its clamp)",
+                                side_off_deg=[first, then]))
+    if abs(side_off) > SIDE_OFF_DEG:
+        known_deg = None if t.side_uncertainty is None else math.degrees(t.side_uncertainty)
+        known = "" if known_deg is None else f" (known to +-{known_deg:.0f} deg)"
+        rolled = ("is rolled in its clamp" if known_deg is None or abs(side_off) > known_deg
+                  else "may be rolled in its clamp: the offset is within what the side is known to")
+        warnings.append(finding("ROBOT_ROLLED",
+                                f"the notches open {side_off:+.0f} deg from the configured robot.notch_side{known}: "
+                                f"the robot {rolled} (measured side used)", side_off_deg=side_off,
+                                side_uncertainty_deg=known_deg))
+    return {"notch_side_deg": math.degrees(t.notch_side), "notch_side_configured_deg": math.degrees(t.configured_side),
+            "notch_side_unsettled_deg": None if t.side_unsettled is None
+            else [math.degrees(a) for a in t.side_unsettled]}, warnings
+
+
+def depth_resolution(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
+    """The pixel footprint against the tube, and the depth step each camera's data showed."""
+    geometry, footprint, warnings = t.geometry, t.footprint, []
+    if footprint > FOOTPRINT_RADIUS_FRACTION * geometry.outer_radius:
+        warnings.append(finding("PIXEL_FOOTPRINT_COARSE",
+                                f"a depth pixel covers {footprint * 1e3:.2f} mm, the tube is only "
+                                f"{geometry.outer_diameter / footprint:.0f} px across: expect errors above 0.1 mm (a "
+                                "higher depth resolution, or cameras closer, down to the D405's minimum depth of "
+                                "about 70 mm)", pixel_footprint_mm=footprint * 1e3))
+    warnings += [finding("DEPTH_QUANTISED", w, camera=name, depth_step_mm=step * 1e3)
+                 for name, step in t.depth_steps.items() if (w := depth_quantisation_warning(name, step, geometry))]
+    return {"pixel_footprint_mm": footprint * 1e3,
+            "depth_step_mm": {k: v * 1e3 for k, v in t.depth_steps.items()}}, warnings
+
+
+def centerline(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
+    """How sure the centreline is, and the stretches where nothing measured it: what the self-check of the
+    alignment (cameras' spread, outline, slots' lean, backbone, wall's level) found."""
+    warnings = []
+    if d.uncertainty is not None and d.uncertainty > CENTERLINE_FLOOR:
+        warnings.append(_centerline_uncertain(t, d))
+    if d.outline_unchecked:
+        # the check ran (points carry their camera) and no window's outline spanned the tube's diameter: the
+        # matcher spoiled the silhouettes (a wide window over a near backdrop)
+        warnings.append(finding("OUTLINE_UNCHECKED",
+                                "no camera's view showed the tube's outline whole (across each view its wall points "
+                                "spanned no diameter: the matcher spoiled the silhouettes' pixels): the centreline "
+                                "was not checked against the middle of the outline, and across the views it, and the "
+                                "tip at its free end, may lie further off than the cameras' spread says: they are "
+                                f"stated as uncertain as a pixel footprint at least ({t.footprint * 1e3:.2f} mm), "
+                                "what that check resolves", pixel_footprint_mm=t.footprint * 1e3))
+    if t.across_from_fit is not None:
+        aligned, fit = t.across_from_fit
+        warnings.append(finding("ALIGNMENT_ASTRAY",
+                                f"the alignment moved the axis {aligned * 1e3:.2f} mm (RMS) from the middle of the "
+                                f"tube's outline in the cameras' views ({aligned / t.footprint:.1f} px, where a sound "
+                                f"axis lies within {OUTLINE_TOLERANCE_PX:g}): it followed a wall stereo moved across "
+                                f"the views, and across them the axis is the fit's, which lies "
+                                f"{fit / t.footprint:.1f} px from that middle",
+                                aligned_offset_mm=aligned * 1e3, fit_offset_mm=fit * 1e3))
+    warnings += _unmeasured_stretches(t, d)
+    if d.lean > BIAS_WARN_FOOTPRINTS * t.footprint:
+        names = " and ".join(t.looking_into_slots)
+        consequence = (f"a camera facing the backbone placed the axis along its line of sight instead, by its level on "
+                       f"the plain tube ({t.backbone_shift * 1e3:.2f} mm moved)" if d.levelled else
+                       f"the centreline there may lean up to {d.lean * 1e3:.2f} mm away from {names}")
+        warnings.append(finding("SLOTS_LEAN", f"{names} looks into the notches' slots, and the wall between them reads "
+                                f"{t.notched_thinning * 1e3:.2f} mm deeper than the plain tube (its matcher averages "
+                                f"the spines with the slot floors): {consequence}",
+                                cameras=list(t.looking_into_slots), lean_mm=d.lean * 1e3,
+                                notched_thinning_mm=t.notched_thinning * 1e3, levelled=d.levelled))
+    return {"fit_residual_mm": t.wall_residual * 1e3, "wall_level_mm": _mm(t.wall_level),
+            "centerline_bias_mm": {"notch_side": t.bias_notch_side * 1e3, "binormal": t.bias_binormal * 1e3},
+            "notched_thinning_mm": _mm(t.notched_thinning), "cameras_looking_into_slots": list(t.looking_into_slots),
+            "centerline_cross_view_mm": _mm(t.cross_view_spread),
+            "centerline_cross_view_at_tip_mm": _mm(t.distal_cross_view),
+            "centerline_alignment_scatter_mm": _mm(t.alignment_scatter),
+            "centerline_outline_offset_mm": _mm(t.outline_offset),
+            # the aligned axis's offset, when it went astray and the fit placed the axis across the views instead
+            "centerline_aligned_outline_offset_mm": None if t.across_from_fit is None else t.across_from_fit[0] * 1e3,
+            "centerline_uncertainty_mm": _mm(d.stated_centreline),
+            "centerline_unsupported_mm": [[start * 1e3, end * 1e3] for start, end in t.unsupported],
+            "distal_end_on_mm": d.end_on * 1e3}, warnings
+
+
+def _centerline_uncertain(t: Trace, d: Derived) -> Finding:
+    """CENTERLINE_UNCERTAIN: the centreline's own uncertainty beyond its floor, and what it is made of."""
+    message = (f"the centreline is uncertain by about {d.uncertainty * 1e3:.2f} mm: stereo matching beside the notches "
+               f"moves the wall it sees (the cameras place the axis {(t.cross_view_spread or 0.0) * 1e3:.2f} mm apart "
+               "across their views, and the wall between the notches reads "
+               f"{(t.notched_thinning or 0.0) * 1e3:+.2f} mm deeper than the plain tube); "
+               f"{abs(t.bias_notch_side) * 1e3:.2f} mm of lean towards the notch side was removed")
+    if t.alignment_scatter:
+        message += (f", a correction that varies along the tube by {t.alignment_scatter * 1e3:.2f} mm (RMS), which "
+                    "the wall facing the cameras cannot tell from a wall stereo moved alike in every view")
+    if d.resting_on_level:
+        message += (f"; over the distal {sum(d.one_sided.values()) * 1e3:.0f} mm seen by one camera alone, the wall's "
+                    f"level ({t.wall_level * 1e3:+.2f} mm, the flattening of the views) places the axis along that "
+                    "camera's view, and no second view checked it")
+    if d.astray is not None:
+        message += (f"; the axis lies {d.astray * 1e3:.2f} mm (RMS) from the middle of the tube's outline in the "
+                    f"cameras' views, {d.astray / t.footprint:.1f} px where a sound one lies within "
+                    f"{OUTLINE_TOLERANCE_PX:g}: the fit and the alignment followed a wall stereo moved that far")
+    return finding("CENTERLINE_UNCERTAIN", message, uncertainty_mm=d.uncertainty * 1e3, outline_offset_mm=_mm(d.astray),
+                   cross_view_mm=(t.cross_view_spread or 0.0) * 1e3,
+                   notched_thinning_mm=(t.notched_thinning or 0.0) * 1e3,
+                   alignment_scatter_mm=(t.alignment_scatter or 0.0) * 1e3,
+                   one_camera_wall_level_mm=t.wall_level * 1e3 if d.resting_on_level else None)
+
+
+def _unmeasured_stretches(t: Trace, d: Derived) -> list[Finding]:
+    """CENTERLINE_UNSUPPORTED where no camera saw the wall facing it; DISTAL_END_ON where every camera sees the
+    distal wall nearly edge-on (nothing placed the axis there across the tube; in the sweeps, most such tips missed
+    their floor), unless an unsupported stretch reaching the tip says as much already."""
+    warnings = []
+    if t.unsupported:
+        listed = ", ".join(f"{start * 1e3:.0f}-{end * 1e3:.0f}" for start, end in t.unsupported)
+        to_tip = " (and the tip with it)" if d.unsupported_to_tip else ""
+        warnings.append(finding("CENTERLINE_UNSUPPORTED",
+                                f"over s = {listed} mm no camera saw the tube's wall facing it on the tube's radius: "
+                                f"the centreline there{to_tip} follows points off the wall (pixels a matcher mixed "
+                                "with the background, a wall seen edge-on), and how far off it is was not measured",
+                                stretches_mm=[[a * 1e3, b * 1e3] for a, b in t.unsupported],
+                                to_tip=d.unsupported_to_tip))
+    if d.end_on_warned and not d.unsupported_to_tip:
+        angles = " and ".join(f"{math.degrees(angle):.0f} deg of {name}'s" for name, angle in d.end_on_angles.items())
+        warnings.append(finding("DISTAL_END_ON",
+                                f"the distal {d.end_on * 1e3:.0f} mm points within {angles} line of sight: every "
+                                "camera sees its wall nearly edge-on there, and the centreline there and the tip with "
+                                "it rest on that wall: how far off across the tube they are was not measured",
+                                length_mm=d.end_on * 1e3,
+                                angles_deg={name: math.degrees(angle) for name, angle in d.end_on_angles.items()}))
+    return warnings
+
+
+def _mm(value: float | None) -> float | None:
+    return None if value is None else value * 1e3
+
+
+def extrinsics(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
+    """Whether the cameras' poses in the rig file agree across their views. Each camera alone places the axis
+    across its view, window by window (alignment.CrossView): the matcher's noise varies along the tube, a camera
+    whose pose is off moves every window alike. Two opposed cameras' shifts read with the same sign for a shift of
+    one relative to the other, so their sum is the rigid offset between them; the fused axis lies half of it off.
+    Warned where it stands beyond EXTRINSICS_SIGMAS standard errors and half of it exceeds the centreline's
+    tolerance (issue 62: beyond the level that breaks the floor): a matcher's window reaching the slots on one side
+    of a view pulls the two cameras apart alike all along a notched tube too, 0.10-0.12 mm on the matrix's rows
+    whose notches open at +-45 deg with exact extrinsics, and a smaller offset is not told from it. Along the views
+    no such check exists: two opposed cameras read an offset there as they read a depth bias common to both (the
+    wall's level)."""
+    means = [offset for offset in t.cross_view_offsets if offset is not None]
+    if len(means) != 2 or t.centerline_tolerance is None:
+        return {"cameras_across_view_offset_mm": None}, []
+    (mean_a, error_a), (mean_b, error_b) = means
+    offset, error = abs(mean_a + mean_b), math.hypot(error_a, error_b)
+    figures = {"cameras_across_view_offset_mm": offset * 1e3}
+    if offset <= EXTRINSICS_SIGMAS * error or offset / 2 <= t.centerline_tolerance:
+        return figures, []
+    distance = _camera_distance(t)
+    turn = ("" if distance is None
+            else f", as a turn of one about the robot about {math.degrees(offset / distance):.2f} deg")
+    return figures, [finding("EXTRINSICS_DISAGREE",
+                             f"the cameras place the axis {offset * 1e3:.2f} mm apart across their views, alike all "
+                             f"along the tube ({offset / error:.0f} standard errors: not the matcher's noise){turn}: "
+                             "their poses in the rig file disagree, and the centreline lies about half of that off; "
+                             "recalibrate the rig's extrinsics", offset_mm=offset * 1e3,
+                             offset_error_mm=error * 1e3,
+                             turn_deg=None if distance is None else math.degrees(offset / distance))]
+
+
+def _camera_distance(t: Trace) -> float | None:
+    """The cameras' mean distance to the tube (m; the nearest depth each sees of it), None without a reach."""
+    if t.reach is None or not t.reach.depth:
+        return None
+    return float(np.mean([np.median(depth) for depth in t.reach.depth.values()]))
+
+
+# The checks, in the order their warnings are listed.
+CHECKS: tuple[Check, ...] = (notches_found, widths_against_bends, icp_reference, tip_end, camera_views,
+                             tip_against_length, notch_side, depth_resolution, centerline, extrinsics)

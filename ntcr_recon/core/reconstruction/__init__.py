@@ -1,0 +1,1 @@
+"""The frame loop over the layers below: the Reconstructor, still-frame selection, meshing."""

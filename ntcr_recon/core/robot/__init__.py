@@ -1,0 +1,1 @@
+"""The robot: its geometry, kinematics, true surface and comb of notches."""

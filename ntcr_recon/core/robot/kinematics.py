@@ -1,0 +1,197 @@
+"""How the notched tube bends: asymmetric-notch kinematics from per-notch bends to the centreline and tip.
+
+Kinematics of asymmetric-notch wrists (York et al. 2015; Swaney et al. 2017). A notch bends as a
+constant-curvature arc whose neutral axis (at ybar from the tube's axis, `TubeGeometry.neutral_axis_offset`) keeps
+its length h; the tube's geometric centreline therefore has arc length s = h / (1 + ybar kappa) and turns by
+theta = kappa s. Spines (the uncut tube between notches) stay straight. A notch closes when its two cut faces
+touch on the outer surface, at theta_max = h / (r_o + ybar).
+
+Along the centreline the moving frame has x towards the notch side, y = z cross x and z the tangent; the robot
+bends towards its notches (about the frame's y axis). Units: metres and radians.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import cached_property
+
+import numpy as np
+
+from ntcr_recon.core.robot import surface as robot_surface
+from ntcr_recon.core.robot.geometry import TubeGeometry
+
+
+class TubeShape:
+    """A posed robot: per-notch bends on a TubeGeometry."""
+
+    def __init__(self, geometry: TubeGeometry, notch_bend) -> None:
+        geometry.validate()
+        bends = np.asarray(notch_bend, dtype=float)
+        if bends.shape != (geometry.notch_count,):
+            raise ValueError(f"notch_bend needs {geometry.notch_count} values (one per notch), got shape {bends.shape}")
+        if not np.all(np.isfinite(bends)):
+            raise ValueError("notch_bend must be finite")
+        theta_max = geometry.max_notch_bend
+        worst = int(np.argmax(np.abs(bends)))
+        if bends[worst] < 0:
+            raise ValueError(
+                f"notch {worst} bend {math.degrees(bends[worst]):.3f} deg is negative: a notch only bends towards "
+                "its open side")
+        if bends[worst] > theta_max * (1 + 1e-9):
+            raise ValueError(
+                f"notch {worst} bend {math.degrees(bends[worst]):.3f} deg exceeds the notch's closing angle "
+                f"theta_max = h / (r_o + ybar) = {math.degrees(theta_max):.3f} deg "
+                f"(total at most {math.degrees(theta_max * geometry.notch_count):.1f} deg)")
+        self.geometry = geometry
+        self.notch_bend = np.minimum(bends, theta_max)
+        self.notch_bend.setflags(write=False)
+        self._build_segments()
+
+    # --------------------------------------------------------------------------------- constructors
+    @classmethod
+    def straight(cls, geometry: TubeGeometry) -> TubeShape:
+        return cls(geometry, np.zeros(geometry.notch_count))
+
+    @classmethod
+    def from_bend_angle(cls, geometry: TubeGeometry, total_rad: float) -> TubeShape:
+        """Uniform bending: every notch bends total_rad / notch_count."""
+        geometry.validate()
+        return cls(geometry, np.full(geometry.notch_count, float(total_rad) / geometry.notch_count))
+
+    @classmethod
+    def from_tendon_pull(cls, geometry: TubeGeometry, dl_per_notch) -> TubeShape:
+        """Tendon displacement per notch (scalar: the same for every notch, or one per notch).
+
+        kappa = dl / (h (r_i + ybar) - dl ybar) and theta = kappa h / (1 + ybar kappa), which
+        simplifies to theta = dl / (r_i + ybar).
+        """
+        geometry.validate()
+        dl = np.broadcast_to(np.asarray(dl_per_notch, dtype=float), (geometry.notch_count,))
+        h, ybar, r_i = geometry.notch_width, geometry.neutral_axis_offset, geometry.inner_radius
+        kappa = dl / (h * (r_i + ybar) - dl * ybar)
+        if np.any(kappa < 0) or np.any(~np.isfinite(kappa)):
+            raise ValueError(f"tendon pull per notch must be >= 0 and below h (r_i + ybar) / ybar, got {dl_per_notch}")
+        return cls(geometry, kappa * h / (1.0 + ybar * kappa))
+
+    @classmethod
+    def from_notch_bends(cls, geometry: TubeGeometry, bends) -> TubeShape:
+        return cls(geometry, bends)
+
+    # ------------------------------------------------------------------------------------ kinematics
+    @property
+    def notch_curvature(self) -> np.ndarray:
+        """kappa of each notch's centreline: theta = kappa h / (1 + ybar kappa) solved for kappa."""
+        h, ybar = self.geometry.notch_width, self.geometry.neutral_axis_offset
+        return self.notch_bend / (h - ybar * self.notch_bend)
+
+    @property
+    def notch_arc_length(self) -> np.ndarray:
+        """s of each notch's centreline: h / (1 + ybar kappa) = h - ybar theta."""
+        return self.geometry.notch_width - self.geometry.neutral_axis_offset * self.notch_bend
+
+    @property
+    def tendon_pull(self) -> np.ndarray:
+        """Tendon displacement of each notch, dl = theta (r_i + ybar)."""
+        return self.notch_bend * (self.geometry.inner_radius + self.geometry.neutral_axis_offset)
+
+    def _build_segments(self) -> None:
+        """Chain straight spines and constant-curvature notch arcs into a segment table."""
+        g = self.geometry
+        spine = g.notch_pitch - g.notch_width
+        lengths, curvatures = [g.proximal_length], [0.0]
+        for i, (arc, kappa) in enumerate(zip(self.notch_arc_length, self.notch_curvature, strict=True)):
+            lengths.append(float(arc))
+            curvatures.append(float(kappa))
+            lengths.append(spine if i < g.notch_count - 1 else g.distal_length)
+            curvatures.append(0.0)
+        self.segment_lengths = np.array(lengths)
+        self.segment_curvatures = np.array(curvatures)
+        self.segment_starts = np.concatenate([[0.0], np.cumsum(self.segment_lengths)[:-1]])
+        self.length = float(np.sum(self.segment_lengths))
+        notch_side = np.array([[math.cos(g.notch_side), -math.sin(g.notch_side), 0.0],
+                               [math.sin(g.notch_side), math.cos(g.notch_side), 0.0],
+                               [0.0, 0.0, 1.0]])
+        position = np.asarray(g.base_position, dtype=float)
+        rotation = g.base_rotation @ notch_side
+        starts_p, starts_r = [], []
+        for length, kappa in zip(self.segment_lengths, self.segment_curvatures, strict=True):
+            starts_p.append(position)
+            starts_r.append(rotation)
+            offset, turn = _arc(np.array([length]), np.array([kappa]))
+            position = position + rotation @ offset[0]
+            rotation = rotation @ turn[0]
+        self._segment_positions = np.array(starts_p)
+        self._segment_rotations = np.array(starts_r)
+
+    def centerline(self, s) -> tuple[np.ndarray, np.ndarray]:
+        """Positions (N, 3) and frames (N, 3, 3) at centreline arc lengths s (0 = base, length = tip).
+
+        Frame columns: x towards the notch side, y = z cross x, z = tangent; all in the base frame.
+        """
+        s = np.atleast_1d(np.asarray(s, dtype=float))
+        tolerance = 1e-9
+        if s.size and (s.min() < -tolerance or s.max() > self.length + tolerance):
+            raise ValueError(f"arc length outside the robot [0, {self.length:.6g}] m: {s.min():.6g}..{s.max():.6g}")
+        s = np.clip(s, 0.0, self.length)
+        index = np.clip(np.searchsorted(self.segment_starts, s, side="right") - 1, 0, len(self.segment_starts) - 1)
+        offset, turn = _arc(s - self.segment_starts[index], self.segment_curvatures[index])
+        start_rotation = self._segment_rotations[index]
+        positions = self._segment_positions[index] + np.einsum("nij,nj->ni", start_rotation, offset)
+        return positions, start_rotation @ turn
+
+    def tip_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """Tip position (3,) and frame (3, 3)."""
+        position, frame = self.centerline(np.array([self.length]))
+        return position[0], frame[0]
+
+    def notch_table(self) -> list[dict]:
+        """Per notch, deformed: index, center_s, width (outer-surface gap facing the notches), bend, start_s, end_s.
+
+        width = s_n (1 - kappa r_o): the arc between the two cut faces along the outer surface line at
+        angle 0 about the axis; it is h on a straight robot and 0 at theta_max.
+        """
+        r_o = self.geometry.outer_radius
+        starts = self.segment_starts[1::2][: self.geometry.notch_count]
+        arcs = self.notch_arc_length
+        widths = arcs * (1.0 - self.notch_curvature * r_o)
+        return [
+            {"index": i, "center_s": float(starts[i] + arcs[i] / 2.0), "width": float(max(widths[i], 0.0)),
+             "bend": float(self.notch_bend[i]), "start_s": float(starts[i]), "end_s": float(starts[i] + arcs[i])}
+            for i in range(self.geometry.notch_count)
+        ]
+
+    # -------------------------------------------------------------------------------------- surface
+    def sample_surface_parts(self, spacing: float) -> robot_surface.SurfaceSample:
+        """Dense sample of the true surface, at most `spacing` apart (robot_surface.sample_surface_parts)."""
+        return robot_surface.sample_surface_parts(self, spacing)
+
+    def sample_surface(self, spacing: float) -> tuple[np.ndarray, np.ndarray]:
+        """Points (N, 3) and outward unit normals (N, 3) of the true surface, at most `spacing` apart."""
+        sample = self.sample_surface_parts(spacing)
+        return sample.points, sample.normals
+
+    @cached_property
+    def _surface_distance(self) -> robot_surface.SurfaceDistance:
+        return robot_surface.SurfaceDistance(self)
+
+    def surface_distance(self, points) -> np.ndarray:
+        """Unsigned distance of each point (N, 3) to the true surface (robot_surface.SurfaceDistance)."""
+        return self._surface_distance(points)
+
+
+def _arc(length: np.ndarray, kappa: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Offsets (N, 3) and rotations (N, 3, 3) of constant-curvature arcs bending towards local +x."""
+    theta = kappa * length
+    small = np.abs(theta) < 1e-8
+    safe_kappa = np.where(small, 1.0, kappa)
+    x = np.where(small, kappa * length**2 / 2.0, (1.0 - np.cos(theta)) / safe_kappa)
+    z = np.where(small, length, np.sin(theta) / safe_kappa)
+    offset = np.stack([x, np.zeros_like(x), z], axis=1)
+    c, s = np.cos(theta), np.sin(theta)
+    rotation = np.zeros((theta.size, 3, 3))
+    rotation[:, 0, 0] = c
+    rotation[:, 0, 2] = s
+    rotation[:, 1, 1] = 1.0
+    rotation[:, 2, 0] = -s
+    rotation[:, 2, 2] = c
+    return offset, rotation
