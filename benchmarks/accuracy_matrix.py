@@ -25,7 +25,7 @@ under another stereo matcher than the one the method was developed with (`--no-l
 without one of its artefacts (`--no-flying-pixels`) to tell what it costs. The summary splits the centreline's
 error along the cameras' views (depth) and across them (silhouettes only); `--stated` prints the split per row.
 
-test/test_accuracy_matrix.py runs a few rows of this grid and asserts the floors on them.
+test/benchmarks/test_accuracy_matrix.py runs a few rows of this grid and asserts the floors on them.
 """
 
 from __future__ import annotations

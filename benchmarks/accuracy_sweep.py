@@ -14,8 +14,8 @@ this package can have), and the scenes meeting every floor that raised a centrel
 uncertainty over-stated: the price of never understating it), and in how many scenes each error lies within the
 uncertainty the result stated for it. About 3 s a scene.
 
-`--renderer views` renders each drawn scene with the tests' own renderer instead (test/synthetic_views.py, with
-its window, noise, backdrop and resolution drawn per scene: run_views_scene), so the method is judged on depth
+`--renderer views` renders each drawn scene with the tests' own renderer instead (test/support/synthetic_views.py,
+with its window, noise, backdrop and resolution drawn per scene: run_views_scene), so the method is judged on depth
 made by other means than the simulator it was developed with. About 1.5 s a scene.
 """
 
@@ -32,7 +32,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "test"))
 import accuracy_matrix as matrix  # noqa: E402
-import synthetic_views as views  # noqa: E402
+from support import synthetic_views as views  # noqa: E402
 
 from ntcr_recon.core.cloud.deproject import Intrinsics  # noqa: E402
 
@@ -85,8 +85,8 @@ def random_row(index: int) -> matrix.Row:
 
 
 def run_views_scene(index: int, frames: int = 2) -> dict:
-    """Scene `index` rendered by the tests' own renderer (test/synthetic_views.py: a z-buffer blurred by a box
-    window, not the simulator's stereo matcher), with its own artefacts drawn per scene - the window (3-7 px),
+    """Scene `index` rendered by the tests' own renderer (test/support/synthetic_views.py: a z-buffer blurred by
+    a box window, not the simulator's stereo matcher), with its own artefacts drawn per scene - the window (3-7 px),
     the noise (1-3 x 0.02 mm at 90 mm), a backdrop 50 mm behind the robot or none, and the camera's resolution
     (VIEWS_INTRINSICS) - then reconstructed and measured as a matrix row."""
     from ntcr_recon.core.config.rig import rig_config_from_mapping
@@ -120,7 +120,8 @@ def main() -> int:
     matrix.add_simulate_option(parser)
     parser.add_argument("--renderer", choices=("simulator", "views"), default="simulator",
                         help="render each scene with `ntcr-recon simulate` (default) or with the tests' own "
-                        "renderer, test/synthetic_views.py (the same robots, poses and rigs; its own artefacts)")
+                        "renderer, test/support/synthetic_views.py (the same robots, poses and rigs; its own "
+                        "artefacts)")
     args = parser.parse_args()
     if args.renderer == "views" and args.simulate:
         parser.error("--simulate sets the simulator's options; --renderer views does not use the simulator")

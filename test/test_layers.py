@@ -42,9 +42,21 @@ def test_core_io_and_sim_import_no_ros_module():
     assert result.stdout.strip() == "", f"ROS modules loaded by the core/io/sim: {result.stdout.strip()}"
 
 
-def test_every_module_the_tiers_name_is_a_test_module():
-    from conftest import REPO, TIERS
+def test_every_test_module_is_in_exactly_one_tier():
+    import configparser
+    from pathlib import PurePosixPath
 
-    named = set().union(*TIERS.values())
-    assert named and all((REPO / "test" / f"{name}.py").is_file() for name in named), sorted(
-        name for name in named if not (REPO / "test" / f"{name}.py").is_file())
+    from conftest import DEFAULT_TIER, REPO, TIERS, tier_of
+
+    tests = REPO / "test"
+    folders = [PurePosixPath(folder) for folder in TIERS]
+    # a tier's folder holds test modules; none lies in another's, so the folder rule gives each test one tier
+    assert folders and all(any((tests / folder).rglob("test_*.py")) for folder in folders), sorted(
+        str(folder) for folder in folders if not any((tests / folder).rglob("test_*.py")))
+    assert not [(a, b) for a in folders for b in folders if a != b and a.is_relative_to(b)]
+    # the tiers are pytest.ini's markers, and every one holds a test module
+    ini = configparser.ConfigParser()
+    ini.read(REPO / "pytest.ini")
+    markers = {line.split(":")[0].strip() for line in ini["pytest"]["markers"].splitlines() if line.strip()}
+    assert {DEFAULT_TIER, *TIERS.values()} == markers
+    assert {tier_of(path) for path in tests.rglob("test_*.py")} == markers

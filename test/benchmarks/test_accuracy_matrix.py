@@ -4,12 +4,12 @@ benchmark, too long for CI). Rendered by the simulator as `ntcr-recon simulate` 
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
+from support import REPO
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+sys.path.insert(0, str(REPO / "benchmarks"))
 import accuracy_matrix  # noqa: E402
 
 from ntcr_recon.core.quality.findings import finding  # noqa: E402
@@ -245,9 +245,9 @@ def test_stated_detail_names_each_figure_whose_error_exceeds_what_its_result_sta
 
 def test_the_sweep_renders_its_scenes_by_the_tests_own_renderer_too():
     """`accuracy_sweep.py --renderer views` draws the scene the simulator renders (robot, bend, notch side, camera
-    distance and tilts, rig-file roll) and renders it with test/synthetic_views.py instead. Its scene 3018 - ten
-    notches bent 18 deg towards cam_b at 75 mm, 640x480, the end cap and the bore seen through the open end - put
-    the tip 0.56 mm off while stating 0.1: the centreline fit had kept the end its cold-start march bent back at
+    distance and tilts, rig-file roll) and renders it with test/support/synthetic_views.py instead. Its scene 3018 -
+    ten notches bent 18 deg towards cam_b at 75 mm, 640x480, the end cap and the bore seen through the open end -
+    put the tip 0.56 mm off while stating 0.1: the centreline fit had kept the end its cold-start march bent back at
     the cap."""
     import accuracy_sweep
 

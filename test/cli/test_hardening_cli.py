@@ -13,11 +13,12 @@ import time
 from pathlib import Path
 
 import pytest
+from support import BAGS
 
 from ntcr_recon.cli import main
 from ntcr_recon.io import files, staging
 
-BAG = Path(__file__).resolve().parents[1] / "bags" / "bend45"
+BAG = BAGS / "bend45"
 
 
 def run(capsys, *argv: str) -> tuple[int, str]:

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from bag_edit import rewrite_bag
+from support.bag_edit import rewrite_bag
 
 from ntcr_recon.cli.reconstruct import COMBINED_FRAMES_MAX
 from ntcr_recon.core.cloud.fusion import CameraFrame

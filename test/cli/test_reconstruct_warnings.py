@@ -10,7 +10,7 @@ import json
 import numpy as np
 import pytest
 import yaml
-from bag_edit import depth_edit, depth_values, rewrite_bag, with_depth_values
+from support.bag_edit import depth_edit, depth_values, rewrite_bag, with_depth_values
 
 from ntcr_recon.cli import main as cli_main
 from ntcr_recon.core.quality.findings import CODES

@@ -12,7 +12,7 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
-from software_d405 import SoftwareD405
+from support.software_d405 import SoftwareD405
 
 HERE = Path(__file__).resolve().parent
 INTRINSICS = SimpleNamespace(width=48, height=36, fx=150.0, fy=150.0, cx=23.5, cy=17.5)

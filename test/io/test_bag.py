@@ -8,7 +8,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from bag_edit import DEPTH_FIRST, INFO_FIRST, rewrite_bag
+from support.bag_edit import DEPTH_FIRST, INFO_FIRST, rewrite_bag
 
 from ntcr_recon.core.config.rig import load_rig_config
 from ntcr_recon.io.bag import INFO_WAIT, BagError, DepthFrameMatcher, camera_topics, image_to_array, read_camera_frames

@@ -10,8 +10,8 @@ import time
 import numpy as np
 import pyrealsense2 as rs
 import pytest
-import tiny_rig
-from software_d405 import SoftwareD405
+from support import tiny_rig
+from support.software_d405 import SoftwareD405
 
 from ntcr_recon.core.cloud.deproject import Intrinsics, depth_to_points
 from ntcr_recon.core.config.rig import CameraConfig

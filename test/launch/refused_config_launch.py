@@ -15,7 +15,8 @@ the active tests are over (reason "LaunchService.shutdown() called") and calls i
 before they are over, so the shutdown's reason is recorded here (launch itself never prints it) and the launch
 is held until the active tests are over (hold_until_tests_done).
 
-Run by test/test_launch_files.py in the build's environment (NTCR_TEST_BAG names the bag whose rig.yaml is used)."""
+Run by test/launch/test_launch_files.py in the build's environment (NTCR_TEST_BAG names the bag whose rig.yaml is
+used)."""
 
 import asyncio
 import atexit

@@ -1,7 +1,7 @@
 """launch_testing: replay.launch.py on bags/bend45 in a loop, as `ros2 launch ntcr_recon replay.launch.py` starts
 it from a colcon build: once the tips flow, >= 97 % of the frame pairs the cameras publish reach /ntcr/tip.
 
-Run by test/test_launch_files.py (`python -m launch_testing.launch_test`, in the build's environment;
+Run by test/launch/test_launch_files.py (`python -m launch_testing.launch_test`, in the build's environment;
 NTCR_TEST_BAG names the bag)."""
 
 import os

@@ -2,7 +2,7 @@
 log line and with /diagnostics ERROR; the stage nodes are up and idle (no tip); SIGINT, as Ctrl-C sends it,
 ends every node with exit code 0.
 
-Run by test/test_launch_files.py in the build's environment."""
+Run by test/launch/test_launch_files.py in the build's environment."""
 
 import time
 import unittest

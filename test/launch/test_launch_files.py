@@ -17,13 +17,12 @@ import sys
 from pathlib import Path
 
 import pytest
+from support import REPO
 
-REPO = Path(__file__).resolve().parents[1]
-LAUNCH_TESTS = REPO / "test" / "launch"
+LAUNCH_TESTS = Path(__file__).resolve().parent  # the launch_testing files beside this one
 BIN = Path(sys.executable).parent
 CACHE = Path(os.environ.get("NTCR_LAUNCH_TEST_DIR", Path.home() / ".cache" / "ntcr_recon" / "launch-tests"))
 
-pytestmark = pytest.mark.launch
 
 try:
     import launch_testing  # noqa: F401

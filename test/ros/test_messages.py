@@ -175,7 +175,7 @@ def stage_cloud(pixels, camera, footprint=1e-4) -> PointCloud2:
 
 @pytest.fixture(scope="module")
 def rig():
-    import tiny_rig
+    from support import tiny_rig
 
     from ntcr_recon.core.config.rig import rig_config_from_mapping
 

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import tiny_rig
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
 
 from ntcr_recon.ros.node_support import STAGE_QOS
+from support import tiny_rig
 
 # Reliable like the stages' publishers, but deep enough that a slow test spin loses nothing.
 COLLECT_RELIABLE = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)

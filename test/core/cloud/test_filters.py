@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from synthetic_views import INTRINSICS, make_config
+from support.synthetic_views import INTRINSICS, make_config
 
 from ntcr_recon.core.cloud.deproject import Intrinsics, PixelWindow, crop_window, depth_to_points
 from ntcr_recon.core.cloud.filters import (

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import math
 import re
-from pathlib import Path
 
 import pytest
+from support import REPO
 
 from ntcr_recon.core.config.rig import QualityConfig
 from ntcr_recon.core.quality.findings import (
@@ -21,7 +21,6 @@ from ntcr_recon.core.quality.findings import (
     uncertainty_mm,
 )
 
-REPO = Path(__file__).resolve().parents[1]
 WITHIN = {"centerline": 0.05, "tip": 0.10, "notch_width": 0.05}  # mm, within the default tolerances
 
 

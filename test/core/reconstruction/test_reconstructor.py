@@ -8,7 +8,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from synthetic_views import make_config, render_pair
+from support.synthetic_views import make_config, render_pair
 
 from ntcr_recon.core.cloud.fusion import FramePair
 from ntcr_recon.core.quality.metrics import centerline_rmse

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from synthetic_views import posed_scene
+from support.synthetic_views import posed_scene
 
 from ntcr_recon.core.quality.metrics import centerline_rmse
 from ntcr_recon.core.reconstruction.reconstructor import Reconstructor
@@ -60,7 +60,7 @@ def test_a_camera_looking_into_the_slots_from_afar_never_leans_the_centreline_si
     """Notches facing cam_a at 110 mm, a 7 px matching window: the spines facing cam_a are narrower than the window,
     which averages them with the slot floors behind. The centreline leans away from cam_a; above the floor, the
     result must say so and name the camera."""
-    from synthetic_views import make_config, render_pair
+    from support.synthetic_views import make_config, render_pair
 
     from ntcr_recon.core.robot.kinematics import TubeShape
 
@@ -81,7 +81,7 @@ def test_a_tube_whose_wall_a_matcher_spoils_against_the_background_is_followed_a
     tube ended at 22 mm of 52. Now it is followed to its end; wherever the centreline is off by more than three
     times the uncertainty the result states, a stretch named unsupported (no camera saw wall facing it) lies
     within a notch pitch."""
-    from synthetic_views import make_config, render_pair
+    from support.synthetic_views import make_config, render_pair
 
     from ntcr_recon.core.relocation.centerline import Centerline, base_pose
     from ntcr_recon.core.robot.kinematics import TubeShape
@@ -119,7 +119,7 @@ def test_notches_facing_a_camera_keep_their_side_where_no_camera_sees_their_wind
     read as edges. The side measured once moved 12 deg and said the robot was rolled in its clamp; judged
     without those sectors, the side stays within 3 deg of the truth and nothing claims a roll, while its stated
     uncertainty says that a roll of 15 deg would go unseen here."""
-    from synthetic_views import make_config, render_pair
+    from support.synthetic_views import make_config, render_pair
 
     from ntcr_recon.core.robot.kinematics import TubeShape
 
@@ -142,7 +142,7 @@ def test_a_rig_file_rolled_15_deg_is_corrected_though_a_7px_window_thins_the_rin
     wall over about 110 deg of the ring (22 of 36 sectors for the two), less than the two thirds the side once
     required, so the configured side was kept. Each camera sees one edge of the backbone's window: the side is
     measured to within 3 deg."""
-    from synthetic_views import make_config, render_pair
+    from support.synthetic_views import make_config, render_pair
 
     from ntcr_recon.core.reconstruction.reconstructor import Reconstructor
     from ntcr_recon.core.robot.kinematics import TubeShape
@@ -164,7 +164,7 @@ def test_a_robot_curled_below_its_base_plane_is_followed_there_past_its_post_or_
     post out: every notch is found and the tip placed (with the post in, the tube ran on 5 mm into it). Without,
     the box stops at the base plane: the tube is cut there, and the result says where and which setting lets
     the box reach on."""
-    from synthetic_views import render_pair, rig_mapping
+    from support.synthetic_views import render_pair, rig_mapping
 
     from ntcr_recon.core.config.rig import rig_config_from_mapping
     from ntcr_recon.core.robot.kinematics import TubeShape

@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 import pytest
+from support import BAGS
 
 from ntcr_recon.core.relocation.centerline import Centerline
 from ntcr_recon.core.relocation.notches import Notch, SideMeasurement, measure_notch_side
@@ -87,14 +88,13 @@ def test_a_side_that_does_not_settle_in_the_turned_frame_keeps_the_configured_on
     stays within ROLL_TO_REFRAME and the side reported is the sum. One that moves on again is no measurement:
     the configured side is kept, and the result says why. (The measurement is replaced by the given rolls, so
     only the pipeline's handling of it is under test; on the sample bag bend45, whose notches open at 0 deg.)"""
-    from pathlib import Path
 
-    import tiny_rig
+    from support import tiny_rig
 
     import ntcr_recon.core.reconstruction.reconstructor as pipeline
     from ntcr_recon.core.config.rig import load_rig_config
 
-    bag = Path(__file__).resolve().parents[1] / "bags" / "bend45"
+    bag = BAGS / "bend45"
     config = load_rig_config(bag / "rig.yaml")
     pair = tiny_rig.bag_frame_pairs(bag, config)[0]
     rolls = iter(math.radians(r) for r in rolls_deg)

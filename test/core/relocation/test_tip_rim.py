@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 import pytest
-from synthetic_views import posed_scene, render_pair
+from support.synthetic_views import posed_scene, render_pair
 
 from ntcr_recon.core.quality.checks import Trace, assess
 from ntcr_recon.core.reconstruction.reconstructor import Reconstructor

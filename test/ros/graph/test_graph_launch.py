@@ -15,13 +15,13 @@ from pathlib import Path
 
 import pytest
 import yaml
+from support import REPO
 
 from ntcr_recon.cli import run as run_command
 from ntcr_recon.core.config.rig import TopicConfig
 from ntcr_recon.ros import graph
 from ntcr_recon.ros.topics import stage_topic
 
-REPO = Path(__file__).resolve().parents[1]
 LAUNCH_FILES = sorted((REPO / "launch").glob("*.launch.py"))
 RUN = Path(sys.executable).parent / "ntcr-recon"
 
@@ -116,9 +116,9 @@ def run_bend45_in_a_loop(graph, log, *options: str) -> subprocess.Popen:
 def test_run_respawns_a_node_that_dies_and_the_graph_goes_on(tmp_path):
     # issue 11: a killed node (here SIGKILL, as the OOM killer would) is started again with a log line, and
     # the fused clouds flow again; the other nodes were never stopped.
-    from ros_graph import RosGraph
     from sensor_msgs.msg import PointCloud2
-    from stage_probe import COLLECT_RELIABLE
+    from support.ros_graph import RosGraph
+    from support.stage_probe import COLLECT_RELIABLE
 
     log_path = tmp_path / "run.log"
     with RosGraph() as graph:
@@ -148,7 +148,7 @@ def test_run_respawns_a_node_that_dies_and_the_graph_goes_on(tmp_path):
 
 def test_nodes_end_when_run_is_killed(tmp_path):
     # review: the nodes run in their own sessions; a SIGKILLed `ntcr-recon run` left them orphaned, running
-    from ros_graph import RosGraph
+    from support.ros_graph import RosGraph
 
     log_path = tmp_path / "run.log"
     with RosGraph() as ros, log_path.open("w") as log:
@@ -201,8 +201,8 @@ def test_readme_replay_example_loops():
 def test_run_single_process_hosts_every_node_in_one_process(tmp_path):
     # --single-process: the same separate nodes (names, topics) on one executor in one process.
     from geometry_msgs.msg import PoseStamped
-    from ros_graph import RosGraph
-    from stage_probe import COLLECT_RELIABLE
+    from support.ros_graph import RosGraph
+    from support.stage_probe import COLLECT_RELIABLE
 
     log_path = tmp_path / "run.log"
     with RosGraph() as ros:

@@ -13,14 +13,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import tiny_rig
 from geometry_msgs.msg import PoseStamped
-from ros_graph import RosGraph
 from scipy.spatial import cKDTree
 from sensor_msgs.msg import PointCloud2
 from shape_msgs.msg import Mesh
-from stage_probe import COLLECT_RELIABLE, ply_face_count
 from std_msgs.msg import Float64MultiArray
+from support import BAGS, tiny_rig
+from support.ros_graph import RosGraph
+from support.stage_probe import COLLECT_RELIABLE, ply_face_count
 from visualization_msgs.msg import Marker
 
 from ntcr_recon.core.cloud.fusion import FramePair
@@ -31,7 +31,7 @@ from ntcr_recon.io.pointcloud import stamp_to_ns
 from ntcr_recon.ros.messages import mesh_from_msg, notches_from_array, stage_cloud_and_normals
 from ntcr_recon.ros.node_support import LATCHED_QOS
 
-BAG = Path(__file__).resolve().parents[1] / "bags" / "bend45"
+BAG = BAGS / "bend45"
 RUN = Path(sys.executable).parent / "ntcr-recon"
 OUTPUTS = 6  # relocated frames collected (the 4-frame bag loops)
 

@@ -14,14 +14,14 @@ from pathlib import Path
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from ros_graph import RosGraph
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import PointCloud2
-from stage_probe import COLLECT_RELIABLE
+from support import REPO
+from support.ros_graph import RosGraph
+from support.stage_probe import COLLECT_RELIABLE
 
 from ntcr_recon.io.pointcloud import stamp_to_ns
 
-REPO = Path(__file__).resolve().parents[1]
 BAG = REPO / "bags" / "bend45"
 RUN = Path(sys.executable).parent / "ntcr-recon"
 BAG_SECONDS = 60.0

@@ -8,12 +8,12 @@ import re
 
 import numpy as np
 import pytest
-import tiny_rig
 from nav_msgs.msg import Path
-from ros_graph import RosGraph
 from sensor_msgs.msg import PointCloud2
 from shape_msgs.msg import Mesh
-from stage_probe import StageProbe
+from support import tiny_rig
+from support.ros_graph import RosGraph
+from support.stage_probe import StageProbe
 
 from ntcr_recon.core.cloud.pairing import FramePairer
 from ntcr_recon.core.config.rig import load_rig_config

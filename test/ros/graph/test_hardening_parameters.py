@@ -7,7 +7,7 @@ import subprocess
 
 import pytest
 from rcl_interfaces.srv import GetParameters
-from ros_graph import VENV_BIN, RosGraph
+from support.ros_graph import VENV_BIN, RosGraph
 
 from ntcr_recon.ros.node_support import command_line_overrides, ros_argument_value
 

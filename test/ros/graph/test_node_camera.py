@@ -7,12 +7,12 @@ import subprocess
 
 import numpy as np
 import pytest
-import tiny_rig
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from ros_graph import VENV_BIN, RosGraph
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, PointCloud2
+from support import tiny_rig
+from support.ros_graph import VENV_BIN, RosGraph
 
 from ntcr_recon.core.cloud.deproject import crop_window, depth_to_points
 from ntcr_recon.core.config.rig import load_rig_config

@@ -6,11 +6,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import tiny_rig
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from ros_graph import RosGraph
 from sensor_msgs.msg import CameraInfo, PointCloud2
-from stage_probe import COLLECT_RELIABLE, StageProbe, set_parameter
+from support import tiny_rig
+from support.ros_graph import RosGraph
+from support.stage_probe import COLLECT_RELIABLE, StageProbe, set_parameter
 
 from ntcr_recon.core.cloud.deproject import depth_to_points
 from ntcr_recon.core.cloud.fusion import CameraFrame, FramePair, fuse

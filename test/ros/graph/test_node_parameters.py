@@ -6,10 +6,10 @@ from __future__ import annotations
 import subprocess
 
 import pytest
-import tiny_rig
 from rcl_interfaces.srv import DescribeParameters, GetParameters
-from ros_graph import VENV_BIN, RosGraph
-from stage_probe import set_parameter
+from support import tiny_rig
+from support.ros_graph import VENV_BIN, RosGraph
+from support.stage_probe import set_parameter
 
 
 @pytest.fixture(scope="module")

@@ -10,11 +10,11 @@ import time
 import numpy as np
 import pyrealsense2 as rs
 import pytest
-import tiny_rig
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from ros_graph import VENV_BIN, RosGraph
 from sensor_msgs.msg import CameraInfo, PointCloud2
-from software_d405 import SoftwareD405
+from support import tiny_rig
+from support.ros_graph import VENV_BIN, RosGraph
+from support.software_d405 import SoftwareD405
 
 from ntcr_recon.core.cloud.deproject import crop_window, depth_to_points
 from ntcr_recon.core.config.rig import load_rig_config

@@ -5,14 +5,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import tiny_rig
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
-from ros_graph import RosGraph
 from shape_msgs.msg import Mesh
-from stage_probe import COLLECT_RELIABLE, StageProbe, ply_face_count, set_parameter
 from std_msgs.msg import Float64MultiArray
+from support import tiny_rig
+from support.ros_graph import RosGraph
+from support.stage_probe import COLLECT_RELIABLE, StageProbe, ply_face_count, set_parameter
 from visualization_msgs.msg import Marker, MarkerArray
 
 from ntcr_recon.core.config.rig import load_rig_config

@@ -6,9 +6,9 @@ import subprocess
 
 import numpy as np
 import pytest
-from ros_graph import VENV_BIN, RosGraph
 from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import PointCloud2
+from support.ros_graph import VENV_BIN, RosGraph
 
 from ntcr_recon.core.cloud.points import pack_rgb
 from ntcr_recon.io.pointcloud import cloud_from_msg, cloud_to_msg, stamp_to_ns
