@@ -8,15 +8,16 @@ One instance per camera (parameter `camera`, a name of the rig's camera_names). 
   realsense a live D405 (pyrealsense2), picked by the configuration's serial_number, at its width/height/fps,
             depth unit kept at the configured value (0.1 mm on a D405);
   file      a librealsense recording (`file_path`) played back through pyrealsense2.
-Every depth frame goes through the core's deprojection (`ntcr_recon.core.cloud.deproject`): with `crop_to_robot`
-only the image window that can see the robot's crop box is deprojected, as the offline pipeline does, and only
+Every depth frame goes through the core's camera cloud (`core.cloud.fusion.depth_points`, the offline pipeline's
+own): with `crop_to_robot` only the image window that can see the robot's crop box is deprojected, and only
 the points inside the box are published (what fusion keeps anyway; a fifth of the bytes on the wire). The
 cloud holds the valid points with their pixel (fields pixel_u, pixel_v: the later stages find neighbours in
 the image by it), in the camera's optical frame (the configuration's frame_id), with the frame's own stamp.
 The first frame's depth step is measured (`depth_step_mm` on /diagnostics): depth too coarse for the tube (a
 realsense-ros recording's 1 mm unit) is a WARN there and a log line, the warning the offline command gives.
-So is the band its stereo matcher spoils at depth edges (`core.relocation.tip.edge_band_angle`, rad: on the first frames
-until one shows a far background, at most EDGE_BAND_ATTEMPTS): published once on `<ns>/<cam>/edge_band`
+So is the band its stereo matcher spoils at depth edges (`core.reconstruction.edge_bands.EdgeBands`, the offline
+pipeline's measure, rad: on the first frames until one shows a far background, at most EDGE_BAND_ATTEMPTS):
+published once on `<ns>/<cam>/edge_band`
 (std_msgs/Float64, transient local) for relocation_node, which places the tip with it as the offline command
 does with the depth images (`edge_band_mrad` on /diagnostics).
 
@@ -42,12 +43,11 @@ from sensor_msgs.msg import CameraInfo, PointCloud2
 from std_msgs.msg import Float64
 
 from ntcr_recon.core.base import compiled
-from ntcr_recon.core.base.transforms import transform_points
-from ntcr_recon.core.cloud.deproject import Intrinsics, crop_window, depth_to_points
-from ntcr_recon.core.cloud.filters import crop_mask
-from ntcr_recon.core.cloud.points import rows
+from ntcr_recon.core.cloud.deproject import Intrinsics
+from ntcr_recon.core.cloud.fusion import CameraFrame, deprojected, depth_points
 from ntcr_recon.core.quality.measures import depth_quantisation_warning, depth_step
-from ntcr_recon.core.relocation.tip import EDGE_BAND_ATTEMPTS, edge_band_angle
+from ntcr_recon.core.reconstruction.edge_bands import EdgeBands
+from ntcr_recon.core.relocation.tip import EDGE_BAND_ATTEMPTS
 from ntcr_recon.io.camera_sources import BagSource, Pacer, SourceError, SourceFrame
 from ntcr_recon.ros.graph import START_DELAY_S
 from ntcr_recon.ros.messages import RCLPY, camera_cloud_to_msg, checked_intrinsics, header, stamp_msg
@@ -155,8 +155,7 @@ class CameraNode(RigNode):
         # command makes; in the graph no other node sees depth images)
         self._depth_step: float | None = None
         self._depth_warning: str | None = None
-        self._edge_band: float | None = None  # rad, published once measured
-        self._edge_attempts = 0
+        self._edge_bands = EdgeBands()  # this camera's, published once measured
 
     def _open_source(self, rig, params: dict):
         try:
@@ -226,8 +225,8 @@ class CameraNode(RigNode):
         values = {"frames_published": self.frames_published, "frames_skipped": self.frames_skipped}
         if self._depth_step is not None:
             values["depth_step_mm"] = round(self._depth_step * 1e3, 4)
-        if self._edge_band is not None:
-            values["edge_band_mrad"] = round(self._edge_band * 1e3, 4)
+        if (band := self._edge_bands.angles.get(self.camera)) is not None:
+            values["edge_band_mrad"] = round(band * 1e3, 4)
         if self._depth_warning is not None:
             return DiagnosticStatus.WARN, self._depth_warning, values
         return None, "", values
@@ -239,12 +238,16 @@ class CameraNode(RigNode):
             self.get_logger().warning(self._depth_warning)
 
     def _note_edge_band(self, depth: np.ndarray, unit: float, focal: float) -> None:
-        self._edge_attempts += 1
-        self._edge_band = edge_band_angle(depth, unit, focal)
-        if self._edge_band is not None:
-            self._edge_band_publisher.publish(Float64(data=self._edge_band))
-            self.get_logger().info(f"edge band of '{self.camera}': {self._edge_band * focal:.2f} px")
-        elif self._edge_attempts == EDGE_BAND_ATTEMPTS:
+        """The edge band measured on this frame while not yet known (EdgeBands), published once it is."""
+        if not self._edge_bands.wants(self.camera):
+            return
+        self._edge_bands.note_image(self.camera, depth, unit, focal)
+        self._edge_bands.measure(self.camera)
+        band = self._edge_bands.angles.get(self.camera)
+        if band is not None:
+            self._edge_band_publisher.publish(Float64(data=band))
+            self.get_logger().info(f"edge band of '{self.camera}': {band * focal:.2f} px")
+        elif self._edge_bands.attempts(self.camera) == EDGE_BAND_ATTEMPTS:
             self.get_logger().info(f"no edge band in {EDGE_BAND_ATTEMPTS} frames of '{self.camera}' (no far "
                                    "background): the tip is placed by the silhouettes' erosion")
 
@@ -324,35 +327,23 @@ class CameraNode(RigNode):
         unit = camera.depth_unit if frame.depth_unit is None else frame.depth_unit
         if self._depth_step is None:
             self._note_depth_step(frame.depth, unit)
-        if self._edge_band is None and self._edge_attempts < EDGE_BAND_ATTEMPTS:
-            self._note_edge_band(frame.depth, unit, i.fx)
-        window = self._window(frame.intrinsics) if self._params["crop_to_robot"] else None
-        if self._params["crop_to_robot"] and window is None:  # the camera cannot see the crop box at all
-            xyz, rgb, pixel = np.empty((0, 3)), None, np.empty((0, 2), np.int32)
+        self._note_edge_band(frame.depth, unit, i.fx)
+        depth_frame = CameraFrame(self.camera, frame.stamp_ns, depth=frame.depth, intrinsics=frame.intrinsics,
+                                  color=frame.color, depth_unit=frame.depth_unit)
+        if self._params["crop_to_robot"]:
+            # Only the points inside the crop box travel: fusion would drop the others, and a D405 window's
+            # full cloud (~28 000 points, 0.7 MB) overflows a shared-memory segment, so that over UDP a
+            # best-effort subscriber lost half of them on a busy machine. The windows are kept by intrinsics.
+            points = depth_points(depth_frame, self.rig, self.rig.crop_box(), self._windows)
+            xyz, rgb, pixel = points.optical, points.rgb, points.pixel
         else:
-            xyz, rgb, pixel = depth_to_points(frame.depth, frame.intrinsics, unit, frame.color, window,
-                                             self.rig.flying_pixel_step)
-            if window is not None:
-                # Only the points inside the crop box travel: fusion would drop the others, and a D405 window's
-                # full cloud (~28 000 points, 0.7 MB) overflows a shared-memory segment, so that over UDP a
-                # best-effort subscriber lost half of them on a busy machine.
-                inside = rows(crop_mask(transform_points(camera.extrinsic, xyz), self.rig,
-                                        viewpoints=camera.translation))
-                xyz, pixel = np.take(xyz, inside, axis=0), np.take(pixel, inside, axis=0)
-                rgb = None if rgb is None else rgb[inside]
+            xyz, rgb, pixel = deprojected(depth_frame, self.rig)
         # the camera_info first: a subscriber pairing them (fusion_node's pixel footprint) has it when the cloud
         # of its stamp comes, as a driver publishes it before its image
         self._info_publisher.publish(camera_info_msg(frame, camera.frame_id))
         self._cloud_publisher.publish(camera_cloud_to_msg(xyz, rgb, pixel, camera.frame_id, frame.stamp_ns))
         self.frames_published += 1
         self.stats.published(frame.stamp_ns, started)
-
-    def _window(self, intrinsics: Intrinsics):
-        if intrinsics not in self._windows:
-            box_min, box_max = self.rig.crop_box()
-            self._windows[intrinsics] = crop_window(intrinsics, self.rig.cameras[self.camera].extrinsic,
-                                                    box_min, box_max)
-        return self._windows[intrinsics]
 
     def destroy_node(self) -> None:
         self._stop.set()

@@ -2,7 +2,8 @@
 condition, statistical outlier removal Eq. 5, moving least squares Eq. 6, voxel grid) as the rig
 configuration's `filters` section sets it. Clouds must be in the configured base frame; a cloud of more than
 `max_points` points is dropped before it is decoded (logged, counted on /diagnostics): the subscription takes
-the serialized bytes, whose header gives the size, and decodes only what it keeps.
+the serialized bytes, whose header gives the size, and decodes only what it keeps. The filtering is the
+offline command's own stage function, `core.cloud.filters.filter_cloud`.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ import time
 
 from sensor_msgs.msg import PointCloud2
 
-from ntcr_recon.core.reconstruction.reconstructor import Reconstructor
+from ntcr_recon.core.cloud.filters import filter_cloud
 from ntcr_recon.ros.messages import decode_cloud, stage_cloud_from_msg, stage_cloud_to_msg
 from ntcr_recon.ros.node_stats import NodeStats
 from ntcr_recon.ros.node_support import STAGE_INPUT_QOS, STAGE_QOS, RigNode, guarded, max_points_parameter, run_node
@@ -35,14 +36,14 @@ class FilterNode(RigNode):
         self.get_logger().info("filtering fused clouds")
 
     def configure(self, rig, params: dict) -> None:
-        self.rig, self._reconstructor, self._params = rig, Reconstructor(rig), params
+        self.rig, self._params = rig, params
 
     @guarded
     def _on_cloud(self, raw: bytes) -> None:
         self.stats.received()
         started = time.perf_counter()
         msg = decode_cloud(raw, self._params["max_points"])  # refused when oversized before decoding
-        cloud = self._reconstructor.filter(stage_cloud_from_msg(msg, self.rig.base_frame, self.rig))
+        cloud = filter_cloud(stage_cloud_from_msg(msg, self.rig.base_frame, self.rig), self.rig)
         self._publisher.publish(stage_cloud_to_msg(cloud, self.rig.base_frame))
         self.stats.published(cloud.stamp_ns, started)
 

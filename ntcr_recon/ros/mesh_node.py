@@ -1,8 +1,8 @@
 """mesh_node: `<ns>/relocated/points` + `<ns>/centerline` of the same stamp -> the core's mesh, at `rate`.
 
-The mesher is the rig configuration's `mesh.method` (core.reconstruction.Reconstructor.mesh: `tube`, the relocated
-outer wall on the tube's own grid, or `poisson`, Eq. 7-8); relocation_node's cloud carries what it reads
-(normals, surface parts, tube coordinates), the Path the centreline.
+The mesher is the rig configuration's `mesh.method` (core.reconstruction.mesh.mesh_relocation, the offline
+command's mesh stage: `tube`, the relocated outer wall on the tube's own grid, or `poisson`, Eq. 7-8);
+relocation_node's cloud carries what it reads (normals, surface parts, tube coordinates), the Path the centreline.
 
 Meshing costs more than a frame period, so the node keeps only the newest relocated cloud and meshes it at
 `rate` Hz (node clock: with `use_sim_time` the replayed bag's clock), skipping a tick when nothing new came.
@@ -28,7 +28,7 @@ from sensor_msgs.msg import PointCloud2
 from shape_msgs.msg import Mesh
 from visualization_msgs.msg import Marker
 
-from ntcr_recon.core.reconstruction.reconstructor import Reconstructor
+from ntcr_recon.core.reconstruction.mesh import mesh_relocation
 from ntcr_recon.io.files import write_mesh
 from ntcr_recon.io.pointcloud import stamp_to_ns
 from ntcr_recon.ros import cdr
@@ -101,7 +101,7 @@ class MeshNode(RigNode):
             raise ParameterError(f"parameter 'output_dir': {output!r} is not an existing folder")
         save_requested = params["save_ply_path"] and params["save_ply_path"] != self._params["save_ply_path"]
         rate_changed = self._timer is None or params["rate"] != self._params["rate"]
-        self.rig, self._params, self._reconstructor = rig, params, Reconstructor(rig)
+        self.rig, self._params = rig, params
         if save_requested:
             self._pending_save = PathLib(params["save_ply_path"]).expanduser()
             self._save_pending()
@@ -166,7 +166,7 @@ class MeshNode(RigNode):
         started = time.perf_counter()
         try:
             relocation = relocation_from_msgs(msg, centerline, self.rig.base_frame, self.rig)
-            mesh = self._reconstructor.mesh(relocation)
+            mesh = mesh_relocation(relocation, self.rig)
         except (ValueError, RuntimeError) as error:
             self.stats.dropped("no_mesh", f"no mesh from the relocated cloud at {stamp} ns: {error}")
             return

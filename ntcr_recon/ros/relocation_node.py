@@ -14,7 +14,9 @@ Publishes (reliable, depth 1; all in the base frame, stamped with the input clou
                             codes in the message, and as key-values `status`, `stamp_ns`, `codes`,
                             `uncertainty_mm.<centerline|tip|notch_width>`, `warning.<CODE>` (severity: sentence)
                             and the rest of the self-check (core.quality.measures); codes: core.quality.findings
-The relocation warm-starts from the previous frame's centreline, as the offline command does over a bag. The
+The relocation is the offline command's own (core.reconstruction.relocate.Relocator, without the Reconstructor's
+frame loop around it: fusion's region of interest is camera_node's crop window here). It warm-starts from the
+previous frame's centreline, as the offline command does over a bag. The
 tip is placed with each camera's edge band (`<ns>/<cam>/edge_band`, from camera_node, which sees the depth
 images), as the offline command places it; until a camera's band arrives (or with a source that publishes none)
 by the erosion of the silhouettes, which `tip_refinement` on /diagnostics names.
@@ -39,7 +41,7 @@ from std_msgs.msg import Float64, Float64MultiArray
 from visualization_msgs.msg import MarkerArray
 
 from ntcr_recon.core.cloud.pairing import stamp_jump
-from ntcr_recon.core.reconstruction.reconstructor import ReconstructionError, Reconstructor
+from ntcr_recon.core.reconstruction.relocate import ReconstructionError, Relocator
 from ntcr_recon.ros.messages import (
     NotchMarkers,
     centerline_path_bytes,
@@ -97,15 +99,15 @@ class RelocationNode(RigNode):
     def configure(self, rig, params: dict) -> None:
         if params["output_dir"] and not PathLib(params["output_dir"]).expanduser().is_dir():
             raise ParameterError(f"parameter 'output_dir': {params['output_dir']!r} is not an existing folder")
-        self.rig, self._reconstructor, self._params = rig, Reconstructor(rig), params
+        self.rig, self._relocator, self._params = rig, Relocator(rig), params
         for camera, band in self._edge_bands.items():  # received before a change of parameters
             if camera in rig.camera_names:
-                self._reconstructor.note_edge_band(camera, band)
+                self._relocator.note_edge_band(camera, band)
         self._notch_markers = NotchMarkers(rig.robot.outer_radius)
 
     @guarded
     def _on_edge_band(self, camera: str, msg: Float64) -> None:
-        self._reconstructor.note_edge_band(camera, msg.data)
+        self._relocator.note_edge_band(camera, msg.data)
         self._edge_bands[camera] = msg.data
         self.get_logger().info(f"edge band of '{camera}' received: {msg.data * 1e3:.2f} mrad")
 
@@ -116,7 +118,7 @@ class RelocationNode(RigNode):
         msg = decode_cloud(raw, self._params["max_points"])  # refused when oversized before decoding
         cloud = stage_cloud_from_msg(msg, self.rig.base_frame, self.rig)
         try:
-            relocation = self._reconstructor.relocate(cloud, warm_start=self._warm_start(cloud.stamp_ns))
+            relocation = self._relocator.relocate(cloud, warm_start=self._warm_start(cloud.stamp_ns))
         except ReconstructionError as error:
             self._diagnostics.publish(DiagnosticArray(header=msg.header, status=[quality_status(
                 self.get_name(), msg.header.stamp, None, error=str(error))]))

@@ -1,6 +1,7 @@
 """Meshing (paper Eq. 7-8): the relocated outer wall on the tube's own grid (`tube_mesh`, the default), or
 open3d's screened Poisson surface reconstruction with low-density vertices trimmed (`poisson_mesh`).
-Writing meshes to files: `ntcr_recon.io.files`.
+`mesh_relocation(relocation, config)` is the mesh stage: the mesher the rig configuration's `mesh.method` names
+(the Reconstructor and mesh_node call it). Writing meshes to files: `ntcr_recon.io.files`.
 """
 
 from __future__ import annotations
@@ -18,6 +19,15 @@ class Mesh:
 
     def __len__(self) -> int:
         return len(self.triangles)
+
+
+def mesh_relocation(relocation, config) -> Mesh:
+    """The configured mesher on a relocation (core.reconstruction.relocate.RelocationResult): `tube` (the relocated
+    outer wall meshed on the tube's own grid) or `poisson` (open3d's screened Poisson, the paper's Eq. 7-8); config
+    a RigConfig."""
+    if config.mesh.method == "tube":
+        return tube_mesh(relocation, config.robot)
+    return poisson_mesh(relocation.relocated.xyz, relocation.normals, config.mesh)
 
 
 def poisson_mesh(points: np.ndarray, normals: np.ndarray, config) -> Mesh:

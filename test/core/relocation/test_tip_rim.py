@@ -229,7 +229,7 @@ def test_tip_on_the_test_renderer_with_a_backdrop(bend_deg, notch_side_deg, nois
     along = float((relocation.tip - true_tip) @ tip_frame[:, 2])
     error = float(np.linalg.norm(relocation.tip - true_tip))
     fx = pair.frames["cam_a"].intrinsics.fx
-    bands = {name: round(band * fx, 2) for name, band in reconstructor._edge_bands.items()}  # px
+    bands = {name: round(band * fx, 2) for name, band in reconstructor.relocator.edge_bands.angles.items()}  # px
     print(f"\nbend {bend_deg:.0f} deg, notches at {notch_side_deg:.0f} deg, noise {noise_at_90mm * 1e3:.2f} mm, "
           f"backdrop: bands {bands} px, tip error "
           f"{error * 1e3:.3f} mm ({along * 1e3:+.3f} along the tube)")

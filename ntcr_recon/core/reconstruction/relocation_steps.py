@@ -1,0 +1,449 @@
+"""The steps of the relocation (paper Sec. IV) as `core.reconstruction.relocate.Relocator.relocate` runs them,
+each a function of the frame's `Scene` and what the steps before it handed on:
+
+    align            step 2: the fitted axis onto the wall stereo measures without bias
+    notches_and_side step 4: the notches, and the side they open to
+    seen_end         step 5: the end the cameras saw
+    tip_by_length    step 5': the tip along the tube, the robot's known length weighed in
+    assess           step 7: the self-check
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ntcr_recon.core.cloud.points import Cloud
+from ntcr_recon.core.config.rig import RigConfig
+from ntcr_recon.core.quality.checks import assess as assess_trace
+from ntcr_recon.core.quality.findings import Finding
+from ntcr_recon.core.quality.measures import (
+    CameraReach,
+    camera_reach,
+    cameras_looking_into_slots,
+    centerline_uncertainty,
+    notched_thinning,
+)
+from ntcr_recon.core.quality.trace import Trace
+from ntcr_recon.core.reconstruction.edge_bands import EdgeBands
+from ntcr_recon.core.relocation.alignment import (
+    SILHOUETTE_MARGIN_PX,
+    Alignment,
+    WallTrust,
+    align_to_trusted_wall,
+    shift_scatter,
+)
+from ntcr_recon.core.relocation.backbone import level_by_backbone
+from ntcr_recon.core.relocation.bends import continued_bend, held_bend, turn_from_base
+from ntcr_recon.core.relocation.centerline import Centerline, TubeCoordinates
+from ntcr_recon.core.relocation.centerline_fit import CenterlineSettings
+from ntcr_recon.core.relocation.cross_view import CrossView, cross_view_spread
+from ntcr_recon.core.relocation.icp import ReferenceMove
+from ntcr_recon.core.relocation.notch_side import measure_notch_side
+from ntcr_recon.core.relocation.notches import Notch, detect_notches, spine_wall
+from ntcr_recon.core.relocation.outline import across_views_from, outline_offset, went_astray
+from ntcr_recon.core.relocation.reference import along_rays
+from ntcr_recon.core.relocation.tip import (
+    LENGTH_AGREEMENT_SIGMAS,
+    RimViews,
+    TipAlongTube,
+    cap_faces_a_camera,
+    carried_to_length,
+    end_cap_plane,
+    give_back_erosion,
+    rim_tip,
+    tube_end,
+    with_known_length,
+)
+from ntcr_recon.core.relocation.wall import band_gate, surface_band
+from ntcr_recon.core.robot.comb import cut_intervals, inside_intervals
+
+# A measured notch side further than this from the configured one turns the tube frame (smaller: within
+# what the measurement scatters, and the open window is wide enough for it).
+ROLL_TO_REFRAME = np.radians(6.0)
+
+# Alignment passes: each selects the trusted points about the axis the previous one moved.
+ALIGNMENT_PASSES = 3
+
+# A tube whose end tangent turns at least this far towards a camera (from across its view) points at it.
+CAP_PLANE_ANGLE = np.radians(45.0)
+
+# The band a stereo matcher spoils at a depth edge, where no depth image measured it: half a D405's 7 px window.
+UNMEASURED_EDGE_BAND_PX = 3.5
+
+
+@dataclass(frozen=True)
+class Scene:
+    """What every step of one relocation reads: the rig, the cloud, the fit's settings, the cameras."""
+
+    config: RigConfig
+    cloud: Cloud
+    settings: CenterlineSettings
+    seen_by: np.ndarray | None          # each point's camera index; None: a cloud from elsewhere
+    origins: np.ndarray                 # each camera's optical centre in the base frame, by camera index
+    edge_bands: EdgeBands               # the cameras' edge bands (core.reconstruction.edge_bands)
+    depth_steps: dict[str, float]       # per camera, the depth quantisation seen in its first frame
+    bands: np.ndarray | None = None     # rad per camera index (NaN: not measured), once the notches need them
+
+    @property
+    def geometry(self):
+        return self.config.robot
+
+    @property
+    def extrinsics(self) -> dict[str, np.ndarray]:
+        """Each camera's optical frame in the base frame (4x4), by name in camera_names' order."""
+        return {name: self.config.cameras[name].extrinsic for name in self.config.camera_names}
+
+
+# What each step hands on to the next.
+
+@dataclass(frozen=True)
+class Axis:
+    """An axis and the cloud's points about it, replaced whole where a step moves or turns the axis."""
+
+    centerline: Centerline
+    coords: TubeCoordinates         # the points about the axis
+    frames: tuple                   # (position, tangent, normal, binormal) at each point's s
+    rays: tuple | None = None       # relocation.reference.along_rays: the points along their viewing rays onto the wall
+
+    @property
+    def measured(self) -> TubeCoordinates:
+        """The points as their cameras saw them (along their viewing rays onto the wall), else as fused."""
+        return self.coords if self.rays is None else self.rays[0]
+
+    def rolled(self, angle: float) -> Axis:
+        """The same axis with its frame turned by `angle` about the tangent (towards the notch side measured)."""
+        position, tangent, normal, binormal = self.frames
+        return Axis(self.centerline.rolled(angle), self.coords.rolled(angle),
+                    (position, tangent, *_rolled_axes(normal, binormal, angle)),
+                    None if self.rays is None else (self.rays[0].rolled(angle), self.rays[1]))
+
+
+@dataclass(frozen=True)
+class Aligned:
+    """Step 2: the axis moved onto the trusted wall, and what the checks on it found (None: no cameras known)."""
+
+    axis: Axis
+    alignment: Alignment | None = None
+    cross_view: CrossView = CrossView(None)
+    backbone_shift: float | None = None           # m, alignment.level_by_backbone's
+    outline: float | None = None                  # m, outline.outline_offset of the final axis
+    across_from_fit: tuple[float, float] | None = None  # the aligned and fitted axes' outline offsets, where the
+                                                        # fit's placement across the views was taken
+    scatter: float | None = None                  # m, alignment.shift_scatter
+
+
+@dataclass(frozen=True)
+class Sided:
+    """Step 4: the notches, found in the frame turned to the side they open to (where it was measured)."""
+
+    axis: Axis
+    notches: list[Notch]
+    notch_side: float                             # rad, measured (or the configured one)
+    unsettled: tuple[float, float] | None         # a turn that did not settle: (turned by, then measured off)
+    side_uncertainty: float | None                # rad; None: the side not measured
+
+
+@dataclass(frozen=True)
+class SeenEnd:
+    """Step 5: the end the cameras saw."""
+
+    tip_s: float
+    eroded_end: float                             # the end before the rim a matcher erodes was given back
+    refinement: str                               # how it was placed (quality's tip_refinement)
+    tip_uncertainty: float | None = None          # m along the tube; None: nothing measured the erosion
+    from_cap: bool = False                        # placed on the end cap's points (a lower bound)
+
+
+@dataclass(frozen=True)
+class ByLength:
+    """Step 5': the tip along the tube with the robot's known length weighed in."""
+
+    centerline: Centerline                        # carried on past the fit's end, bending as the notches did
+    along: TipAlongTube                           # core.relocation.tip.with_known_length's (or carried_to_length's)
+    total_bend: float                             # rad, at the tip
+    end_turn_off: float | None                    # rad, the free end's bend against the bend held short of it
+    reach: CameraReach                            # how near the tube came to each camera
+    fitted_end: float                             # m, where the fit's wall ended
+
+
+@dataclass(frozen=True)
+class Thinning:
+    """How far the centreline may be off: what stereo beside the notches does to the wall."""
+
+    thinning: object                              # core.quality.measures.notched_thinning's
+    looking: tuple                                # the cameras looking into the slots
+    off: float                                    # m, core.quality.measures.centerline_uncertainty (0: none)
+
+
+def align(scene: Scene, fitted: Axis) -> Aligned:
+    """Step 2: the fitted axis moved onto the wall stereo measures without bias (core.relocation.alignment), checked
+    against the tube's outline in each camera's view (relocation.outline) and levelled by the cameras facing the
+    backbone; and each point moved along its viewing ray onto the wall (core.relocation.reference). Without the
+    points' cameras (seen_by None: a cloud from elsewhere), the fit as it is."""
+    cloud, settings, seen_by = scene.cloud, scene.settings, scene.seen_by
+    if seen_by is None:
+        return Aligned(fitted)
+    geometry, footprint = scene.geometry, settings.cell
+    viewpoints = np.take(scene.origins, seen_by, axis=0)
+    end = tube_end(fitted.coords, geometry.outer_radius, settings.gate, footprint, max_s=geometry.reach)
+    # trusted wall lies within the wall's band on the spines: the fit's gate, a millimetre wide, lets in
+    # pixels a matcher mixed with the background behind, which pull the axis across the cameras' views
+    trusted_gate = _wall_band_gate(fitted.coords, fitted.centerline, geometry, settings.gate, footprint)
+    # which points face their camera depends on where the axis is: selected again about the moved axis
+    trust = WallTrust(geometry, trusted_gate, footprint, end)
+    alignment = align_to_trusted_wall(fitted.centerline, fitted.coords, fitted.frames, viewpoints, trust, xyz=cloud.xyz,
+                                      passes=ALIGNMENT_PASSES)
+    centerline = alignment.centerline
+    coords, frames = centerline.project_with_frames(cloud.xyz, alignment.arc_lengths)
+    # the alignment against the middle of the tube's outline in each camera's view: where it followed a wall
+    # stereo moved across the views and the fit did not, the fit places the axis across them (relocation.outline)
+    outline_of = functools.partial(outline_offset, xyz=cloud.xyz, viewpoints=viewpoints, camera=seen_by,
+                                   geometry=geometry, gate=settings.gate, end_s=end)
+    aligned_outline, across_from_fit = outline_of(coords, frames), None
+    fit_outline = outline_of(fitted.coords, fitted.frames) if went_astray(aligned_outline, footprint) else None
+    if fit_outline is not None and not went_astray(fit_outline, footprint):
+        centerline = across_views_from(fitted.centerline, centerline, scene.origins)
+        alignment = alignment.moved_to(centerline, fitted.centerline)
+        coords, frames = centerline.project_with_frames(cloud.xyz, coords.s)
+        across_from_fit = aligned_outline, fit_outline
+    # how much the lean it removed varies along the tube: the axis is known no better (quality)
+    scatter = shift_scatter(fitted.centerline, centerline, end)
+    # the cameras facing the backbone place the axis along their views by the plain tube's level
+    leveled, backbone_shift = level_by_backbone(centerline, coords, frames, viewpoints, seen_by, scene.origins, trust)
+    outline = aligned_outline if across_from_fit is None else None  # of the axis as it stands
+    if leveled is not centerline:
+        centerline, outline = leveled, None
+        coords, frames = centerline.project_with_frames(cloud.xyz, coords.s)
+    # what each camera alone says about the axis across its view: the fused axis is known no better
+    cross_view = cross_view_spread(centerline, coords, frames, viewpoints, seen_by, len(scene.origins), trust)
+    # each point as its camera saw it: along its viewing ray onto the wall
+    rays = along_rays(coords, frames, viewpoints, geometry.outer_radius, settings.gate)
+    return Aligned(Axis(centerline, coords, frames, rays), alignment, cross_view, backbone_shift,
+                   # the axis against the middle of the tube's outline in each camera's view (depth errors lie
+                   # along the rays)
+                   outline_of(coords, frames) if outline is None else outline, across_from_fit, scatter)
+
+
+def find_notches(scene: Scene, axis: Axis, tip_s: float, wall) -> list[Notch]:
+    """The robot's comb matched to the evidence about the axis, up to tip_s (core.relocation.notches)."""
+    options, settings = scene.config.relocation, scene.settings
+    return detect_notches(axis.measured, axis.centerline, geometry=scene.geometry, gate=settings.gate,
+                          footprint=settings.cell, kernel_px=options.notch_kernel_px,
+                          min_width_fraction=options.min_notch_width_fraction, tip_s=tip_s,
+                          observed=axis.coords, wall=wall)
+
+
+def notches_and_side(scene: Scene, axis: Axis, tip_s: float, wall) -> Sided:
+    """Step 4: the notches found in the configured frame; the side they open to measured, and where it is off
+    the configured one the tube frame turned to it and the notches found again there (the robot's roll in its
+    clamp is never exact)."""
+    geometry, settings = scene.geometry, scene.settings
+    footprint = settings.cell
+    found = find_notches(scene, axis, tip_s, wall)
+    notch_side, unsettled, side_uncertainty = geometry.notch_side, None, None
+    configured = axis, found
+    for turn in range(2):  # the second pass measures in the turned frame (the window fits better there)
+        # a dip is found where the comb puts it, not where its cut opens: no evidence of the side
+        edged = [notch for notch in found if notch.edges_measured]
+        side_measured = measure_notch_side(axis.coords, edged, geometry, axis.centerline, settings.gate,
+                                           footprint, wall=wall)
+        if side_measured is None:
+            break
+        roll, side_uncertainty, by_edges = side_measured
+        if not by_edges:  # one edge or none placed the window: the matcher's smear of it is not cancelled
+            side_uncertainty += _edge_reach(scene, footprint, axis.centerline) / geometry.outer_radius
+        if abs(roll) <= ROLL_TO_REFRAME:
+            notch_side += roll  # reported as measured; too small a turn to find the notches again for
+            break
+        if turn:  # turned to the side measured, the notches should open there: a measurement that does
+            # not settle is no measurement, and the configured frame is kept
+            unsettled, side_uncertainty = (notch_side - geometry.notch_side, roll), None
+            notch_side = geometry.notch_side
+            axis, found = configured
+            break
+        turned = axis.rolled(roll)
+        again = find_notches(scene, turned, tip_s, wall)
+        if len(again) < len(found):
+            side_uncertainty = None
+            break  # the turned frame explains the data worse: the measurement was not to be trusted
+        notch_side += roll
+        axis, found = turned, again
+    return Sided(axis, found, notch_side, unsettled, side_uncertainty)
+
+
+def seen_end(scene: Scene, axis: Axis, notches: list[Notch], coarse_end: float, comb_centres: np.ndarray
+             ) -> SeenEnd:
+    """Step 5: the end the cameras saw, refined from the coarse end: the end cap where the tube points at a
+    camera, else each camera's rim with the band its matcher erodes given back (core.relocation.tip)."""
+    settings, seen_by = scene.settings, scene.seen_by
+    geometry, footprint, centerline = scene.geometry, settings.cell, axis.centerline
+    # where a camera looks onto the end cap - wider in its image than 4 pixels, more than a matcher's
+    # silhouette band - the end is that face (measured), not a rim the matcher erodes
+    cap_seen = seen_by is not None and cap_faces_a_camera(centerline, coarse_end, scene.origins,
+                                                          min(2 * footprint / geometry.outer_radius, 1.0))
+    if cap_seen and cap_faces_a_camera(centerline, coarse_end, scene.origins, np.sin(CAP_PLANE_ANGLE)):
+        # the tube points at a camera: its thinly seen wall cannot place the end, the cap's own points can; the
+        # cap lies the distal ring's length past the last notch (a pile-up nearer it is that notch's cut face)
+        last_cut = float(np.max(comb_centres)) + geometry.notch_width / 2
+        cap = end_cap_plane(axis.measured, geometry.inner_radius, geometry.outer_radius, coarse_end,
+                            geometry.outer_diameter, footprint, after=last_cut + geometry.distal_length / 2)
+        if cap is None:
+            return SeenEnd(coarse_end, coarse_end, "coarse end (no end cap found)")
+        # the matcher's smear of the cap's points bounds how well it placed it
+        return SeenEnd(cap[0], cap[0], "end cap", max(cap[1], footprint / 2), from_cap=True)
+    if seen_by is None:
+        return SeenEnd(coarse_end, coarse_end, "coarse end (no camera seen)")
+    # each camera's end where its wall points thin to half, plus the band its matcher spoils at depth
+    # edges, measured in its depth images, as far as it reaches into the end's outline in its image
+    # (where the end turns towards a camera, the cap makes that outline; core.relocation.tip)
+    intervals = np.array([(n.start_s - 2 * footprint, n.end_s + 2 * footprint) for n in notches])
+    rim = rim_tip(axis.coords, RimViews(seen_by, scene.origins, scene.bands), centerline, coarse_end,
+                  geometry.outer_radius, settings.gate, footprint, scene.config.relocation.notch_kernel_px * footprint,
+                  ~inside_intervals(axis.coords.s, intervals), 2 * geometry.notch_pitch,
+                  last_notch_s=float(np.max(comb_centres)))
+    if rim is not None:
+        eroded_end, tip_s, tip_uncertainty = rim
+        return SeenEnd(tip_s, eroded_end, "half-density end + edge band measured in the depth images",
+                       tip_uncertainty)
+    if cap_seen:
+        return SeenEnd(coarse_end, coarse_end, "coarse end (the end turns towards a camera; no edge band "
+                                               "measured)")
+    # no depth images (clouds only): the erosion the silhouettes show, given back
+    tip_s = give_back_erosion(coarse_end, axis.coords, axis.frames, seen_by, scene.origins,
+                              geometry.outer_radius, settings.gate, [(n.start_s, n.end_s) for n in notches],
+                              footprint)
+    return SeenEnd(tip_s, coarse_end, "coarse end + silhouette erosion (no edge band: no depth images with a "
+                                      "far background)")
+
+
+def centreline_thinning(scene: Scene, aligned: Aligned, axis: Axis, wall, tip_s: float) -> Thinning:
+    """How far the centreline may be off: what stereo beside the notches does to the wall
+    (core.quality.measures)."""
+    geometry, settings = scene.geometry, scene.settings
+    thinning = notched_thinning(axis.coords.radius - geometry.outer_radius, axis.coords.s,
+                                cut_intervals(geometry, axis.centerline, 0.0), tip_s, settings.gate,
+                                2 * settings.cell, spine=wall[0])
+    looking = tuple(cameras_looking_into_slots(axis.centerline, geometry, scene.origins, scene.config.camera_names))
+    off = centerline_uncertainty(aligned.cross_view.spread, thinning, looking, bool(aligned.backbone_shift)) or 0.0
+    return Thinning(thinning, looking, off)
+
+
+def tip_by_length(scene: Scene, centerline: Centerline, end: SeenEnd, centreline_off: float,
+                  comb_centres: np.ndarray, notches: list[Notch]) -> ByLength:
+    """Step 5': the tip along the tube, the end seen weighed with the robot's own length at the bend measured
+    (core.relocation.tip); carried on to that length where every camera was kept from seeing the rest."""
+    geometry, footprint, tip_s = scene.geometry, scene.settings.cell, end.tip_s
+    # a tip left at the coarse end is known as well as the band the matcher spoils there, not given back
+    # (assess is told no uncertainty then: nothing measured the erosion given back)
+    seen_uncertainty = (end.tip_uncertainty if end.tip_uncertainty is not None
+                        else _unrefined_tip_uncertainty(scene, centerline, tip_s, footprint))
+    # the fit reaches as far as the tube's wall is seen whole; the tip may lie beyond, over a last notch seen
+    # thinly: the curve carries on bending there as the notches before it did
+    fitted_end = centerline.length
+    centerline = continued_bend(centerline, geometry.reach, comb_centres, geometry)
+    # the robot's own length, at the bend measured, is a measurement of the tip too (relocation.tip); the bend is
+    # known as well as the centreline's turn over a notch pitch, and as the curve's free end, whose tangent
+    # follows only the data before it, agrees with the bend read short of it (held_bend)
+    total_bend = turn_from_base(centerline, geometry, tip_s)
+    expected_length = geometry.bent_length(total_bend)
+    held = held_bend(centerline, geometry, tip_s, comb_centres)
+    end_turn_off = None if held is None else abs(total_bend - held)
+    length_known = None if geometry.length_tolerance is None else float(np.linalg.norm([
+        geometry.length_tolerance, geometry.neutral_axis_offset * centreline_off / geometry.notch_pitch,
+        geometry.neutral_axis_offset * (end_turn_off or 0.0)]))
+    # the cap's points only ever lie short of it (the matcher mixes its ring with the bore behind): a lower bound
+    along = with_known_length(tip_s, seen_uncertainty, expected_length, length_known, lower_bound=end.from_cap)
+    # how near the tube comes to each camera, carried on past the end seen to the robot's length
+    reach = camera_reach(continued_bend(centerline.up_to(tip_s), expected_length, comb_centres, geometry),
+                         tip_s, expected_length, geometry.outer_radius, footprint, scene.extrinsics,
+                         scene.cloud.xyz, scene.seen_by)
+    # an end seen far short of the robot's length where every camera was kept from seeing the rest (nearer than
+    # its depth range, pointing at it): the robot goes on there, bending as the notches seen did (two at least)
+    if (along.disagreement > LENGTH_AGREEMENT_SIGMAS and sum(n.edges_measured for n in notches) >= 2
+            and reach.why_unseen(list(scene.config.camera_names), tip_s, expected_length, continued=True)):
+        for _ in range(2):  # the hidden notches' own bend shortens the centreline further
+            total_bend = turn_from_base(centerline, geometry, expected_length)
+            expected_length = geometry.bent_length(total_bend)
+        along = carried_to_length(replace(along, expected_s=expected_length), centerline)
+    return ByLength(centerline, along, total_bend, end_turn_off, reach, fitted_end)
+
+
+def assess(scene: Scene, aligned: Aligned, sided: Sided, end: SeenEnd, length: ByLength, *, notches: list[Notch],
+           tip: np.ndarray, thinning: Thinning, misread, unchecked, comb_centres: np.ndarray,
+           reference_moved: ReferenceMove | None) -> tuple[dict, list[Finding]]:
+    """Step 7: the self-check (core.quality.measures): how sure this result is, in figures and in plain words."""
+    geometry, alignment, axis, settings = scene.geometry, aligned.alignment, sided.axis, scene.settings
+    offset = axis.coords.radius - geometry.outer_radius
+    level, _ = surface_band(offset, settings.gate)
+    near_wall = np.abs(offset - level) < settings.gate
+    wall_residual = float(np.sqrt(np.mean((offset[near_wall] - level) ** 2))) if np.any(near_wall) else 0.0
+    quality, warnings = assess_trace(Trace(
+        geometry=geometry, camera_names=scene.config.camera_names, notches=notches,
+        coords_s=axis.measured.s, camera=scene.seen_by, tip_s=length.along.s, total_bend=length.total_bend,
+        footprint=settings.cell, wall_residual=wall_residual, notch_side=sided.notch_side,
+        configured_side=geometry.notch_side,
+        bias_notch_side=0.0 if alignment is None else alignment.bias_notch_side,
+        bias_binormal=0.0 if alignment is None else alignment.bias_binormal, depth_steps=dict(scene.depth_steps),
+        tip_erosion=end.tip_s - end.eroded_end, tip_uncertainty=end.tip_uncertainty, tip_position=tip,
+        tip_along=length.along, crop_box=scene.config.crop_box(),
+        notched_thinning=thinning.thinning, looking_into_slots=thinning.looking, tip_from_cap=end.from_cap,
+        side_unsettled=sided.unsettled, side_uncertainty=sided.side_uncertainty,
+        cross_view_spread=aligned.cross_view.spread, distal_cross_view=aligned.cross_view.distal,
+        cross_view_offsets=aligned.cross_view.offsets,
+        centerline_tolerance=scene.config.quality.centerline_tolerance,
+        alignment_scatter=aligned.scatter, outline_offset=aligned.outline, across_from_fit=aligned.across_from_fit,
+        unsupported=aligned.cross_view.unsupported, backbone_shift=aligned.backbone_shift, misread_widths=misread,
+        held_shift=None if alignment is None else (alignment.end_shift, alignment.held_from),
+        unchecked=unchecked, reach=length.reach,
+        notch_centres=comb_centres, wall_level=level, fitted_end=length.fitted_end,
+        reference_moved=reference_moved))
+    backbone_shift, side_uncertainty = aligned.backbone_shift, sided.side_uncertainty
+    quality = {**quality, "tip_refinement": end.refinement,
+               "centerline_backbone_shift_mm": None if backbone_shift is None else backbone_shift * 1e3,
+               # None: the side could not be measured (or did not settle): the configured one is kept
+               "notch_side_uncertainty_deg": None if side_uncertainty is None else float(np.degrees(
+                   side_uncertainty)),
+               "edge_band_mrad": {name: band * 1e3 for name, band in scene.edge_bands.angles.items()},
+               "robot_bend_end_off_deg": None if length.end_turn_off is None else float(np.degrees(
+                   length.end_turn_off))}
+    return quality, warnings
+
+
+def _unrefined_tip_uncertainty(scene: Scene, centerline: Centerline, tip_s: float, footprint: float) -> float:
+    """How well a tip left at the coarse end is known along the tube: half a pixel for the end, and the band
+    the stereo matcher spoils at depth edges, not given back (the widest band measured, at the tip's distance
+    from its camera; none measured, UNMEASURED_EDGE_BAND_PX)."""
+    tip = centerline.frames_at(np.array([tip_s]))[0][0]
+    bands = [scene.edge_bands.measure(name) * float(np.linalg.norm(origin - tip))
+             for name, origin in zip(scene.config.camera_names, scene.origins, strict=True)]
+    measured = [band for band in bands if np.isfinite(band)]
+    return footprint / 2 + (max(measured) if measured else UNMEASURED_EDGE_BAND_PX * footprint)
+
+
+def _edge_reach(scene: Scene, footprint: float, centerline: Centerline) -> float:
+    """How far (m) round the tube the cameras' matchers move a depth edge on it: their edge bands (per camera,
+    `Scene.bands`) at their distances from the robot's base (the mean over the cameras that measured one);
+    without one, half a matcher's window (SILHOUETTE_MARGIN_PX pixel footprints)."""
+    distances = np.linalg.norm(scene.origins - centerline.points[0], axis=1)
+    bands = scene.bands
+    measured = np.isfinite(bands)
+    if not np.any(measured):
+        return SILHOUETTE_MARGIN_PX * footprint
+    return float(np.mean(bands[measured] * distances[measured]))
+
+
+def _wall_band_gate(coords: TubeCoordinates, centerline: Centerline, geometry, gate: float, footprint: float
+                    ) -> float:
+    """The gate of the wall points the alignment trusts (m): the outer wall's band on the spines (its level's
+    distance from r_o plus its spread, notches.spine_wall), never wider than the fit's gate."""
+    _, level, spread = spine_wall(coords, centerline, geometry, gate, footprint)
+    return band_gate(level, spread, gate)
+
+
+def _rolled_axes(normal: np.ndarray, binormal: np.ndarray, angle: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per-point frame axes turned by `angle` about the tangent (as Centerline.rolled)."""
+    c, s = np.cos(angle), np.sin(angle)
+    return c * normal + s * binormal, c * binormal - s * normal
