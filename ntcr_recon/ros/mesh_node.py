@@ -32,14 +32,7 @@ from ntcr_recon.core.reconstruction.mesh import mesh_relocation
 from ntcr_recon.io.files import write_mesh
 from ntcr_recon.io.pointcloud import stamp_to_ns
 from ntcr_recon.ros import cdr
-from ntcr_recon.ros.messages import (
-    check_point_count,
-    decode,
-    mesh_marker_bytes,
-    mesh_msg_bytes,
-    relocation_from_msgs,
-    stage_cloud_and_normals,
-)
+from ntcr_recon.ros.messages import check_point_count, decode, relocation_from_msgs, stage_cloud_and_normals
 from ntcr_recon.ros.node_stats import NodeStats
 from ntcr_recon.ros.node_support import (
     LATCHED_QOS,
@@ -51,6 +44,7 @@ from ntcr_recon.ros.node_support import (
     max_points_parameter,
     run_node,
 )
+from ntcr_recon.ros.result_messages import mesh_marker_bytes, mesh_msg_bytes
 from ntcr_recon.ros.topics import stage_topic
 
 CENTERLINES_KEPT = 4  # the centrelines last received (not those of the highest stamps: see _on_centerline)

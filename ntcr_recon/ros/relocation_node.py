@@ -42,16 +42,7 @@ from visualization_msgs.msg import MarkerArray
 
 from ntcr_recon.core.cloud.pairing import stamp_jump
 from ntcr_recon.core.reconstruction.relocate import ReconstructionError, Relocator
-from ntcr_recon.ros.messages import (
-    NotchMarkers,
-    centerline_path_bytes,
-    decode_cloud,
-    frame_rotations,
-    notches_array,
-    pose_stamped,
-    relocation_cloud_msg,
-    stage_cloud_from_msg,
-)
+from ntcr_recon.ros.messages import decode_cloud, relocation_cloud_msg, stage_cloud_from_msg
 from ntcr_recon.ros.node_stats import NodeStats
 from ntcr_recon.ros.node_support import (
     LATCHED_QOS,
@@ -62,6 +53,13 @@ from ntcr_recon.ros.node_support import (
     guarded,
     max_points_parameter,
     run_node,
+)
+from ntcr_recon.ros.result_messages import (
+    NotchMarkers,
+    centerline_path_bytes,
+    frame_rotations,
+    notches_array,
+    pose_stamped,
 )
 from ntcr_recon.ros.topics import edge_band_topic, stage_topic
 

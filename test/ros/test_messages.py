@@ -18,7 +18,7 @@ from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker
 
 from ntcr_recon.core.base.transforms import matrix_to_quaternion
-from ntcr_recon.ros import cdr, messages
+from ntcr_recon.ros import cdr, messages, result_messages
 
 RNG = np.random.default_rng(7)
 
@@ -43,9 +43,9 @@ def test_path_bytes_decode_as_the_pose_by_pose_path(frame_id, count):
         o = pose.pose.orientation
         o.x, o.y, o.z, o.w = (float(v) for v in q)
         poses.append(pose)
-    assert deserialize_message(messages.path_bytes(points, rotations, frame_id, stamp), Path) == \
+    assert deserialize_message(result_messages.path_bytes(points, rotations, frame_id, stamp), Path) == \
         Path(header=head, poses=poses)
-    decoded = messages.path_msg(points, rotations, frame_id, stamp)
+    decoded = result_messages.path_msg(points, rotations, frame_id, stamp)
     assert decoded.header == head and len(decoded.poses) == count
     for pose, point, rotation in zip(decoded.poses, points, rotations, strict=True):
         assert pose.header == head
@@ -66,12 +66,12 @@ def test_mesh_marker_and_mesh_bytes_decode_as_the_point_by_point_messages(frame_
     marker.color = ColorRGBA(r=0.7, g=0.75, b=0.8, a=1.0)
     marker.points = [Point(x=x, y=y, z=z) for x, y, z in vertices[faces.reshape(-1)].tolist()]
     # float32 fields (the colour) compare as they travel: both through a deserialization
-    assert deserialize_message(messages.mesh_marker_bytes(vertices, faces, frame_id, 42), Marker) == \
+    assert deserialize_message(result_messages.mesh_marker_bytes(vertices, faces, frame_id, 42), Marker) == \
         deserialize_message(serialize_message(marker), Marker)
     mesh = Mesh(vertices=[Point(x=x, y=y, z=z) for x, y, z in vertices.tolist()],
                 triangles=[MeshTriangle(vertex_indices=t) for t in faces.astype(np.uint32).tolist()])
-    assert deserialize_message(messages.mesh_msg_bytes(vertices, faces), Mesh) == mesh
-    got_vertices, got_triangles = messages.mesh_from_msg(messages.mesh_msg(vertices, faces))
+    assert deserialize_message(result_messages.mesh_msg_bytes(vertices, faces), Mesh) == mesh
+    got_vertices, got_triangles = result_messages.mesh_from_msg(result_messages.mesh_msg(vertices, faces))
     np.testing.assert_array_equal(got_vertices, vertices)
     np.testing.assert_array_equal(got_triangles, faces)
 
@@ -134,7 +134,8 @@ def test_camera_info_with_an_impossible_value_is_refused_naming_it(field, value,
 def test_notch_markers_are_oriented_by_the_centreline_frames():
     rotations = random_rotations(3)
     notches = [{"index": i, "width": 1.5e-3} for i in range(3)]
-    markers = messages.NotchMarkers(1.75e-3).array(notches, RNG.normal(size=(3, 3)), rotations, "ntcr_base", 5).markers
+    markers = result_messages.NotchMarkers(1.75e-3).array(notches, RNG.normal(size=(3, 3)), rotations, "ntcr_base",
+                                                           5).markers
     discs = [m for m in markers if m.ns == "notches" and m.action == Marker.ADD]
     assert len(discs) == 3
     for disc, rotation in zip(discs, rotations, strict=True):
@@ -145,7 +146,7 @@ def test_notch_markers_are_oriented_by_the_centreline_frames():
 def test_notch_markers_kept_between_frames_show_only_the_current_notches():
     """The markers' objects are reused frame to frame: the second frame's array holds its own notches, stamp and
     widths, nothing left over from the first."""
-    markers = messages.NotchMarkers(1.75e-3)
+    markers = result_messages.NotchMarkers(1.75e-3)
     first = [{"index": i, "width": 1.5e-3} for i in range(4)]
     markers.array(first, RNG.normal(size=(4, 3)), random_rotations(4), "ntcr_base", 5)
     second = [{"index": 2, "width": 1.2e-3}, {"index": 7, "width": 1.4e-3}]

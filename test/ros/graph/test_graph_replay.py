@@ -28,8 +28,9 @@ from ntcr_recon.core.config.rig import load_rig_config
 from ntcr_recon.core.reconstruction.reconstructor import Reconstructor
 from ntcr_recon.io.camera_sources import BagSource
 from ntcr_recon.io.pointcloud import stamp_to_ns
-from ntcr_recon.ros.messages import mesh_from_msg, notches_from_array, stage_cloud_and_normals
+from ntcr_recon.ros.messages import stage_cloud_and_normals
 from ntcr_recon.ros.node_support import LATCHED_QOS
+from ntcr_recon.ros.result_messages import mesh_from_msg, notches_from_array
 
 BAG = BAGS / "bend45"
 RUN = Path(sys.executable).parent / "ntcr-recon"

@@ -19,14 +19,9 @@ from ntcr_recon.core.cloud.pairing import FramePairer
 from ntcr_recon.core.config.rig import load_rig_config
 from ntcr_recon.core.reconstruction.reconstructor import Reconstructor
 from ntcr_recon.io.pointcloud import cloud_to_msg
-from ntcr_recon.ros.messages import (
-    RCLPY,
-    centerline_path_msg,
-    relocation_cloud_msg,
-    stage_cloud_from_msg,
-    stage_cloud_to_msg,
-)
+from ntcr_recon.ros.messages import RCLPY, relocation_cloud_msg, stage_cloud_from_msg, stage_cloud_to_msg
 from ntcr_recon.ros.node_support import LATCHED_QOS, STAGE_QOS
+from ntcr_recon.ros.result_messages import centerline_path_msg
 
 BIG_POINTS = 5_000_000  # 60 MB, as the issue sent: in fragments, over a while
 FUTURE_NS = 3_000 * 1_000_000_000  # an hour ahead of the bag's clock, as a wall-clock stamp on a replay would be

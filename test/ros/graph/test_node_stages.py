@@ -19,9 +19,6 @@ from ntcr_recon.core.config.rig import load_rig_config
 from ntcr_recon.core.reconstruction.reconstructor import Reconstructor
 from ntcr_recon.io.pointcloud import stamp_to_ns
 from ntcr_recon.ros.messages import (
-    centerline_path_msg,
-    mesh_from_msg,
-    notches_from_array,
     relocation_cloud_msg,
     relocation_from_msgs,
     stage_cloud_and_normals,
@@ -29,6 +26,7 @@ from ntcr_recon.ros.messages import (
     stage_cloud_to_msg,
 )
 from ntcr_recon.ros.node_support import LATCHED_QOS, STAGE_QOS
+from ntcr_recon.ros.result_messages import centerline_path_msg, mesh_from_msg, notches_from_array
 
 
 @pytest.fixture(scope="module")
