@@ -60,3 +60,113 @@ def test_every_test_module_is_in_exactly_one_tier():
     markers = {line.split(":")[0].strip() for line in ini["pytest"]["markers"].splitlines() if line.strip()}
     assert {DEFAULT_TIER, *TIERS.values()} == markers
     assert {tier_of(path) for path in tests.rglob("test_*.py")} == markers
+
+
+# The core's layers, lowest first: a module imports from its own layer and those below it, never above.
+CORE_LAYERS = ("base", "robot", "config", "cloud", "relocation", "quality", "reconstruction")
+
+
+
+def _imports(path) -> set[str]:
+    """Every ntcr_recon module a source file imports, at any depth (function bodies and TYPE_CHECKING too)."""
+    import ast
+
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            found.add(node.module)
+            found.update(f"{node.module}.{alias.name}" for alias in node.names)
+    return {name for name in found if name.startswith("ntcr_recon.")}
+
+
+def _package_modules() -> dict[str, object]:
+    from conftest import REPO
+
+    root = REPO / "ntcr_recon"
+    return {".".join(path.relative_to(REPO).with_suffix("").parts).removesuffix(".__init__"): path
+            for path in sorted(root.rglob("*.py"))}
+
+
+def _core_layer(module: str) -> int | None:
+    parts = module.split(".")
+    return CORE_LAYERS.index(parts[2]) if len(parts) > 2 and parts[1] == "core" and parts[2] in CORE_LAYERS \
+        else None
+
+
+def test_every_core_module_sits_in_a_layer():
+    modules = _package_modules()
+    loose = [name for name in modules if name.startswith("ntcr_recon.core.") and _core_layer(name) is None]
+    assert not loose, f"core modules outside the layer packages {CORE_LAYERS}: {loose}"
+
+
+def test_no_core_layer_imports_a_higher_one():
+    modules = _package_modules()
+    upward = []
+    for name, path in modules.items():
+        layer = _core_layer(name)
+        if layer is None:
+            continue
+        for imported in _imports(path):
+            if imported.startswith("ntcr_recon.") and not imported.startswith("ntcr_recon.core."):
+                upward.append(f"{name} -> {imported} (core imports nothing outside core)")
+            elif (other := _core_layer(imported)) is not None and other > layer:
+                upward.append(f"{name} -> {imported}")
+    assert not upward, "imports from a higher layer:\n" + "\n".join(upward)
+
+
+def test_no_import_cycle_among_the_package_modules():
+    modules = _package_modules()
+    graph = {name: {imported for imported in _imports(path) if imported in modules and imported != name
+                    and not name.startswith(imported + ".")}  # a package's own __init__ is not a cycle
+             for name, path in modules.items()}
+    cycles, state = [], {}
+
+    def visit(name, stack):
+        state[name] = "open"
+        for imported in sorted(graph[name]):
+            if state.get(imported) == "open":
+                cycles.append(" -> ".join(stack[stack.index(imported):] + [imported]))
+            elif imported not in state:
+                visit(imported, stack + [imported])
+        state[name] = "done"
+
+    for name in modules:
+        if name not in state:
+            visit(name, [name])
+    assert not cycles, "import cycles:\n" + "\n".join(cycles)
+
+
+# Limits that keep modules and functions readable; numba kernels (arrays in, arrays out) take many parameters.
+MODULE_LINES, FUNCTION_LINES, FUNCTION_PARAMETERS = 450, 80, 12
+
+
+def _over_limits(path) -> list[str]:
+    import ast
+
+    source = path.read_text()
+    over = [f"{path.name}: {len(source.splitlines())} lines"] if len(source.splitlines()) > MODULE_LINES else []
+    for node in ast.walk(ast.parse(source)):
+        if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            continue
+        if any("jit" in ast.unparse(decorator) for decorator in node.decorator_list):
+            continue
+        args = node.args
+        parameters = [*args.posonlyargs, *args.args, *args.kwonlyargs, args.vararg, args.kwarg]
+        count = sum(arg is not None and arg.arg not in ("self", "cls") for arg in parameters)
+        length = node.end_lineno - node.lineno + 1
+        if length > FUNCTION_LINES or count > FUNCTION_PARAMETERS:
+            over.append(f"{path.name}:{node.lineno} {node.name}: {length} lines, {count} parameters")
+    return over
+
+
+def test_the_limit_rule_catches_a_long_module_and_a_wide_function(tmp_path):
+    wide = tmp_path / "wide.py"
+    wide.write_text("def f(" + ", ".join(f"a{i}" for i in range(13)) + "):\n    pass\n" + "\n" * MODULE_LINES)
+    assert len(_over_limits(wide)) == 2
+
+
+def test_modules_and_functions_keep_within_the_limits():
+    over = [line for path in _package_modules().values() for line in _over_limits(path)]
+    assert not over, "over the limits:\n" + "\n".join(over)

@@ -43,6 +43,7 @@ import errno
 import json
 import sys
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -197,52 +198,73 @@ def _bag_dir(bag: Path) -> Path:
     return bag if bag.is_dir() else bag.parent
 
 
-def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
+@dataclass
+class _Streamed:
+    """What the frame loop leaves: the frames the result combines and what the input showed."""
+
+    combined: object  # StillStretch of (fused, filtered) clouds
+    cameras: dict  # camera -> CameraInput
+    pair_count: int = 0
+    one_camera_pairs: int = 0
+    failed: list = field(default_factory=list)  # why each frame pair without a result gave none
+    timings: dict = field(default_factory=dict)  # median ms per stage
+
+
+def _stream_frames(args, config, overrides: dict, reconstructor) -> _Streamed:
+    """Every frame pair through the chain, keeping only the frames of the still stretch the result combines."""
     from tqdm import tqdm
 
     from ntcr_recon.core.cloud.pairing import pair_frame_stream
+    from ntcr_recon.core.quality.inputs import input_warnings
+    from ntcr_recon.core.reconstruction.reconstructor import ReconstructionError
+    from ntcr_recon.core.reconstruction.still import StillStretch, stated_tip_uncertainty
+    from ntcr_recon.io.bag import iter_camera_frames
+
+    streamed = _Streamed(StillStretch(COMBINED_FRAMES_MAX), {})
+    cameras = streamed.cameras  # filled as the frames stream by
+    frames = iter_camera_frames(args.bag, config, args.source, overrides, args.max_frames or 0, cameras)
+    pairs = pair_frame_stream(frames, int(round(config.fusion.slop * 1e9)),
+                              int(round(config.fusion.camera_timeout * 1e9)))
+    per_stage: dict[str, list[float]] = {}
+    for pair in tqdm(pairs, desc="frame pairs", unit="pair", disable=args.no_progress):
+        streamed.pair_count += 1
+        streamed.one_camera_pairs += len(pair.frames) == 1
+        try:
+            frame = reconstructor.process(pair)
+        except ReconstructionError as error:  # left out, and said so (the error itself when no pair gives one)
+            streamed.failed.append(f"frame pair {streamed.pair_count} (stamp {pair.stamp_ns}): {error}")
+            continue
+        for index, count in zip(*np.unique(frame.fused.camera, return_counts=True), strict=True):
+            cameras[config.camera_names[index]].fused_points += int(count)
+        streamed.combined.offer(streamed.pair_count - 1, frame.relocation.tip,
+                                stated_tip_uncertainty(frame.relocation.quality), (frame.fused, frame.filtered))
+        for stage, ms in frame.timings_ms.items():
+            per_stage.setdefault(stage, []).append(ms)
+        del frame, pair  # the decoded images go now, not when the next pair replaces them
+    failed = streamed.failed
+    if failed and streamed.combined.last is None:  # say what the input showed: it often is the cause
+        warnings = input_warnings(config, cameras, streamed.pair_count, streamed.one_camera_pairs)
+        others = len(failed) - 1
+        raise ReconstructionError(failed[0] + ("" if not others else " (and so did the other frame pair)" if others == 1
+                                               else f" (and so did the other {others} frame pairs)")
+                                  + "".join(f"; {w}" for w in warnings))
+    streamed.timings = {stage: float(np.median(values)) for stage, values in per_stage.items()}
+    return streamed
+
+
+def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
+    from tqdm import tqdm
+
     from ntcr_recon.core.cloud.points import Cloud
     from ntcr_recon.core.quality.findings import finding, result_status, sort_by_severity
     from ntcr_recon.core.quality.inputs import input_warnings
     from ntcr_recon.core.quality.metrics import pdc
     from ntcr_recon.core.reconstruction.reconstructor import ReconstructionError, Reconstructor
-    from ntcr_recon.core.reconstruction.still import StillStretch, stated_tip_uncertainty
-    from ntcr_recon.io import figures
-    from ntcr_recon.io.bag import iter_camera_frames
-    from ntcr_recon.io.files import write_cloud_ply, write_mesh
 
     started = time.perf_counter()
-    cameras = {}  # camera -> CameraInput, filled as the frames stream by
-    frames = iter_camera_frames(args.bag, config, args.source, overrides, args.max_frames or 0, cameras)
-    pairs = pair_frame_stream(frames, int(round(config.fusion.slop * 1e9)),
-                              int(round(config.fusion.camera_timeout * 1e9)))
     reconstructor = Reconstructor(config)
-    combined = StillStretch(COMBINED_FRAMES_MAX)  # (fused, filtered) of the frames the result combines
-    per_stage: dict[str, list[float]] = {}
-    pair_count = one_camera_pairs = 0
-    failed: list[str] = []  # why each frame pair without a result (the robot out of view, ...) gave none
-    for pair in tqdm(pairs, desc="frame pairs", unit="pair", disable=args.no_progress):
-        pair_count += 1
-        one_camera_pairs += len(pair.frames) == 1
-        try:
-            frame = reconstructor.process(pair)
-        except ReconstructionError as error:  # left out, and said so (the error itself when no pair gives one)
-            failed.append(f"frame pair {pair_count} (stamp {pair.stamp_ns}): {error}")
-            continue
-        for index, count in zip(*np.unique(frame.fused.camera, return_counts=True), strict=True):
-            cameras[config.camera_names[index]].fused_points += int(count)
-        combined.offer(pair_count - 1, frame.relocation.tip, stated_tip_uncertainty(frame.relocation.quality),
-                       (frame.fused, frame.filtered))
-        for stage, ms in frame.timings_ms.items():
-            per_stage.setdefault(stage, []).append(ms)
-        del frame, pair  # the decoded images go now, not when the next pair replaces them
-    if failed and combined.last is None:  # say what the input showed: it often is the cause
-        warnings = input_warnings(config, cameras, pair_count, one_camera_pairs)
-        others = len(failed) - 1
-        raise ReconstructionError(failed[0] + ("" if not others else " (and so did the other frame pair)" if others == 1
-                                               else f" (and so did the other {others} frame pairs)")
-                                  + "".join(f"; {w}" for w in warnings))
-    timings = {stage: float(np.median(values)) for stage, values in per_stage.items()}
+    streamed = _stream_frames(args, config, overrides, reconstructor)
+    combined, cameras, timings, failed = streamed.combined, streamed.cameras, streamed.timings, streamed.failed
     steps = tqdm(total=4, desc="combine, mesh, measure", disable=args.no_progress)
     raw = Cloud.concatenate([fused for fused, _ in combined.items()])
     try:
@@ -251,16 +273,17 @@ def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
             raise ReconstructionError(f"relocation kept none of the {len(relocation.coordinates.s)} filtered "
                                       "points (none lies near the reference surface): nothing to mesh")
     except ReconstructionError as error:  # the input's faults first: they are the likely cause
-        warnings = input_warnings(config, cameras, pair_count, one_camera_pairs)
+        warnings = input_warnings(config, cameras, streamed.pair_count, streamed.one_camera_pairs)
         raise ReconstructionError(str(error) + "".join(f"; {w}" for w in warnings)) from error
     for index, count in zip(*np.unique(relocation.relocated.camera, return_counts=True), strict=True):
         cameras[config.camera_names[index]].relocated_points = int(count)
-    # what the input lacks, the frames left out, then what the relocation's self-check found (core.quality.measures)
-    left_out = ([finding("FRAMES_LEFT_OUT", f"{len(failed)} of {pair_count} frame pairs gave no result and are "
-                         f"left out; {failed[0]}", pairs=len(failed), of=pair_count)] if failed else [])
+    # what the input lacks, the frames left out, then what the relocation's self-check found (core.quality.checks)
+    left_out = ([finding("FRAMES_LEFT_OUT", f"{len(failed)} of {streamed.pair_count} frame pairs gave no result "
+                         f"and are left out; {failed[0]}", pairs=len(failed), of=streamed.pair_count)]
+                if failed else [])
     moved = combined.warning("frame pair")
-    warnings = sort_by_severity(input_warnings(config, cameras, pair_count, one_camera_pairs) + left_out
-                                + ([moved] if moved else []) + list(relocation.warnings))
+    warnings = sort_by_severity(input_warnings(config, cameras, streamed.pair_count, streamed.one_camera_pairs)
+                                + left_out + ([moved] if moved else []) + list(relocation.warnings))
     quality = relocation.quality
     timings["relocate_combined"] = reconstructor.timings_ms["relocate"]
     steps.update()
@@ -272,7 +295,7 @@ def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
     voxel = config.metrics.pdc_voxel
     result = {
         "status": result_status(warnings, quality, config.quality),
-        "frames": pair_count,
+        "frames": streamed.pair_count,
         "frames_combined": {"first": combined.first + 1, "last": combined.last + 1, "count": len(combined.items())},
         "notch_count_expected": geometry.notch_count,
         "notches": [{"index": n.index, "center_s_mm": n.center_s * 1e3, "width_mm": n.width * 1e3,
@@ -286,7 +309,22 @@ def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
         "warnings": [warning.as_dict() for warning in warnings],
     }
     steps.update()
+    _write_files(staging, config, raw, relocation, mesh, result)
+    steps.update()
+    steps.close()
+    timings["total"] = (time.perf_counter() - started) * 1e3
+    result["timings_ms"] = timings
+    text = json.dumps(result, indent=1)
+    (staging / "result.json").write_text(text)
+    return result
 
+
+def _write_files(staging: Path, config, raw, relocation, mesh, result: dict) -> None:
+    """The clouds, the mesh and the figures beside result.json (the ground truth's widths taken out of it)."""
+    from ntcr_recon.io import figures
+    from ntcr_recon.io.files import write_cloud_ply, write_mesh
+
+    geometry, voxel = config.robot, config.metrics.pdc_voxel
     write_cloud_ply(staging / "relocated.ply", relocation.relocated.xyz, relocation.relocated.rgb,
                     relocation.normals)
     write_cloud_ply(staging / "fused_raw.ply", raw.xyz, raw.rgb)
@@ -303,13 +341,6 @@ def _reconstruct(args, config, overrides: dict, staging: Path) -> dict:
     mesh_title = "Poisson mesh" if config.mesh.method == "poisson" else "tube-grid mesh"
     figures.side_views(staging / "side_views.png", raw.xyz, relocation.relocated.xyz, mesh, view, mesh_title,
                        VIEW_AXIS_LABELS)
-    steps.update()
-    steps.close()
-    timings["total"] = (time.perf_counter() - started) * 1e3
-    result["timings_ms"] = timings
-    text = json.dumps(result, indent=1)
-    (staging / "result.json").write_text(text)
-    return result
 
 
 # what _view_axes' two directions are, for the figures' axes

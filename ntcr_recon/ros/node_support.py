@@ -331,7 +331,7 @@ class RigNode(Node):
     """
 
     def __init__(self, node_name: str, own_parameters: dict[str, tuple[Any, ParameterDescriptor]]) -> None:
-        from ntcr_recon.core.config.rig import rig_parameter_keys
+        from ntcr_recon.core.config.parameters import rig_parameter_keys
 
         super().__init__(node_name)
         # read-only, as the topics: the subscriptions and publishers are made once, from the start values
@@ -419,7 +419,8 @@ class RigNode(Node):
 
     def _schema_refusal(self, parameter_list) -> SetParametersResult | None:
         from ntcr_recon.core.base.schema import convert
-        from ntcr_recon.core.config.rig import ConfigError, parameter_key
+        from ntcr_recon.core.config.parameters import parameter_key
+        from ntcr_recon.core.config.rig import ConfigError
 
         for parameter in parameter_list:
             key = parameter_key(parameter.name, self._camera_names)

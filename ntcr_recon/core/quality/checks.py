@@ -1,10 +1,11 @@
 """The self-check of a reconstruction as a list of checks: how sure the result is, in figures and coded warnings.
 
-`assess(trace)` looks only at what the reconstruction's steps recorded (a `Trace`) and the configuration, never at
-ground truth. The figures several checks rest on (the centreline's and the tip's stated uncertainties, the end seen
-against the robot's length, each camera's share of the tube) are derived once (`derive`); then each check of
-CHECKS returns its figures for the `quality` document and its warnings (quality.findings). Adding a check touches one
-place: a function and its entry in CHECKS. The helpers the checks measure with live in core.quality.measures.
+`assess(trace)` looks only at what the reconstruction's steps recorded (a `Trace`, quality.trace) and the
+configuration, never at ground truth. The figures several checks rest on (the centreline's and the tip's stated
+uncertainties, the end seen against the robot's length, each camera's share of the tube) are derived once
+(`trace.derive`); then each check of CHECKS returns its figures for the `quality` document and its warnings
+(quality.findings). Adding a check touches one place: a function and its entry in CHECKS. The helpers the checks
+measure with live in quality.measures; the tip's two checks in quality.tip_checks.
 
     notches_found           NOTCHES_MISSING, NOTCH_WIDTH_FROM_BEND
     widths_against_bends    NOTCH_WIDTH_MISREAD, NOTCH_WIDTH_UNCHECKED; each width's 90 % bound
@@ -23,176 +24,29 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
 
 from ntcr_recon.core.quality.findings import Finding, finding, notch_width_uncertainties, uncertainty_mm
 from ntcr_recon.core.quality.measures import (
-    CameraReach,
-    camera_coverage,
-    carried_to_tip,
-    centerline_uncertainty,
     depth_quantisation_warning,
-    nearest_box_face,
     notches_lie,
-    unmeasured_share,
     unseen_figures,
     where_notches_went_unseen,
 )
-from ntcr_recon.core.relocation.icp import ReferenceMove
-from ntcr_recon.core.relocation.notches import MISREAD_WIDTH_FRACTION
-from ntcr_recon.core.relocation.outline import OUTLINE_TOLERANCE_PX, went_astray
-from ntcr_recon.core.relocation.tip import LENGTH_AGREEMENT_SIGMAS, TipAlongTube
+from ntcr_recon.core.quality.tip_checks import tip_against_length, tip_end
+from ntcr_recon.core.quality.trace import Derived, Trace, derive
+from ntcr_recon.core.relocation.notch_widths import MISREAD_WIDTH_FRACTION
+from ntcr_recon.core.relocation.outline import OUTLINE_TOLERANCE_PX
 
 # Thresholds, relative to the robot and the camera so that no robot is special.
-ONE_CAMERA_RUN_DIAMETERS = 1.0     # a distal stretch longer than this many diameters seen by one camera: warn
 SIDE_OFF_DEG = 10.0                # measured notch side this far from the configured one: warn
-TIP_SHORT_DIAMETERS = 0.5          # tip this many diameters short of (or past) the robot's length: warn
 FOOTPRINT_RADIUS_FRACTION = 1 / 7  # pixel footprint above this fraction of r_o: too few pixels across
 BIAS_WARN_FOOTPRINTS = 0.5         # a lean into the slots above this many footprints: warn
-END_ON_PITCHES = 2.0  # a distal stretch this many notch pitches long that every camera sees end-on: warn
-# The project's floors (issue 9): a figure whose uncertainty exceeds its floor is worth a note.
-TIP_FLOOR = 0.15e-3
+# The project's floor (issue 9) on the centreline: an uncertainty above it is worth a note.
 CENTERLINE_FLOOR = 0.08e-3
-# An error growing linearly from the clamped base to the free end is sqrt(3) times its RMS over the length there.
-FREE_END_FACTOR = math.sqrt(3.0)
-# Two cameras whose own axes at the end lie +-b about the fused one (an RMS of b) lie 2 b apart: the free end
-# follows whichever wall the matcher biased there, and nothing beyond it holds the axis.
-DISTAL_CROSS_VIEW_FACTOR = 2.0
 # A mean shift across the views this many standard errors from none is rigid, not the matcher's noise.
 EXTRINSICS_SIGMAS = 3.0
-
-
-@dataclass(frozen=True)
-class Trace:
-    """What the reconstruction's steps recorded of one result (m, rad), for the checks.
-
-    tip_uncertainty: how well the tip's refinement placed it along the tube, when it measured the erosion it gave
-    back (else the erosion itself counts as uncertain, and half a footprint). tip_position, crop_box: where the tip
-    is and the box the points were cropped to (base frame), to tell a tube cut off by the box. notched_thinning:
-    quality.notched_thinning's figure, when it could be measured; looking_into_slots:
-    quality.cameras_looking_into_slots; tip_from_cap: the tip is the end cap's plane (tip.end_cap_plane),
-    tip_uncertainty the smear of its points; side_unsettled: the notch side measured off the configured one, then
-    off again in the frame turned to it, when the configured one was kept for it; side_uncertainty: how well the
-    side measured is known (None: not measured). tip_along: the tip between the end seen and the robot's length
-    (tip.TipAlongTube); its uncertainty is the tip's then, and the end seen is what is judged against the robot's
-    length. backbone_shift: how far alignment.level_by_backbone moved the axis (None or 0: no camera faced the
-    backbone). unsupported: the stretches of s where no camera saw trusted wall (alignment.CrossView).
-    distal_cross_view: CrossView.distal, the cameras' spread across their views in the last window, which bounds
-    the tip across the tube from below. alignment_scatter: how much the alignment's shift of the fit varies along
-    the tube (alignment.shift_scatter). misread_widths: the width each notch notches.calibrate_and_check found
-    misread was read at (by index), now its bend's; unchecked: the notches it could not check. held_shift: (how far
-    the alignment moved the end, the s beyond which it held that shift unmeasured) (alignment.Alignment's end_shift
-    and held_from). reach: how near the tube comes to each camera (quality.CameraReach). notch_centres: the comb's
-    notch centres along s (comb.expected_centres). wall_level: the outer wall's level about the r_o circle
-    (wall.surface_band of all points). outline_offset: how far the axis lies from the middle of the tube's outline
-    in the cameras' views (RMS; outline.outline_offset). across_from_fit: (the aligned axis's outline offset, the
-    fit's) when the alignment went astray and the fit placed the axis across the views (outline.across_views_from).
-    fitted_end: where the fitted curve ended, past which the centreline was carried on bending to the tip.
-    reference_moved: relocated by ICP, how far it moved its reference off the centreline's pose (icp.ReferenceMove).
-    """
-
-    geometry: object
-    camera_names: tuple[str, ...]
-    notches: list
-    coords_s: np.ndarray
-    camera: np.ndarray | None
-    tip_s: float
-    total_bend: float
-    footprint: float
-    wall_residual: float
-    notch_side: float
-    configured_side: float
-    bias_notch_side: float
-    bias_binormal: float
-    depth_steps: dict[str, float]
-    tip_erosion: float = 0.0
-    tip_uncertainty: float | None = None
-    tip_position: np.ndarray | None = None
-    crop_box: tuple[np.ndarray, np.ndarray] | None = None
-    notched_thinning: float | None = None
-    looking_into_slots: tuple[str, ...] = ()
-    tip_from_cap: bool = False
-    side_unsettled: tuple[float, float] | None = None
-    side_uncertainty: float | None = None
-    cross_view_spread: float | None = None
-    distal_cross_view: float | None = None
-    alignment_scatter: float | None = None
-    outline_offset: float | None = None
-    across_from_fit: tuple[float, float] | None = None
-    tip_along: TipAlongTube | None = None
-    backbone_shift: float | None = None
-    held_shift: tuple[float, float] | None = None
-    unsupported: tuple[tuple[float, float], ...] = ()
-    misread_widths: dict[int, float] | None = None
-    unchecked: list[int] | None = None
-    reach: CameraReach | None = None
-    notch_centres: np.ndarray | None = None
-    wall_level: float | None = None
-    fitted_end: float | None = None
-    reference_moved: ReferenceMove | None = None
-    cross_view_offsets: tuple[tuple[float, float] | None, ...] = ()  # alignment.CrossView.offsets
-    centerline_tolerance: float | None = None  # config.QualityConfig's, which the extrinsics check weighs against
-
-
-@dataclass(frozen=True)
-class Derived:
-    """The figures several checks rest on, derived once from the trace (m)."""
-
-    found: list[int]
-    missing: list[int]
-    cell: float                 # the coverage cells' length: a footprint, at least an eighth of the radius
-    seen_end: float             # the end the cameras saw (the tip, unless carried on or weighed with the length)
-    share: dict[str, float]     # each camera's share of the length
-    alone: dict[str, float]     # the distal stretch each camera alone saw
-    one_sided: dict[str, float]  # those longer than ONE_CAMERA_RUN_DIAMETERS diameters
-    resting_on_level: tuple[float, float] | None  # (their share of the length, the wall's level the axis rests on)
-    astray: float | None        # the outline offset, where the axis went astray
-    lean: float                 # how far the slots' deficit may lean the axis
-    levelled: bool              # a camera facing the backbone placed the axis along its view
-    uncertainty: float | None   # the centreline's own (quality.centerline_uncertainty)
-    outline_unchecked: bool
-    centreline_known: float | None   # with the outline check's resolution where it could not run
-    stated_centreline: float | None  # with the hidden part and the unmeasured stretches: what the result states
-    end_on: float
-    end_on_angles: dict[str, float]
-    end_on_warned: bool
-    unsupported_to_tip: bool
-    tip: TipBounds
-
-
-@dataclass(frozen=True)
-class TipBounds:
-    """How well the tip is known along and across the tube (m), and what the across bound rests on."""
-
-    along: float                 # before a tube ending short widened it (what the rim's or cap's note says)
-    across: float
-    measured: bool               # the tip's refinement measured the erosion it gave back
-    weighed: bool                # the robot's length was weighed in
-    because: str                 # cameras_apart | icp | hidden | carried | held_shift | free_end
-    why: str                     # the same, in words
-    icp_along: float
-    icp_across: float
-    centreline_along: float      # the centreline's tip bounds, before ICP moved it
-    centreline_across: float
-    held: float
-    held_from: float
-    carried: float
-    hidden_across: float
-    expected_length: float       # the robot's length at the bend measured
-    short: float                 # the expected length less the end seen
-    ends_off_length: bool
-    left_short: bool             # a tip left at an end seen far off the length: bounded by the shortfall
-
-    @property
-    def stated_along(self) -> float:
-        return max(self.along, abs(self.short)) if self.left_short else self.along
-
-    @property
-    def stated_across(self) -> float:
-        return max(self.across, abs(self.short)) if self.left_short else self.across
-
 
 Check = Callable[[Trace, Derived], tuple[dict, list[Finding]]]
 
@@ -208,104 +62,6 @@ def assess(trace: Trace) -> tuple[dict, list[Finding]]:
         warnings += found
     quality["uncertainty_mm"] = uncertainty_mm(quality, quality["notch_width_uncertainty_mm"].values())
     return quality, warnings
-
-
-def derive(t: Trace) -> Derived:
-    """The figures several checks share: who saw how much of the tube, the centreline's and the tip's bounds."""
-    geometry, footprint, diameter = t.geometry, t.footprint, t.geometry.outer_diameter
-    found = sorted(n.index for n in t.notches)
-    cell = max(footprint, geometry.outer_radius / 8)
-    seen_end = t.tip_s if t.tip_along is None else t.tip_along.seen_s
-    share, alone = camera_coverage(t.coords_s, t.camera, t.camera_names, t.tip_s, cell, pool=diameter)
-    one_sided = {name: length for name, length in alone.items() if length > ONE_CAMERA_RUN_DIAMETERS * diameter}
-    resting_on_level = ((min(sum(one_sided.values()) / max(seen_end, cell), 1.0), t.wall_level)
-                        if one_sided and t.wall_level is not None else None)
-    astray = t.outline_offset if went_astray(t.outline_offset, footprint) else None
-    levelled = bool(t.backbone_shift)
-    uncertainty = centerline_uncertainty(t.cross_view_spread, t.notched_thinning, t.looking_into_slots, levelled,
-                                         one_sided=resting_on_level, astray=astray, varying_lean=t.alignment_scatter)
-    # where no camera's view showed the tube's outline whole, nothing checked the axis across the views (outline.py):
-    # it is known there no better than that check resolves, a pixel footprint, whatever the cameras' spread says
-    outline_unchecked = t.camera is not None and t.outline_offset is None
-    centreline_known = max(uncertainty or 0.0, footprint) if outline_unchecked else uncertainty
-    tip = tip_bounds(t, seen_end, centreline_known)
-    # the centreline runs on past the end seen to a carried tip: along that stretch a straight hidden part leaves it
-    # off by up to hidden_across, growing with the square of the distance carried (a fifth of its square in the
-    # mean): the RMS over the robot's length
-    stated_centreline = centreline_known
-    if tip.hidden_across:
-        hidden_share = (t.tip_s - seen_end) / t.tip_s
-        stated_centreline = math.sqrt((centreline_known or 0.0) ** 2 + hidden_share * tip.hidden_across**2 / 5)
-    # over the stretches where no camera saw the wall facing it, or every camera sees it end-on (both warned),
-    # nothing measured how far off the axis is: known there no better than a pixel footprint, their share of the
-    # length weighs that in the RMS
-    end_on, end_on_angles = (0.0, {}) if t.reach is None else t.reach.end_on_to_every_camera(t.tip_s)
-    end_on_warned = end_on >= END_ON_PITCHES * geometry.notch_pitch
-    unmeasured = unmeasured_share(t.unsupported, end_on if end_on_warned else 0.0, t.tip_s)
-    if unmeasured and stated_centreline is not None:
-        stated_centreline = math.sqrt(stated_centreline**2 + unmeasured * footprint**2)
-    # pooled over two cameras, a deficit one of them carries alone reads half: the lean may reach twice it
-    lean = 2.0 * t.notched_thinning if t.notched_thinning is not None and t.looking_into_slots else 0.0
-    return Derived(
-        found=found, missing=sorted(set(range(geometry.notch_count)) - set(found)), cell=cell, seen_end=seen_end,
-        share=share, alone=alone, one_sided=one_sided, resting_on_level=resting_on_level, astray=astray, lean=lean,
-        levelled=levelled, uncertainty=uncertainty, outline_unchecked=outline_unchecked,
-        centreline_known=centreline_known, stated_centreline=stated_centreline, end_on=end_on,
-        end_on_angles=end_on_angles, end_on_warned=end_on_warned,
-        unsupported_to_tip=bool(t.unsupported) and t.unsupported[-1][1] >= t.tip_s - geometry.notch_pitch, tip=tip)
-
-
-def tip_bounds(t: Trace, seen_end: float, centreline_known: float | None) -> TipBounds:
-    """How well the tip is known: along the tube, the rim's or cap's refinement (or the length weighed in), across
-    it the centreline's free end with the alignment's held shift, what it was carried over, a hidden part and ICP's
-    move; where the cameras disagree in the last window, their own axes' distance apart."""
-    measured = t.tip_uncertainty is not None
-    # the tip's rim is a depth edge: it rests on the erosion given back, known to about that much unless the
-    # refinement measured it
-    along = t.tip_uncertainty if measured else abs(t.tip_erosion) + t.footprint / 2
-    if t.tip_along is not None:
-        along = t.tip_along.uncertainty
-    icp_along, icp_across = ((t.reference_moved.tip_along, t.reference_moved.tip_across)
-                             if t.reference_moved is not None else (0.0, 0.0))
-    # the tip sits on the centreline's free end, where an error growing along the tube is sqrt(3) its RMS, with the
-    # shift the alignment measured last and held unchecked to the tip (the fit's lean it corrected there may differ
-    # beyond)
-    end_spread = DISTAL_CROSS_VIEW_FACTOR * (t.distal_cross_view or 0.0)
-    free_end = FREE_END_FACTOR * (centreline_known or 0.0)
-    held, held_from = t.held_shift if t.held_shift is not None and t.held_shift[1] is not None else (0.0, t.tip_s)
-    carried, carried_across = carried_to_tip(t.fitted_end, t.tip_s, t.notch_centres, t.geometry,
-                                             centreline_known or 0.0)
-    # carried past an end hidden from every camera: the hidden notches may bend otherwise than the ones seen
-    hidden_across = 0.0 if t.tip_along is None or t.tip_along.hidden_across is None else t.tip_along.hidden_across
-    centreline_across = math.hypot(free_end, held, carried_across, hidden_across)
-    across = max(math.hypot(centreline_across, icp_across), end_spread)
-    # named by the largest term, each weighed against those after it (ICP's move first, the free end last)
-    terms = [("icp", icp_across), ("hidden", hidden_across), ("carried", carried_across), ("held_shift", held)]
-    because = "cameras_apart" if end_spread >= across else next(
-        (name for i, (name, value) in enumerate(terms) if value > max([v for _, v in terms[i + 1:]] + [free_end])),
-        "free_end")
-    why = {"cameras_apart": "the cameras' axes that far apart across their views at the end",
-           "icp": "ICP moved it that far off where the centreline placed it",
-           "hidden": f"were the {(t.tip_s - seen_end) * 1e3:.1f} mm no camera saw straight, not bent as the notches "
-                     "seen, the tip would lie that far off",
-           "carried": f"the centreline carried on bending over the {carried * 1e3:.1f} mm past where its fit reached, "
-                      "at the bend of the notches before",
-           "held_shift": f"the alignment moved the axis {held * 1e3:.2f} mm at the last wall it trusted, and held that "
-                         f"shift unchecked over the {max(t.tip_s - held_from, 0.0) * 1e3:.1f} mm to the tip",
-           "free_end": "the centreline's, at its free end"}[because]
-    # bending shortens the centreline by ybar * theta: what the tip should read with the measured bend
-    expected_length = t.geometry.bent_length(t.total_bend)
-    short = expected_length - seen_end
-    ends_off_length = abs(short) > TIP_SHORT_DIAMETERS * t.geometry.outer_diameter
-    return TipBounds(
-        along=math.hypot(along, icp_along), across=across, measured=measured,
-        weighed=bool(t.tip_along is not None and t.tip_along.length_weighed), because=because, why=why,
-        icp_along=icp_along, icp_across=icp_across, centreline_along=along,
-        centreline_across=max(centreline_across, end_spread), held=held, held_from=held_from, carried=carried,
-        hidden_across=hidden_across, expected_length=expected_length, short=short, ends_off_length=ends_off_length,
-        # a tip left at an end seen far short of (or past) the robot's length (not carried on) lies wherever the
-        # rest of the robot reaches
-        left_short=ends_off_length and not hidden_across)
 
 
 def notches_found(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
@@ -356,7 +112,7 @@ def notches_found(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
 
 def widths_against_bends(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
     """Each notch's width against the one its measured bend implies (the gap on the outer wall of a notch of neutral
-    length h bent by theta: notches.calibrate_and_check gave a misread one its bend's), the notches that could not
+    length h bent by theta: notch_widths.calibrate_and_check gave a misread one its bend's), the notches that could not
     be checked so, and each width's 90 % bound from how the widths read disagree with their bends'."""
     geometry, misread, warnings = t.geometry, t.misread_widths or {}, []
     # per notch how far the width read is off its bend's (a misread one's as read)
@@ -412,36 +168,6 @@ def icp_reference(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
                                              "tip_across": tip.icp_across * 1e3}}, warnings
 
 
-def tip_end(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
-    """A tip uncertain beyond its floor: what it rests on, the end cap's plane or a stereo-eroded rim (a tip carried
-    past the end seen is not where the cameras saw it: tip_against_length says so)."""
-    tip = d.tip
-    if math.hypot(tip.along, tip.across) <= TIP_FLOOR or tip.hidden_across:
-        return {}, []
-    weighed = " (the robot's known length weighed in)" if tip.weighed else ""
-    across = f", and by {tip.across * 1e3:.2f} mm across it ({tip.why})" if tip.across else ""
-    figures = {"along_mm": tip.along * 1e3, "across_mm": tip.across * 1e3, "across_because": tip.because}
-    along = t.tip_along
-    if t.tip_from_cap and along is not None and along.beyond_seen:
-        return {}, [finding("TIP_ON_END_CAP",
-                            f"the end cap's points stop {(along.expected_s - along.seen_s) * 1e3:.2f} mm short of the "
-                            f"robot's length at this bend (smeared over {along.seen_uncertainty * 1e3:.2f} mm: the "
-                            "stereo matcher mixes the cap's ring with the bore behind it, and only ever moves them "
-                            f"towards the base): the tip is that length, uncertain by about {tip.along * 1e3:.2f} mm "
-                            f"along the tube{across}", short_of_length_mm=(along.expected_s - along.seen_s) * 1e3,
-                            smeared_mm=along.seen_uncertainty * 1e3, **figures)]
-    if t.tip_from_cap:
-        return {}, [finding("TIP_ON_END_CAP",
-                            f"the tip is the end cap's plane, whose points the stereo matcher smeared over "
-                            f"{tip.along * 1e3:.2f} mm towards the bore behind its ring: its position is uncertain by "
-                            f"about {tip.along * 1e3:.2f} mm along the tube{weighed}{across}", **figures)]
-    how = ", as the edge band measured in the depth images" if tip.measured else ""
-    return {}, [finding("TIP_ON_ERODED_RIM",
-                        f"the tip rests on a stereo-eroded rim ({t.tip_erosion * 1e3:.2f} mm given back{how}): its "
-                        f"position is uncertain by about {tip.along * 1e3:.2f} mm along the tube{weighed}{across}",
-                        erosion_mm=t.tip_erosion * 1e3, edge_band_measured=tip.measured, **figures)]
-
-
 def camera_views(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
     """Each camera's share of the length and a distal stretch one camera alone saw (with why the other did not);
     the nearest depth each returned and the nearest the tube comes to it."""
@@ -467,67 +193,6 @@ def camera_views(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
                 k: v * 1e3 for k, v in reach.nearest_returned.items()},
             "tube_nearest_depth_mm": {} if reach is None else {
                 k: float(v[reach.s <= d.seen_end].min()) * 1e3 for k, v in reach.depth.items()}}, warnings
-
-
-def tip_against_length(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
-    """The end seen against the robot's length at the bend measured: off it beyond both their uncertainties, or
-    far short of (past) it, with why (the crop box, a camera too near or pointed at); a tip left there is stated as
-    uncertain as the shortfall (a controller reads the figures, not the warning). The tip's figures."""
-    tip, along, warnings = d.tip, t.tip_along, []
-    short, expected = tip.short, tip.expected_length
-    if along is not None and not along.length_weighed and along.tolerance is not None and (
-            not tip.ends_off_length and abs(along.disagreement) > LENGTH_AGREEMENT_SIGMAS):
-        warnings.append(finding("TIP_OFF_LENGTH",
-                                f"the end seen lies {abs(short) * 1e3:.2f} mm {'short of' if short > 0 else 'past'} "
-                                f"the robot's length at this bend ({expected * 1e3:.2f} mm), more than both are known "
-                                f"to ({along.seen_uncertainty * 1e3:.2f} and {along.tolerance * 1e3:.2f} mm, "
-                                "robot.length_tolerance with the bend's): the tip is where the end was seen; check the "
-                                "robot's notch layout, its base position along it and robot.length_tolerance",
-                                short_of_length_mm=short * 1e3))
-    if tip.ends_off_length:
-        warnings.append(_tube_ends_off_length(t, d))
-    held_over = max(t.tip_s - tip.held_from, 0.0)
-    return {"tip_s_mm": t.tip_s * 1e3, "tip_seen_s_mm": d.seen_end * 1e3, "expected_length_mm": expected * 1e3,
-            "tip_length_weighed": tip.weighed, "tip_uncertainty_mm": tip.stated_along * 1e3,
-            "tip_across_uncertainty_mm": None if d.centreline_known is None and not tip.held
-            and not tip.hidden_across and not tip.left_short else tip.stated_across * 1e3,
-            "tip_held_shift_mm": tip.held * 1e3, "tip_held_over_mm": held_over * 1e3,
-            "tip_carried_mm": tip.carried * 1e3,
-            # how far past the end seen the tip was carried, where every camera was kept from the rest (0: it was not)
-            "tip_hidden_mm": (t.tip_s - d.seen_end) * 1e3 if tip.hidden_across else 0.0}, warnings
-
-
-def _tube_ends_off_length(t: Trace, d: Derived) -> Finding:
-    """TUBE_ENDS_SHORT (or TIP_CARRIED where every camera was kept from the rest and the tip carried on there)."""
-    tip, short, expected = d.tip, d.tip.short, d.tip.expected_length
-    warning = (f"the tube ends {abs(short) * 1e3:.1f} mm {'short of' if short > 0 else 'past'} the robot's length "
-               f"({expected * 1e3:.1f} mm at this bend): the tip is uncertain")
-    face = None
-    if short > 0 and t.tip_position is not None and t.crop_box is not None:
-        axis, plane, distance = nearest_box_face(np.asarray(t.tip_position, float), t.crop_box)
-        if distance < t.geometry.outer_diameter:  # the points were cut there, not the robot
-            face = ("xyz"[axis], plane)
-            warning += (f"; it ends on the crop box's face {face[0]} = {plane * 1e3:.1f} mm: the robot may go on "
-                        "outside the box (filters.crop_box_min / crop_box_max; below the base plane, "
-                        "filters.clamp_radius lets the automatic box reach there)")
-    reached = t.reach is not None and short >= 0
-    why = t.reach.why_unseen(list(t.camera_names), d.seen_end, expected, continued=True) if reached else ""
-    carried = bool(why and tip.hidden_across)
-    if carried:
-        warning = (f"the tube seen ends {short * 1e3:.1f} mm short of the robot's length ({expected * 1e3:.1f} mm "
-                   f"at this bend); {why}: that hides the rest, and the tip is carried on there, bending as the "
-                   f"notches seen did, to the robot's length: uncertain by about {tip.along * 1e3:.2f} mm along the "
-                   f"tube and {tip.across * 1e3:.2f} mm across it, the centreline with it by "
-                   f"{d.stated_centreline * 1e3:.2f} mm (RMS over the robot's length)")
-    elif why:
-        warning += f"; {why}: that may hide the rest"
-    if tip.left_short:
-        warning += (f"; left at the end seen, the tip may lie up to {abs(short) * 1e3:.1f} mm off, along the tube "
-                    "or across it, and its uncertainty is stated so")
-    return finding("TIP_CARRIED" if carried else "TUBE_ENDS_SHORT", warning, short_of_length_mm=short * 1e3,
-                   at_crop_box=face is not None, crop_box_face=None if face is None else face[0],
-                   crop_box_face_mm=None if face is None else float(face[1]) * 1e3,
-                   **(unseen_figures(t.reach, list(t.camera_names), d.seen_end, expected) if reached else {}))
 
 
 def notch_side(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:

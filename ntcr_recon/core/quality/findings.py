@@ -153,14 +153,14 @@ def sort_by_severity(findings: Iterable[Finding]) -> list[Finding]:
 # A 90 % bound of a normal error is this many of its standard deviations.
 Z90 = 1.645
 # Fewer notches than this checked against their bends leave their scatter unknown: each width is then known to the
-# check's own limit (notches.MISREAD_WIDTH_FRACTION of the cut width), what a width passing it may still be off.
+# check's own limit (notch_widths.MISREAD_WIDTH_FRACTION of the cut width), what a width passing it may still be off.
 MIN_CHECKED_NOTCHES = 3
 
 
 def notch_width_uncertainties(width_vs_bend: Mapping[int, float], indices: Iterable[int], limit: float
                               ) -> dict[int, float]:
     """Per notch a 90 % bound of its width's error (m), from how the widths read disagree with the widths their
-    bends imply (notches.calibrate_and_check's two independent measurements of each notch): the disagreement's
+    bends imply (notch_widths.calibrate_and_check's two independent measurements of each notch): the disagreement's
     variance is the sum of both errors' variances, so Z90 times its RMS over the notches bounds either; a notch
     whose own disagreement is larger is known no better than that. With fewer than MIN_CHECKED_NOTCHES checked,
     `limit` (what the check lets pass)."""

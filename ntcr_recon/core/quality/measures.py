@@ -17,8 +17,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import uniform_filter1d
 
+from ntcr_recon.core.base.robust import median
 from ntcr_recon.core.relocation.centerline import cameras_round_tube
-from ntcr_recon.core.relocation.wall import median, surface_band
+from ntcr_recon.core.relocation.wall import surface_band
 from ntcr_recon.core.robot.comb import expected_centres, inside_intervals
 
 # Thresholds, relative to the robot and the camera so that no robot is special (those of the checks: quality.checks).
@@ -193,7 +194,7 @@ class CameraReach:
 def camera_reach(carried, tip_s: float, length: float, radius: float, step: float,
                  extrinsics: dict[str, np.ndarray], xyz: np.ndarray, camera: np.ndarray | None) -> CameraReach:
     """The CameraReach of a tube seen up to tip_s of a robot `length` long (m): its axis sampled every `step` along
-    `carried`, the centreline up to tip_s carried on past it as the robot bends (centerline.continued_bend) to the
+    `carried`, the centreline up to tip_s carried on past it as the robot bends (bends.continued_bend) to the
     length; the points `xyz` returned by the cameras (by index into extrinsics' order, `camera`), none known
     without it."""
     seen = np.append(np.arange(0.0, tip_s, step), tip_s)
@@ -271,7 +272,7 @@ def unmeasured_share(unsupported: tuple[tuple[float, float], ...], end_on: float
 def carried_to_tip(fitted_end: float | None, tip_s: float, notch_centres: np.ndarray | None, geometry,
                    centerline_off: float) -> tuple[float, float]:
     """How far past the fitted curve's end the tip lies (m), and how far across the tube that leaves it uncertain
-    (m): there the centreline was carried on at the steady bend (centerline.continued_bend), each notch it bent over
+    (m): there the centreline was carried on at the steady bend (bends.continued_bend), each notch it bent over
     known as well as the centreline's turn over a pitch (centerline_off / pitch), alike, its lever the rest of the
     way to the tip. (0, 0) where the fit reached the tip, or its end or the comb is not known."""
     if fitted_end is None or notch_centres is None or tip_s <= fitted_end:

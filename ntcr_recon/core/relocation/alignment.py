@@ -37,9 +37,9 @@ import numpy as np
 import scipy.linalg
 
 from ntcr_recon.core.base.compiled import jit
-from ntcr_recon.core.relocation.centerline import Centerline, TubeCoordinates, cameras_round_tube, unit_direction
-from ntcr_recon.core.relocation.wall import median
-from ntcr_recon.core.robot.comb import clear_of_cuts, cut_intervals, inside_intervals, near_cuts
+from ntcr_recon.core.base.robust import median
+from ntcr_recon.core.relocation.centerline import Centerline, TubeCoordinates, unit_direction
+from ntcr_recon.core.robot.comb import clear_of_cuts, near_cuts
 from ntcr_recon.core.robot.geometry import TubeGeometry
 
 # Mean resultant length of a window's point directions about the axis above which it is seen from one side.
@@ -71,6 +71,37 @@ def facing_cosine(outer_radius: float, footprint: float, margin_px: float, max_v
     `max_view_angle`: a point at view angle a lies r (1 - sin a) inside the silhouette, across the view."""
     sine = min(max(1.0 - margin_px * footprint / outer_radius, 0.0), np.sin(max_view_angle))
     return float(np.sqrt(1.0 - sine * sine))
+
+
+@dataclass(frozen=True)
+class WallTrust:
+    """Which wall points the alignment and the checks over it trust (see the module docstring), and up to where:
+    the robot, the wall's gate, the pixel footprint and the tube's end seen (m), the view angle (rad) and the
+    margins in pixel footprints."""
+
+    geometry: TubeGeometry
+    gate: float
+    footprint: float
+    end_s: float
+    max_view_angle: float = np.radians(45.0)
+    cut_margin_px: float = 1.0
+    silhouette_margin_px: float = SILHOUETTE_MARGIN_PX
+    slot_margin_px: float = SLOT_MARGIN_PX
+
+    @property
+    def cut_margin(self) -> float:
+        return self.cut_margin_px * self.footprint
+
+    @property
+    def silhouette_margin(self) -> float:
+        """The margin trusted points keep from the base and the end (depth edges too, as the silhouette)."""
+        return self.silhouette_margin_px * self.footprint
+
+    @property
+    def least_cosine(self) -> float:
+        """The least cosine of a trusted point's view angle."""
+        return facing_cosine(self.geometry.outer_radius, self.footprint, self.silhouette_margin_px,
+                             self.max_view_angle)
 
 
 @dataclass(frozen=True)
@@ -219,39 +250,24 @@ def smoothed_shifts(matrix: np.ndarray, rhs: np.ndarray, smoothing: float) -> np
 
 
 def align_to_trusted_wall(centerline: Centerline, coords: TubeCoordinates, frames: tuple, viewpoints: np.ndarray,
-                          geometry: TubeGeometry, gate: float, footprint: float, end_s: float,
-                          max_view_angle: float = np.radians(45.0), cut_margin_px: float = 1.0,
-                          silhouette_margin_px: float = SILHOUETTE_MARGIN_PX, slot_margin_px: float = SLOT_MARGIN_PX,
-                          smoothing: float = SHIFT_SMOOTHING, minimum_points: int = 30, xyz: np.ndarray | None = None,
-                          passes: int = 1) -> Alignment:
-    """Shift the centreline onto the trusted wall points (see the module docstring); end_s: the tube's end.
+                          trust: WallTrust, smoothing: float = SHIFT_SMOOTHING, minimum_points: int = 30,
+                          xyz: np.ndarray | None = None, passes: int = 1) -> Alignment:
+    """Shift the centreline onto the trusted wall points (see the module docstring), up to the tube's end
+    trust.end_s.
 
     passes > 1 (with the points' base-frame positions xyz): which points face their camera depends on where
     the axis is, so each further pass projects the points onto the moved centreline, lays its comb of cuts,
     and selects and solves again; bias and shifts add up over the passes.
     """
-    cut_margin = cut_margin_px * footprint
     viewpoints = np.ascontiguousarray(viewpoints, dtype=float)
-
-    def trusted_wall(coords, frames, centerline):
-        # beside a cut, the wall a matcher reads into the slot from lies on one side of its camera's view: it would
-        # shift the axis across that view towards the notch side. Along s the cut's margin only: a matcher reaches
-        # as far from a spine into the slots, but a spine is all a side-on camera sees between the cuts (the slot
-        # margin along s too left the matrix 23 rows of 29 meeting their floors, against 24; 4 px, 21)
-        near_cut = near_cuts(coords.s, geometry, centerline, cut_margin)
-        return clear_of_cuts(coords, geometry, centerline, cut_margin, near_cut) & clear_of_slots_in_view(
-            coords, frames, viewpoints, geometry, near_cut, slot_margin_px * footprint)
-
-    away_from_cuts = trusted_wall(coords, frames, centerline)
-    margin, least_cosine = _trust_limits(geometry, footprint, silhouette_margin_px, max_view_angle)
+    away_from_cuts = _trusted_wall(coords, frames, viewpoints, centerline, trust)
     bias, end_move = np.zeros(2), np.zeros(3)
     result = Alignment(centerline, 0.0, 0.0, 0)
     for done in range(max(passes, 1)):
         if done:  # the moved axis: its points' coordinates, and its comb (the cuts move with its bends)
             coords, frames = centerline.project_with_frames(xyz, coords.s)
-            away_from_cuts = trusted_wall(coords, frames, centerline)
-        result = _align_once(centerline, coords, frames, viewpoints, away_from_cuts, geometry, gate, margin, end_s,
-                             least_cosine, smoothing, minimum_points)
+            away_from_cuts = _trusted_wall(coords, frames, viewpoints, centerline, trust)
+        result = _align_once(centerline, coords, frames, viewpoints, away_from_cuts, trust, smoothing, minimum_points)
         bias += (result.bias_notch_side, result.bias_binormal)
         if result.centerline is centerline:
             break
@@ -263,105 +279,31 @@ def align_to_trusted_wall(centerline: Centerline, coords: TubeCoordinates, frame
                      float(np.linalg.norm(end_move)))
 
 
-def _trust_limits(geometry: TubeGeometry, footprint: float, silhouette_margin_px: float,
-                  max_view_angle: float) -> tuple[float, float]:
-    """The margin trusted points keep from the base and the end (depth edges too, as the silhouette) and the
-    least cosine of their view angle."""
-    return (silhouette_margin_px * footprint,
-            facing_cosine(geometry.outer_radius, footprint, silhouette_margin_px, max_view_angle))
+def _trusted_wall(coords: TubeCoordinates, frames: tuple, viewpoints: np.ndarray, centerline: Centerline,
+                  trust: WallTrust) -> np.ndarray:
+    """(N,) bool: clear of the cuts and of the slots in view. Beside a cut, the wall a matcher reads into the slot
+    from lies on one side of its camera's view: it would shift the axis across that view towards the notch side.
+    Along s the cut's margin only: a matcher reaches as far from a spine into the slots, but a spine is all a
+    side-on camera sees between the cuts (the slot margin along s too left the matrix 23 rows of 29 meeting their
+    floors, against 24; 4 px, 21)."""
+    geometry = trust.geometry
+    near_cut = near_cuts(coords.s, geometry, centerline, trust.cut_margin)
+    return clear_of_cuts(coords, geometry, centerline, trust.cut_margin, near_cut) & clear_of_slots_in_view(
+        coords, frames, viewpoints, geometry, near_cut, trust.slot_margin_px * trust.footprint)
 
 
-def _camera_window_sums(centerline: Centerline, coords: TubeCoordinates, frames: tuple, viewpoints: np.ndarray,
-                        camera: np.ndarray, cameras: int, geometry: TubeGeometry, gate: float, footprint: float,
-                        end_s: float, silhouette_margin_px: float, max_view_angle: float, selected: np.ndarray,
-                        window: float) -> np.ndarray:
+def camera_window_sums(centerline: Centerline, coords: TubeCoordinates, frames: tuple, viewpoints: np.ndarray,
+                       camera: np.ndarray, cameras: int, trust: WallTrust, selected: np.ndarray,
+                       window: float) -> np.ndarray:
     """_trusted_window_sums' per window and camera sums (W, C, 8) over the trusted points among `selected`, in
-    windows of `window` up to end_s."""
-    margin, least_cosine = _trust_limits(geometry, footprint, silhouette_margin_px, max_view_angle)
+    windows of `window` up to trust.end_s."""
+    margin, end_s = trust.silhouette_margin, trust.end_s
     position, _, normal, binormal = frames
     return _trusted_window_sums(coords.s, coords.x, coords.y, position, normal, binormal,
                                 np.ascontiguousarray(viewpoints, dtype=float), np.ascontiguousarray(camera, np.intp),
-                                cameras, centerline.points[0], geometry.outer_radius, gate, margin, end_s - margin,
-                                least_cosine, selected, window, max(int(np.ceil(end_s / window)), 1))[-1]
-
-
-@dataclass(frozen=True)
-class CrossView:
-    """What each camera's trusted wall says about the fused axis (cross_view_spread)."""
-    spread: float | None  # m, RMS over windows and cameras of each camera's own axis across its view; None: none
-    unsupported: tuple[tuple[float, float], ...] = ()  # s intervals (m) of two windows or more where no camera
-                                                         # holds enough trusted wall points to place the axis
-    distal: float | None = None  # m, the same RMS over the cameras in the last window where any places the axis
-    # per camera (in camera order) its shift's mean over the windows and that mean's standard error (m); None for a
-    # camera placing the axis in fewer than MIN_OFFSET_WINDOWS windows. What the windows share is rigid: a pose
-    # in the rig file off the camera's (matcher noise varies window to window)
-    offsets: tuple[tuple[float, float] | None, ...] = ()
-
-
-MIN_OFFSET_WINDOWS = 4  # windows a camera's mean shift across its view is taken over, at least
-
-
-def cross_view_spread(centerline: Centerline, coords: TubeCoordinates, frames: tuple, viewpoints: np.ndarray,
-                      camera: np.ndarray, cameras: int, geometry: TubeGeometry, gate: float, footprint: float,
-                      end_s: float, max_view_angle: float = np.radians(45.0), cut_margin_px: float = 1.0,
-                      silhouette_margin_px: float = SILHOUETTE_MARGIN_PX, minimum_points: int = 10,
-                      min_sine_spread: float = 0.05) -> CrossView:
-    """How far each camera alone puts the axis across its line of sight from the centreline given (m, RMS over
-    windows of a notch pitch and cameras; None when no window holds enough trusted points of any camera), and
-    where no camera holds enough trusted points to place the axis at all.
-
-    Across its line of sight a camera places the axis by itself: a shift b that way raises the wall it sees on
-    one side of its view and lowers it on the other, offset = b sin(a) + level (a: the view angle, the shift
-    along the line of sight and the level alike near a = 0). Each camera's b on the trusted points of each
-    window, about the aligned centreline, is what it disagrees with the fit: stereo depth beside the notches is
-    not symmetric about a view (a matcher's window reaches the slots on one side), two cameras then pull the
-    axis apart, and the fused axis is known no better than their spread.
-
-    Where no camera sees trusted wall (facing it, on the tube's radius) over two windows or more, the centreline
-    there followed whatever points lay near it - flying pixels a matcher mixed with the background, a wall seen
-    edge-on - and nothing measured how far off it is: those stretches are `unsupported` (a window counts in
-    proportion to its part between the base's and the end's margins; one under half inside is not judged).
-    `distal` is the spread in the last window alone: at the free end no window beyond holds the axis, and the
-    tip is known across the tube no better than the cameras agree there.
-    """
-    window = geometry.notch_pitch
-    away_from_cuts = clear_of_cuts(coords, geometry, centerline, cut_margin_px * footprint)
-    sums = _camera_window_sums(centerline, coords, frames, viewpoints, camera, cameras, geometry, gate, footprint,
-                               end_s, silhouette_margin_px, max_view_angle, away_from_cuts, window)
-    count, sine, sine2, offset, sine_offset = np.moveaxis(sums[:, :, :5], 2, 0)
-    unsupported = _unsupported(count.max(axis=1), window, silhouette_margin_px * footprint, end_s, minimum_points)
-    spread = count * sine2 - sine * sine  # count^2 x the variance of sin(a)
-    solvable = (count >= minimum_points) & (spread > (min_sine_spread * count) ** 2)
-    if not np.any(solvable):
-        return CrossView(None, unsupported)
-    slope = np.full(count.shape, np.nan)
-    slope[solvable] = (count * sine_offset - sine * offset)[solvable] / spread[solvable]
-    last = slope[np.flatnonzero(solvable.any(axis=1))[-1]]
-    offsets = tuple((float(np.mean(b)), float(np.std(b, ddof=1) / np.sqrt(len(b))))
-                    if len(b := column[~np.isnan(column)]) >= MIN_OFFSET_WINDOWS else None for column in slope.T)
-    return CrossView(float(np.sqrt(np.nanmean(slope ** 2))), unsupported,
-                     float(np.sqrt(np.nanmean(last ** 2))), offsets)
-
-
-def _unsupported(best_count: np.ndarray, window: float, margin: float, end_s: float, minimum_points: int
-                 ) -> tuple[tuple[float, float], ...]:
-    """Runs of two windows or more whose best camera holds under `minimum_points` trusted points (scaled by the
-    window's share inside [margin, end_s - margin]; windows under half inside are not judged), as s intervals
-    clipped to that range."""
-    starts = np.arange(len(best_count)) * window
-    inside = np.clip(np.minimum(starts + window, end_s - margin) - np.maximum(starts, margin), 0.0, window) / window
-    short = (inside >= 0.5) & (best_count < minimum_points * inside)
-    runs, k = [], 0
-    while k < len(short):
-        if not short[k]:
-            k += 1
-            continue
-        first = k
-        while k < len(short) and short[k]:
-            k += 1
-        if k - first >= 2:
-            runs.append((float(max(starts[first], margin)), float(min(starts[k - 1] + window, end_s - margin))))
-    return tuple(runs)
+                                cameras, centerline.points[0], trust.geometry.outer_radius, trust.gate, margin,
+                                end_s - margin, trust.least_cosine, selected, window,
+                                max(int(np.ceil(end_s / window)), 1))[-1]
 
 
 def _determinants(matrix: np.ndarray) -> np.ndarray:
@@ -373,15 +315,15 @@ def _determinants(matrix: np.ndarray) -> np.ndarray:
 
 
 def _align_once(centerline: Centerline, coords: TubeCoordinates, frames: tuple, viewpoints: np.ndarray,
-                away_from_cuts: np.ndarray, geometry: TubeGeometry, gate: float, margin: float,
-                end_s: float, least_cosine: float, smoothing: float, minimum_points: int) -> Alignment:
+                away_from_cuts: np.ndarray, trust: WallTrust, smoothing: float, minimum_points: int) -> Alignment:
     """One pass of align_to_trusted_wall: select, solve the windows' shifts, move the centreline."""
+    geometry, gate, margin, end_s = trust.geometry, trust.gate, trust.silhouette_margin, trust.end_s
     window = geometry.notch_pitch
     windows = max(int(np.ceil(end_s / window)), 1)
     position, _, normal, binormal = frames
     matrix, rhs, counts, s_sum, direction_sum, distance2_mean, _ = _trusted_window_sums(
         coords.s, coords.x, coords.y, position, normal, binormal, viewpoints, np.zeros(len(coords.s), np.intp), 1,
-        centerline.points[0], geometry.outer_radius, gate, margin, end_s - margin, least_cosine, away_from_cuts,
+        centerline.points[0], geometry.outer_radius, gate, margin, end_s - margin, trust.least_cosine, away_from_cuts,
         window, windows)
     normalise_level(matrix, rhs, distance2_mean)
     count = int(counts.sum())
@@ -473,88 +415,3 @@ def _clear_of_slot_edge(beside_cut, x, y, position, normal, binormal, viewpoints
                                              - (side * sin_gap * cos_camera - cos_gap * sin_camera))
         clear[i] = beyond_edge >= across
     return clear
-
-
-def level_by_backbone(centerline: Centerline, coords: TubeCoordinates, frames: tuple, viewpoints: np.ndarray,
-                      camera: np.ndarray, origins: np.ndarray, geometry: TubeGeometry, gate: float, footprint: float,
-                      end_s: float, max_view_angle: float = np.radians(45.0), cut_margin_px: float = 1.0,
-                      silhouette_margin_px: float = SILHOUETTE_MARGIN_PX,
-                      minimum_points: int = 10) -> tuple[Centerline, float]:
-    """The axis moved along the lines of sight of the cameras that face the backbone, so that the wall each of
-    them sees between the notches lies at the level it sees on the plain tube; and the RMS of that move (m).
-
-    A camera that sees the notch side reads the wall between the notches deeper than the plain tube (its
-    matcher's window reaches into the slots: 0.3 mm at 100 mm), one that faces the backbone - the uncut wall
-    opposite the notches, beyond the gap's half-angle from the notch side - hardly does. The alignment's common
-    level splits the two cameras' difference between them and moves the axis away from the notch side's camera
-    by half the deficit; the backbone's camera, whose level on the plain stretches (before the first cut and
-    after the last) is measured, places it along its line of sight instead. Windows of a notch pitch, trusted
-    points as the alignment's, and of those only the wall clear of the slots in the camera's image by a matcher's
-    reach (clear_of_slots_in_view: a camera just past the gap's edge sees that edge a few pixels from the tube's
-    middle, and a matcher that averages its window over the slot reads the wall there deep as well); a camera that
-    sees such wall in fewer than half the windows it faces the backbone in (a thin tube, a coarse pixel, a camera
-    just past the edge) levels by all the wall facing it, which a matcher that keeps the slot out of the wall's
-    window leaves whole. The move, interpolated along s from none at the base, holds beyond the last window.
-    Unchanged (and 0) where no camera faces the backbone or none saw the plain tube.
-    """
-    window = geometry.notch_pitch
-    cuts = cut_intervals(geometry, centerline, cut_margin_px * footprint)
-    windows = max(int(np.ceil(end_s / window)), 1)
-    centres = (np.arange(windows) + 0.5) * window
-    notched = (centres > cuts[0, 0]) & (centres < cuts[-1, 1])
-    window_frames = centerline.frames_at(centres)
-    _, _, window_normal, window_binormal = window_frames
-    # each camera's direction round the tube per window, from the notch side (x): past the gap's half-angle it
-    # faces the backbone; one that sees the notch side's gaps reads no plain tube's level between them
-    round_tube = cameras_round_tube(window_frames, origins)
-    faces_backbone = notched[:, None] & (np.abs(np.arctan2(round_tube[..., 1], round_tube[..., 0]))
-                                         > geometry.gap_half_angle)
-    if not np.any(faces_backbone):
-        return centerline, 0.0
-    away_from_cuts = clear_of_cuts(coords, geometry, centerline, cut_margin_px * footprint,
-                                   inside_intervals(coords.s, cuts))
-    # the backbone's wall, but within a matcher's reach of a slot in the image, reads deeper as the notch side does
-    reach = silhouette_margin_px * footprint
-    backbone_wall = away_from_cuts & clear_of_slots_in_view(
-        coords, frames, viewpoints, geometry, near_cuts(coords.s, geometry, centerline, reach), reach)
-
-    def sums(selected, width):
-        return _camera_window_sums(centerline, coords, frames, viewpoints, camera, len(origins), geometry, gate,
-                                   footprint, end_s, silhouette_margin_px, max_view_angle, selected, width)
-
-    plain = (coords.s < cuts[0, 0]) | (coords.s > cuts[-1, 1])
-    # per camera the wall clear of the slots where it sees such wall in most windows it faces the backbone in,
-    # else all its facing wall
-    clear_plain, facing_plain = (sums(selected & plain, max(end_s, window))[0]
-                                 for selected in (backbone_wall, away_from_cuts))
-    clear_windows, facing_windows = (sums(selected, window) for selected in (backbone_wall, away_from_cuts))
-    clear_seen = np.sum(faces_backbone & (clear_windows[:, :, 0] >= minimum_points), axis=0)
-    clear = (2 * clear_seen >= np.sum(faces_backbone, axis=0)) & (clear_plain[:, 0] >= minimum_points)
-    plain_sums = np.where(clear[:, None], clear_plain, facing_plain)
-    per_window = np.where(clear[None, :, None], clear_windows, facing_windows)
-    shifts = np.zeros((windows, 3))
-    for k in np.flatnonzero(np.any(faces_backbone, axis=1)):
-        system, rhs = np.zeros((2, 2)), np.zeros(2)
-        for c in np.flatnonzero(faces_backbone[k]):
-            if plain_sums[c, 0] < minimum_points or per_window[k, c, 0] < minimum_points:
-                continue
-            direction = round_tube[k, c] / np.linalg.norm(round_tube[k, c])
-            # reading deeper than on the plain tube: the axis lies too near this camera, by the shift that
-            # lowers each point's offset by shift x cos(its view angle) (least squares about the plain level)
-            cosine, cosine2, cosine_offset = per_window[k, c, 5:]
-            plain_level = plain_sums[c, 3] / plain_sums[c, 0]
-            nearer = (plain_level * cosine - cosine_offset) / cosine2
-            system += np.outer(direction, direction)
-            rhs -= nearer * direction
-        if np.any(system):
-            move = np.linalg.pinv(system) @ rhs
-            shifts[k] = move[0] * window_normal[k] + move[1] * window_binormal[k]
-    known = np.flatnonzero(np.any(shifts != 0.0, axis=1))
-    if not len(known):
-        return centerline, 0.0
-    known_s = np.concatenate([[0.0], centres[known]])
-    node_shift = np.stack([np.interp(centerline.s, known_s, np.concatenate([[0.0], shifts[known, axis]]))
-                           for axis in range(3)], axis=1)
-    step = float(centerline.s[1] - centerline.s[0])
-    moved = Centerline.from_points(centerline.points + node_shift, centerline.binormals[0], step)
-    return moved, float(np.sqrt(np.mean(np.einsum("ij,ij->i", shifts[known], shifts[known]))))

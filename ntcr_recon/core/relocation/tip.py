@@ -30,14 +30,15 @@ the base only): a length beyond it is the tip.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
 from ntcr_recon.core.base.compiled import jit
+from ntcr_recon.core.base.robust import median, quantile, robust_spread
 from ntcr_recon.core.relocation.profile import coverage_profile
-from ntcr_recon.core.relocation.wall import median, quantile, robust_spread, surface_band
+from ntcr_recon.core.relocation.wall import surface_band
 
 if TYPE_CHECKING:  # centerline.py imports this module
     from ntcr_recon.core.relocation.centerline import Centerline, TubeCoordinates
@@ -325,13 +326,20 @@ def half_density_end(s: np.ndarray, coarse: float, cell: float, kernel: float, b
     return float(grid[last] + step * (a / (a - b) if a != b else 0.5))
 
 
-def rim_tip(coords: TubeCoordinates, camera: np.ndarray, origins: np.ndarray, centerline: Centerline,
-            coarse: float, radius: float, gate: float, cell: float, kernel: float, bands: np.ndarray,
-            spine: np.ndarray, reach: float, least: int = 50, last_notch_s: float = -np.inf
-            ) -> tuple[float, float, float] | None:
+class RimViews(NamedTuple):
+    """How the cameras saw a rim: which camera saw each point, where the cameras are (base frame, m), and per
+    camera index the band `edge_band` measured, as an angle (px / focal length; NaN: not measured)."""
+
+    camera: np.ndarray
+    origins: np.ndarray
+    bands: np.ndarray
+
+
+def rim_tip(coords: TubeCoordinates, views: RimViews, centerline: Centerline, coarse: float, radius: float,
+            gate: float, cell: float, kernel: float, spine: np.ndarray, reach: float, least: int = 50,
+            last_notch_s: float = -np.inf) -> tuple[float, float, float] | None:
     """The tip from each camera's rim: its half-density end plus the matcher's erosion there.
 
-    bands: per camera index, the band `edge_band` measured, as an angle (px / focal length; NaN: not measured).
     spine: points to measure the wall band on (away from notches). reach: how far before the coarse end the
     density plateau is taken (over spines and notches alike: a notch takes the same share of the ring there).
     Cameras are weighed by sin^2 of their view angle to the tangent (an image error becomes that much less
@@ -343,6 +351,7 @@ def rim_tip(coords: TubeCoordinates, camera: np.ndarray, origins: np.ndarray, ce
     side loses the short ring beyond the last notch to the matcher's erosion from both its edges), and is not
     heard while another camera saw past it.
     """
+    camera, origins, bands = views
     offset = coords.radius - radius
     level, spread = surface_band(offset, gate, spine)
     wall = (np.abs(offset - level) <= max(spread, cell / 2)) & (coords.s > coarse - reach)
@@ -424,7 +433,7 @@ def with_known_length(seen_s: float, seen_uncertainty: float, expected_s: float,
 
 def carried_to_length(along: TipAlongTube, centerline: Centerline) -> TipAlongTube:
     """The tip carried past the end seen to the robot's length along `centerline`, carried on bending there as the
-    notches before it bent (centerline.continued_bend): for a tube whose rest every camera was kept from seeing
+    notches before it bent (bends.continued_bend): for a tube whose rest every camera was kept from seeing
     (nearer than its depth range, pointing at it), so that the robot goes on where nothing was measured.
 
     How well it is known there: along the tube, as well as the length and as far as a straight hidden part would

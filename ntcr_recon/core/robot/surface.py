@@ -6,13 +6,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-if TYPE_CHECKING:
-    from ntcr_recon.core.robot.kinematics import TubeShape
+from ntcr_recon.core.robot.geometry import TubeGeometry
 
 # Surface parts of a sampled robot (SurfaceSample.part).
 PART_OUTER_WALL = 0
@@ -37,7 +36,94 @@ class SurfaceSample:
     radius: np.ndarray  # (N,) distance from the centreline in the cross-section plane
 
 
-def sample_surface_parts(shape: TubeShape, spacing: float) -> SurfaceSample:
+class PosedTube(Protocol):
+    """What the surface needs of a posed robot (kinematics.TubeShape is one): the geometry, the segments
+    (spine, notch, spine, ...) by arc-length start, length and curvature, and the centreline's frames."""
+
+    geometry: TubeGeometry
+    segment_starts: np.ndarray
+    segment_lengths: np.ndarray
+    segment_curvatures: np.ndarray
+    length: float
+
+    def centerline(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+# A piece of the sampled surface: (s, angle, radius, normal in the cross-section's frame (N, 3), part).
+Piece = tuple
+
+
+def _wall(s_values, radius: float, angle_limit: float, part: int, outward: bool, spacing: float) -> list[Piece]:
+    """A wall at `radius` over the arc lengths; the material spans |angle| >= angle_limit (0: the whole ring)."""
+    span = 2.0 * math.pi - 2.0 * angle_limit
+    if span <= 0:
+        return []
+    count = max(int(math.ceil(span * radius / spacing)), 3)
+    whole = angle_limit == 0
+    angles = np.arange(count) * (span / count) if whole else angle_limit + np.linspace(0.0, span, count + 1)
+    angles = np.angle(np.exp(1j * angles))
+    ss, aa = (a.ravel() for a in np.meshgrid(s_values, angles, indexing="ij"))
+    sign = 1.0 if outward else -1.0
+    normal = sign * np.stack([np.cos(aa), np.sin(aa), np.zeros_like(aa)], axis=1)
+    return [(ss, aa, np.full(ss.shape, radius), normal, part)]
+
+
+def _annulus(s_value: float, normal_z: float, only_removed: bool, part: int, g: TubeGeometry,
+             spacing: float) -> list[Piece]:
+    """The annular cross-section at s_value; only_removed: the part a notch cuts away (x > -d)."""
+    r_o, r_i, d = g.outer_radius, g.inner_radius, g.chord_offset
+    pieces = []
+    for radius in np.linspace(r_i, r_o, max(int(math.ceil((r_o - r_i) / spacing)) + 1, 2)):
+        half = math.acos(min(1.0, max(-1.0, -d / radius))) if only_removed else math.pi
+        if half <= 0:
+            continue
+        count = 2 * max(int(math.ceil(half * radius / spacing)), 1)  # even: angle 0 is sampled
+        angles = np.linspace(-half, half, count + 1) if half < math.pi else np.arange(count) * (2 * math.pi / count)
+        angles = np.angle(np.exp(1j * angles))
+        normal = np.tile([0.0, 0.0, normal_z], (angles.size, 1))
+        pieces.append((np.full(angles.size, s_value), angles, np.full(angles.size, radius), normal, part))
+    return pieces
+
+
+def _notch_floor(s_values, g: TubeGeometry, spacing: float) -> Piece:
+    """The notch floor: the chord x = -d between the outer circle and the bore."""
+    r_o, r_i, d = g.outer_radius, g.inner_radius, g.chord_offset
+    half_o = math.sqrt(max(r_o**2 - d**2, 0.0))
+    half_i = math.sqrt(max(r_i**2 - d**2, 0.0)) if abs(d) < r_i else 0.0
+    count = max(int(math.ceil((half_o - half_i) / spacing)), 1)
+    ys = np.linspace(half_i, half_o, count + 1)
+    ys = np.concatenate([-ys[::-1], ys]) if half_i > 0 else np.linspace(-half_o, half_o, 2 * count + 1)
+    ss, yy = (a.ravel() for a in np.meshgrid(s_values, ys, indexing="ij"))
+    xx = np.full(ss.shape, -d)
+    normal = np.tile([1.0, 0.0, 0.0], (ss.size, 1))
+    return ss, np.arctan2(yy, xx), np.hypot(xx, yy), normal, PART_NOTCH_FLOOR
+
+
+def _segment_pieces(shape: PosedTube, spacing: float) -> list[Piece]:
+    """Spines: outer wall and bore. Notches: the backbone's walls, its floor and the two bounding cut faces."""
+    g = shape.geometry
+    inner_limit = math.acos(min(1.0, max(-1.0, -g.chord_offset / g.inner_radius)))
+    last = len(shape.segment_starts) - 1
+    pieces: list[Piece] = []
+    for k, (start, length, kappa) in enumerate(zip(shape.segment_starts, shape.segment_lengths,
+                                                   shape.segment_curvatures, strict=True)):
+        if length <= 0:
+            continue
+        count = max(int(math.ceil(length * (1.0 + kappa * g.outer_radius) / spacing)), 1)
+        s_values = start + np.linspace(0.0, length, count + 1)[: None if k == last else -1]
+        if k % 2 == 0:  # a spine
+            pieces += _wall(s_values, g.outer_radius, 0.0, PART_OUTER_WALL, True, spacing)
+            pieces += _wall(s_values, g.inner_radius, 0.0, PART_INNER_WALL, False, spacing)
+            continue
+        pieces += _wall(s_values, g.outer_radius, g.gap_half_angle, PART_OUTER_WALL, True, spacing)
+        pieces += _wall(s_values, g.inner_radius, inner_limit, PART_INNER_WALL, False, spacing)
+        pieces.append(_notch_floor(s_values, g, spacing))
+        pieces += _annulus(start, 1.0, True, PART_CUT_FACE, g, spacing)
+        pieces += _annulus(start + length, -1.0, True, PART_CUT_FACE, g, spacing)
+    return pieces
+
+
+def sample_surface_parts(shape: PosedTube, spacing: float) -> SurfaceSample:
     """Dense sample of the true surface, at most `spacing` apart, with each point's part and coordinates.
 
     Spines: outer wall and bore. Notches: the backbone's outer wall and bore (the bore is what one
@@ -46,75 +132,9 @@ def sample_surface_parts(shape: TubeShape, spacing: float) -> SurfaceSample:
     """
     if not spacing > 0:
         raise ValueError(f"spacing must be > 0, got {spacing}")
-    g = shape.geometry
-    r_o, r_i, d = g.outer_radius, g.inner_radius, g.chord_offset
-    pieces: list[tuple] = []  # (s, angle, radius, normal_local (N,3), part)
-
-    def wall(s_values, radius, angle_limit, part, outward):
-        # angle_limit: the material spans |angle| >= angle_limit (0: the whole ring)
-        span = 2.0 * math.pi - 2.0 * angle_limit
-        if span <= 0:
-            return
-        count = max(int(math.ceil(span * radius / spacing)), 3)
-        if angle_limit == 0:
-            angles = np.arange(count) * (span / count)
-        else:
-            angles = angle_limit + np.linspace(0.0, span, count + 1)
-        angles = np.angle(np.exp(1j * angles))
-        ss, aa = (a.ravel() for a in np.meshgrid(s_values, angles, indexing="ij"))
-        sign = 1.0 if outward else -1.0
-        normal = sign * np.stack([np.cos(aa), np.sin(aa), np.zeros_like(aa)], axis=1)
-        pieces.append((ss, aa, np.full(ss.shape, radius), normal, part))
-
-    def annulus(s_value, normal_z, only_removed, part):
-        # the annular cross-section at s_value; only_removed: the part cut away by a notch (x > -d)
-        radii = np.linspace(r_i, r_o, max(int(math.ceil((r_o - r_i) / spacing)) + 1, 2))
-        for radius in radii:
-            half = math.acos(min(1.0, max(-1.0, -d / radius))) if only_removed else math.pi
-            if half <= 0:
-                continue
-            count = 2 * max(int(math.ceil(half * radius / spacing)), 1)  # even: angle 0 is sampled
-            angles = np.linspace(-half, half, count + 1) if half < math.pi else np.arange(count) * (2 * math.pi
-                                                                                                    / count)
-            angles = np.angle(np.exp(1j * angles))
-            normal = np.tile([0.0, 0.0, normal_z], (angles.size, 1))
-            pieces.append((np.full(angles.size, s_value), angles, np.full(angles.size, radius), normal, part))
-
-    def grid(start, length, stretch, closed):
-        count = max(int(math.ceil(length * stretch / spacing)), 1)
-        return start + np.linspace(0.0, length, count + 1)[: None if closed else -1]
-
-    outer_limit = g.gap_half_angle
-    inner_limit = math.acos(min(1.0, max(-1.0, -d / r_i)))
-    last = len(shape.segment_starts) - 1
-    for k, (start, length, kappa) in enumerate(zip(shape.segment_starts, shape.segment_lengths,
-                                                       shape.segment_curvatures,
-                                                   strict=True)):
-        if length <= 0:
-            continue
-        is_notch = k % 2 == 1
-        s_values = grid(start, length, 1.0 + kappa * r_o, closed=k == last)
-        if not is_notch:
-            wall(s_values, r_o, 0.0, PART_OUTER_WALL, True)
-            wall(s_values, r_i, 0.0, PART_INNER_WALL, False)
-            continue
-        wall(s_values, r_o, outer_limit, PART_OUTER_WALL, True)
-        wall(s_values, r_i, inner_limit, PART_INNER_WALL, False)
-        # notch floor: the chord x = -d between the outer circle and the bore
-        half_o = math.sqrt(max(r_o**2 - d**2, 0.0))
-        half_i = math.sqrt(max(r_i**2 - d**2, 0.0)) if abs(d) < r_i else 0.0
-        count = max(int(math.ceil((half_o - half_i) / spacing)), 1)
-        ys = np.linspace(half_i, half_o, count + 1)
-        ys = np.concatenate([-ys[::-1], ys]) if half_i > 0 else np.linspace(-half_o, half_o, 2 * count + 1)
-        ss, yy = (a.ravel() for a in np.meshgrid(s_values, ys, indexing="ij"))
-        xx = np.full(ss.shape, -d)
-        normal = np.tile([1.0, 0.0, 0.0], (ss.size, 1))
-        pieces.append((ss, np.arctan2(yy, xx), np.hypot(xx, yy), normal, PART_NOTCH_FLOOR))
-        annulus(start, 1.0, True, PART_CUT_FACE)
-        annulus(start + length, -1.0, True, PART_CUT_FACE)
-    annulus(0.0, -1.0, False, PART_END_CAP)
-    annulus(shape.length, 1.0, False, PART_END_CAP)
-
+    pieces = _segment_pieces(shape, spacing)
+    pieces += _annulus(0.0, -1.0, False, PART_END_CAP, shape.geometry, spacing)
+    pieces += _annulus(shape.length, 1.0, False, PART_END_CAP, shape.geometry, spacing)
     s = np.concatenate([p[0] for p in pieces])
     angle = np.concatenate([p[1] for p in pieces])
     radius = np.concatenate([p[2] for p in pieces])
@@ -135,7 +155,7 @@ class SurfaceDistance:
     Accurate to about a micrometre.
     """
 
-    def __init__(self, shape: TubeShape) -> None:
+    def __init__(self, shape: PosedTube) -> None:
         sample = sample_surface_parts(shape, DISTANCE_SAMPLE_SPACING)
         self._tree, self._samples, self._normals = cKDTree(sample.points), sample.points, sample.normals
 

@@ -12,8 +12,9 @@ from ntcr_recon.core.robot.comb import inside_intervals
 
 def test_compiled_steps_keep_the_edges_of_the_numpy_code_they_replaced():
     """The kernels check no index and unify types: their wrappers refuse or handle what numpy did."""
-    from ntcr_recon.core.relocation.centerline import fixed_radius_circle_fit
-    from ntcr_recon.core.relocation.wall import median, surface_band
+    from ntcr_recon.core.base.robust import median
+    from ntcr_recon.core.relocation.centerline_fit import fixed_radius_circle_fit
+    from ntcr_recon.core.relocation.wall import surface_band
 
     curve = Centerline.from_points(np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.01], [1e-3, 0.0, 0.02]]),
                                    np.array([0.0, 1.0, 0.0]), 1e-3)

@@ -10,7 +10,7 @@ import pytest
 
 @pytest.mark.parametrize("count", [1, 2, 7, 5400, 5401])
 def test_median_is_numpys_median(count):
-    from ntcr_recon.core.relocation.wall import median
+    from ntcr_recon.core.base.robust import median
 
     rng = np.random.default_rng(count)
     for values in (rng.normal(size=count), np.round(rng.normal(size=count), 1), np.sort(rng.normal(size=count)),
@@ -21,7 +21,7 @@ def test_median_is_numpys_median(count):
 
 @pytest.mark.parametrize("count", [1, 2, 7, 100, 5401])
 def test_quantile_is_numpys_quantile(count):
-    from ntcr_recon.core.relocation.wall import quantile
+    from ntcr_recon.core.base.robust import quantile
 
     rng = np.random.default_rng(count)
     for values in (rng.normal(size=count), np.round(rng.normal(size=count), 1), np.full(count, 0.25)):

@@ -12,17 +12,15 @@ from ntcr_recon.core.cloud.filters import (
     _image_window_neighbours,
     _mean_neighbour_distances,
     _neighbours_among_kept,
-    _quadric_height,
     color_mask,
     crop_box_mask,
     filter_cloud,
-    mls_smooth,
     nearest_neighbours,
-    smallest_eigenvector,
     statistical_outlier_mask,
     voxel_downsample,
 )
 from ntcr_recon.core.cloud.fusion import CameraFrame, fuse
+from ntcr_recon.core.cloud.mls import _quadric_height, mls_smooth, smallest_eigenvector
 from ntcr_recon.core.cloud.pairing import pair_frames
 from ntcr_recon.core.cloud.points import Cloud, pack_rgb
 

@@ -10,14 +10,8 @@ import yaml
 
 from ntcr_recon.core.cloud.filters import crop_mask
 from ntcr_recon.core.config.document import document_rig_config
-from ntcr_recon.core.config.rig import (
-    ConfigError,
-    config_to_mapping,
-    flatten_parameters,
-    load_rig_config,
-    rig_config_from_mapping,
-    rig_parameter_keys,
-)
+from ntcr_recon.core.config.parameters import config_to_mapping, flatten_parameters, rig_parameter_keys
+from ntcr_recon.core.config.rig import ConfigError, load_rig_config, rig_config_from_mapping
 from ntcr_recon.core.robot.geometry import TubeGeometry
 
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from support.analytic_tube import FOOTPRINT, GEOMETRY, R_O, true_centerline
 
-from ntcr_recon.core.quality.checks import Trace, assess
+from ntcr_recon.core.quality.checks import assess
 from ntcr_recon.core.quality.measures import (
     camera_coverage,
     camera_reach,
@@ -20,7 +20,8 @@ from ntcr_recon.core.quality.measures import (
     unmeasured_share,
     where_notches_went_unseen,
 )
-from ntcr_recon.core.relocation.centerline import continued_bend
+from ntcr_recon.core.quality.trace import Trace
+from ntcr_recon.core.relocation.bends import continued_bend
 from ntcr_recon.core.relocation.notches import Notch
 from ntcr_recon.core.relocation.outline import OUTLINE_TOLERANCE_PX
 from ntcr_recon.core.relocation.tip import TipAlongTube, carried_to_length

@@ -107,7 +107,7 @@ def test_the_readme_lists_the_codes_as_the_module_does():
 
 
 def _trace_with_offsets(offsets, reach=None):
-    from ntcr_recon.core.quality.checks import Trace
+    from ntcr_recon.core.quality.trace import Trace
 
     return Trace(geometry=None, camera_names=("cam_a", "cam_b"), notches=[], coords_s=None, camera=None, tip_s=0.05,
                  total_bend=0.0, footprint=0.2e-3, wall_residual=0.0, notch_side=0.0, configured_side=0.0,

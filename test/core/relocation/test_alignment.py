@@ -19,7 +19,7 @@ from support.analytic_tube import (
 )
 
 from ntcr_recon.core.relocation import alignment
-from ntcr_recon.core.relocation.alignment import align_to_trusted_wall
+from ntcr_recon.core.relocation.alignment import WallTrust, align_to_trusted_wall
 from ntcr_recon.core.relocation.centerline import Centerline
 from ntcr_recon.core.robot.comb import cut_intervals, inside_intervals
 from ntcr_recon.core.robot.geometry import TubeGeometry
@@ -37,7 +37,8 @@ def test_alignment_moves_the_reference_onto_the_facing_wall_and_reports_the_shif
     centerline = straight_centerline(length)
     coords, frames = centerline.project_with_frames(points)
     viewpoints = np.where(points[:, 1:2] < 0, [[0.0, -0.09, 0.015]], [[0.0, 0.09, 0.015]])
-    result = align_to_trusted_wall(centerline, coords, frames, viewpoints, geometry, 0.8e-3, FOOTPRINT, length)
+    result = align_to_trusted_wall(centerline, coords, frames, viewpoints,
+                                   WallTrust(geometry, 0.8e-3, FOOTPRINT, length))
     moved = result.centerline.points[(result.centerline.s > 5e-3) & (result.centerline.s < 25e-3)]
     print(f"\nalignment: bias {result.bias_notch_side * 1e3:+.3f} mm measured (true {-shift * 1e3:+.1f}: the given "
           f"axis lies away from the notch side), axis now at x = {moved[:, 0].mean() * 1e3:.3f} mm, on "
@@ -71,7 +72,7 @@ def test_a_window_whose_few_points_solve_a_shift_past_the_gate_does_not_move_the
     centerline = straight_centerline(length)
     coords, frames = centerline.project_with_frames(points)
     viewpoints = np.where(points[:, 1:2] < 0, [[0.0, -0.09, 0.015]], [[0.0, 0.09, 0.015]])
-    result = align_to_trusted_wall(centerline, coords, frames, viewpoints, geometry, gate, FOOTPRINT, length)
+    result = align_to_trusted_wall(centerline, coords, frames, viewpoints, WallTrust(geometry, gate, FOOTPRINT, length))
     print(f"\nshift {shift * 1e3:.1f} mm on {result.trusted} trusted points: bias "
           f"{result.bias_notch_side * 1e3:+.3f} mm")
     if shift < gate:
@@ -94,7 +95,8 @@ def test_alignment_keeps_the_axis_between_cameras_at_different_distances():
     points[:, :2] *= (1 - flattening / R_O)[:, None]
     centerline = straight_centerline(length)
     coords, frames = centerline.project_with_frames(points)
-    result = align_to_trusted_wall(centerline, coords, frames, viewpoints, geometry, 0.8e-3, FOOTPRINT, length)
+    result = align_to_trusted_wall(centerline, coords, frames, viewpoints,
+                                   WallTrust(geometry, 0.8e-3, FOOTPRINT, length))
     moved = result.centerline.points[(result.centerline.s > 3e-3) & (result.centerline.s < 27e-3)]
     common = (flattening.max() - flattening.min()) / 2  # what one common level would read as a shift
     print(f"\ncameras at 80 and 105 mm: axis moved by at most {np.abs(moved[:, :2]).max() * 1e6:.1f} um (one level "
@@ -186,9 +188,10 @@ def test_alignment_ignores_a_silhouette_bulge_on_the_notch_side():
     centerline = straight_centerline(length)
     coords, frames = centerline.project_with_frames(points)
     viewpoints = np.where(points[:, 1:2] < 0, [[0.0, -0.09, 0.015]], [[0.0, 0.09, 0.015]])
-    wide = align_to_trusted_wall(centerline, coords, frames, viewpoints, geometry, 0.8e-3, FOOTPRINT, length,
-                                 silhouette_margin_px=0.0)
-    result = align_to_trusted_wall(centerline, coords, frames, viewpoints, geometry, 0.8e-3, FOOTPRINT, length)
+    wide = align_to_trusted_wall(centerline, coords, frames, viewpoints,
+                                 WallTrust(geometry, 0.8e-3, FOOTPRINT, length, silhouette_margin_px=0.0))
+    result = align_to_trusted_wall(centerline, coords, frames, viewpoints,
+                                   WallTrust(geometry, 0.8e-3, FOOTPRINT, length))
     print(f"\nbulge on the notch side: fit lean read {wide.bias_notch_side * 1e3:+.3f} mm within 45 deg, "
           f"{result.bias_notch_side * 1e3:+.3f} mm 4 px inside the silhouette")
     assert wide.bias_notch_side < -0.02e-3  # the axis would move towards the bulge: the fit read as leaning away
@@ -215,8 +218,8 @@ def test_alignment_ignores_the_wall_a_matcher_reads_into_the_slots_beside_a_cut(
     coords, frames = axis.project_with_frames(points)
 
     def aligned_middle(slot_margin_px):
-        result = align_to_trusted_wall(axis, coords, frames, origins[camera], GEOMETRY, 0.8e-3, FOOTPRINT, length,
-                                       slot_margin_px=slot_margin_px)
+        result = align_to_trusted_wall(axis, coords, frames, origins[camera],
+                                       WallTrust(GEOMETRY, 0.8e-3, FOOTPRINT, length, slot_margin_px=slot_margin_px))
         return result, result.centerline.points[(result.centerline.s > 10e-3) & (result.centerline.s < 40e-3)]
 
     (trusting, moved_by_slots), (clear, middle) = aligned_middle(0.0), aligned_middle(alignment.SLOT_MARGIN_PX)
@@ -241,8 +244,8 @@ def test_alignment_passes_add_up_to_the_whole_lean():
     given = Centerline.from_points(given.points + [lean, 0.0, 0.0], np.array([0.0, 1.0, 0.0]), 0.1e-3)
     coords, frames = given.project_with_frames(points)
     viewpoints = np.where(points[:, 1:2] < 0, [[0.0, -0.09, 0.015]], [[0.0, 0.09, 0.015]])
-    result = align_to_trusted_wall(given, coords, frames, viewpoints, geometry, 0.8e-3, FOOTPRINT, length, xyz=points,
-                                   passes=3)
+    result = align_to_trusted_wall(given, coords, frames, viewpoints,
+                                   WallTrust(geometry, 0.8e-3, FOOTPRINT, length), xyz=points, passes=3)
     middle = (result.centerline.s > 3e-3) & (result.centerline.s < 27e-3)
     error = np.abs(result.centerline.points[middle, 0]).max()
     print(f"\ncentreline given {lean * 1e3:.2f} mm off: {error * 1e3:.3f} mm off after three passes; lean reported "
@@ -260,6 +263,7 @@ def test_alignment_leaves_a_tube_seen_from_one_side_alone():
     centerline = straight_centerline(length)
     coords, frames = centerline.project_with_frames(points)
     viewpoints = np.tile([[0.0, -0.09, 0.015]], (len(points), 1))
-    result = align_to_trusted_wall(centerline, coords, frames, viewpoints, geometry, 0.8e-3, FOOTPRINT, length)
+    result = align_to_trusted_wall(centerline, coords, frames, viewpoints,
+                                   WallTrust(geometry, 0.8e-3, FOOTPRINT, length))
     assert np.allclose(result.centerline.points, centerline.points, atol=1e-9)
     assert result.bias_notch_side == 0.0 and result.bias_binormal == 0.0

@@ -19,7 +19,8 @@ from support.analytic_tube import (
 )
 
 from ntcr_recon.core.relocation import alignment
-from ntcr_recon.core.relocation.alignment import level_by_backbone
+from ntcr_recon.core.relocation.alignment import WallTrust
+from ntcr_recon.core.relocation.backbone import level_by_backbone
 from ntcr_recon.core.relocation.centerline import Centerline
 from ntcr_recon.core.robot.comb import cut_intervals, inside_intervals, near_cuts
 
@@ -43,8 +44,8 @@ def test_the_camera_facing_the_backbone_levels_the_axis_between_the_notches():
         deep = between & (camera == 0)  # cam_a: the notch side's
         seen[deep, :2] *= (1 - 0.3e-3 / R_O)
         coords, frames = given.project_with_frames(seen)
-        return level_by_backbone(given, coords, frames, origins[camera], camera, origins, GEOMETRY, 0.8e-3,
-                                 FOOTPRINT, length)
+        return level_by_backbone(given, coords, frames, origins[camera], camera, origins,
+                                 WallTrust(GEOMETRY, 0.8e-3, FOOTPRINT, length))
 
     moved, rms = levelled(np.array([[0.09, 0.0, 0.025], [-0.09, 0.0, 0.025]]))
     middle = moved.points[(moved.s > 15e-3) & (moved.s < 40e-3)]
@@ -89,8 +90,8 @@ def test_a_camera_just_past_the_gaps_edge_levels_the_axis_by_the_wall_its_matche
     seen[deep, :2] *= 1 - 0.2e-3 / R_O
     given = straight_centerline(length)
     coords, frames = given.project_with_frames(seen)
-    moved, rms = level_by_backbone(given, coords, frames, origins[camera], camera, origins, GEOMETRY, 0.8e-3,
-                                   FOOTPRINT, length)
+    moved, rms = level_by_backbone(given, coords, frames, origins[camera], camera, origins,
+                                   WallTrust(GEOMETRY, 0.8e-3, FOOTPRINT, length))
     shift = moved.frames_at(given.s)[0] - given.points
     print(f"\naxis moved by {rms * 1e3:.3f} mm RMS, at most {np.abs(shift).max() * 1e3:.3f} mm")
     assert np.abs(shift).max() < 0.02e-3
@@ -116,8 +117,8 @@ def test_a_camera_that_sees_no_wall_clear_of_the_slots_levels_by_all_the_wall_fa
     assert not np.any(alignment.clear_of_slots_in_view(coords, frames, origins[camera], GEOMETRY, near_cut, reach)
                       & (camera == 0) & (points[:, 2] > first) & (points[:, 2] < last)
                       & (np.abs(coords.angle - angles[0]) < math.radians(20.0)))
-    moved, rms = level_by_backbone(given, coords, frames, origins[camera], camera, origins, GEOMETRY, 0.8e-3,
-                                   footprint, length)
+    moved, rms = level_by_backbone(given, coords, frames, origins[camera], camera, origins,
+                                   WallTrust(GEOMETRY, 0.8e-3, footprint, length))
     middle = moved.frames_at(s[(s > 15e-3) & (s < 40e-3)])[0]
     print(f"\naxis between the notches now {np.abs(middle[:, :2] @ toward).max() * 1e3:.3f} mm towards the "
           f"first camera at most (given 0.150), moved by {rms * 1e3:.3f} mm RMS")
@@ -146,8 +147,8 @@ def test_a_camera_that_sees_wall_clear_of_the_slots_in_one_window_only_levels_by
     deep = notched[kept] & (camera[kept] == 1)  # the other camera looks into the slots
     seen[deep, :2] *= 1 - 0.3e-3 / R_O
     coords, frames = given.project_with_frames(seen)
-    moved, rms = level_by_backbone(given, coords, frames, origins[camera[kept]], camera[kept], origins, GEOMETRY,
-                                   0.8e-3, FOOTPRINT, length)
+    moved, rms = level_by_backbone(given, coords, frames, origins[camera[kept]], camera[kept], origins,
+                                   WallTrust(GEOMETRY, 0.8e-3, FOOTPRINT, length))
     middle = moved.frames_at(s[(s > 10e-3) & (s < 40e-3)])[0]
     print(f"\naxis between the notches now {np.abs(middle[:, :2] @ toward).max() * 1e3:.3f} mm towards the camera "
           f"facing the backbone at most (given 0.150)")

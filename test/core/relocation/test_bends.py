@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 from support.analytic_tube import GEOMETRY, displaced_centerline, straight_centerline, true_centerline
 
-from ntcr_recon.core.relocation.centerline import Centerline, continued_bend, held_bend, turn_from_base
+from ntcr_recon.core.relocation.bends import continued_bend, held_bend, turn_from_base
+from ntcr_recon.core.relocation.centerline import Centerline
 from ntcr_recon.core.robot.kinematics import TubeShape
 
 

@@ -10,7 +10,8 @@ import numpy as np
 from support.analytic_tube import FOOTPRINT, GEOMETRY, R_O, wall_points
 
 from ntcr_recon.core.config.rig import RelocationConfig
-from ntcr_recon.core.relocation.centerline import Centerline, estimate_centerline, settings_for
+from ntcr_recon.core.relocation.centerline import Centerline
+from ntcr_recon.core.relocation.centerline_fit import estimate_centerline, settings_for
 from ntcr_recon.core.robot.kinematics import TubeShape
 
 
@@ -108,7 +109,7 @@ def test_the_smoothing_does_not_straighten_the_free_end_of_an_arc():
     end (no curvature) and swings it out of the bend (155 um); penalising only the curvature's departure from
     the steady bend the curve holds leaves an exact arc where it is, to its end, while noise on it is smoothed
     (a third of what was added, at the end as within)."""
-    from ntcr_recon.core.relocation.centerline import _smooth_update
+    from ntcr_recon.core.relocation.centerline_fit import _smooth_update
 
     radius, step, count = 20e-3, 0.4e-3, 100
     phi = np.arange(count) * step / radius

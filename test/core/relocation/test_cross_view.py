@@ -11,7 +11,8 @@ import pytest
 from support.analytic_tube import FOOTPRINT, R_O, opposed_cameras_on_a_straight_tube
 
 from ntcr_recon.core.relocation import alignment
-from ntcr_recon.core.relocation.alignment import cross_view_spread
+from ntcr_recon.core.relocation.alignment import WallTrust
+from ntcr_recon.core.relocation.cross_view import cross_view_spread
 
 
 def test_cross_view_spread_is_how_far_each_camera_alone_puts_the_axis_across_its_view():
@@ -25,8 +26,8 @@ def test_cross_view_spread_is_how_far_each_camera_alone_puts_the_axis_across_its
     def spread(moved_by):
         moved = points + np.where(camera[:, None] == 0, moved_by, 0.0)
         coords, frames = centerline.project_with_frames(moved)
-        return cross_view_spread(centerline, coords, frames, viewpoints, camera, 2, geometry, 0.8e-3, FOOTPRINT,
-                                 length).spread
+        return cross_view_spread(centerline, coords, frames, viewpoints, camera, 2,
+                                 WallTrust(geometry, 0.8e-3, FOOTPRINT, length)).spread
 
     agreed, across, along = spread([0.0, 0.0, 0.0]), spread([0.1e-3, 0.0, 0.0]), spread([0.0, -0.1e-3, 0.0])
     print(f"\ncameras agree: {agreed * 1e6:.1f} um; cam_a's wall 0.1 mm across its view: {across * 1e6:.1f} um "
@@ -37,7 +38,8 @@ def test_cross_view_spread_is_how_far_each_camera_alone_puts_the_axis_across_its
     # stays small and the spread at the end (`distal`) is the camera's own 0.1 mm
     moved = points + np.where((camera[:, None] == 0) & (points[:, 2:] > length - 3e-3), [0.1e-3, 0.0, 0.0], 0.0)
     coords, frames = centerline.project_with_frames(moved)
-    at_end = cross_view_spread(centerline, coords, frames, viewpoints, camera, 2, geometry, 0.8e-3, FOOTPRINT, length)
+    at_end = cross_view_spread(centerline, coords, frames, viewpoints, camera, 2,
+                               WallTrust(geometry, 0.8e-3, FOOTPRINT, length))
     print(f"cam_a's wall moved 0.1 mm over the last window: over the length {at_end.spread * 1e6:.1f} um, at the "
           f"end {at_end.distal * 1e6:.1f} um")
     assert at_end.distal == pytest.approx(0.1e-3 / math.sqrt(2), rel=0.1)
@@ -45,8 +47,8 @@ def test_cross_view_spread_is_how_far_each_camera_alone_puts_the_axis_across_its
     # too few trusted points in every window (the tube seen only edge-on): nothing to tell
     edge_on = np.abs(points[:, 0]) > 0.99 * R_O
     coords, frames = centerline.project_with_frames(points[edge_on])
-    seen_edge_on = cross_view_spread(centerline, coords, frames, viewpoints[edge_on], camera[edge_on], 2, geometry,
-                                     0.8e-3, FOOTPRINT, length)
+    seen_edge_on = cross_view_spread(centerline, coords, frames, viewpoints[edge_on], camera[edge_on], 2,
+                                     WallTrust(geometry, 0.8e-3, FOOTPRINT, length))
     assert seen_edge_on.spread is None
     margin = alignment.SILHOUETTE_MARGIN_PX * FOOTPRINT
     assert len(seen_edge_on.unsupported) == 1
@@ -63,8 +65,8 @@ def test_a_stretch_where_no_camera_sees_its_wall_facing_it_is_reported_unsupport
 
     def unsupported(kept):
         coords, frames = centerline.project_with_frames(points[kept])
-        return cross_view_spread(centerline, coords, frames, viewpoints[kept], camera[kept], 2, geometry, 0.8e-3,
-                                 FOOTPRINT, length).unsupported
+        return cross_view_spread(centerline, coords, frames, viewpoints[kept], camera[kept], 2,
+                                 WallTrust(geometry, 0.8e-3, FOOTPRINT, length)).unsupported
 
     edge_on = np.abs(points[:, 0]) > 0.99 * R_O
     distal = unsupported(edge_on | (points[:, 2] < 21e-3))

@@ -11,7 +11,8 @@ import pytest
 from support import BAGS
 
 from ntcr_recon.core.relocation.centerline import Centerline
-from ntcr_recon.core.relocation.notches import Notch, SideMeasurement, measure_notch_side
+from ntcr_recon.core.relocation.notch_side import SideMeasurement, measure_notch_side
+from ntcr_recon.core.relocation.notches import Notch
 from ntcr_recon.core.robot.geometry import TubeGeometry
 
 GEOMETRY = TubeGeometry()   # 3.5 mm, 16 notches, configured to open towards +x

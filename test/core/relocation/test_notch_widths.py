@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 from support.analytic_tube import FOOTPRINT, straight_centerline
 
-from ntcr_recon.core.quality.checks import Trace, assess
+from ntcr_recon.core.quality.checks import assess
+from ntcr_recon.core.quality.trace import Trace
 from ntcr_recon.core.relocation.notches import Notch
 from ntcr_recon.core.robot.geometry import TubeGeometry
 
@@ -23,7 +24,9 @@ def test_rim_calibration_gives_back_the_cut_faces_the_cameras_see(reach):
     (0.14 mm at the end notches) - or, where a matcher averages the face's depth into the rim, uncovers as much
     (reach < 0). The spines' known length gives back both: the widths come out exact, where one erosion for every
     edge leaves the end notches 0.08 mm off (their seen face's cover is read as erosion spread over both edges)."""
-    from ntcr_recon.core.relocation.notches import Notch, calibrate_rims, face_view_tangent
+    from ntcr_recon.core.relocation.notch_side import face_view_tangent
+    from ntcr_recon.core.relocation.notch_widths import calibrate_rims
+    from ntcr_recon.core.relocation.notches import Notch
 
     geometry = TubeGeometry()
     centerline = straight_centerline(geometry.length + 1e-3)
@@ -64,7 +67,8 @@ def test_each_spine_is_given_its_known_length_its_two_rims_sharing_what_it_reads
     spine between two measured notches is its nominal length, and the widths' error falls by about 1/sqrt(2) (the
     two rims of a spine are one unknown seen twice). A dip bounds no spine: its neighbours' far rims stay as they
     were measured, and one rim read 0.4 mm off is shared by the two notches it bounds."""
-    from ntcr_recon.core.relocation.notches import Notch, calibrate_rims
+    from ntcr_recon.core.relocation.notch_widths import calibrate_rims
+    from ntcr_recon.core.relocation.notches import Notch
 
     geometry = TubeGeometry()
     nominal = geometry.notch_pitch - geometry.notch_width
@@ -124,7 +128,7 @@ def test_a_notch_read_at_a_width_its_bend_rules_out_is_given_its_bends_and_its_n
     notch is missing near the tube's end, by the bend of the two notches before it, and with those missing too not
     at all (a warning names it unchecked). A notch read 0.1 mm wide - under a
     tenth of the cut width off its bend, a reading a robot could hold - is kept as measured."""
-    from ntcr_recon.core.relocation.notches import MISREAD_WIDTH_FRACTION, calibrate_and_check, calibrate_rims
+    from ntcr_recon.core.relocation.notch_widths import MISREAD_WIDTH_FRACTION, calibrate_and_check, calibrate_rims
 
     geometry, bend = TubeGeometry(), math.radians(6.0)
     arc, width = geometry.notch_arc_at_bend(bend), geometry.notch_width_at_bend(bend)
@@ -186,7 +190,7 @@ def test_the_last_notch_found_is_checked_against_the_bend_of_the_notches_before_
     notch's distal rim reads late (0.25-0.4 mm in the sweeps) and no whole spine beyond measures its own bend (its
     chord runs into a tube cut short: here it reads 4 deg for 2). Checked against the bend of the two notches before
     it, it is given the true width, not its own chord's bend's."""
-    from ntcr_recon.core.relocation.notches import calibrate_and_check
+    from ntcr_recon.core.relocation.notch_widths import calibrate_and_check
 
     geometry, bend = TubeGeometry(), math.radians(2.0)
     width = geometry.notch_width_at_bend(bend)
@@ -209,11 +213,11 @@ def test_a_notch_bent_much_sharper_than_its_neighbours_keeps_the_width_it_reads(
     """A robot bent 2 deg at each notch but 12 at notch 7 (matrix row bend_kink), its rims read exactly. The smoothed
     centreline spreads the kink over three notches: their chords read 4.7, 6.3 and 4.7 deg. Notch 7's width, 0.52 mm
     narrower than its neighbours', is 0.30 mm off what its own chord's bend implies; with the bump's excess over the
-    steady bend given back (notches.bump_at) its bend is 12 deg, and the width read is kept, also where the
+    steady bend given back (notch_widths.bump_at) its bend is 12 deg, and the width read is kept, also where the
     bump's own excess raises the scatter of all the chords (it is measured without the bump's span). The same width
     read where the chords show no bump is misread, and so is one where the chords scatter as much as the bump
     (noise, not a kink). A chord that wobbles turns two neighbours opposite ways: no bump."""
-    from ntcr_recon.core.relocation.notches import bump_at, calibrate_and_check, chord_scatter
+    from ntcr_recon.core.relocation.notch_widths import bump_at, calibrate_and_check, chord_scatter
 
     geometry = TubeGeometry()
     true_bends = np.radians(np.where(np.arange(geometry.notch_count) == 7, 12.0, 2.0))
@@ -270,7 +274,8 @@ def test_a_kink_read_wide_is_given_the_bend_its_chords_gather_back_and_its_neigh
     judged by the steady bend, keep theirs. Those bends are the ones reported. So with the chords as read under the
     simulator's own matcher, and under one without its left-right check (the far neighbour's chord then only 2.9
     times the scatter beyond the steady bend: the bump of three chords each beyond three missed it)."""
-    from ntcr_recon.core.relocation.notches import bend_implied, bump_at, calibrate_and_check
+    from ntcr_recon.core.relocation.notch_widths import bump_at, calibrate_and_check
+    from ntcr_recon.core.relocation.notches import bend_implied
 
     geometry = TubeGeometry()
     true_bends = np.radians(np.where(np.arange(geometry.notch_count) == 7, 12.0, 2.0))
@@ -312,7 +317,7 @@ def test_a_misread_notch_is_given_the_width_of_its_bend_taken_with_its_neighbour
     4 deg and notch 7 one of 8 (one chord turned, the two notches it joins off opposite ways). Notch 6's rims are
     misread (only the middle 0.3 mm of its slot seen through): the width it is given is the one the median of its
     own and its neighbours' bends implies, the true one, not its own bend's (0.1 mm wide)."""
-    from ntcr_recon.core.relocation.notches import calibrate_and_check
+    from ntcr_recon.core.relocation.notch_widths import calibrate_and_check
 
     geometry, bend = TubeGeometry(), math.radians(6.0)
     width = geometry.notch_width_at_bend(bend)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from support.analytic_tube import FOOTPRINT, GEOMETRY, R_O, straight_centerline, true_centerline, wall_points
 
-from ntcr_recon.core.relocation.centerline import continued_bend
+from ntcr_recon.core.relocation.bends import continued_bend
 from ntcr_recon.core.relocation.tip import TipAlongTube, carried_to_length, tube_end, visible_sectors
 from ntcr_recon.core.robot.kinematics import TubeShape
 

@@ -12,10 +12,18 @@ import numpy as np
 import pytest
 from support.synthetic_views import posed_scene, render_pair
 
-from ntcr_recon.core.quality.checks import Trace, assess
+from ntcr_recon.core.quality.checks import assess
+from ntcr_recon.core.quality.trace import Trace
 from ntcr_recon.core.reconstruction.reconstructor import Reconstructor
 from ntcr_recon.core.relocation.centerline import Centerline
-from ntcr_recon.core.relocation.tip import edge_band, half_density_end, rim_erosion, rim_tip, with_known_length
+from ntcr_recon.core.relocation.tip import (
+    RimViews,
+    edge_band,
+    half_density_end,
+    rim_erosion,
+    rim_tip,
+    with_known_length,
+)
 from ntcr_recon.core.robot.geometry import TubeGeometry
 
 UNIT = 1e-4
@@ -121,8 +129,8 @@ def test_tip_of_a_tube_whose_rim_lost_a_known_band_in_each_camera():
     spine = np.ones(len(camera), bool)
     bands = np.array(lost) / 0.09  # angles
     coarse = length - 0.3e-3  # as a slab-wise coarse end might read it
-    ends, tip, uncertainty = rim_tip(coords, camera, origins, centerline, coarse, R_O, 0.8e-3, FOOTPRINT,
-                                     2 * FOOTPRINT, bands, spine, 6e-3)
+    ends, tip, uncertainty = rim_tip(coords, RimViews(camera, origins, bands), centerline, coarse, R_O,
+                                     0.8e-3, FOOTPRINT, 2 * FOOTPRINT, spine, 6e-3)
     print(f"\nrims lost {lost[0] * 1e3:.2f} / {lost[1] * 1e3:.2f} mm: ends {(ends - length) * 1e3:+.3f} mm, "
           f"tip {(tip - length) * 1e3:+.3f} mm")
     assert ends == pytest.approx(length - np.mean(lost), abs=FOOTPRINT / 2)
@@ -130,8 +138,8 @@ def test_tip_of_a_tube_whose_rim_lost_a_known_band_in_each_camera():
     # half a pixel for the end, half for a band of whole pixels: a footprint along s, over the view's sine
     assert uncertainty == pytest.approx(FOOTPRINT * math.hypot(0.09, coarse) / 0.09)
     # a camera seeing the end without a measured band: no refined tip (the caller falls back)
-    assert rim_tip(coords, camera, origins, centerline, coarse, R_O, 0.8e-3, FOOTPRINT, 2 * FOOTPRINT,
-                   np.array([bands[0], np.nan]), spine, 6e-3) is None
+    assert rim_tip(coords, RimViews(camera, origins, np.array([bands[0], np.nan])), centerline, coarse, R_O,
+                   0.8e-3, FOOTPRINT, 2 * FOOTPRINT, spine, 6e-3) is None
 
 
 def test_a_camera_whose_wall_stops_at_the_last_notch_is_not_heard_on_the_tip():
@@ -153,8 +161,8 @@ def test_a_camera_whose_wall_stops_at_the_last_notch_is_not_heard_on_the_tip():
 
     def tip(keep=slice(None)):
         return rim_tip(type(coords)(coords.s[keep], coords.x[keep], coords.y[keep]),
-                       camera[keep], origins, centerline, length - 0.3e-3, R_O, 0.8e-3, FOOTPRINT, 2 * FOOTPRINT,
-                       bands, spine[keep], 6e-3, last_notch_s=last_notch_s)[1]
+                       RimViews(camera[keep], origins, bands), centerline, length - 0.3e-3, R_O, 0.8e-3,
+                       FOOTPRINT, 2 * FOOTPRINT, spine[keep], 6e-3, last_notch_s=last_notch_s)[1]
 
     both = tip()
     print(f"\ntip {(both - length) * 1e3:+.3f} mm from the end")
