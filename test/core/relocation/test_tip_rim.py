@@ -261,7 +261,7 @@ def test_without_a_far_background_the_tip_falls_back_to_the_silhouettes_and_says
 
 def test_a_camera_without_a_far_background_is_tried_a_few_frames_then_left_alone(monkeypatch):
     """Measuring a band costs most of a frame: a scene that shows none is not measured on every frame."""
-    import ntcr_recon.core.reconstruction.reconstructor as pipeline
+    import ntcr_recon.core.reconstruction.edge_bands as pipeline
 
     config, _, pair = posed_scene({}, 30.0, 0.0, seed=2)
     measured = []
