@@ -223,7 +223,7 @@ def start_patched_camera_node(graph, tmp_path, patch: str, *ros_args: str):
 def test_a_frame_whose_crop_window_overflows_is_dropped_and_the_node_goes_on(tmp_path):
     # review: only ValueError was caught per frame; an OverflowError from crop_window ended the producer thread
     patch = ("def overflowing(*args, **kwargs):\n    raise OverflowError('cannot convert float infinity to integer')\n"
-             "camera_node.crop_window = overflowing")
+             "import ntcr_recon.core.cloud.fusion as fusion\nfusion.crop_window = overflowing")
     with RosGraph() as graph:
         process = start_patched_camera_node(graph, tmp_path, patch)
         expected = "dropped a message (arithmetic): camera 'cam_a' frame: OverflowError"
