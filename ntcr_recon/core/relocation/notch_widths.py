@@ -100,7 +100,7 @@ def calibrate_rims(notches: list[Notch], geometry: TubeGeometry, centerline: Cen
     reaches (up to the tube's diameter; the tangent no more than width / diameter, where a face as deep as the
     tube hides the whole gap); a face turned away is not seen. A matcher that averages the face's depth into
     the rim's pixels instead pulls the rim down the face, away from its camera: k is then negative (a window
-    mean over 7 px does so, test/synthetic_views.py; the package's simulator moves rims over the faces). The
+    mean over 7 px does so, test/support/synthetic_views.py; the package's simulator moves rims over the faces). The
     spines between notches are rigid, of the robot's nominal length pitch - width whatever the bend, so each
     spine between consecutive detected notches reads nominal - 2 e + k (v_end + v_start) (v: its two faces' view
     tangents); e and k are solved by least squares over the spines (e alone, the median over the spines, when
