@@ -12,7 +12,9 @@ from ntcr_recon.core.config.rig import ConfigError, load_robot_geometry
 from ntcr_recon.core.robot.geometry import TubeGeometry
 from ntcr_recon.core.robot.kinematics import TubeShape
 from ntcr_recon.sim.camera import D405Intrinsics
-from ntcr_recon.sim.simulate import Simulation, check_bag_space, notch_side_angle
+from ntcr_recon.sim.imagers import ImagerModel
+from ntcr_recon.sim.sgbm import SgbmParameters
+from ntcr_recon.sim.simulate import MATCHERS, Simulation, check_bag_space, notch_side_angle
 from ntcr_recon.sim.stereo import StereoEmulation
 
 
@@ -42,6 +44,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="depth stream intrinsics (default: a D405 at 848x480)")
     parser.add_argument("--depth-unit", type=float, default=None, metavar="M",
                         help="metres per raw depth unit (default 0.0001, the D405's; realsense-ros uses 0.001)")
+    parser.add_argument("--matcher", choices=MATCHERS, default="emulated",
+                        help="where depth comes from: 'emulated' (default: the package's emulation of a D405's "
+                        "matcher on the exact depth) or 'sgbm' (the left and right imagers rendered - shading, "
+                        "highlights, a surface texture, blur, sensor noise - and matched by OpenCV's StereoSGBM; "
+                        "the left image is the colour; slower); with sgbm --window is the block size (default 7), "
+                        "--noise scales the sensor noise, --ideal takes it away, --color-noise does not apply")
     parser.add_argument("--window", type=int, default=None, help="stereo matching window, odd px (default 9)")
     parser.add_argument("--no-left-right-check", action="store_true",
                         help="a stereo matcher without the D405's left-right consistency check: surfaces the right "
@@ -80,6 +88,8 @@ def build_simulation(args: argparse.Namespace) -> Simulation:
         shape = TubeShape.from_notch_bends(geometry, bends)
     else:
         shape = TubeShape.from_bend_angle(geometry, math.radians(args.bend_deg))
+    matcher = getattr(args, "matcher", "emulated")
+    imagers, sgbm = _real_matcher(args) if matcher == "sgbm" else (ImagerModel(), SgbmParameters())
     emulation = StereoEmulation.ideal() if args.ideal else StereoEmulation().scaled_noise(args.noise)
     if args.window is not None:
         emulation = dataclasses.replace(emulation, window=args.window)
@@ -112,7 +122,26 @@ def build_simulation(args: argparse.Namespace) -> Simulation:
                       camera_pitch_deg=tuple(_numbers("--camera-pitch-deg", args.camera_pitch_deg, 2)),
                       camera_names=tuple(n.strip() for n in args.cameras.split(",")), namespace=args.namespace,
                       frame_count=args.frames, seed=args.seed, emulation=emulation,
-                      color_noise=0.0 if args.ideal else args.color_noise, with_points=args.with_points)
+                      color_noise=0.0 if args.ideal else args.color_noise, with_points=args.with_points,
+                      matcher=matcher, imagers=imagers, sgbm=sgbm)
+
+
+def _real_matcher(args: argparse.Namespace) -> tuple[ImagerModel, SgbmParameters]:
+    """The imagers and the SGBM matcher of `--matcher sgbm`, with the options that apply to them."""
+    if args.no_flying_pixels:
+        raise ValueError("--no-flying-pixels is an option of the emulated matcher: a real one makes what flying "
+                         "pixels it makes (drop --matcher sgbm or the option)")
+    if not (math.isfinite(args.noise) and args.noise >= 0):
+        raise ValueError(f"--noise {args.noise}: must be finite and >= 0")
+    imagers = ImagerModel()
+    imagers = dataclasses.replace(imagers, sensor_noise=0.0 if args.ideal else imagers.sensor_noise * args.noise)
+    sgbm = SgbmParameters()
+    if args.window is not None:
+        sgbm = dataclasses.replace(sgbm, block_size=args.window)
+    if args.no_left_right_check:
+        sgbm = dataclasses.replace(sgbm, left_right_max_diff=-1)
+    sgbm.validate()
+    return imagers, sgbm
 
 
 def _numbers(option: str, text: str, count: int) -> list[float]:

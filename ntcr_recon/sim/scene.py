@@ -56,6 +56,7 @@ class ExactFrame:
     label: np.ndarray  # (H, W) uint8 LABEL_*
     color: np.ndarray  # (H, W, 3) uint8 RGB, aligned with depth (the D405 colours from the same imager)
     robot_part: np.ndarray  # (H, W) uint8 PART_* of the robot's surface seen, 255 where not the robot
+    robot_sample: np.ndarray | None = None  # (H, W) index into Scene.surface of the sample hit, -1 where not the robot
 
 
 class Scene:
@@ -107,7 +108,7 @@ class Scene:
         normal = np.zeros((count, 3))
         label = np.zeros(count, dtype=np.uint8)
         self._cast_props(camera, rays, depth, normal, label)
-        robot_depth, robot_normal, robot_part = self._splat_robot(camera, rays)
+        robot_depth, robot_normal, robot_part, robot_sample = self._splat_robot(camera, rays)
         nearer = robot_depth < depth
         depth[nearer] = robot_depth[nearer]
         normal[nearer] = robot_normal[nearer]
@@ -118,8 +119,9 @@ class Scene:
         color = self._shade(rays, normal, label, robot_part)
         shape2 = (intr.height, intr.width)
         robot_part[~nearer] = 255
+        robot_sample[~nearer] = -1
         return ExactFrame(depth.reshape(shape2), normal.reshape(*shape2, 3), label.reshape(shape2),
-                          color.reshape(*shape2, 3), robot_part.reshape(shape2))
+                          color.reshape(*shape2, 3), robot_part.reshape(shape2), robot_sample.reshape(shape2))
 
     def _rays_towards(self, camera: CameraPose, corners_base: np.ndarray):
         """Flat indices of the pixels whose rays can meet a convex body with these corners (all, if the
@@ -198,7 +200,8 @@ class Scene:
                 keep(index, np.where(hit, t_near, np.nan), box_normal @ other.rotation.T, LABEL_CAMERA_BODY)
 
     def _splat_robot(self, camera: CameraPose, rays_cam):
-        """Per pixel: exact depth of the robot (inf: missed), its normal (optical frame) and surface part."""
+        """Per pixel: exact depth of the robot (inf: missed), its normal (optical frame), surface part and the
+        index of the surface sample hit (-1: missed)."""
         intr = self.intrinsics
         count = rays_cam.shape[0]
         surface = self.surface
@@ -241,7 +244,9 @@ class Scene:
         depth[pix] = hit_depth
         normal[pix] = n
         part[pix] = surface.part[best]
-        return depth, normal, part
+        sample = np.full(count, -1, dtype=np.int64)
+        sample[pix] = best
+        return depth, normal, part, sample
 
     def _shade(self, rays_cam, normal, label, robot_part) -> np.ndarray:
         """Colour under a light near the camera: Lambert + a metallic highlight on the robot."""

@@ -26,7 +26,9 @@ from ntcr_recon.core.quality.measures import surface_depth
 from ntcr_recon.core.robot.kinematics import TubeShape
 from ntcr_recon.sim.bag import BagContents, CameraFrame, write_rig_bag
 from ntcr_recon.sim.camera import CameraPose, D405Intrinsics, facing_pair
+from ntcr_recon.sim.imagers import ImagerModel
 from ntcr_recon.sim.scene import ExactFrame, RigProps, Scene
+from ntcr_recon.sim.sgbm import SgbmParameters
 from ntcr_recon.sim.stereo import StereoEmulation, emulate_depth
 from ntcr_recon.sim.truth import TRUTH_FILE, truth_document
 
@@ -37,6 +39,7 @@ STAMP_JITTER_NS = 300_000  # +- per frame, from the seed
 CLAMP_EDGE_MARGIN = 1.0e-3  # filters.clamp_radius: the post's radius and this (depth edges fly)
 MAX_FRAMES = 10_000  # frames per camera: 5.5 min at 30 Hz; a bag longer than that is not a test scene
 DISK_RESERVE_BYTES = 64 * 2**20  # left free on the output's file system beyond the bag's estimate
+MATCHERS = ("emulated", "sgbm")  # depth from the emulation of an exact image, or OpenCV's SGBM on rendered imagers
 
 
 def _size(count: float) -> str:
@@ -112,6 +115,9 @@ class Simulation:
     camera_distances: tuple[float, float] | None = None  # per camera, overrides camera_distance (asymmetric rig)
     camera_yaw_deg: tuple[float, float] = (0.0, 0.0)     # per camera, turned about its image's down axis
     camera_pitch_deg: tuple[float, float] = (0.0, 0.0)   # per camera, turned about its image's right axis
+    matcher: str = "emulated"  # MATCHERS; sgbm renders the imagers (`imagers`) and matches them (`sgbm`)
+    imagers: ImagerModel = field(default_factory=ImagerModel)
+    sgbm: SgbmParameters = field(default_factory=SgbmParameters)
 
     def __post_init__(self) -> None:
         if not 1 <= self.frame_count <= MAX_FRAMES:
@@ -121,6 +127,11 @@ class Simulation:
         if not (math.isfinite(self.color_noise) and self.color_noise >= 0):
             raise ValueError(f"colour noise must be finite and >= 0, got {self.color_noise}")
         self.emulation.validate()
+        if self.matcher not in MATCHERS:
+            raise ValueError(f"matcher must be one of {', '.join(MATCHERS)}, got {self.matcher!r}")
+        if self.matcher == "sgbm":
+            self.imagers.validate()
+            self.sgbm.validate()
         self.cameras: list[CameraPose] = facing_pair(self.camera_distance, names=self.camera_names,
                                                      distances=self.camera_distances, yaw_deg=self.camera_yaw_deg,
                                                      pitch_deg=self.camera_pitch_deg)
@@ -146,6 +157,28 @@ class Simulation:
         """The artefact-free rendering of each camera (the scene is static)."""
         return {camera.name: self.scene.render_exact(camera) for camera in self.cameras}
 
+    @cached_property
+    def imager_pairs(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """Each camera's left and right imagers' clean images (the scene is static; each frame exposes them)."""
+        from ntcr_recon.sim.imagers import render_pair
+
+        return {camera.name: render_pair(self.scene, camera, self.imagers) for camera in self.cameras}
+
+    def _depth_and_color(self, camera: CameraPose, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """One frame of a camera: raw depth and colour, by the emulation or by the real matcher."""
+        if self.matcher == "sgbm":
+            from ntcr_recon.sim.sgbm import matched_frame
+
+            return matched_frame(self.imager_pairs[camera.name], self.intrinsics, self.sgbm,
+                                 self.imagers.sensor_noise, rng)
+        exact = self.exact[camera.name]
+        depth = emulate_depth(exact.depth, exact.normal, self.intrinsics, self.emulation, rng)
+        color = exact.color
+        if self.color_noise > 0:
+            noisy = exact.color + rng.normal(0.0, self.color_noise, exact.color.shape)
+            color = np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
+        return depth, color
+
     def frames(self, progress: bool = False) -> Iterator[CameraFrame]:
         from tqdm import tqdm
 
@@ -153,15 +186,10 @@ class Simulation:
         steps = [(k, i) for k in range(self.frame_count) for i in range(len(self.cameras))]
         for k, i in tqdm(steps, desc=f"rendering {self.scene_name}", unit="frame", disable=not progress):
             camera = self.cameras[i]
-            exact = self.exact[camera.name]
             rng = np.random.default_rng([self.seed, i, k])  # independent per camera and frame
             jitter = int(rng.integers(-STAMP_JITTER_NS, STAMP_JITTER_NS + 1))
             stamp = START_STAMP_NS + k * period_ns + i * CAMERA_STAGGER_NS + jitter
-            depth = emulate_depth(exact.depth, exact.normal, self.intrinsics, self.emulation, rng)
-            color = exact.color
-            if self.color_noise > 0:
-                noisy = exact.color + rng.normal(0.0, self.color_noise, exact.color.shape)
-                color = np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
+            depth, color = self._depth_and_color(camera, rng)
             yield CameraFrame(camera, stamp, depth, color)
 
     def rig_parameters(self) -> dict:
@@ -207,6 +235,8 @@ class Simulation:
                  "camera_yaw_deg": list(self.camera_yaw_deg), "camera_pitch_deg": list(self.camera_pitch_deg),
                  "frames": self.frame_count,
                  "namespace": self.namespace}
+        if self.matcher == "sgbm":  # (an emulated bag's truth is as it was)
+            extra["matcher"] = {"name": "sgbm", "sgbm": self.sgbm.to_dict(), "imagers": self.imagers.to_dict()}
         return truth_document(self.shape, self.cameras, self.intrinsics, self.scene_name, self.seed,
                               self.base_frame, extra)
 

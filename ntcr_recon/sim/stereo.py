@@ -163,7 +163,13 @@ def emulate_depth(exact_depth: np.ndarray, normals: np.ndarray, intrinsics: D405
         severity = np.clip((limit - cos_incidence) / limit, 0.0, 1.0) if limit > 0 else 0.0
         grazing_drop = has_surface & (rng.random(disparity.shape) < params.grazing_dropout * severity)
         disparity[grazing_drop] = 0.0
+    return raw_depth(disparity, intrinsics)
 
+
+def raw_depth(disparity: np.ndarray, intrinsics: D405Intrinsics) -> np.ndarray:
+    """Raw 16UC1 depth (device units, 0 = invalid) of a disparity image (px, <= 0 = no match): z = f b / d,
+    0 outside the D405's range, quantised to the depth unit (the emulation's and the real matcher's alike)."""
+    fb = intrinsics.focal_baseline
     with np.errstate(divide="ignore"):
         z = np.where(disparity > 0, fb / np.where(disparity > 0, disparity, 1.0), 0.0)
     in_range = (z >= intrinsics.min_depth) & (z <= intrinsics.max_depth)
