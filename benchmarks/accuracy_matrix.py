@@ -1,7 +1,8 @@
 """Accuracy of the reconstruction over a grid of robots and rigs it was not developed on (issue 9).
 
     .venv/bin/python benchmarks/accuracy_matrix.py [--frames 2] [--rows NAME,NAME...] [--method centerline|icp|both]
-        [--seed 1] [--seeds 1] [--simulate='--no-left-right-check'] [--warnings] [--stated]
+        [--seed 1] [--seeds 1] [--simulate='--no-left-right-check'] [--matcher emulated|sgbm|both] [--warnings]
+        [--stated]
 
 Each row is rendered by the simulator exactly as `ntcr-recon simulate OUT <row's options>` renders it (the
 same argument parser and `build_simulation`, in process, without writing the bag), reconstructed as
@@ -24,6 +25,10 @@ one seed only is luck, and the summary names the rows that meet their floors on 
 under another stereo matcher than the one the method was developed with (`--no-left-right-check`, `--window 7`), or
 without one of its artefacts (`--no-flying-pixels`) to tell what it costs. The summary splits the centreline's
 error along the cameras' views (depth) and across them (silhouettes only); `--stated` prints the split per row.
+
+`--matcher sgbm` renders every row with a real stereo matcher instead of the emulation (`ntcr-recon simulate
+--matcher sgbm`: the left and right imagers rendered and matched by OpenCV's StereoSGBM); `--matcher both` renders each
+row both ways (rows named `<row>/emulated` and `<row>/sgbm`), then the same summary over all.
 
 test/benchmarks/test_accuracy_matrix.py runs a few rows of this grid and asserts the floors on them.
 """
@@ -108,6 +113,17 @@ def with_simulate_options(row: Row, options: str) -> Row:
     """The row with more `ntcr-recon simulate` options (a shell-quoted string) after its own."""
     extra = tuple(shlex.split(options))
     return replace(row, args=row.args + extra) if extra else row
+
+
+MATCHERS = ("emulated", "sgbm", "both")
+
+
+def with_matcher(row: Row, matcher: str, suffix: bool) -> Row:
+    """The row rendered with `ntcr-recon simulate --matcher MATCHER` (the emulated row as it is), named
+    `<row>/<matcher>` when `suffix` (the rows of --matcher both)."""
+    if matcher == "emulated" and not suffix:
+        return row
+    return replace(row, name=f"{row.name}/{matcher}" if suffix else row.name, args=row.args + ("--matcher", matcher))
 
 
 def add_simulate_option(parser: argparse.ArgumentParser) -> None:
@@ -485,6 +501,9 @@ def main() -> int:
                                                      "'both': centerline and icp side by side)")
     add_detail_options(parser, "row")
     add_simulate_option(parser)
+    parser.add_argument("--matcher", choices=MATCHERS, default="emulated",
+                        help="depth of every row from the emulated matcher (default), OpenCV's StereoSGBM on the "
+                        "rendered imagers (sgbm), or both (each row twice)")
     parser.add_argument("--extrinsics-off", action="append", default=[], metavar="DEG,MM",
                         help="reconstruct each row with cam_b's pose in the rig file turned DEG about the base's z "
                         "axis and moved MM along its view (repeatable: each offset a row of its own)")
@@ -496,6 +515,8 @@ def main() -> int:
     if wanted - {row.name for row in rows}:
         print(f"unknown rows: {sorted(wanted - {row.name for row in rows})}", file=sys.stderr)
         return 2
+    matchers = ["emulated", "sgbm"] if args.matcher == "both" else [args.matcher]
+    rows = [with_matcher(row, matcher, len(matchers) > 1) for row in rows for matcher in matchers]
     try:
         offsets = [tuple(float(v) for v in item.split(",")) for item in args.extrinsics_off]
     except ValueError:
