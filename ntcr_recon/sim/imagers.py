@@ -66,9 +66,9 @@ class ImagerModel:
     robot_shininess: float = 60.0  # Blinn-Phong exponent
     props_specular: float = 8.0
     props_shininess: float = 10.0
-    texture_contrast: float = 0.06  # standard deviation of the robot's albedo, relative
+    texture_contrast: float = 0.08  # standard deviation of the robot's albedo, relative
     props_texture_contrast: float = 0.15
-    texture_wavelength: tuple[float, float] = (0.25e-3, 1.0e-3)  # m, the robot's texture (props: scaled)
+    texture_wavelength: tuple[float, float] = (0.4e-3, 1.6e-3)  # m, the robot's (2-8 px at 90 mm; props: scaled)
     blur_sigma: float = 0.6  # px, the lens
     sensor_noise: float = 1.5  # 8-bit levels, per pixel and frame
 
