@@ -342,7 +342,7 @@ def _mm(value: float | None) -> float | None:
 
 def extrinsics(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
     """Whether the cameras' poses in the rig file agree across their views. Each camera alone places the axis
-    across its view, window by window (alignment.CrossView): the matcher's noise varies along the tube, a camera
+    across its view, window by window (cross_view.CrossView): the matcher's noise varies along the tube, a camera
     whose pose is off moves every window alike. Two opposed cameras' shifts read with the same sign for a shift of
     one relative to the other, so their sum is the rigid offset between them; the fused axis lies half of it off.
     Warned where it stands beyond EXTRINSICS_SIGMAS standard errors and half of it exceeds the centreline's

@@ -291,7 +291,7 @@ def centerline_uncertainty(cross_view_spread: float | None, notched_thinning: fl
     None when neither could be measured.
 
     Across a camera's line of sight each camera places the axis by itself: their spread about the fused axis
-    (alignment.cross_view_spread) is how well the fused one is known that way. Along the lines of sight the
+    (cross_view.cross_view_spread) is how well the fused one is known that way. Along the lines of sight the
     cameras' levels decide, and a matcher whose window averages the spines with the slots reads the wall between
     the notches deeper than the plain tube (notched_thinning), a deficit no fit can place: a lean of about as
     much, twice it when a camera looks into the slots (carried by that camera alone, it reads half pooled) unless

@@ -43,8 +43,8 @@ class Trace:
     off again in the frame turned to it, when the configured one was kept for it; side_uncertainty: how well the
     side measured is known (None: not measured). tip_along: the tip between the end seen and the robot's length
     (tip.TipAlongTube); its uncertainty is the tip's then, and the end seen is what is judged against the robot's
-    length. backbone_shift: how far alignment.level_by_backbone moved the axis (None or 0: no camera faced the
-    backbone). unsupported: the stretches of s where no camera saw trusted wall (alignment.CrossView).
+    length. backbone_shift: how far backbone.level_by_backbone moved the axis (None or 0: no camera faced the
+    backbone). unsupported: the stretches of s where no camera saw trusted wall (cross_view.CrossView).
     distal_cross_view: CrossView.distal, the cameras' spread across their views in the last window, which bounds
     the tip across the tube from below. alignment_scatter: how much the alignment's shift of the fit varies along
     the tube (alignment.shift_scatter). misread_widths: the width each notch notch_widths.calibrate_and_check found
@@ -98,7 +98,7 @@ class Trace:
     wall_level: float | None = None
     fitted_end: float | None = None
     reference_moved: ReferenceMove | None = None
-    cross_view_offsets: tuple[tuple[float, float] | None, ...] = ()  # alignment.CrossView.offsets
+    cross_view_offsets: tuple[tuple[float, float] | None, ...] = ()  # cross_view.CrossView.offsets
     centerline_tolerance: float | None = None  # config.QualityConfig's, which the extrinsics check weighs against
 
 

@@ -128,7 +128,7 @@ class Aligned:
     axis: Axis
     alignment: Alignment | None = None
     cross_view: CrossView = CrossView(None)
-    backbone_shift: float | None = None           # m, alignment.level_by_backbone's
+    backbone_shift: float | None = None           # m, backbone.level_by_backbone's
     outline: float | None = None                  # m, outline.outline_offset of the final axis
     across_from_fit: tuple[float, float] | None = None  # the aligned and fitted axes' outline offsets, where the
                                                         # fit's placement across the views was taken
