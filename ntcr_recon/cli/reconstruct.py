@@ -2,10 +2,11 @@
 
 Streams the cameras' depth images (or PointCloud2) from a rosbag2 bag: each frame is decoded, paired with
 the other camera's by stamp as they come, run through fusion, filtering and relocation
-(core.reconstruction.Reconstructor) and released, so memory does not grow with the bag's length; a pair without a
-result (the robot out of view, say) is left out and named in a warning, and only a bag of which no pair gives one
-is refused, with the first pair's cause. The frames over which the robot stood still longest (reconstruction.still: all
-of them when it never moved, else the longest stretch, the latest of equals, and a warning says so) are then
+(core.reconstruction.reconstructor.Reconstructor) and released, so memory does not grow with the bag's length; a
+pair without a result (the robot out of view, say) is left out and named in a warning, and only a bag of which no
+pair gives one is refused, with the first pair's cause. The frames over which the robot stood still longest
+(reconstruction.still: all of them when it never moved, else the longest stretch, the latest of equals, and a
+warning says so) are then
 combined (at most COMBINED_FRAMES_MAX of them, evenly spread over the stretch) into one relocated cloud, meshed
 and measured, and DIR gets:
 
@@ -24,7 +25,7 @@ result.json (lengths in the unit its key names):
      "centerline_m", "tip_m", "pdc": {"raw": {"mu", "sigma", "lambda"}, "relocated": {...}},
      "quality": {"uncertainty_mm": {"centerline", "tip", "notch_width"} (90 % bounds), notches found /
                  expected / by signal, length seen per camera, fit residual, notch side, centreline bias, depth
-                 step, ...}  (core.quality.measures),
+                 step, ...}  (core.quality.checks),
      "ground_truth": null | {"notches_detected", "width_mae_mm", "centerline_rmse_mm", "tip_error_mm",
                              "surface_error_mm": {"raw", "relocated"}},
      "timings_ms": {stage: median ms per frame pair, or ms for the combined steps},

@@ -168,8 +168,8 @@ def stage_cloud_to_msg(cloud: Cloud, frame_id: str, normals: np.ndarray | None =
 
 
 def relocation_cloud_msg(relocation, frame_id: str) -> PointCloud2:
-    """The relocated cloud of a core.reconstruction.RelocationResult with its normals, the surface `part` of each
-    point and its tube coordinates `tube_s`, `tube_x`, `tube_y` (what the mesh stage needs besides the
+    """The relocated cloud of a core.reconstruction.relocate.RelocationResult with its normals, the surface `part`
+    of each point and its tube coordinates `tube_s`, `tube_x`, `tube_y` (what the mesh stage needs besides the
     centreline)."""
     extra = {}
     if relocation.part is not None:
@@ -184,7 +184,7 @@ def relocation_from_msgs(cloud_msg: PointCloud2, path: Path, expected_frame: str
     """A core RelocationResult rebuilt from relocation_node's cloud (`relocation_cloud_msg`) and centreline Path of
     the same stamp: what the core's mesher reads (centreline, relocated cloud, normals, parts, tube
     coordinates). Notches and rejected counts are not carried (0 / empty)."""
-    from ntcr_recon.core.reconstruction.reconstructor import RelocationResult
+    from ntcr_recon.core.reconstruction.relocate import RelocationResult
     from ntcr_recon.core.relocation.centerline import Centerline, TubeCoordinates
 
     require_frame(path, expected_frame)

@@ -7,13 +7,13 @@ Publishes (reliable, depth 1; all in the base frame, stamped with the input clou
                             the tangent (the robot kinematics' convention)
   `<ns>/tip`                geometry_msgs/PoseStamped, same axes
   `<ns>/notches`            std_msgs/Float64MultiArray, rows [index, center_s_m, width_m, bend_rad] (layout in
-                            ntcr_recon.ros.messages; readable without this package)
+                            ntcr_recon.ros.result_messages; readable without this package)
   `<ns>/notches/markers`    visualization_msgs/MarkerArray for RViz (a disc per notch, its width in mm)
   `/diagnostics`            diagnostic_msgs/DiagnosticArray, per frame: its status as the level (ok OK, warn
                             WARN, error ERROR; a cloud without a result ERROR), the frame's stamp and warning
                             codes in the message, and as key-values `status`, `stamp_ns`, `codes`,
                             `uncertainty_mm.<centerline|tip|notch_width>`, `warning.<CODE>` (severity: sentence)
-                            and the rest of the self-check (core.quality.measures); codes: core.quality.findings
+                            and the rest of the self-check (core.quality.checks); codes: core.quality.findings
 The relocation is the offline command's own (core.reconstruction.relocate.Relocator, without the Reconstructor's
 frame loop around it: fusion's region of interest is camera_node's crop window here). It warm-starts from the
 previous frame's centreline, as the offline command does over a bag. The

@@ -118,15 +118,15 @@ def test_a_wrong_big_endian_flag_is_reported_or_refused(bags_dir, tmp_path, caps
 
 
 def test_no_point_after_relocation_is_refused(bags_dir, tmp_path, capsys, monkeypatch):
-    from ntcr_recon.core.reconstruction import reconstructor as pipeline
+    from ntcr_recon.core.reconstruction.reconstructor import Reconstructor
 
-    relocate = pipeline.Reconstructor.relocate
+    relocate = Reconstructor.relocate
 
     def relocate_losing_every_point(self, cloud, warm_start=True):
         relocation = relocate(self, cloud, warm_start)
         return dataclasses.replace(relocation, relocated=relocation.relocated.subset(np.arange(0)))
 
-    monkeypatch.setattr(pipeline.Reconstructor, "relocate", relocate_losing_every_point)
+    monkeypatch.setattr(Reconstructor, "relocate", relocate_losing_every_point)
     code, _, stderr = _reconstruct(bags_dir / "straight", tmp_path / "out", capsys)
     assert code == 2
     assert "relocation kept none of the" in stderr and "nothing to mesh" in stderr

@@ -1,1 +1,2 @@
-"""Foundations every layer uses: compiled kernels, rigid transforms, the configuration schema's machinery."""
+"""Foundations every layer uses: compiled kernels, rigid transforms, robust statistics, the configuration schema's
+machinery."""

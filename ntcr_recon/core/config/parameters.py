@@ -1,5 +1,6 @@
 """The rig configuration as flat ROS 2 parameters: dotted names to schema keys (what a node declares), a
-configuration or mapping flattened to them, and back."""
+configuration or mapping flattened to them, and a configuration as its nested mapping (config_to_mapping). The
+inverse of the flattening, unflatten_parameters, is the loader's (config.rig)."""
 
 from __future__ import annotations
 

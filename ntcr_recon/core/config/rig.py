@@ -1,6 +1,6 @@
 """The rig configuration: a ROS 2 parameter file read by the CLI, the benchmark and every node.
 
-Layout (config/sim_rig.yaml is the documented example, generated from this schema by `config_doc`)::
+Layout (config/sim_rig.yaml is the documented example, generated from this schema by `config.document`)::
 
     /**:
       ros__parameters:
@@ -21,9 +21,10 @@ size of one depth pixel on the robot, measured from the data).
     load_rig_config(path) -> RigConfig            # ConfigError (a ValueError) naming the file and dotted key
     rig_config_from_mapping(mapping) -> RigConfig # the same from the `ros__parameters` mapping (nested or dotted)
     load_robot_geometry(path) -> TubeGeometry     # a robot description file, or a rig file's robot section
-    flatten_parameters(RigConfig | dict) -> dict  # dotted names -> value, for nodes to declare
+    flatten_parameters(RigConfig | dict) -> dict  # dotted names -> value, for nodes to declare (config.parameters)
     unflatten_parameters(dict) -> dict            # the inverse, for nodes that read declared parameters
     rig_parameter_keys(camera_names) -> dict      # dotted name -> schema Key, for the nodes' descriptors
+                                                  # (config.parameters)
 """
 
 from __future__ import annotations

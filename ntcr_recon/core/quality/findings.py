@@ -190,7 +190,7 @@ def uncertainty_mm(quality: Mapping[str, Any], notch_uncertainties_mm: Iterable[
 
 def result_status(findings: Iterable[Finding], quality: Mapping[str, Any], tolerance) -> str:
     """ok / warn / error (module docstring) of a result's findings and its `quality` (its uncertainty_mm,
-    notches_found and notches_expected). tolerance: config.QualityConfig (m)."""
+    notches_found and notches_expected). tolerance: config.rig.QualityConfig (m)."""
     severities = {f.severity for f in findings}
     if "error" in severities:
         return "error"

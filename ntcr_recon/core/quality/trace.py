@@ -37,8 +37,8 @@ class Trace:
     tip_uncertainty: how well the tip's refinement placed it along the tube, when it measured the erosion it gave
     back (else the erosion itself counts as uncertain, and half a footprint). tip_position, crop_box: where the tip
     is and the box the points were cropped to (base frame), to tell a tube cut off by the box. notched_thinning:
-    quality.notched_thinning's figure, when it could be measured; looking_into_slots:
-    quality.cameras_looking_into_slots; tip_from_cap: the tip is the end cap's plane (tip.end_cap_plane),
+    measures.notched_thinning's figure, when it could be measured; looking_into_slots:
+    measures.cameras_looking_into_slots; tip_from_cap: the tip is the end cap's plane (tip.end_cap_plane),
     tip_uncertainty the smear of its points; side_unsettled: the notch side measured off the configured one, then
     off again in the frame turned to it, when the configured one was kept for it; side_uncertainty: how well the
     side measured is known (None: not measured). tip_along: the tip between the end seen and the robot's length
@@ -50,7 +50,7 @@ class Trace:
     the tube (alignment.shift_scatter). misread_widths: the width each notch notch_widths.calibrate_and_check found
     misread was read at (by index), now its bend's; unchecked: the notches it could not check. held_shift: (how far
     the alignment moved the end, the s beyond which it held that shift unmeasured) (alignment.Alignment's end_shift
-    and held_from). reach: how near the tube comes to each camera (quality.CameraReach). notch_centres: the comb's
+    and held_from). reach: how near the tube comes to each camera (measures.CameraReach). notch_centres: the comb's
     notch centres along s (comb.expected_centres). wall_level: the outer wall's level about the r_o circle
     (wall.surface_band of all points). outline_offset: how far the axis lies from the middle of the tube's outline
     in the cameras' views (RMS; outline.outline_offset). across_from_fit: (the aligned axis's outline offset, the
@@ -99,7 +99,7 @@ class Trace:
     fitted_end: float | None = None
     reference_moved: ReferenceMove | None = None
     cross_view_offsets: tuple[tuple[float, float] | None, ...] = ()  # cross_view.CrossView.offsets
-    centerline_tolerance: float | None = None  # config.QualityConfig's, which the extrinsics check weighs against
+    centerline_tolerance: float | None = None  # config.rig.QualityConfig's, which the extrinsics check weighs against
 
 
 @dataclass(frozen=True)
@@ -117,7 +117,7 @@ class Derived:
     astray: float | None        # the outline offset, where the axis went astray
     lean: float                 # how far the slots' deficit may lean the axis
     levelled: bool              # a camera facing the backbone placed the axis along its view
-    uncertainty: float | None   # the centreline's own (quality.centerline_uncertainty)
+    uncertainty: float | None   # the centreline's own (measures.centerline_uncertainty)
     outline_unchecked: bool
     centreline_known: float | None   # with the outline check's resolution where it could not run
     stated_centreline: float | None  # with the hidden part and the unmeasured stretches: what the result states

@@ -1,1 +1,2 @@
-"""The frame loop over the layers below: the Reconstructor, still-frame selection, meshing."""
+"""The stages over the layers below and the frame loop: the Relocator (the relocation's steps in order,
+relocation_steps), edge bands, meshing, still-frame selection, and the Reconstructor (the offline frame loop)."""

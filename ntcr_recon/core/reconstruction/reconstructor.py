@@ -77,10 +77,6 @@ class Reconstructor:
         self._timed("fuse", start)
         return cloud
 
-    def note_edge_band(self, camera: str, angle: float) -> None:
-        """A camera's edge band measured elsewhere (Relocator.note_edge_band), for clouds without depth images."""
-        self.relocator.note_edge_band(camera, angle)
-
     def filter(self, cloud: Cloud) -> Cloud:
         start = time.perf_counter()
         cloud = filter_cloud(cloud, self.config)

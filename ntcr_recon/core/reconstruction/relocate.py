@@ -72,12 +72,12 @@ class RelocationResult:
     rejected: int                   # points outside the gate
     coordinates: TubeCoordinates    # tube coordinates of the input points (before relocation)
     iterations: int                 # centreline iterations run
-    part: np.ndarray | None = None  # (A,) robot_surface.PART_* of the surface each relocated point lies on
+    part: np.ndarray | None = None  # (A,) robot.surface.PART_* of the surface each relocated point lies on
     relocated_coordinates: TubeCoordinates | None = None  # tube coordinates of the relocated points
-    quality: dict = field(default_factory=dict)  # the self-check (core.quality.measures): figures, units in the keys
+    quality: dict = field(default_factory=dict)  # the self-check (core.quality.checks): figures, units in the keys
     warnings: tuple[Finding, ...] = ()           # what the self-check found doubtful, coded (core.quality.findings)
     notch_side: float | None = None              # rad, the side the notches open to, as measured
-    status: str = "warn"                         # ok / warn / error (core.quality.findings.status)
+    status: str = "warn"                         # ok / warn / error (core.quality.findings.result_status)
 
 
 class Relocator:
@@ -135,7 +135,7 @@ class Relocator:
         seen_by = cloud.camera if cloud.camera is not None and len(cloud.camera) else None
         scene = Scene(self.config, cloud, settings, seen_by, self._camera_origins, self.edge_bands, self.depth_steps)
 
-        # 1. centreline: fixed-radius circle fits per slab, smoothed, iterated (core.relocation.centerline)
+        # 1. centreline: fixed-radius circle fits per slab, smoothed, iterated (core.relocation.centerline_fit)
         centerline, iterations, coords, frames = self._centerline(cloud, settings, warm_start)
         fitted = Axis(centerline, coords, frames)
         # 2. alignment: the reference tube shifted onto the wall points stereo measures without bias; each point
@@ -176,7 +176,7 @@ class Relocator:
         # 6. relocation: every point within the gate onto the reference surface (core.relocation.reference)
         moved, tip, reference_moved = self._move(scene, axis, centerline, notches, tip_s)
         relocated = cloud.subset(moved.accepted, xyz=moved.points)
-        # 7. quality: how sure this result is (core.quality.measures)
+        # 7. quality: how sure this result is (core.quality.checks)
         quality, warnings = assess(scene, aligned, sided, end, length, notches=notches, tip=tip, thinning=thinning,
                                    misread=misread, unchecked=unchecked, comb_centres=comb_centres,
                                    reference_moved=reference_moved)

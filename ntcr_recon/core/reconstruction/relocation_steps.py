@@ -1,11 +1,12 @@
 """The steps of the relocation (paper Sec. IV) as `core.reconstruction.relocate.Relocator.relocate` runs them,
 each a function of the frame's `Scene` and what the steps before it handed on:
 
-    align            step 2: the fitted axis onto the wall stereo measures without bias
-    notches_and_side step 4: the notches, and the side they open to
-    seen_end         step 5: the end the cameras saw
-    tip_by_length    step 5': the tip along the tube, the robot's known length weighed in
-    assess           step 7: the self-check
+    align               step 2: the fitted axis onto the wall stereo measures without bias
+    notches_and_side    step 4: the notches (find_notches, again past a refined end), and the side they open to
+    seen_end            step 5: the end the cameras saw
+    centreline_thinning how far the centreline may be off (the wall read deep beside the notches)
+    tip_by_length       step 5': the tip along the tube, the robot's known length weighed in
+    assess              step 7: the self-check
 """
 
 from __future__ import annotations
@@ -374,7 +375,7 @@ def tip_by_length(scene: Scene, centerline: Centerline, end: SeenEnd, centreline
 def assess(scene: Scene, aligned: Aligned, sided: Sided, end: SeenEnd, length: ByLength, *, notches: list[Notch],
            tip: np.ndarray, thinning: Thinning, misread, unchecked, comb_centres: np.ndarray,
            reference_moved: ReferenceMove | None) -> tuple[dict, list[Finding]]:
-    """Step 7: the self-check (core.quality.measures): how sure this result is, in figures and in plain words."""
+    """Step 7: the self-check (core.quality.checks): how sure this result is, in figures and in plain words."""
     geometry, alignment, axis, settings = scene.geometry, aligned.alignment, sided.axis, scene.settings
     offset = axis.coords.radius - geometry.outer_radius
     level, _ = surface_band(offset, settings.gate)

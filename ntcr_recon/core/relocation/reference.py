@@ -43,7 +43,7 @@ class RelocatedPoints:
     accepted: np.ndarray   # (N,) bool over the input points
     points: np.ndarray     # (A, 3) relocated positions of the accepted points, base frame
     normals: np.ndarray    # (A, 3) reference surface normals, outward
-    part: np.ndarray       # (A,) robot_surface.PART_* of the surface each point went to
+    part: np.ndarray       # (A,) robot.surface.PART_* of the surface each point went to
     distance: np.ndarray   # (A,) how far each point moved
     coordinates: TubeCoordinates | None = None  # tube coordinates of the relocated points
 

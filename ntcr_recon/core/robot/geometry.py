@@ -3,7 +3,7 @@
 A notch cut to depth g from the outer surface leaves a backbone whose cross-section is the part of the annulus
 on the far side of the chord at distance d = g - r_o from the axis; its neutral axis sits at ybar from the
 tube's axis (away from the notches), and a notch closes at theta_max = h / (r_o + ybar) (York et al. 2015;
-Swaney et al. 2017). How the tube bends is `kinematics`; its sampled true surface is `robot_surface`.
+Swaney et al. 2017). How the tube bends is `kinematics`; its sampled true surface is `surface`.
 
 Frames: the robot base pose (``base_position``, ``base_orientation``) is given in the base frame and its +z is
 the robot's axis. Units: metres and radians throughout.

@@ -92,9 +92,9 @@ def test_a_side_that_does_not_settle_in_the_turned_frame_keeps_the_configured_on
 
     from support import tiny_rig
 
-    import ntcr_recon.core.reconstruction.reconstructor as pipeline
     import ntcr_recon.core.reconstruction.relocation_steps as steps
     from ntcr_recon.core.config.rig import load_rig_config
+    from ntcr_recon.core.reconstruction.reconstructor import Reconstructor
 
     bag = BAGS / "bend45"
     config = load_rig_config(bag / "rig.yaml")
@@ -102,7 +102,7 @@ def test_a_side_that_does_not_settle_in_the_turned_frame_keeps_the_configured_on
     rolls = iter(math.radians(r) for r in rolls_deg)
     measurements = (SideMeasurement(roll, math.radians(2.0)) for roll in rolls)
     monkeypatch.setattr(steps, "measure_notch_side", lambda *args, **kwargs: next(measurements, None))
-    relocation = pipeline.Reconstructor(config).process(pair).relocation
+    relocation = Reconstructor(config).process(pair).relocation
     side = relocation.quality["notch_side_deg"]
     print(f"\nrolls measured {rolls_deg} deg: side reported {side:.1f} deg; warnings {list(relocation.warnings)}")
     said = {}

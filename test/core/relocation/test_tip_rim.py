@@ -15,6 +15,7 @@ from support.synthetic_views import posed_scene, render_pair
 from ntcr_recon.core.quality.checks import assess
 from ntcr_recon.core.quality.trace import Trace
 from ntcr_recon.core.reconstruction.reconstructor import Reconstructor
+from ntcr_recon.core.reconstruction.relocate import Relocator
 from ntcr_recon.core.relocation.centerline import Centerline
 from ntcr_recon.core.relocation.tip import (
     RimViews,
@@ -261,16 +262,16 @@ def test_without_a_far_background_the_tip_falls_back_to_the_silhouettes_and_says
 
 def test_a_camera_without_a_far_background_is_tried_a_few_frames_then_left_alone(monkeypatch):
     """Measuring a band costs most of a frame: a scene that shows none is not measured on every frame."""
-    import ntcr_recon.core.reconstruction.edge_bands as pipeline
+    import ntcr_recon.core.reconstruction.edge_bands as edge_bands
 
     config, _, pair = posed_scene({}, 30.0, 0.0, seed=2)
     measured = []
-    monkeypatch.setattr(pipeline, "edge_band_angle", lambda *image: measured.append(image) and None)
+    monkeypatch.setattr(edge_bands, "edge_band_angle", lambda *image: measured.append(image) and None)
     reconstructor = Reconstructor(config)
-    for _ in range(pipeline.EDGE_BAND_ATTEMPTS + 3):
+    for _ in range(edge_bands.EDGE_BAND_ATTEMPTS + 3):
         reconstructor.process(pair)
-    print(f"\n{len(measured)} images measured in {pipeline.EDGE_BAND_ATTEMPTS + 3} frames of two cameras")
-    assert len(measured) == pipeline.EDGE_BAND_ATTEMPTS * len(config.camera_names)
+    print(f"\n{len(measured)} images measured in {edge_bands.EDGE_BAND_ATTEMPTS + 3} frames of two cameras")
+    assert len(measured) == edge_bands.EDGE_BAND_ATTEMPTS * len(config.camera_names)
 
 
 def test_an_edge_band_measured_elsewhere_places_the_tip_and_a_wrong_one_is_refused():
@@ -283,7 +284,7 @@ def test_an_edge_band_measured_elsewhere_places_the_tip_and_a_wrong_one_is_refus
     bands = {name: mrad * 1e-3 for name, mrad in relocation.quality["edge_band_mrad"].items()}
     assert set(bands) == set(config.camera_names)
     assert "silhouette" in Reconstructor(config).relocate(offline.filtered).quality["tip_refinement"]
-    clouds_only = Reconstructor(config)  # relocates the filtered cloud, never sees a depth image
+    clouds_only = Relocator(config)  # relocates the filtered cloud, never sees a depth image (relocation_node)
     for name, band in bands.items():
         clouds_only.note_edge_band(name, band)
     handed_over = clouds_only.relocate(offline.filtered)
