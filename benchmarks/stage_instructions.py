@@ -22,23 +22,23 @@ from pathlib import Path
 
 
 def record(path: Path, bags: Path) -> None:
-    import ntcr_recon.core.reconstruction.reconstructor as pipeline
+    import ntcr_recon.core.reconstruction.reconstructor as reconstructor_module
     from ntcr_recon.core.cloud.pairing import pair_frames
     from ntcr_recon.core.config.rig import load_rig_config
     from ntcr_recon.io.bag import read_camera_frames
 
     calls = []
-    fuse = pipeline.fuse
+    fuse = reconstructor_module.fuse
 
     def recording_fuse(pair, config, box=None):
         cloud = fuse(pair, config, box)
         calls.append((pair, config, box, cloud))
         return cloud
 
-    pipeline.fuse = recording_fuse
+    reconstructor_module.fuse = recording_fuse
     for bag in sorted(p for p in bags.iterdir() if (p / "metadata.yaml").exists()):
         config = load_rig_config(bag / "rig.yaml")
-        reconstructor = pipeline.Reconstructor(config)
+        reconstructor = reconstructor_module.Reconstructor(config)
         for pair in pair_frames(read_camera_frames(bag, config), int(round(config.fusion.slop * 1e9))):
             reconstructor.process(pair)
     with open(path, "wb") as f:

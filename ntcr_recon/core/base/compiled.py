@@ -39,7 +39,9 @@ def cache_dir() -> str:
     READY_FILE says that install's kernels are complete)."""
     here = Path(__file__).resolve().parent.parent  # the whole core: kernels live in every sub-package
     sources = sorted(here.rglob("*.py"))
-    digest = hashlib.sha1(str(here).encode() + b"".join(path.read_bytes() for path in sources)).hexdigest()[:16]
+    # each file's path with its contents: a kernel moved to another module unchanged is another cache entry to numba
+    digest = hashlib.sha1(str(here).encode() + b"".join(str(path.relative_to(here)).encode() + path.read_bytes()
+                                                        for path in sources)).hexdigest()[:16]
     base = os.environ.get("NUMBA_CACHE_DIR") or os.path.join(os.path.expanduser("~"), ".cache", "ntcr_recon",
                                                               "numba")
     return os.path.join(base, digest)

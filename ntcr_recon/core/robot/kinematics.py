@@ -17,7 +17,7 @@ from functools import cached_property
 
 import numpy as np
 
-from ntcr_recon.core.robot import surface as robot_surface
+from ntcr_recon.core.robot import surface
 from ntcr_recon.core.robot.geometry import TubeGeometry
 
 
@@ -161,9 +161,9 @@ class TubeShape:
         ]
 
     # -------------------------------------------------------------------------------------- surface
-    def sample_surface_parts(self, spacing: float) -> robot_surface.SurfaceSample:
-        """Dense sample of the true surface, at most `spacing` apart (robot_surface.sample_surface_parts)."""
-        return robot_surface.sample_surface_parts(self, spacing)
+    def sample_surface_parts(self, spacing: float) -> surface.SurfaceSample:
+        """Dense sample of the true surface, at most `spacing` apart (surface.sample_surface_parts)."""
+        return surface.sample_surface_parts(self, spacing)
 
     def sample_surface(self, spacing: float) -> tuple[np.ndarray, np.ndarray]:
         """Points (N, 3) and outward unit normals (N, 3) of the true surface, at most `spacing` apart."""
@@ -171,11 +171,11 @@ class TubeShape:
         return sample.points, sample.normals
 
     @cached_property
-    def _surface_distance(self) -> robot_surface.SurfaceDistance:
-        return robot_surface.SurfaceDistance(self)
+    def _surface_distance(self) -> surface.SurfaceDistance:
+        return surface.SurfaceDistance(self)
 
     def surface_distance(self, points) -> np.ndarray:
-        """Unsigned distance of each point (N, 3) to the true surface (robot_surface.SurfaceDistance)."""
+        """Unsigned distance of each point (N, 3) to the true surface (surface.SurfaceDistance)."""
         return self._surface_distance(points)
 
 
