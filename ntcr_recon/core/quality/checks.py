@@ -35,7 +35,7 @@ from ntcr_recon.core.quality.measures import (
     where_notches_went_unseen,
 )
 from ntcr_recon.core.quality.tip_checks import tip_against_length, tip_end
-from ntcr_recon.core.quality.trace import Derived, Trace, derive
+from ntcr_recon.core.quality.trace import Derived, Trace, derive, extrinsics_apart, rigid_offset
 from ntcr_recon.core.relocation.notch_widths import MISREAD_WIDTH_FRACTION
 from ntcr_recon.core.relocation.outline import OUTLINE_TOLERANCE_PX
 
@@ -45,8 +45,6 @@ FOOTPRINT_RADIUS_FRACTION = 1 / 7  # pixel footprint above this fraction of r_o:
 BIAS_WARN_FOOTPRINTS = 0.5         # a lean into the slots above this many footprints: warn
 # The project's floor (issue 9) on the centreline: an uncertainty above it is worth a note.
 CENTERLINE_FLOOR = 0.08e-3
-# A mean shift across the views this many standard errors from none is rigid, not the matcher's noise.
-EXTRINSICS_SIGMAS = 3.0
 
 Check = Callable[[Trace, Derived], tuple[dict, list[Finding]]]
 
@@ -345,19 +343,18 @@ def extrinsics(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
     across its view, window by window (cross_view.CrossView): the matcher's noise varies along the tube, a camera
     whose pose is off moves every window alike. Two opposed cameras' shifts read with the same sign for a shift of
     one relative to the other, so their sum is the rigid offset between them; the fused axis lies half of it off.
-    Warned where it stands beyond EXTRINSICS_SIGMAS standard errors and half of it exceeds the centreline's
+    Warned where it stands beyond trace.EXTRINSICS_SIGMAS standard errors and half of it exceeds the centreline's
     tolerance (issue 62: beyond the level that breaks the floor): a matcher's window reaching the slots on one side
     of a view pulls the two cameras apart alike all along a notched tube too, 0.10-0.12 mm on the matrix's rows
     whose notches open at +-45 deg with exact extrinsics, and a smaller offset is not told from it. Along the views
     no such check exists: two opposed cameras read an offset there as they read a depth bias common to both (the
     wall's level)."""
-    means = [offset for offset in t.cross_view_offsets if offset is not None]
-    if len(means) != 2 or t.centerline_tolerance is None:
+    rigid = rigid_offset(t)
+    if rigid is None or t.centerline_tolerance is None:
         return {"cameras_across_view_offset_mm": None}, []
-    (mean_a, error_a), (mean_b, error_b) = means
-    offset, error = abs(mean_a + mean_b), math.hypot(error_a, error_b)
+    offset, error = rigid.offset, rigid.error
     figures = {"cameras_across_view_offset_mm": offset * 1e3}
-    if offset <= EXTRINSICS_SIGMAS * error or offset / 2 <= t.centerline_tolerance:
+    if not extrinsics_apart(t):
         return figures, []
     distance = _camera_distance(t)
     turn = ("" if distance is None

@@ -28,6 +28,8 @@ FREE_END_FACTOR = math.sqrt(3.0)
 # Two cameras whose own axes at the end lie +-b about the fused one (an RMS of b) lie 2 b apart: the free end
 # follows whichever wall the matcher biased there, and nothing beyond it holds the axis.
 DISTAL_CROSS_VIEW_FACTOR = 2.0
+# A mean shift across the views this many standard errors from none is rigid, not the matcher's noise.
+EXTRINSICS_SIGMAS = 3.0
 
 
 @dataclass(frozen=True)
@@ -160,6 +162,40 @@ class TipBounds:
         return max(self.across, abs(self.short)) if self.left_short else self.across
 
 
+@dataclass(frozen=True)
+class RigidOffset:
+    """How far apart the cameras place the axis across their views, alike all along the tube (m): the sum of two
+    opposed cameras' mean shifts (cross_view.CrossView.offsets; a shift of one camera relative to the other reads
+    with the same sign in both views), and that sum's standard error."""
+
+    offset: float
+    error: float
+
+    @property
+    def disagreeing(self) -> bool:
+        """Beyond the matcher's noise (EXTRINSICS_SIGMAS standard errors): the poses in the rig file disagree."""
+        return self.offset > EXTRINSICS_SIGMAS * self.error
+
+
+def rigid_offset(t: Trace) -> RigidOffset | None:
+    """The cameras' rigid offset across their views; None unless two cameras each placed the axis."""
+    means = [offset for offset in t.cross_view_offsets if offset is not None]
+    if len(means) != 2:
+        return None
+    (mean_a, error_a), (mean_b, error_b) = means
+    return RigidOffset(abs(mean_a + mean_b), math.hypot(error_a, error_b))
+
+
+def extrinsics_apart(t: Trace) -> float:
+    """How far off the fused axis lies for the cameras' poses disagreeing (m): half their rigid offset, where it is
+    beyond the matcher's noise and that half exceeds the centreline's tolerance (the EXTRINSICS_DISAGREE check);
+    else 0 (a smaller offset is not told from a matcher's pull beside the slots, quality.checks.extrinsics)."""
+    rigid = rigid_offset(t)
+    if rigid is None or t.centerline_tolerance is None or not rigid.disagreeing:
+        return 0.0
+    return rigid.offset / 2 if rigid.offset / 2 > t.centerline_tolerance else 0.0
+
+
 def derive(t: Trace) -> Derived:
     """The figures several checks share: who saw how much of the tube, the centreline's and the tip's bounds."""
     geometry, footprint, diameter = t.geometry, t.footprint, t.geometry.outer_diameter
@@ -178,7 +214,8 @@ def derive(t: Trace) -> Derived:
     # it is known there no better than that check resolves, a pixel footprint, whatever the cameras' spread says
     outline_unchecked = t.camera is not None and t.outline_offset is None
     centreline_known = max(uncertainty or 0.0, footprint) if outline_unchecked else uncertainty
-    tip = tip_bounds(t, seen_end, centreline_known)
+    apart = extrinsics_apart(t)
+    tip = tip_bounds(t, seen_end, centreline_known, apart)
     # the centreline runs on past the end seen to a carried tip: along that stretch a straight hidden part leaves it
     # off by up to hidden_across, growing with the square of the distance carried (a fifth of its square in the
     # mean): the RMS over the robot's length
@@ -194,6 +231,9 @@ def derive(t: Trace) -> Derived:
     unmeasured = unmeasured_share(t.unsupported, end_on if end_on_warned else 0.0, t.tip_s)
     if unmeasured and stated_centreline is not None:
         stated_centreline = math.sqrt(stated_centreline**2 + unmeasured * footprint**2)
+    # cameras whose poses disagree place the fused axis half their rigid offset off, all along the tube
+    if apart and stated_centreline is not None:
+        stated_centreline = math.hypot(stated_centreline, apart)
     # pooled over two cameras, a deficit one of them carries alone reads half: the lean may reach twice it
     lean = 2.0 * t.notched_thinning if t.notched_thinning is not None and t.looking_into_slots else 0.0
     return Derived(
@@ -205,7 +245,7 @@ def derive(t: Trace) -> Derived:
         unsupported_to_tip=bool(t.unsupported) and t.unsupported[-1][1] >= t.tip_s - geometry.notch_pitch, tip=tip)
 
 
-def tip_bounds(t: Trace, seen_end: float, centreline_known: float | None) -> TipBounds:
+def tip_bounds(t: Trace, seen_end: float, centreline_known: float | None, apart: float = 0.0) -> TipBounds:
     """How well the tip is known: along the tube, the rim's or cap's refinement (or the length weighed in), across
     it the centreline's free end with the alignment's held shift, what it was carried over, a hidden part and ICP's
     move; where the cameras disagree in the last window, their own axes' distance apart."""
@@ -227,15 +267,17 @@ def tip_bounds(t: Trace, seen_end: float, centreline_known: float | None) -> Tip
                                              centreline_known or 0.0)
     # carried past an end hidden from every camera: the hidden notches may bend otherwise than the ones seen
     hidden_across = 0.0 if t.tip_along is None or t.tip_along.hidden_across is None else t.tip_along.hidden_across
-    centreline_across = math.hypot(free_end, held, carried_across, hidden_across)
+    centreline_across = math.hypot(free_end, held, carried_across, hidden_across, apart)
     across = max(math.hypot(centreline_across, icp_across), end_spread)
     # named by the largest term, each weighed against those after it (ICP's move first, the free end last)
-    terms = [("icp", icp_across), ("hidden", hidden_across), ("carried", carried_across), ("held_shift", held)]
+    terms = [("icp", icp_across), ("extrinsics", apart), ("hidden", hidden_across), ("carried", carried_across),
+             ("held_shift", held)]
     because = "cameras_apart" if end_spread >= across else next(
         (name for i, (name, value) in enumerate(terms) if value > max([v for _, v in terms[i + 1:]] + [free_end])),
         "free_end")
     why = {"cameras_apart": "the cameras' axes that far apart across their views at the end",
            "icp": "ICP moved it that far off where the centreline placed it",
+           "extrinsics": "the cameras' poses in the rig file disagree: the axis lies about that far off",
            "hidden": f"were the {(t.tip_s - seen_end) * 1e3:.1f} mm no camera saw straight, not bent as the notches "
                      "seen, the tip would lie that far off",
            "carried": f"the centreline carried on bending over the {carried * 1e3:.1f} mm past where its fit reached, "

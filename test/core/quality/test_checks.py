@@ -20,7 +20,7 @@ from ntcr_recon.core.quality.measures import (
     unmeasured_share,
     where_notches_went_unseen,
 )
-from ntcr_recon.core.quality.trace import Trace
+from ntcr_recon.core.quality.trace import Trace, derive
 from ntcr_recon.core.relocation.bends import continued_bend
 from ntcr_recon.core.relocation.notches import Notch
 from ntcr_recon.core.relocation.outline import OUTLINE_TOLERANCE_PX
@@ -469,3 +469,35 @@ def test_quality_gives_the_centreline_an_uncertainty_and_warns_above_its_floor()
     assert moved.figures["aligned_offset_mm"] / (FOOTPRINT * 1e3) > OUTLINE_TOLERANCE_PX
     assert moved.figures["fit_offset_mm"] / (FOOTPRINT * 1e3) == pytest.approx(0.5)  # the fit's axis, in px
     assert "ALIGNMENT_ASTRAY" not in _by_code(sound)
+
+
+def test_cameras_whose_poses_disagree_widen_the_stated_centreline_and_tip_by_half_their_offset():
+    """cam_b's pose turned 0.3 deg in the rig file: the two cameras place the axis 0.266 mm apart across their
+    views, alike all along the tube, and the fused axis lies half of that off (the matrix's straight row read a
+    centreline error of 0.269 mm). Where EXTRINSICS_DISAGREE is raised, the stated centreline and tip bounds carry
+    that half; where the offset is within the windows' noise, nothing changes."""
+    s = np.linspace(0.0, 50e-3, 5000)
+    camera = (np.arange(len(s)) % 2).astype(np.int8)
+
+    def assessed(offsets):
+        trace = Trace(
+            geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=[], coords_s=s, camera=camera, tip_s=50e-3,
+            total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.05e-3, notch_side=0.0, configured_side=0.0,
+            bias_notch_side=0.0, bias_binormal=0.0, depth_steps={}, cross_view_spread=0.03e-3,
+            cross_view_offsets=offsets, centerline_tolerance=0.08e-3)
+        quality, warnings = assess(trace)
+        return quality, _by_code(warnings), derive(trace).tip
+
+    exact, _, exact_tip = assessed(((-0.007e-3, 0.005e-3), (-0.009e-3, 0.004e-3)))
+    turned, said, turned_tip = assessed(((0.138e-3, 0.005e-3), (0.128e-3, 0.006e-3)))
+    noisy, noisy_said, noisy_tip = assessed(((0.138e-3, 0.07e-3), (0.128e-3, 0.08e-3)))
+    half = 0.133e-3
+    print(f"\ncentreline {exact['centerline_uncertainty_mm']:.3f} -> {turned['centerline_uncertainty_mm']:.3f} mm, "
+          f"tip across {exact_tip.across * 1e3:.3f} -> {turned_tip.across * 1e3:.3f} mm")
+    assert "EXTRINSICS_DISAGREE" in said
+    assert turned["centerline_uncertainty_mm"] == pytest.approx(math.hypot(exact["centerline_uncertainty_mm"],
+                                                                           half * 1e3))
+    assert turned_tip.across == pytest.approx(math.hypot(exact_tip.across, half))
+    assert "EXTRINSICS_DISAGREE" not in noisy_said
+    assert noisy["centerline_uncertainty_mm"] == pytest.approx(exact["centerline_uncertainty_mm"])
+    assert noisy_tip.across == pytest.approx(exact_tip.across)
