@@ -88,7 +88,7 @@ def build_simulation(args: argparse.Namespace) -> Simulation:
         shape = TubeShape.from_notch_bends(geometry, bends)
     else:
         shape = TubeShape.from_bend_angle(geometry, math.radians(args.bend_deg))
-    matcher = getattr(args, "matcher", "emulated")
+    matcher = args.matcher
     imagers, sgbm = _real_matcher(args) if matcher == "sgbm" else (ImagerModel(), SgbmParameters())
     emulation = StereoEmulation.ideal() if args.ideal else StereoEmulation().scaled_noise(args.noise)
     if args.window is not None:
@@ -140,7 +140,7 @@ def _real_matcher(args: argparse.Namespace) -> tuple[ImagerModel, SgbmParameters
         sgbm = dataclasses.replace(sgbm, block_size=args.window)
     if args.no_left_right_check:
         sgbm = dataclasses.replace(sgbm, left_right_max_diff=-1)
-    sgbm.validate()
+    sgbm.validate()  # before Simulation validates the emulation's window: the message names the block size
     return imagers, sgbm
 
 

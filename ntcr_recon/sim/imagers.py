@@ -37,6 +37,7 @@ from ntcr_recon.sim.scene import (
     COLOR_POST,
     COLOR_ROBOT,
     COLOR_TABLE,
+    INSIDE_NOTCH_SHADE,
     LABEL_BACKDROP,
     LABEL_CAMERA_BODY,
     LABEL_POST,
@@ -49,7 +50,6 @@ from ntcr_recon.sim.scene import (
 TEXTURE_SEED = 61  # the texture's cosines: fixed, so a material point looks the same in every scene and frame
 TEXTURE_WAVES = 24
 SUPERSAMPLE_MARGIN = 12  # px around the robot's box also supersampled (its blur, what it hides from the other imager)
-INSIDE_NOTCH_SHADE = 0.55  # cut faces, notch floor and bore: in the tube's shadow (as Scene._shade)
 # label -> (base colour, texture scale: the props' texture is coarser, they stand farther)
 _PROP_COLORS = {LABEL_POST: (COLOR_POST, 2.0), LABEL_TABLE: (COLOR_TABLE, 4.0), LABEL_BACKDROP: (COLOR_BACKDROP, 6.0),
                 LABEL_CAMERA_BODY: (COLOR_CAMERA_BODY, 2.0)}

@@ -19,6 +19,8 @@ from ntcr_recon.core.robot.kinematics import TubeShape
 from ntcr_recon.core.robot.surface import PART_OUTER_WALL
 from ntcr_recon.sim.camera import CameraPose, D405Intrinsics
 
+INSIDE_NOTCH_SHADE = 0.55  # cut faces, notch floor and bore: in the tube's shadow (Scene._shade)
+
 LABEL_NONE = 0
 LABEL_ROBOT = 1
 LABEL_POST = 2
@@ -262,6 +264,6 @@ class Scene:
         # surfaces inside a notch (cut faces, floor, bore) are in the tube's shadow
         inside_cut = robot & (robot_part != PART_OUTER_WALL)
         lambert = 0.3 + 0.7 * facing[robot, None]
-        color[robot] = COLOR_ROBOT * lambert * np.where(inside_cut[robot], 0.55, 1.0)[:, None]
+        color[robot] = COLOR_ROBOT * lambert * np.where(inside_cut[robot], INSIDE_NOTCH_SHADE, 1.0)[:, None]
         color[robot] += 70.0 * facing[robot, None] ** 40
         return np.clip(np.rint(color), 0, 255).astype(np.uint8)
