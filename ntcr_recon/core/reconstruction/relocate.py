@@ -19,16 +19,17 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ntcr_recon.core.cloud.deproject import Intrinsics
 from ntcr_recon.core.cloud.fusion import FramePair
 from ntcr_recon.core.cloud.points import Cloud
 from ntcr_recon.core.config.rig import RigConfig
 from ntcr_recon.core.quality.findings import Finding, result_status
 from ntcr_recon.core.quality.measures import depth_step
+from ntcr_recon.core.reconstruction.align_step import align
 from ntcr_recon.core.reconstruction.edge_bands import EdgeBands
 from ntcr_recon.core.reconstruction.relocation_steps import (
     Axis,
     Scene,
-    align,
     assess,
     centreline_thinning,
     find_notches,
@@ -46,6 +47,7 @@ from ntcr_recon.core.relocation.icp import (
     reference_move,
     relocate_onto_reference,
 )
+from ntcr_recon.core.relocation.limbs import CameraView
 from ntcr_recon.core.relocation.notch_widths import calibrate_and_check
 from ntcr_recon.core.relocation.notches import Notch, spine_wall
 from ntcr_recon.core.relocation.reference import RelocatedPoints, relocate_points
@@ -95,6 +97,9 @@ class Relocator:
         # depth image noted until then (depth, unit, focal length), e.g. the first frame's
         self.edge_bands = EdgeBands()
         self._mesh_reference = None  # relocation.reference_mesh, sampled once
+        # per camera, its latest colour image (aligned with its depth) with its intrinsics and pose: the limbs there
+        # place the axis across the views (core.relocation.limbs)
+        self.views: dict[str, CameraView] = {}
 
     def reset(self) -> None:
         """Forget the previous centreline (the next frame starts cold)."""
@@ -111,6 +116,16 @@ class Relocator:
                 self.depth_steps[name] = depth_step(frame.depth, unit)
             if frame.intrinsics is not None and self.edge_bands.wants(name):
                 self.edge_bands.note_image(name, frame.depth, unit, frame.intrinsics.fx)
+            if frame.intrinsics is not None and frame.color is not None:
+                self.note_view(name, frame.color, frame.intrinsics)
+
+    def note_view(self, camera: str, color: np.ndarray, intrinsics: Intrinsics) -> None:
+        """A camera's latest colour image (H, W, 3 uint8, aligned with its depth): the next relocations place the
+        axis across its view by the tube's limbs there. ValueError for an unknown camera or an image that does not
+        fit its intrinsics."""
+        if camera not in self.config.camera_names:
+            raise ValueError(f"colour image of camera {camera!r}, which the rig configuration does not list")
+        self.views[camera] = CameraView(np.asarray(color), intrinsics, self.config.cameras[camera].extrinsic)
 
     def note_edge_band(self, camera: str, angle: float) -> None:
         """A camera's edge band (rad, `core.relocation.tip.edge_band_angle`) measured where its depth images are: in
@@ -133,7 +148,8 @@ class Relocator:
                                       "the robot in view and inside the crop box?")
         settings = settings_for(geometry, cloud.pixel_footprint, self.config.relocation)
         seen_by = cloud.camera if cloud.camera is not None and len(cloud.camera) else None
-        scene = Scene(self.config, cloud, settings, seen_by, self._camera_origins, self.edge_bands, self.depth_steps)
+        scene = Scene(self.config, cloud, settings, seen_by, self._camera_origins, self.edge_bands, self.depth_steps,
+                      views=dict(self.views) if seen_by is not None else {})
 
         # 1. centreline: fixed-radius circle fits per slab, smoothed, iterated (core.relocation.centerline_fit)
         centerline, iterations, coords, frames = self._centerline(cloud, settings, warm_start)

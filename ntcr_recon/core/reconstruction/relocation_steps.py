@@ -1,7 +1,7 @@
 """The steps of the relocation (paper Sec. IV) as `core.reconstruction.relocate.Relocator.relocate` runs them,
 each a function of the frame's `Scene` and what the steps before it handed on:
 
-    align               step 2: the fitted axis onto the wall stereo measures without bias
+    align               step 2: the fitted axis onto the wall stereo measures without bias (align_step)
     notches_and_side    step 4: the notches (find_notches, again past a refined end), and the side they open to
     seen_end            step 5: the end the cameras saw
     centreline_thinning how far the centreline may be off (the wall read deep beside the notches)
@@ -11,8 +11,7 @@ each a function of the frame's `Scene` and what the steps before it handed on:
 
 from __future__ import annotations
 
-import functools
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -32,20 +31,15 @@ from ntcr_recon.core.reconstruction.edge_bands import EdgeBands
 from ntcr_recon.core.relocation.alignment import (
     SILHOUETTE_MARGIN_PX,
     Alignment,
-    WallTrust,
-    align_to_trusted_wall,
-    shift_scatter,
 )
-from ntcr_recon.core.relocation.backbone import level_by_backbone
 from ntcr_recon.core.relocation.bends import continued_bend, held_bend, turn_from_base
 from ntcr_recon.core.relocation.centerline import Centerline, TubeCoordinates
 from ntcr_recon.core.relocation.centerline_fit import CenterlineSettings
-from ntcr_recon.core.relocation.cross_view import CrossView, cross_view_spread
+from ntcr_recon.core.relocation.cross_view import CrossView
 from ntcr_recon.core.relocation.icp import ReferenceMove
+from ntcr_recon.core.relocation.limbs import CameraView, LimbFigures
 from ntcr_recon.core.relocation.notch_side import measure_notch_side
-from ntcr_recon.core.relocation.notches import Notch, detect_notches, spine_wall
-from ntcr_recon.core.relocation.outline import across_views_from, outline_offset, went_astray
-from ntcr_recon.core.relocation.reference import along_rays
+from ntcr_recon.core.relocation.notches import Notch, detect_notches
 from ntcr_recon.core.relocation.tip import (
     LENGTH_AGREEMENT_SIGMAS,
     RimViews,
@@ -55,18 +49,14 @@ from ntcr_recon.core.relocation.tip import (
     end_cap_plane,
     give_back_erosion,
     rim_tip,
-    tube_end,
     with_known_length,
 )
-from ntcr_recon.core.relocation.wall import band_gate, surface_band
+from ntcr_recon.core.relocation.wall import surface_band
 from ntcr_recon.core.robot.comb import cut_intervals, inside_intervals
 
 # A measured notch side further than this from the configured one turns the tube frame (smaller: within
 # what the measurement scatters, and the open window is wide enough for it).
 ROLL_TO_REFRAME = np.radians(6.0)
-
-# Alignment passes: each selects the trusted points about the axis the previous one moved.
-ALIGNMENT_PASSES = 3
 
 # A tube whose end tangent turns at least this far towards a camera (from across its view) points at it.
 CAP_PLANE_ANGLE = np.radians(45.0)
@@ -87,6 +77,7 @@ class Scene:
     edge_bands: EdgeBands               # the cameras' edge bands (core.reconstruction.edge_bands)
     depth_steps: dict[str, float]       # per camera, the depth quantisation seen in its first frame
     bands: np.ndarray | None = None     # rad per camera index (NaN: not measured), once the notches need them
+    views: dict[str, CameraView] = field(default_factory=dict)  # the cameras' colour images, where the data had them
 
     @property
     def geometry(self):
@@ -134,6 +125,7 @@ class Aligned:
     across_from_fit: tuple[float, float] | None = None  # the aligned and fitted axes' outline offsets, where the
                                                         # fit's placement across the views was taken
     scatter: float | None = None                  # m, alignment.shift_scatter
+    limbs: LimbFigures | None = None              # what the limbs in the colour images did (None: no image)
 
 
 @dataclass(frozen=True)
@@ -177,55 +169,6 @@ class Thinning:
     thinning: object                              # core.quality.measures.notched_thinning's
     looking: tuple                                # the cameras looking into the slots
     off: float                                    # m, core.quality.measures.centerline_uncertainty (0: none)
-
-
-def align(scene: Scene, fitted: Axis) -> Aligned:
-    """Step 2: the fitted axis moved onto the wall stereo measures without bias (core.relocation.alignment), checked
-    against the tube's outline in each camera's view (relocation.outline) and levelled by the cameras facing the
-    backbone; and each point moved along its viewing ray onto the wall (core.relocation.reference). Without the
-    points' cameras (seen_by None: a cloud from elsewhere), the fit as it is."""
-    cloud, settings, seen_by = scene.cloud, scene.settings, scene.seen_by
-    if seen_by is None:
-        return Aligned(fitted)
-    geometry, footprint = scene.geometry, settings.cell
-    viewpoints = np.take(scene.origins, seen_by, axis=0)
-    end = tube_end(fitted.coords, geometry.outer_radius, settings.gate, footprint, max_s=geometry.reach)
-    # trusted wall lies within the wall's band on the spines: the fit's gate, a millimetre wide, lets in
-    # pixels a matcher mixed with the background behind, which pull the axis across the cameras' views
-    trusted_gate = _wall_band_gate(fitted.coords, fitted.centerline, geometry, settings.gate, footprint)
-    # which points face their camera depends on where the axis is: selected again about the moved axis
-    trust = WallTrust(geometry, trusted_gate, footprint, end)
-    alignment = align_to_trusted_wall(fitted.centerline, fitted.coords, fitted.frames, viewpoints, trust, xyz=cloud.xyz,
-                                      passes=ALIGNMENT_PASSES)
-    centerline = alignment.centerline
-    coords, frames = centerline.project_with_frames(cloud.xyz, alignment.arc_lengths)
-    # the alignment against the middle of the tube's outline in each camera's view: where it followed a wall
-    # stereo moved across the views and the fit did not, the fit places the axis across them (relocation.outline)
-    outline_of = functools.partial(outline_offset, xyz=cloud.xyz, viewpoints=viewpoints, camera=seen_by,
-                                   geometry=geometry, gate=settings.gate, end_s=end)
-    aligned_outline, across_from_fit = outline_of(coords, frames), None
-    fit_outline = outline_of(fitted.coords, fitted.frames) if went_astray(aligned_outline, footprint) else None
-    if fit_outline is not None and not went_astray(fit_outline, footprint):
-        centerline = across_views_from(fitted.centerline, centerline, scene.origins)
-        alignment = alignment.moved_to(centerline, fitted.centerline)
-        coords, frames = centerline.project_with_frames(cloud.xyz, coords.s)
-        across_from_fit = aligned_outline, fit_outline
-    # how much the lean it removed varies along the tube: the axis is known no better (quality)
-    scatter = shift_scatter(fitted.centerline, centerline, end)
-    # the cameras facing the backbone place the axis along their views by the plain tube's level
-    leveled, backbone_shift = level_by_backbone(centerline, coords, frames, viewpoints, seen_by, scene.origins, trust)
-    outline = aligned_outline if across_from_fit is None else None  # of the axis as it stands
-    if leveled is not centerline:
-        centerline, outline = leveled, None
-        coords, frames = centerline.project_with_frames(cloud.xyz, coords.s)
-    # what each camera alone says about the axis across its view: the fused axis is known no better
-    cross_view = cross_view_spread(centerline, coords, frames, viewpoints, seen_by, len(scene.origins), trust)
-    # each point as its camera saw it: along its viewing ray onto the wall
-    rays = along_rays(coords, frames, viewpoints, geometry.outer_radius, settings.gate)
-    return Aligned(Axis(centerline, coords, frames, rays), alignment, cross_view, backbone_shift,
-                   # the axis against the middle of the tube's outline in each camera's view (depth errors lie
-                   # along the rays)
-                   outline_of(coords, frames) if outline is None else outline, across_from_fit, scatter)
 
 
 def find_notches(scene: Scene, axis: Axis, tip_s: float, wall) -> list[Notch]:
@@ -408,6 +351,10 @@ def assess(scene: Scene, aligned: Aligned, sided: Sided, end: SeenEnd, length: B
                "notch_side_uncertainty_deg": None if side_uncertainty is None else float(np.degrees(
                    side_uncertainty)),
                "edge_band_mrad": {name: band * 1e3 for name, band in scene.edge_bands.angles.items()},
+               # the notch pitches whose limbs in each camera's colour image placed the axis across its view, and
+               # how far that moved it (None: no colour image)
+               "centerline_limbs": None if aligned.limbs is None else {
+                   "windows": dict(aligned.limbs.windows), "moved_mm": aligned.limbs.moved_rms * 1e3},
                "robot_bend_end_off_deg": None if length.end_turn_off is None else float(np.degrees(
                    length.end_turn_off))}
     return quality, warnings
@@ -434,14 +381,6 @@ def _edge_reach(scene: Scene, footprint: float, centerline: Centerline) -> float
     if not np.any(measured):
         return SILHOUETTE_MARGIN_PX * footprint
     return float(np.mean(bands[measured] * distances[measured]))
-
-
-def _wall_band_gate(coords: TubeCoordinates, centerline: Centerline, geometry, gate: float, footprint: float
-                    ) -> float:
-    """The gate of the wall points the alignment trusts (m): the outer wall's band on the spines (its level's
-    distance from r_o plus its spread, notches.spine_wall), never wider than the fit's gate."""
-    _, level, spread = spine_wall(coords, centerline, geometry, gate, footprint)
-    return band_gate(level, spread, gate)
 
 
 def _rolled_axes(normal: np.ndarray, binormal: np.ndarray, angle: float) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,24 @@
+"""The Relocator takes each camera's colour image (the limbs there place the axis across its view)."""
+
+import numpy as np
+import pytest
+from support.tiny_rig import rig_parameters
+
+from ntcr_recon.core.cloud.deproject import Intrinsics
+from ntcr_recon.core.config.rig import rig_config_from_mapping
+from ntcr_recon.core.reconstruction.relocate import Relocator
+
+
+def test_note_view_keeps_the_latest_image_per_camera_and_names_a_bad_one():
+    config = rig_config_from_mapping(rig_parameters())
+    relocator = Relocator(config)
+    camera = config.camera_names[0]
+    intrinsics = Intrinsics(64, 48, 50.0, 50.0, 32.0, 24.0)
+    relocator.note_view(camera, np.zeros((48, 64, 3), np.uint8), intrinsics)
+    relocator.note_view(camera, np.full((48, 64, 3), 7, np.uint8), intrinsics)
+    assert list(relocator.views) == [camera] and relocator.views[camera].color[0, 0, 0] == 7
+    np.testing.assert_array_equal(relocator.views[camera].extrinsic, config.cameras[camera].extrinsic)
+    with pytest.raises(ValueError, match="cam_x"):
+        relocator.note_view("cam_x", np.zeros((48, 64, 3), np.uint8), intrinsics)
+    with pytest.raises(ValueError, match="64x48"):
+        relocator.note_view(camera, np.zeros((48, 64), np.uint8), intrinsics)

@@ -1,0 +1,112 @@
+"""The tube's limbs in the cameras' colour images place the axis across their views (core.relocation.limbs)."""
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from ntcr_recon.core.cloud.deproject import Intrinsics
+from ntcr_recon.core.relocation.centerline import Centerline
+from ntcr_recon.core.relocation.limbs import CameraView, limb_offsets, placed_by_limbs
+
+RADIUS = 1.75e-3
+DEPTH = 0.09
+INTRINSICS = Intrinsics(848, 480, 421.6, 421.6, 428.7, 238.1)
+BACKGROUND = np.array([40.0, 60.0, 160.0])  # a blue cloth behind the tube
+
+
+def opposed_cameras(distance: float = DEPTH) -> dict[str, np.ndarray]:
+    """Two cameras facing each other across the base origin along z (optical frames in the base frame)."""
+    cam_a = np.eye(4)
+    cam_a[2, 3] = -distance
+    cam_b = np.diag([-1.0, 1.0, -1.0, 1.0])  # turned half a turn about y
+    cam_b[2, 3] = distance
+    return {"cam_a": cam_a, "cam_b": cam_b}
+
+
+def tube_image(extrinsic: np.ndarray, axis_y: float, light: float = 0.0, seed: int = 0) -> np.ndarray:
+    """A straight tube along the base x axis at y = axis_y, z = 0, seen by a camera: shaded darker towards its
+    limbs (and brighter on one side by `light`), against a cloth with a weave, through a blurring lens."""
+    rng = np.random.default_rng(seed)
+    rotation, origin = extrinsic[:3, :3], extrinsic[:3, 3]
+    point = rotation.T @ (np.array([0.0, axis_y, 0.0]) - origin)
+    direction = rotation.T @ np.array([1.0, 0.0, 0.0])
+    v, u = np.mgrid[0:INTRINSICS.height, 0:INTRINSICS.width].astype(float)
+    rays = np.stack([(u - INTRINSICS.cx) / INTRINSICS.fx, (v - INTRINSICS.cy) / INTRINSICS.fy, np.ones_like(u)], -1)
+    normal = np.cross(rays, direction)
+    signed = normal @ point / np.linalg.norm(normal, axis=-1)  # the ray's distance from the axis, signed by side
+    inside = np.abs(signed) < RADIUS
+    across = np.clip(signed / RADIUS, -1.0, 1.0)
+    shade = 40.0 + 170.0 * np.sqrt(1.0 - across**2) + light * across
+    image = BACKGROUND * (1.0 + 0.15 * rng.standard_normal(u.shape))[..., None]
+    image[inside] = shade[inside][:, None] * np.array([1.0, 1.0, 1.05])
+    image = ndimage.gaussian_filter(image, (0.8, 0.8, 0)) + rng.normal(0.0, 2.0, image.shape)
+    return np.clip(np.rint(image), 0, 255).astype(np.uint8)
+
+
+def straight_centerline(axis_y: float, length: float = 0.03) -> Centerline:
+    points = np.stack([np.linspace(-length / 2, length / 2, 200), np.full(200, axis_y), np.zeros(200)], axis=1)
+    return Centerline.from_points(points, np.array([0.0, 0.0, 1.0]), 1e-4)
+
+
+def views_of(axis_y: float, light: float = 0.0) -> dict[str, CameraView]:
+    return {name: CameraView(tube_image(pose, axis_y, light, seed=i), INTRINSICS, pose)
+            for i, (name, pose) in enumerate(opposed_cameras().items())}
+
+
+@pytest.mark.parametrize("off", [0.0, 0.15e-3])
+def test_one_camera_measures_the_axis_offset_across_its_view(off):
+    views = views_of(axis_y=0.0)
+    centerline = straight_centerline(off)  # the centreline given lies `off` (0.7 px) from the tube along +y
+    s = np.linspace(0.002, 0.028, 40)
+    placement = limb_offsets(centerline, s, views["cam_a"], RADIUS)
+    measured = np.isfinite(placement.offset)
+    assert measured.sum() >= 35
+    # the move the limbs ask for, along y: none on the tube; off it, towards the tube, part of the way (the
+    # levels the limbs are read between are sampled about where the axis puts them: placed_by_limbs measures again)
+    along_y = np.median(placement.offset[measured] * placement.across[measured, 1])
+    if off:
+        assert -1.1 * off < along_y < -0.4 * off
+    else:
+        assert abs(along_y) < 0.01e-3
+    # across the view and the tangent: perpendicular to both
+    assert np.allclose(placement.across[measured] @ np.array([1.0, 0.0, 0.0]), 0.0, atol=1e-3)
+    assert np.allclose(placement.across[measured] @ np.array([0.0, 0.0, 1.0]), 0.0, atol=3e-3)
+
+
+@pytest.mark.parametrize("light", [0.0, 30.0])
+def test_opposed_cameras_move_the_centreline_onto_the_tube(light):
+    views = views_of(axis_y=0.0, light=light)
+    centerline = straight_centerline(0.2e-3)
+    moved, figures = placed_by_limbs(centerline, views, RADIUS, window=3.2e-3, end_s=centerline.length)
+    assert figures.windows["cam_a"] >= 7 and figures.windows["cam_b"] >= 7
+    # towards the tube across the views (y), at least 40 % of the way (see placed_by_limbs), nothing along them (z)
+    # or along the tube
+    assert 0.07e-3 < figures.moved_rms < 0.22e-3
+    middle = (moved.s > 0.005) & (moved.s < moved.length - 0.005)
+    assert np.all(moved.points[middle, 1] < 0.12e-3) and np.all(moved.points[middle, 1] > -0.03e-3)
+    assert np.max(np.abs(moved.points[middle, 2])) < 1e-6
+    assert moved.length == pytest.approx(centerline.length, abs=1e-5)
+
+
+def test_an_image_without_contrast_moves_nothing():
+    flat = {name: CameraView(np.full((INTRINSICS.height, INTRINSICS.width, 3), 180, np.uint8), INTRINSICS, pose)
+            for name, pose in opposed_cameras().items()}  # as the second renderer's images
+    centerline = straight_centerline(0.2e-3)
+    moved, figures = placed_by_limbs(centerline, flat, RADIUS, window=3.2e-3, end_s=centerline.length)
+    assert moved is centerline
+    assert figures.windows == {"cam_a": 0, "cam_b": 0} and figures.moved_rms == 0.0
+
+
+def test_a_window_one_camera_alone_placed_is_not_moved():
+    views = views_of(axis_y=0.0)
+    blank = np.full((INTRINSICS.height, INTRINSICS.width, 3), 180, np.uint8)
+    one = {"cam_a": views["cam_a"], "cam_b": CameraView(blank, INTRINSICS, views["cam_b"].extrinsic)}
+    centerline = straight_centerline(0.2e-3)
+    moved, figures = placed_by_limbs(centerline, one, RADIUS, window=3.2e-3, end_s=centerline.length)
+    assert figures.windows["cam_a"] >= 7 and figures.windows["cam_b"] == 0
+    assert moved is centerline
+
+
+def test_a_camera_view_names_an_image_that_does_not_fit_its_intrinsics():
+    with pytest.raises(ValueError, match="848x480"):
+        CameraView(np.zeros((240, 424, 3), np.uint8), INTRINSICS, np.eye(4))
