@@ -11,9 +11,10 @@ the background may be darker or brighter than the tube, and differ in hue only).
 were found with contrast and lie a tube's width apart (within WIDTH_TOLERANCE_PX): not at a notch cutting a limb,
 not at the end cap, not where a prop behind matches the tube. Its offset is the limbs' middle against the
 projected axis, in metres at the axis's depth. Shading darkens a tube towards its limbs, so each limb reads
-inward by up to a pixel (a blurred lens more); the middle cancels what the two sides share.
+inward by up to a pixel (a blurred lens more); the middle cancels what the two sides share. The levels are read
+about where the axis puts each limb, so an axis a pixel or more off is moved part of the way (about half).
 
-    views = [CameraView(color, intrinsics, extrinsic), ...]
+    views = {"cam_a": CameraView(color, intrinsics, extrinsic), ...}
     placement = limb_offsets(centerline, s, view, outer_radius)   # per station: offset (m, NaN) along `across`
     moved, figures = placed_by_limbs(centerline, views, outer_radius, window, end_s)
 """
