@@ -28,11 +28,13 @@ from ntcr_recon.core.relocation.wall import band_gate
 # Alignment passes: each selects the trusted points about the axis the previous one moved.
 ALIGNMENT_PASSES = 3
 
+
 def align(scene: Scene, fitted: Axis) -> Aligned:
     """Step 2: the fitted axis moved onto the wall stereo measures without bias (core.relocation.alignment), checked
-    against the tube's outline in each camera's view (relocation.outline) and levelled by the cameras facing the
-    backbone; and each point moved along its viewing ray onto the wall (core.relocation.reference). Without the
-    points' cameras (seen_by None: a cloud from elsewhere), the fit as it is."""
+    against the tube's outline in each camera's view (relocation.outline), levelled by the cameras facing the
+    backbone and placed across the views by the tube's limbs in the colour images (relocation.limbs, where the
+    Scene has them); and each point moved along its viewing ray onto the wall (core.relocation.reference). Without
+    the points' cameras (seen_by None: a cloud from elsewhere), the fit as it is."""
     cloud, settings, seen_by = scene.cloud, scene.settings, scene.seen_by
     if seen_by is None:
         return Aligned(fitted)
@@ -64,16 +66,12 @@ def align(scene: Scene, fitted: Axis) -> Aligned:
     # the cameras facing the backbone place the axis along their views by the plain tube's level
     leveled, backbone_shift = level_by_backbone(centerline, coords, frames, viewpoints, seen_by, scene.origins, trust)
     outline = aligned_outline if across_from_fit is None else None  # of the axis as it stands
-    if leveled is not centerline:
-        centerline, outline = leveled, None
-        coords, frames = centerline.project_with_frames(cloud.xyz, coords.s)
     # across the views the limbs in the colour images place the axis sharper than any depth (core.relocation.limbs)
-    limbs = None
-    if scene.views:
-        placed, limbs = placed_by_limbs(centerline, scene.views, geometry.outer_radius, geometry.notch_pitch, end)
-        if placed is not centerline:
-            centerline, outline = placed, None
-            coords, frames = centerline.project_with_frames(cloud.xyz, coords.s)
+    placed, limbs = (placed_by_limbs(leveled, scene.views, geometry.outer_radius, geometry.notch_pitch, end)
+                     if scene.views else (leveled, None))
+    if placed is not centerline:  # levelled or placed by the limbs: the points projected once onto where it ends
+        centerline, outline = placed, None
+        coords, frames = centerline.project_with_frames(cloud.xyz, coords.s)
     # what each camera alone says about the axis across its view: the fused axis is known no better
     cross_view = cross_view_spread(centerline, coords, frames, viewpoints, seen_by, len(scene.origins), trust)
     # each point as its camera saw it: along its viewing ray onto the wall
