@@ -1,4 +1,7 @@
-"""camera_node: one camera's frames -> `<ns>/<cam>/depth/color/points` (+ `<ns>/<cam>/depth/camera_info`).
+"""camera_node: one camera's frames -> `<ns>/<cam>/depth/color/points` (+ `<ns>/<cam>/depth/camera_info`), and its
+colour image's window that can see the robot's crop box -> `<ns>/<cam>/color/image_rect_raw` (rgb8, + its
+intrinsics on `<ns>/<cam>/color/camera_info`: core.relocation.limbs.CameraView.within, what relocation_node places
+the axis across the view with).
 
 One instance per camera (parameter `camera`, a name of the rig's camera_names). The source is a parameter:
   bag       a rosbag2 bag (`bag_path`): the camera's depth (16UC1 in the configured depth_unit, or 32FC1 metres),
@@ -39,7 +42,7 @@ import time
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from rosgraph_msgs.msg import Clock
-from sensor_msgs.msg import CameraInfo, PointCloud2
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from std_msgs.msg import Float64
 
 from ntcr_recon.core.base import compiled
@@ -47,6 +50,7 @@ from ntcr_recon.core.cloud.deproject import Intrinsics
 from ntcr_recon.core.cloud.fusion import CameraFrame, deprojected, depth_points
 from ntcr_recon.core.quality.measures import depth_quantisation_warning, depth_step
 from ntcr_recon.core.reconstruction.edge_bands import EdgeBands
+from ntcr_recon.core.relocation.limbs import CameraView
 from ntcr_recon.core.relocation.tip import EDGE_BAND_ATTEMPTS
 from ntcr_recon.io.camera_sources import BagSource, Pacer, SourceError, SourceFrame
 from ntcr_recon.ros.graph import START_DELAY_S
@@ -88,20 +92,34 @@ WAITING_LOG_PERIOD_S = 5.0
 
 def camera_info_msg(frame: SourceFrame, frame_id: str) -> CameraInfo:
     """The frame's recorded camera_info re-stamped, or one built from its intrinsics (no distortion)."""
-    recorded, intrinsics = frame.camera_info, frame.intrinsics
+    recorded = frame.camera_info
+    if recorded is None:
+        return intrinsics_info_msg(frame.intrinsics, frame_id, frame.stamp_ns)
     info = CameraInfo(header=header(frame_id, frame.stamp_ns))
-    if recorded is not None:
-        info.height, info.width = int(recorded.height), int(recorded.width)
-        info.distortion_model = str(recorded.distortion_model)
-        info.d = [float(v) for v in recorded.d]
-        info.k, info.r, info.p = (np.asarray(getattr(recorded, name), dtype=float) for name in "krp")
-        return info
+    info.height, info.width = int(recorded.height), int(recorded.width)
+    info.distortion_model = str(recorded.distortion_model)
+    info.d = [float(v) for v in recorded.d]
+    info.k, info.r, info.p = (np.asarray(getattr(recorded, name), dtype=float) for name in "krp")
+    return info
+
+
+def intrinsics_info_msg(intrinsics: Intrinsics, frame_id: str, stamp_ns: int) -> CameraInfo:
+    """A camera_info of pinhole intrinsics (rectified: no distortion)."""
+    info = CameraInfo(header=header(frame_id, stamp_ns))
     info.height, info.width, info.distortion_model = intrinsics.height, intrinsics.width, "plumb_bob"
     info.d = [0.0] * 5
     info.k = np.array([intrinsics.fx, 0, intrinsics.cx, 0, intrinsics.fy, intrinsics.cy, 0, 0, 1], dtype=float)
     info.r = np.eye(3).reshape(-1)
     info.p = np.array([intrinsics.fx, 0, intrinsics.cx, 0, 0, intrinsics.fy, intrinsics.cy, 0, 0, 0, 1, 0], float)
     return info
+
+
+def color_image_msg(color: np.ndarray, frame_id: str, stamp_ns: int) -> Image:
+    """An (H, W, 3) uint8 RGB image as an rgb8 Image."""
+    color = np.ascontiguousarray(color, dtype=np.uint8)
+    height, width = color.shape[:2]
+    return Image(header=header(frame_id, stamp_ns), height=height, width=width, encoding="rgb8", is_bigendian=0,
+                 step=3 * width, data=color.tobytes())
 
 
 def recorded_cloud_msg(recorded, stamp_ns: int) -> PointCloud2:
@@ -126,6 +144,12 @@ class CameraNode(RigNode):
         self._cloud_publisher = self.create_publisher(PointCloud2, points_topic, SENSOR_QOS)
         self._info_publisher = self.create_publisher(
             CameraInfo, self.rig.topics.camera_topic(self.camera, "depth_info"), SENSOR_QOS)
+        # the colour window that can see the crop box, with its intrinsics: relocation_node places the axis across
+        # this camera's view by the tube's limbs there (core.relocation.limbs)
+        self._color_publisher = self.create_publisher(Image, self.rig.topics.camera_topic(self.camera, "color"),
+                                                      SENSOR_QOS)
+        self._color_info_publisher = self.create_publisher(
+            CameraInfo, self.rig.topics.camera_topic(self.camera, "color_info"), SENSOR_QOS)
         self._clock_publisher = self.create_publisher(Clock, "/clock", 10) if self._params["publish_clock"] else None
         self._edge_band_publisher = self.create_publisher(Float64, edge_band_topic(self.rig.topics, self.camera),
                                                           LATCHED_QOS)
@@ -344,6 +368,10 @@ class CameraNode(RigNode):
         self._cloud_publisher.publish(camera_cloud_to_msg(xyz, rgb, pixel, camera.frame_id, frame.stamp_ns))
         self.frames_published += 1
         self.stats.published(frame.stamp_ns, started)
+        if frame.color is not None:  # after the cloud (not in its latency), long before the cloud is filtered
+            view = CameraView(frame.color, i, camera.extrinsic).within(*self.rig.crop_box())
+            self._color_info_publisher.publish(intrinsics_info_msg(view.intrinsics, camera.frame_id, frame.stamp_ns))
+            self._color_publisher.publish(color_image_msg(view.color, camera.frame_id, frame.stamp_ns))
 
     def destroy_node(self) -> None:
         self._stop.set()

@@ -19,7 +19,11 @@ frame loop around it: fusion's region of interest is camera_node's crop window h
 previous frame's centreline, as the offline command does over a bag. The
 tip is placed with each camera's edge band (`<ns>/<cam>/edge_band`, from camera_node, which sees the depth
 images), as the offline command places it; until a camera's band arrives (or with a source that publishes none)
-by the erosion of the silhouettes, which `tip_refinement` on /diagnostics names.
+by the erosion of the silhouettes, which `tip_refinement` on /diagnostics names. The axis is placed across each
+camera's view by the tube's limbs in its colour window (`<ns>/<cam>/color/image_rect_raw` with
+`.../color/camera_info`, from camera_node; the one of the frame the cloud was fused from, its stamp within
+fusion.slop), as the offline command places it with the frame pair's images; without one, by depth alone
+(`centerline_limbs` on /diagnostics says which).
 A cloud the core cannot reconstruct (too few points, no tube along the base axis) is logged and skipped; a cloud
 of more than `max_points` points is dropped before it is read. The centreline goes out serialized from arrays
 (ros/cdr.py): a Path of PoseStamped objects built one by one cost more than the relocation itself.
@@ -36,16 +40,26 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
-from sensor_msgs.msg import PointCloud2
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from std_msgs.msg import Float64, Float64MultiArray
 from visualization_msgs.msg import MarkerArray
 
-from ntcr_recon.core.cloud.pairing import stamp_jump
+from ntcr_recon.core.cloud.pairing import InForce, stamp_jump
 from ntcr_recon.core.reconstruction.relocate import ReconstructionError, Relocator
-from ntcr_recon.ros.messages import decode_cloud, relocation_cloud_msg, stage_cloud_from_msg
+from ntcr_recon.io.bag import image_to_array
+from ntcr_recon.io.pointcloud import stamp_to_ns
+from ntcr_recon.ros.cdr import header_stamp_ns
+from ntcr_recon.ros.messages import (
+    decode,
+    decode_cloud,
+    intrinsics_from_camera_info,
+    relocation_cloud_msg,
+    stage_cloud_from_msg,
+)
 from ntcr_recon.ros.node_stats import NodeStats
 from ntcr_recon.ros.node_support import (
     LATCHED_QOS,
+    SENSOR_QOS,
     STAGE_QOS,
     ParameterError,
     RigNode,
@@ -83,6 +97,15 @@ class RelocationNode(RigNode):
         self._notches = self.create_publisher(Float64MultiArray, stage_topic(topic, "notches"), STAGE_QOS)
         self._markers = self.create_publisher(MarkerArray, stage_topic(topic, "notches/markers"), STAGE_QOS)
         self._diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        # each camera's colour window and its intrinsics (camera_node), kept undecoded until a cloud of their stamp
+        # comes; subscribed before the cloud, so that the executor takes an image ready with it first
+        self._color: dict[str, InForce] = {camera: InForce() for camera in self.rig.camera_names}
+        self._color_info: dict[str, InForce] = {camera: InForce() for camera in self.rig.camera_names}
+        for camera in self.rig.camera_names:
+            self.create_subscription(Image, topic.camera_topic(camera, "color"),
+                                     functools.partial(self._on_color, camera), SENSOR_QOS, raw=True)
+            self.create_subscription(CameraInfo, topic.camera_topic(camera, "color_info"),
+                                     functools.partial(self._on_color_info, camera), SENSOR_QOS)
         # depth 1, unlike the other stages' inputs (STAGE_INPUT_QOS): the slowest stage, it would take the older of two
         # frames whenever it falls behind (camera-to-tip p50 94 ms against 51 at depth 1, bench_graph on this
         # machine); a giant cloud the next frame pushes out before its last fragment came never reaches it
@@ -110,11 +133,34 @@ class RelocationNode(RigNode):
         self.get_logger().info(f"edge band of '{camera}' received: {msg.data * 1e3:.2f} mrad")
 
     @guarded
+    def _on_color(self, camera: str, raw: bytes) -> None:
+        self._color[camera].add(header_stamp_ns(raw), raw)
+
+    @guarded
+    def _on_color_info(self, camera: str, msg: CameraInfo) -> None:
+        self._color_info[camera].add(stamp_to_ns(msg.header.stamp), intrinsics_from_camera_info(msg))
+
+    def _note_views(self, stamp_ns: int) -> None:
+        """Each camera's colour window of the frame the cloud of stamp_ns was fused from (its stamp within the
+        pairing's slop), as the offline command notes the frame pair's images before relocating it."""
+        for camera in self.rig.camera_names:
+            image = self._color[camera].nearest(stamp_ns, int(self.rig.fusion.slop * 1e9))
+            info = None if image is None else self._color_info[camera].at(image[0])
+            if image is None or info is None or info[0] != image[0]:
+                continue
+            try:
+                color = image_to_array(decode(image[1], Image, f"colour image of '{camera}'"))
+                self._relocator.note_view(camera, color, info[1])
+            except ValueError as error:  # one bad image: the axis is placed by depth alone in that view
+                self.get_logger().warning(f"colour image of '{camera}' not used: {error}", throttle_duration_sec=5.0)
+
+    @guarded
     def _on_cloud(self, raw: bytes) -> None:
         self.stats.received()
         started = time.perf_counter()
         msg = decode_cloud(raw, self._params["max_points"])  # refused when oversized before decoding
         cloud = stage_cloud_from_msg(msg, self.rig.base_frame, self.rig)
+        self._note_views(cloud.stamp_ns)
         try:
             relocation = self._relocator.relocate(cloud, warm_start=self._warm_start(cloud.stamp_ns))
         except ReconstructionError as error:

@@ -66,6 +66,11 @@ class InForce:
         earlier = [entry for entry in self._items if entry[0] <= stamp_ns]
         return (max(earlier, key=lambda e: e[0]) if earlier else min(self._items, key=lambda e: e[0]))
 
+    def nearest(self, stamp_ns: int, within_ns: int) -> tuple[int, Any] | None:
+        """(its stamp, the item) stamped nearest stamp_ns, at most within_ns from it; None when none is."""
+        entry = min(self._items, key=lambda e: abs(e[0] - stamp_ns), default=None)
+        return entry if entry is not None and abs(entry[0] - stamp_ns) <= within_ns else None
+
     def any_after(self, stamp_ns: int) -> bool:
         """Whether an item stamped after stamp_ns came (so nothing of stamp_ns itself is still to come, in order)."""
         return any(entry[0] > stamp_ns for entry in self._items)

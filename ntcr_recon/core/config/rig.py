@@ -99,6 +99,7 @@ class TopicConfig:
     depth: str = setting("depth/image_rect_raw", "depth image (16UC1 raw units or 32FC1 metres)")
     depth_info: str = setting("depth/camera_info", "depth camera intrinsics")
     color: str = setting("color/image_rect_raw", "colour image")
+    color_info: str = setting("color/camera_info", "colour camera intrinsics (camera_node: of the window it publishes)")
     points: str = setting("depth/color/points", "a camera's coloured cloud")
 
     def camera_topic(self, camera: str, kind: str) -> str:

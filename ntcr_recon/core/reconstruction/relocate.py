@@ -120,12 +120,15 @@ class Relocator:
                 self.note_view(name, frame.color, frame.intrinsics)
 
     def note_view(self, camera: str, color: np.ndarray, intrinsics: Intrinsics) -> None:
-        """A camera's latest colour image (H, W, 3 uint8, aligned with its depth): the next relocations place the
-        axis across its view by the tube's limbs there. ValueError for an unknown camera or an image that does not
+        """A camera's latest colour image (H, W, 3 uint8, aligned with its depth; or the window of it camera_node
+        publishes, with its intrinsics): the next relocations place the axis across its view by the tube's limbs
+        there. ValueError for an unknown camera or an image that does not
         fit its intrinsics."""
         if camera not in self.config.camera_names:
             raise ValueError(f"colour image of camera {camera!r}, which the rig configuration does not list")
-        self.views[camera] = CameraView(np.asarray(color), intrinsics, self.config.cameras[camera].extrinsic)
+        view = CameraView(np.asarray(color), intrinsics, self.config.cameras[camera].extrinsic)
+        # the window that can see the crop box (camera_node publishes that window: the same pixels either way)
+        self.views[camera] = view.within(*self.config.crop_box())
 
     def note_edge_band(self, camera: str, angle: float) -> None:
         """A camera's edge band (rad, `core.relocation.tip.edge_band_angle`) measured where its depth images are: in

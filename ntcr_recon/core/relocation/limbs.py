@@ -27,7 +27,7 @@ from functools import cached_property
 import numpy as np
 from scipy import ndimage
 
-from ntcr_recon.core.cloud.deproject import Intrinsics
+from ntcr_recon.core.cloud.deproject import Intrinsics, crop_window
 from ntcr_recon.core.relocation.centerline import Centerline
 
 # Profile samples per pixel across the tube.
@@ -80,6 +80,18 @@ class CameraView:
         if len(shape) != 3 or shape[2] != 3 or shape[:2] != (self.intrinsics.height, self.intrinsics.width):
             raise ValueError(f"a colour image of {self.intrinsics.width}x{self.intrinsics.height} (H, W, 3) was "
                              f"expected, got an array of shape {shape}")
+
+    def within(self, box_min, box_max) -> CameraView:
+        """The view cut to the image window through which the camera can see the base-frame box (its intrinsics
+        shifted by the window; deproject.crop_window): what the limbs need of it, and what camera_node publishes.
+        Itself where the window is the whole image or there is none."""
+        k = self.intrinsics
+        window = crop_window(k, self.extrinsic, box_min, box_max)
+        if window is None or (window.u0, window.v0, window.u1, window.v1) == (0, 0, k.width, k.height):
+            return self
+        cut = Intrinsics(window.u1 - window.u0, window.v1 - window.v0, k.fx, k.fy, k.cx - window.u0,
+                         k.cy - window.v0)
+        return CameraView(self.color[window.v0:window.v1, window.u0:window.u1], cut, self.extrinsic)
 
     @cached_property
     def channels(self) -> tuple[np.ndarray, ...]:

@@ -106,3 +106,15 @@ def test_what_was_in_force_at_a_stamp_whatever_order_it_came_in():
     infos.add(30, "c")
     infos.add(40, "d")               # bounded: the first to come goes first (20 here)
     assert infos.at(25) == (10, "a") and infos.at(45) == (40, "d")
+
+
+def test_the_item_stamped_nearest_a_stamp_within_a_slop():
+    from ntcr_recon.core.cloud.pairing import InForce
+
+    images = InForce(history=3)
+    assert images.nearest(10, 5) is None
+    images.add(10, "a")
+    images.add(22, "b")              # a pair's stamp is its earliest frame's: the other camera's comes later
+    assert images.nearest(20, 5) == (22, "b") and images.nearest(14, 5) == (10, "a")
+    assert images.nearest(18, 5) == (22, "b")
+    assert images.nearest(40, 5) is None  # none within the slop: no item rather than a stale one

@@ -110,3 +110,24 @@ def test_a_window_one_camera_alone_placed_is_not_moved():
 def test_a_camera_view_names_an_image_that_does_not_fit_its_intrinsics():
     with pytest.raises(ValueError, match="848x480"):
         CameraView(np.zeros((240, 424, 3), np.uint8), INTRINSICS, np.eye(4))
+
+
+def test_a_view_cut_to_the_window_that_sees_a_box_keeps_its_pixels_where_they_were():
+    pose = opposed_cameras()["cam_a"]
+    view = CameraView(tube_image(pose, 0.0), INTRINSICS, pose)
+    box = (np.array([-0.01, -0.004, -0.004]), np.array([0.01, 0.004, 0.004]))
+    cut = view.within(*box)
+    k, c = view.intrinsics, cut.intrinsics
+    assert c.width < k.width and c.height < k.height and cut.color.shape == (c.height, c.width, 3)
+    u0, v0 = round(k.cx - c.cx), round(k.cy - c.cy)
+    assert (c.fx, c.fy) == (k.fx, k.fy) and u0 > 0 and v0 > 0
+    np.testing.assert_array_equal(cut.color, view.color[v0:v0 + c.height, u0:u0 + c.width])
+    assert cut.within(*box) is cut  # cut once: the window is the whole image
+    # the limbs read the same off the window as off the whole image, but for stations whose profile would reach
+    # past the window (at the box's ends)
+    s = np.linspace(0.002, 0.018, 20)
+    centerline = straight_centerline(0.1e-3, length=0.02)
+    whole, window = (limb_offsets(centerline, s, v, RADIUS).offset for v in (view, cut))
+    measured = np.isfinite(window)
+    assert np.all(np.isfinite(whole)) and measured.sum() >= len(s) - 4
+    np.testing.assert_allclose(window[measured], whole[measured], atol=1e-12)

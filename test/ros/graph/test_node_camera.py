@@ -10,14 +10,16 @@ import pytest
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
-from sensor_msgs.msg import CameraInfo, PointCloud2
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from support import tiny_rig
 from support.ros_graph import VENV_BIN, RosGraph
 
 from ntcr_recon.core.cloud.deproject import crop_window, depth_to_points
 from ntcr_recon.core.config.rig import load_rig_config
+from ntcr_recon.core.relocation.limbs import CameraView
+from ntcr_recon.io.bag import image_to_array
 from ntcr_recon.io.pointcloud import cloud_from_msg, stamp_to_ns
-from ntcr_recon.ros.messages import camera_cloud_from_msg
+from ntcr_recon.ros.messages import camera_cloud_from_msg, intrinsics_from_camera_info
 
 COLLECT_QOS = QoSProfile(depth=200, reliability=ReliabilityPolicy.BEST_EFFORT)
 FRAMES, FPS, START = 6, 30.0, 1_000_000_000
@@ -47,16 +49,24 @@ def setup(tmp_path_factory):
                         *(["-p", f"cam_a.depth_unit:={unit}"] if unit else []),
                         "-r", f"/ntcr/cam_a/depth/color/points:=/{name}/cam_a/depth/color/points",
                         "-r", f"/ntcr/cam_a/depth/camera_info:=/{name}/cam_a/depth/camera_info",
+                        "-r", f"/ntcr/cam_a/color/image_rect_raw:=/{name}/cam_a/color/image_rect_raw",
+                        "-r", f"/ntcr/cam_a/color/camera_info:=/{name}/cam_a/color/camera_info",
                         *(["-p", "publish_clock:=true"] if name == "raw16" else []))
             graph.node.create_subscription(PointCloud2, f"/{name}/cam_a/depth/color/points", received[name].append,
                                            COLLECT_QOS)
         graph.node.create_subscription(CameraInfo, "/raw16/cam_a/depth/camera_info", infos.append, COLLECT_QOS)
+        graph.colour = [], []  # the raw16 node's colour windows and their camera_infos
+        graph.node.create_subscription(Image, "/raw16/cam_a/color/image_rect_raw", graph.colour[0].append,
+                                       COLLECT_QOS)
+        graph.node.create_subscription(CameraInfo, "/raw16/cam_a/color/camera_info", graph.colour[1].append,
+                                       COLLECT_QOS)
         graph.node.create_subscription(Clock, "/clock", clocks.append, COLLECT_QOS)
         graph.node.create_subscription(DiagnosticArray, "/diagnostics", diagnostics.append, COLLECT_QOS)
         # Two loops of every bag after discovery, and each node's diagnostics after its first frame.
         assert graph.spin_until(lambda: all(len(r) >= 2 * FRAMES for r in received.values())
                                 and set(camera_statuses(diagnostics)) >= {f"camera_{name}" for name in CASES}
-                                and all(s.values for s in camera_statuses(diagnostics).values()), 30), \
+                                and all(s.values for s in camera_statuses(diagnostics).values())
+                                and all(len(kind) >= FRAMES for kind in graph.colour), 30), \
             graph.all_logs()
         yield graph, received, infos, clocks, load_rig_config(rig), diagnostics
 
@@ -95,6 +105,24 @@ def test_depth_frames_are_deprojected_by_the_core(setup, case):
         assert len(xyz) == len(want_xyz) > 100
         np.testing.assert_allclose(xyz, want_xyz, atol=1e-7)
         np.testing.assert_array_equal(rgb, want_rgb)  # the colour of the frame with the same stamp
+
+
+def test_the_colour_window_that_sees_the_crop_box_goes_out_with_its_intrinsics(setup):
+    """What relocation_node places the axis across the view with: the frame's colour cut to the window that can see
+    the crop box (core.relocation.limbs.CameraView.within), its camera_info that window's intrinsics, both with the
+    frame's stamp."""
+    graph, _, _, _, config, _ = setup
+    images, infos = graph.colour
+    info_by_stamp = {stamp_to_ns(info.header.stamp): info for info in infos}
+    for msg in images[:FRAMES]:
+        stamp = stamp_to_ns(msg.header.stamp)
+        index = round((stamp - START) / PERIOD) % FRAMES
+        want = CameraView(tiny_rig.frame_color("cam_a", index), tiny_rig.INTRINSICS,
+                          config.cameras["cam_a"].extrinsic).within(*config.crop_box())
+        assert msg.header.frame_id == "cam_a_optical_frame" and msg.encoding == "rgb8"
+        assert (msg.width, msg.height) == (want.intrinsics.width, want.intrinsics.height)
+        np.testing.assert_array_equal(image_to_array(msg), want.color)
+        assert intrinsics_from_camera_info(info_by_stamp[stamp]) == want.intrinsics
 
 
 def test_16bit_depth_is_scaled_by_the_configured_unit(setup):
