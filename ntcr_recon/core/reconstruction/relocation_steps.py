@@ -33,7 +33,7 @@ from ntcr_recon.core.relocation.alignment import (
     Alignment,
 )
 from ntcr_recon.core.relocation.bends import continued_bend, held_bend, turn_from_base
-from ntcr_recon.core.relocation.centerline import Centerline, TubeCoordinates
+from ntcr_recon.core.relocation.centerline import Centerline, TubeCoordinates, cameras_round_tube
 from ntcr_recon.core.relocation.centerline_fit import CenterlineSettings
 from ntcr_recon.core.relocation.cross_view import CrossView
 from ntcr_recon.core.relocation.icp import ReferenceMove
@@ -197,7 +197,9 @@ def notches_and_side(scene: Scene, axis: Axis, tip_s: float, wall) -> Sided:
         if side_measured is None:
             break
         roll, side_uncertainty, by_edges = side_measured
-        if not by_edges:  # one edge or none placed the window: the matcher's smear of it is not cancelled
+        # one edge or none placed the window, or each edge was seen by another camera: a matcher's smear of an
+        # edge is not cancelled by the same smear of the other
+        if not by_edges or not _one_camera_faces_both_edges(scene, axis, edged, roll):
             side_uncertainty += _edge_reach(scene, footprint, axis.centerline) / geometry.outer_radius
         if abs(roll) <= ROLL_TO_REFRAME:
             notch_side += roll  # reported as measured; too small a turn to find the notches again for
@@ -381,6 +383,19 @@ def _edge_reach(scene: Scene, footprint: float, centerline: Centerline) -> float
     if not np.any(measured):
         return SILHOUETTE_MARGIN_PX * footprint
     return float(np.mean(bands[measured] * distances[measured]))
+
+
+def _one_camera_faces_both_edges(scene: Scene, axis: Axis, notches: list[Notch], roll: float) -> bool:
+    """Whether one camera faces both edges of the notches' open window (roll +- the gap's half angle about the axis,
+    at the middle notch): its matcher then smears the two alike, and their mean cancels that. True without the
+    cameras (nothing to tell)."""
+    if scene.seen_by is None or not notches:
+        return True
+    middle = np.array([np.median([notch.center_s for notch in notches])])
+    towards = cameras_round_tube(axis.centerline.frames_at(middle), scene.origins)[0]  # (C, 2): normal, binormal
+    cameras = np.arctan2(towards[:, 1], towards[:, 0])
+    edges = roll + np.array([-1.0, 1.0]) * scene.geometry.gap_half_angle
+    return bool(np.any(np.all(np.cos(edges[None, :] - cameras[:, None]) > 0.0, axis=1)))
 
 
 def _rolled_axes(normal: np.ndarray, binormal: np.ndarray, angle: float) -> tuple[np.ndarray, np.ndarray]:
