@@ -29,6 +29,7 @@ from scipy import ndimage
 
 from ntcr_recon.core.cloud.deproject import Intrinsics, crop_window
 from ntcr_recon.core.relocation.centerline import Centerline
+from ntcr_recon.core.relocation.outline import LEAST_CROSSING
 
 # Profile samples per pixel across the tube.
 SAMPLES_PER_PX = 4
@@ -58,12 +59,10 @@ MIN_STATIONS = 3
 # another (a prop behind the tube matching its colour, a highlight on one side).
 MIN_CAMERAS = 2
 
-# Cameras' directions across their views count as distinct where their singular value is at least this share of
-# the largest (sin 30 deg between two directions: opposed cameras share one, averaged).
-LEAST_NEW_DIRECTION = np.sin(np.radians(30.0))
-
-# The tube lies across a camera's view where its axis is at least this far from the camera's line of sight.
-LEAST_CROSSING = np.radians(45.0)
+# The cameras' directions across their views are solved for in least squares whose singular values under this share
+# of the largest are cut: two directions count as distinct beyond about 53 deg apart (tan(angle / 2) > 0.5);
+# opposed cameras share one, and are averaged along it.
+DISTINCT_DIRECTIONS_RCOND = 0.5
 
 
 @dataclass(frozen=True)
@@ -238,9 +237,9 @@ def _limb_move(centerline: Centerline, views: dict[str, CameraView], outer_radiu
         if len(constraints) >= min(MIN_CAMERAS, len(views)):
             directions = np.array([direction for direction, _ in constraints])
             offsets = np.array([value for _, value in constraints])
-            # directions within LEAST_NEW_DIRECTION of one another count as one (else their small difference
+            # directions that are not distinct (DISTINCT_DIRECTIONS_RCOND) count as one (else their small difference
             # would carry their offsets' disagreement far along the views)
-            moves.append(np.linalg.lstsq(directions, offsets, rcond=LEAST_NEW_DIRECTION)[0])
+            moves.append(np.linalg.lstsq(directions, offsets, rcond=DISTINCT_DIRECTIONS_RCOND)[0])
             centres.append((w + 0.5) * window)
     if not moves:
         return None, placed
