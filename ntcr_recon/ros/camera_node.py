@@ -368,8 +368,11 @@ class CameraNode(RigNode):
         self._cloud_publisher.publish(camera_cloud_to_msg(xyz, rgb, pixel, camera.frame_id, frame.stamp_ns))
         self.frames_published += 1
         self.stats.published(frame.stamp_ns, started)
-        if frame.color is not None:  # after the cloud (not in its latency), long before the cloud is filtered
-            view = CameraView(frame.color, i, camera.extrinsic).within(*self.rig.crop_box())
+        # after the cloud (not in its latency), long before the cloud is filtered; a colour of another size than the
+        # depth (registered by scaling) goes without: relocation_node places that view by depth alone
+        view = None if frame.color is None else CameraView.aligned(frame.color, i, camera.extrinsic)
+        if view is not None:
+            view = view.within(*self.rig.crop_box())
             self._color_info_publisher.publish(intrinsics_info_msg(view.intrinsics, camera.frame_id, frame.stamp_ns))
             self._color_publisher.publish(color_image_msg(view.color, camera.frame_id, frame.stamp_ns))
 

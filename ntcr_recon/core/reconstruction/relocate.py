@@ -117,7 +117,7 @@ class Relocator:
             if frame.intrinsics is not None and self.edge_bands.wants(name):
                 self.edge_bands.note_image(name, frame.depth, unit, frame.intrinsics.fx)
             if frame.intrinsics is not None and frame.color is not None:
-                self.note_view(name, frame.color, frame.intrinsics)
+                self._note_aligned_view(name, frame.color, frame.intrinsics)
 
     def note_view(self, camera: str, color: np.ndarray, intrinsics: Intrinsics) -> None:
         """A camera's latest colour image (H, W, 3 uint8, aligned with its depth; or the window of it camera_node
@@ -129,6 +129,13 @@ class Relocator:
         view = CameraView(np.asarray(color), intrinsics, self.config.cameras[camera].extrinsic)
         # the window that can see the crop box (camera_node publishes that window: the same pixels either way)
         self.views[camera] = view.within(*self.config.crop_box())
+
+    def _note_aligned_view(self, camera: str, color: np.ndarray, intrinsics: Intrinsics) -> None:
+        """note_view, for a colour image pixel-aligned with the depth (CameraView.aligned); one of another size is
+        not used (the axis is placed by depth alone in that view)."""
+        view = CameraView.aligned(color, intrinsics, self.config.cameras[camera].extrinsic)
+        if view is not None:
+            self.views[camera] = view.within(*self.config.crop_box())
 
     def note_edge_band(self, camera: str, angle: float) -> None:
         """A camera's edge band (rad, `core.relocation.tip.edge_band_angle`) measured where its depth images are: in

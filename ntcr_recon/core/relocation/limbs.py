@@ -80,6 +80,15 @@ class CameraView:
             raise ValueError(f"a colour image of {self.intrinsics.width}x{self.intrinsics.height} (H, W, 3) was "
                              f"expected, got an array of shape {shape}")
 
+    @classmethod
+    def aligned(cls, color: np.ndarray, intrinsics: Intrinsics, extrinsic: np.ndarray) -> CameraView | None:
+        """The view of a colour image pixel-aligned with the depth whose intrinsics are given (a D405's: both from
+        its left imager); None for one of another size (a colour stream registered to depth only by scaling,
+        which places no edge to a pixel)."""
+        if np.shape(color)[:2] != (intrinsics.height, intrinsics.width) or np.ndim(color) != 3:
+            return None
+        return cls(np.asarray(color), intrinsics, extrinsic)
+
     def within(self, box_min, box_max) -> CameraView:
         """The view cut to the image window through which the camera can see the base-frame box (its intrinsics
         shifted by the window; deproject.crop_window): what the limbs need of it, and what camera_node publishes.

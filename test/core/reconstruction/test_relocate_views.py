@@ -5,6 +5,7 @@ import pytest
 from support.tiny_rig import rig_parameters
 
 from ntcr_recon.core.cloud.deproject import Intrinsics
+from ntcr_recon.core.cloud.fusion import CameraFrame, FramePair
 from ntcr_recon.core.config.rig import rig_config_from_mapping
 from ntcr_recon.core.reconstruction.relocate import Relocator
 
@@ -22,3 +23,21 @@ def test_note_view_keeps_the_latest_image_per_camera_and_names_a_bad_one():
         relocator.note_view("cam_x", np.zeros((48, 64, 3), np.uint8), intrinsics)
     with pytest.raises(ValueError, match="64x48"):
         relocator.note_view(camera, np.zeros((48, 64), np.uint8), intrinsics)
+
+
+def test_a_colour_image_of_another_size_than_the_depth_is_not_used():
+    """A colour stream registered to depth only by scaling places no edge to a pixel: the frames are fused as
+    before (the cloud's colours scaled), the relocation places that view by depth alone."""
+    config = rig_config_from_mapping(rig_parameters())
+    relocator = Relocator(config)
+    camera = config.camera_names[0]
+    intrinsics = Intrinsics(64, 48, 50.0, 50.0, 32.0, 24.0)
+    depth = np.full((48, 64), 900, np.uint16)
+    pair = FramePair(0, {camera: CameraFrame(camera, 0, depth=depth, intrinsics=intrinsics,
+                                             color=np.zeros((96, 128, 3), np.uint8))})
+    relocator.note_frames(pair)
+    assert relocator.views == {}
+    aligned = FramePair(1, {camera: CameraFrame(camera, 1, depth=depth, intrinsics=intrinsics,
+                                                color=np.zeros((48, 64, 3), np.uint8))})
+    relocator.note_frames(aligned)
+    assert list(relocator.views) == [camera]
