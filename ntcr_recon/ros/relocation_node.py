@@ -147,6 +147,7 @@ class RelocationNode(RigNode):
             image = self._color[camera].nearest(stamp_ns, int(self.rig.fusion.slop * 1e9))
             info = None if image is None else self._color_info[camera].at(image[0])
             if image is None or info is None or info[0] != image[0]:
+                self._relocator.views.pop(camera, None)  # one of another instant shows the robot elsewhere
                 continue
             try:
                 color = image_to_array(decode(image[1], Image, f"colour image of '{camera}'"))

@@ -106,8 +106,11 @@ class Relocator:
         self.prior = None
 
     def note_frames(self, pair: FramePair) -> None:
-        """The depth step each camera's data show, measured once per camera (for the self-check); and its
-        latest depth image while its edge band is not yet measured (for the tip: EdgeBands)."""
+        """The depth step each camera's data show, measured once per camera (for the self-check); its latest depth
+        image while its edge band is not yet measured (for the tip: EdgeBands); and the pair's colour images, the
+        views the next relocation places the axis with (a camera the pair lacks has none: an image of another
+        instant shows the robot elsewhere)."""
+        self.views = {}
         for name, frame in pair.frames.items():
             if frame.depth is None or name not in self.config.cameras:
                 continue

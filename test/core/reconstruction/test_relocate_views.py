@@ -41,3 +41,19 @@ def test_a_colour_image_of_another_size_than_the_depth_is_not_used():
                                                 color=np.zeros((48, 64, 3), np.uint8))})
     relocator.note_frames(aligned)
     assert list(relocator.views) == [camera]
+
+
+def test_a_pair_without_a_camera_leaves_no_view_of_another_instant():
+    config = rig_config_from_mapping(rig_parameters())
+    relocator = Relocator(config)
+    cam_a, cam_b = config.camera_names[:2]
+    intrinsics = Intrinsics(64, 48, 50.0, 50.0, 32.0, 24.0)
+
+    def frame(camera, stamp):
+        return CameraFrame(camera, stamp, depth=np.full((48, 64), 900, np.uint16), intrinsics=intrinsics,
+                           color=np.zeros((48, 64, 3), np.uint8))
+
+    relocator.note_frames(FramePair(0, {cam_a: frame(cam_a, 0), cam_b: frame(cam_b, 0)}))
+    assert set(relocator.views) == {cam_a, cam_b}
+    relocator.note_frames(FramePair(1, {cam_a: frame(cam_a, 1)}))  # cam_b dropped this frame
+    assert list(relocator.views) == [cam_a]
