@@ -22,11 +22,10 @@ about where the axis puts each limb, so an axis a pixel or more off is moved par
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
 
 import numpy as np
-from scipy import ndimage
 
+from ntcr_recon.core.base.compiled import jit
 from ntcr_recon.core.cloud.deproject import Intrinsics, crop_window
 from ntcr_recon.core.relocation.centerline import Centerline
 from ntcr_recon.core.relocation.outline import LEAST_CROSSING
@@ -101,11 +100,6 @@ class CameraView:
                          k.cy - window.v0)
         return CameraView(self.color[window.v0:window.v1, window.u0:window.u1], cut, self.extrinsic)
 
-    @cached_property
-    def channels(self) -> tuple[np.ndarray, ...]:
-        """The image's three channels as float32 (what the profiles are sampled from), made once."""
-        return tuple(np.ascontiguousarray(self.color[:, :, c], dtype=np.float32) for c in range(3))
-
 
 @dataclass(frozen=True)
 class LimbPlacement:
@@ -145,7 +139,7 @@ def limb_offsets(centerline: Centerline, s: np.ndarray, view: CameraView, outer_
     if not np.any(usable):
         return LimbPlacement(np.asarray(s, float), offset, across)
     sideways = sideways[usable] / length[usable, None]
-    middle, width = _limb_middles(view.channels, pixel[usable], sideways, half_width[usable])
+    middle, width = _limb_middles(view.color, pixel[usable], sideways, half_width[usable])
     good = np.abs(width - 2.0 * half_width[usable]) <= WIDTH_TOLERANCE_PX
     offset[np.flatnonzero(usable)[good]] = (middle * depth[usable] / k.fx)[good]
     # across in 3-D: the image's sideways direction in the optical frame, made perpendicular to the line of sight
@@ -155,45 +149,73 @@ def limb_offsets(centerline: Centerline, s: np.ndarray, view: CameraView, outer_
     return LimbPlacement(np.asarray(s, float), offset, across)
 
 
-def _limb_middles(channels: tuple[np.ndarray, ...], pixel: np.ndarray, sideways: np.ndarray, half_width: np.ndarray
+def _limb_middles(color: np.ndarray, pixel: np.ndarray, sideways: np.ndarray, half_width: np.ndarray
                   ) -> tuple[np.ndarray, np.ndarray]:
     """Per station, the middle of its two limbs (px along `sideways` from `pixel`) and their distance apart (px);
     NaN where a limb was not found."""
     most = float(np.max(half_width)) + SEARCH_PX + BACKGROUND_PX[1]
     ks = np.arange(-most, most + 0.5 / SAMPLES_PER_PX, 1.0 / SAMPLES_PER_PX)
-    points = pixel[:, None, :] + ks[None, :, None] * sideways[:, None, :]
-    where = [points[..., 1].ravel(), points[..., 0].ravel()]
-    profile = np.stack([ndimage.map_coordinates(channel, where, order=1, mode="nearest").reshape(points.shape[:2])
-                        for channel in channels], axis=-1)
-    limbs = [_limb(profile, ks, side * half_width, side) for side in (-1.0, 1.0)]
-    return (limbs[0] + limbs[1]) / 2.0, limbs[1] - limbs[0]
+    limbs = _limbs_kernel(np.ascontiguousarray(color), np.ascontiguousarray(pixel, dtype=float),
+                          np.ascontiguousarray(sideways, dtype=float), np.ascontiguousarray(half_width, dtype=float),
+                          ks, SEARCH_PX, *BACKGROUND_PX, *TUBE_PX, MIN_CONTRAST)
+    return (limbs[:, 0] + limbs[:, 1]) / 2.0, limbs[:, 1] - limbs[:, 0]
 
 
-def _limb(profile: np.ndarray, ks: np.ndarray, expected: np.ndarray, side: float) -> np.ndarray:
-    """Per station, where the profile crosses half-way from the tube to the background (px along ks) nearest the
-    expected limb (on the `side` of the axis: -1 or +1); NaN without contrast or crossing."""
-    beyond = side * (ks[None, :] - expected[:, None])  # px outward from the expected limb
-    background = _band_mean(profile, (beyond >= BACKGROUND_PX[0]) & (beyond <= BACKGROUND_PX[1]))
-    tube = _band_mean(profile, (-beyond >= TUBE_PX[0]) & (-beyond <= TUBE_PX[1]))
-    contrast = tube - background
-    strength = np.einsum("ij,ij->i", contrast, contrast)
-    # 0 at the background's colour, 1 at the tube's
-    level = np.einsum("ikc,ic->ik", profile - background[:, None, :], contrast) / np.maximum(strength, 1e-9)[:, None]
-    above = level[:, :-1] - 0.5
-    below = level[:, 1:] - 0.5
-    changes = (np.sign(above) != np.sign(below)) & (np.abs(beyond[:, :-1]) <= SEARCH_PX)
-    fraction = above / np.where(above != below, above - below, 1.0)
-    at = ks[None, :-1] + fraction * (ks[1] - ks[0])
-    distance = np.where(changes, np.abs(at - expected[:, None]), np.inf)
-    nearest = np.argmin(distance, axis=1)
-    found = np.isfinite(distance[np.arange(len(nearest)), nearest]) & (strength >= MIN_CONTRAST**2)
-    return np.where(found, at[np.arange(len(nearest)), nearest], np.nan)
-
-
-def _band_mean(profile: np.ndarray, band: np.ndarray) -> np.ndarray:
-    """Per station, the mean colour of the profile's samples in the band (S, K) mask (0 where it holds none)."""
-    weights = band.astype(profile.dtype)
-    return np.einsum("ik,ikc->ic", weights, profile) / np.maximum(weights.sum(axis=1), 1.0)[:, None]
+@jit
+def _limbs_kernel(color, pixel, sideways, half_width, ks, search, background_from, background_to, tube_from,
+                  tube_to, min_contrast):
+    """Per station (S, 2): where its colour profile along `sideways` crosses half-way from the background to the
+    tube (px along ks) nearest each expected limb (-half_width, +half_width); NaN without contrast or crossing.
+    The background is the profile's mean background_from..to px outside the expected limb, the tube its mean
+    tube_from..to px inside it; the profile is sampled bilinearly from the (H, W, 3) uint8 image."""
+    stations, samples = pixel.shape[0], ks.shape[0]
+    height, width = color.shape[0], color.shape[1]
+    step = ks[1] - ks[0]
+    profile = np.empty((samples, 3))
+    limbs = np.full((stations, 2), np.nan)
+    for i in range(stations):
+        for k in range(samples):  # bilinear, from the uint8 image itself
+            u = pixel[i, 0] + ks[k] * sideways[i, 0]
+            v = pixel[i, 1] + ks[k] * sideways[i, 1]
+            u0 = min(max(int(np.floor(u)), 0), width - 2)
+            v0 = min(max(int(np.floor(v)), 0), height - 2)
+            du, dv = u - u0, v - v0
+            for c in range(3):
+                top = color[v0, u0, c] * (1.0 - du) + color[v0, u0 + 1, c] * du
+                bottom = color[v0 + 1, u0, c] * (1.0 - du) + color[v0 + 1, u0 + 1, c] * du
+                profile[k, c] = top * (1.0 - dv) + bottom * dv
+        for j in range(2):
+            side = -1.0 if j == 0 else 1.0
+            expected = side * half_width[i]
+            b0 = b1 = b2 = t0 = t1 = t2 = 0.0
+            count_background = count_tube = 0
+            for k in range(samples):
+                beyond = side * (ks[k] - expected)  # px outward from the expected limb
+                if background_from <= beyond <= background_to:
+                    b0, b1, b2 = b0 + profile[k, 0], b1 + profile[k, 1], b2 + profile[k, 2]
+                    count_background += 1
+                if tube_from <= -beyond <= tube_to:
+                    t0, t1, t2 = t0 + profile[k, 0], t1 + profile[k, 1], t2 + profile[k, 2]
+                    count_tube += 1
+            nb, nt = max(count_background, 1), max(count_tube, 1)
+            b0, b1, b2 = b0 / nb, b1 / nb, b2 / nb
+            c0, c1, c2 = t0 / nt - b0, t1 / nt - b1, t2 / nt - b2  # the tube's colour against the background's
+            strength = c0 * c0 + c1 * c1 + c2 * c2
+            if strength < min_contrast * min_contrast:
+                continue
+            best = np.inf
+            previous = ((profile[0, 0] - b0) * c0 + (profile[0, 1] - b1) * c1 + (profile[0, 2] - b2) * c2) / strength
+            previous -= 0.5
+            for k in range(samples - 1):
+                following = ((profile[k + 1, 0] - b0) * c0 + (profile[k + 1, 1] - b1) * c1
+                             + (profile[k + 1, 2] - b2) * c2) / strength - 0.5
+                if np.sign(previous) != np.sign(following) and abs(side * (ks[k] - expected)) <= search:
+                    at = ks[k] + previous / (previous - following) * step
+                    if abs(at - expected) < best:
+                        best = abs(at - expected)
+                        limbs[i, j] = at
+                previous = following
+    return limbs
 
 
 @dataclass(frozen=True)
@@ -225,34 +247,37 @@ def placed_by_limbs(centerline: Centerline, views: dict[str, CameraView], outer_
 
 def _limb_move(centerline: Centerline, views: dict[str, CameraView], outer_radius: float, window: float,
                end_s: float) -> tuple[np.ndarray | None, dict[str, int]]:
-    """placed_by_limbs' move at each of the centreline's samples (None: no window placed), and
-    the windows each camera placed."""
+    """placed_by_limbs' move at each of the centreline's samples (None: no window placed), and the windows each
+    camera placed."""
     stations = np.arange(window / 8, max(end_s - outer_radius, window / 8), max(window / 8, 1e-5))
     count = max(int(np.ceil(end_s / window)), 1)
-    rows: list[list[tuple[np.ndarray, float]]] = [[] for _ in range(count)]
+    which = np.minimum((stations / window).astype(int), count - 1)  # each station's window (ascending)
+    directions = np.zeros((count, len(views), 3))  # per window and camera: its direction across the view...
+    offsets = np.zeros((count, len(views)))         # ...and the median offset of its stations (0, 0: none)
     placed = {}
-    for name, view in views.items():
+    for camera, (name, view) in enumerate(views.items()):
         placement = limb_offsets(centerline, stations, view, outer_radius)
-        which = np.minimum((stations / window).astype(int), count - 1)
-        placed[name] = 0
-        for w in range(count):
-            here = (which == w) & np.isfinite(placement.offset)
-            if np.count_nonzero(here) >= MIN_STATIONS:
-                centre = np.flatnonzero(here)[np.count_nonzero(here) // 2]
-                rows[w].append((placement.across[centre], float(np.median(placement.offset[here]))))
-                placed[name] += 1
-    centres, moves = [], []
-    for w, constraints in enumerate(rows):
-        if len(constraints) >= min(MIN_CAMERAS, len(views)):
-            directions = np.array([direction for direction, _ in constraints])
-            offsets = np.array([value for _, value in constraints])
-            # directions that are not distinct (DISTINCT_DIRECTIONS_RCOND) count as one (else their small difference
-            # would carry their offsets' disagreement far along the views)
-            moves.append(np.linalg.lstsq(directions, offsets, rcond=DISTINCT_DIRECTIONS_RCOND)[0])
-            centres.append((w + 0.5) * window)
-    if not moves:
+        measured = np.flatnonzero(np.isfinite(placement.offset))  # in s order, so grouped by window
+        sizes = np.bincount(which[measured], minlength=count)
+        enough = sizes >= MIN_STATIONS
+        placed[name] = int(np.count_nonzero(enough))
+        if not placed[name]:
+            continue
+        starts = (np.cumsum(sizes) - sizes)[enough]
+        # the median per window: the offsets sorted within each window, its middle one (or two)
+        ranked = placement.offset[measured][np.lexsort((placement.offset[measured], which[measured]))]
+        offsets[enough, camera] = (ranked[starts + (sizes[enough] - 1) // 2] + ranked[starts + sizes[enough] // 2]) / 2
+        # the direction at the window's middle station
+        directions[enough, camera] = placement.across[measured[starts + sizes[enough] // 2]]
+    solved = np.count_nonzero(np.any(directions != 0.0, axis=2), axis=1) >= min(MIN_CAMERAS, len(views))
+    if not np.any(solved):
         return None, placed
-    centres, moves = np.array(centres), np.array(moves)
+    # per window the least move giving every camera its offset; directions that are not distinct
+    # (DISTINCT_DIRECTIONS_RCOND) count as one (else their small difference would carry their offsets'
+    # disagreement far along the views); a camera without a row adds none
+    moves = np.einsum("wjc,wc->wj", np.linalg.pinv(directions[solved], rcond=DISTINCT_DIRECTIONS_RCOND),
+                      offsets[solved])
+    centres = (np.flatnonzero(solved) + 0.5) * window
     move = np.stack([np.interp(centerline.s, centres, moves[:, axis]) for axis in range(3)], axis=1)
     # beyond the windows placed nothing says where the axis lies across the views: the move fades out over a
     # window (held on, it would carry one window's move along a stretch that may turn, e.g. towards a camera)
