@@ -1,6 +1,6 @@
 """camera_node: one camera's frames -> `<ns>/<cam>/depth/color/points` (+ `<ns>/<cam>/depth/camera_info`), and its
-colour image's window that can see the robot's crop box -> `<ns>/<cam>/color/image_rect_raw` (rgb8, + its
-intrinsics on `<ns>/<cam>/color/camera_info`: core.relocation.limbs.CameraView.within, what relocation_node places
+colour image's window about the robot's pixels -> `<ns>/<cam>/color/image_rect_raw` (rgb8, + the window's
+intrinsics on `<ns>/<cam>/color/camera_info`: core.relocation.limbs.CameraView.around, what relocation_node places
 the axis across the view with).
 
 One instance per camera (parameter `camera`, a name of the rig's camera_names). The source is a parameter:
@@ -368,11 +368,12 @@ class CameraNode(RigNode):
         self._cloud_publisher.publish(camera_cloud_to_msg(xyz, rgb, pixel, camera.frame_id, frame.stamp_ns))
         self.frames_published += 1
         self.stats.published(frame.stamp_ns, started)
-        # after the cloud (not in its latency), long before the cloud is filtered; a colour of another size than the
-        # depth (registered by scaling) goes without: relocation_node places that view by depth alone
+        # after the cloud (not in its latency), long before the cloud is filtered: the colour about the robot's
+        # pixels, as the offline command cuts it (a colour of another size than the depth, registered by scaling,
+        # goes without: relocation_node places that view by depth alone)
         view = None if frame.color is None else CameraView.aligned(frame.color, i, camera.extrinsic)
+        view = None if view is None or pixel is None else view.around(pixel)
         if view is not None:
-            view = view.within(*self.rig.crop_box())
             self._color_info_publisher.publish(intrinsics_info_msg(view.intrinsics, camera.frame_id, frame.stamp_ns))
             self._color_publisher.publish(color_image_msg(view.color, camera.frame_id, frame.stamp_ns))
 

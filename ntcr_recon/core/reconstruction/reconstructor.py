@@ -74,6 +74,7 @@ class Reconstructor:
                 cloud = None
         if cloud is None:
             cloud, self._fused_within = fuse(pair, self.config), None
+        self.relocator.note_views(pair, cloud)  # the colour windows about the robot's pixels, for the limbs
         self._timed("fuse", start)
         return cloud
 

@@ -2,6 +2,7 @@
 
     relocator = Relocator(config)                 # a RigConfig (core.config.rig.load_rig_config)
     relocator.note_frames(frame_pair)             # optional: the depth images' step and edge band (self-check, tip)
+    relocator.note_views(frame_pair, fused)       # optional: the colour windows the limbs are read in
     relocator.note_edge_band(camera, angle)       # or a camera's edge band measured elsewhere (camera_node)
     result = relocator.relocate(cloud)            # centreline, notches, tip, relocated cloud: a RelocationResult
 
@@ -106,11 +107,8 @@ class Relocator:
         self.prior = None
 
     def note_frames(self, pair: FramePair) -> None:
-        """The depth step each camera's data show, measured once per camera (for the self-check); its latest depth
-        image while its edge band is not yet measured (for the tip: EdgeBands); and the pair's colour images, the
-        views the next relocation places the axis with (a camera the pair lacks has none: an image of another
-        instant shows the robot elsewhere)."""
-        self.views = {}
+        """The depth step each camera's data show, measured once per camera (for the self-check); and its latest
+        depth image while its edge band is not yet measured (for the tip: EdgeBands)."""
         for name, frame in pair.frames.items():
             if frame.depth is None or name not in self.config.cameras:
                 continue
@@ -119,26 +117,31 @@ class Relocator:
                 self.depth_steps[name] = depth_step(frame.depth, unit)
             if frame.intrinsics is not None and self.edge_bands.wants(name):
                 self.edge_bands.note_image(name, frame.depth, unit, frame.intrinsics.fx)
-            if frame.intrinsics is not None and frame.color is not None:
-                self._note_aligned_view(name, frame.color, frame.intrinsics)
+
+    def note_views(self, pair: FramePair, fused: Cloud) -> None:
+        """The views the next relocation places the axis with: each camera's colour image of the pair (pixel-aligned
+        with its depth: CameraView.aligned) cut around its pixels in the cloud fused from the pair, as camera_node
+        cuts the window it publishes. A camera the pair lacks, or whose colour is of another size, has none (an
+        image of another instant shows the robot elsewhere)."""
+        self.views = {}
+        if fused.pixel is None or fused.camera is None:
+            return
+        for index, name in enumerate(self.config.camera_names):
+            frame = pair.frames.get(name)
+            if frame is None or frame.color is None or frame.intrinsics is None:
+                continue
+            view = CameraView.aligned(frame.color, frame.intrinsics, self.config.cameras[name].extrinsic)
+            view = None if view is None else view.around(fused.pixel[fused.camera == index])
+            if view is not None:
+                self.views[name] = view
 
     def note_view(self, camera: str, color: np.ndarray, intrinsics: Intrinsics) -> None:
-        """A camera's latest colour image (H, W, 3 uint8, aligned with its depth; or the window of it camera_node
-        publishes, with its intrinsics): the next relocations place the axis across its view by the tube's limbs
-        there. ValueError for an unknown camera or an image that does not
-        fit its intrinsics."""
+        """A camera's colour window (H, W, 3 uint8, aligned with its depth, with the window's intrinsics), as
+        camera_node publishes it: the next relocations place the axis across its view by the tube's limbs there.
+        ValueError for an unknown camera or an image that does not fit its intrinsics."""
         if camera not in self.config.camera_names:
             raise ValueError(f"colour image of camera {camera!r}, which the rig configuration does not list")
-        view = CameraView(np.asarray(color), intrinsics, self.config.cameras[camera].extrinsic)
-        # the window that can see the crop box (camera_node publishes that window: the same pixels either way)
-        self.views[camera] = view.within(*self.config.crop_box())
-
-    def _note_aligned_view(self, camera: str, color: np.ndarray, intrinsics: Intrinsics) -> None:
-        """note_view, for a colour image pixel-aligned with the depth (CameraView.aligned); one of another size is
-        not used (the axis is placed by depth alone in that view)."""
-        view = CameraView.aligned(color, intrinsics, self.config.cameras[camera].extrinsic)
-        if view is not None:
-            self.views[camera] = view.within(*self.config.crop_box())
+        self.views[camera] = CameraView(np.asarray(color), intrinsics, self.config.cameras[camera].extrinsic)
 
     def note_edge_band(self, camera: str, angle: float) -> None:
         """A camera's edge band (rad, `core.relocation.tip.edge_band_angle`) measured where its depth images are: in

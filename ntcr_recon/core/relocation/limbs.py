@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ntcr_recon.core.base.compiled import jit
-from ntcr_recon.core.cloud.deproject import Intrinsics, crop_window
+from ntcr_recon.core.cloud.deproject import Intrinsics
 from ntcr_recon.core.relocation.centerline import Centerline
 from ntcr_recon.core.relocation.outline import LEAST_CROSSING
 
@@ -53,6 +53,11 @@ WIDTH_TOLERANCE_PX = 1.5
 # Stations a window (a notch pitch) needs, per camera, to place the axis there (their median: a few stations at
 # a prop's edge do not move it).
 MIN_STATIONS = 3
+
+# How far the window a camera's limbs are read in reaches past the robot's pixels (px): a profile reaches
+# SEARCH_PX + BACKGROUND_PX[1] (+1 to interpolate) past the expected limb, which lies up to a matcher's eroded
+# band (half its window, 3.5 px) past the pixels depth kept.
+WINDOW_MARGIN_PX = 16
 
 # Cameras a window's limbs must be measured in to place the axis there: one camera alone is not checked against
 # another (a prop behind the tube matching its colour, a highlight on one side).
@@ -88,17 +93,18 @@ class CameraView:
             return None
         return cls(np.asarray(color), intrinsics, extrinsic)
 
-    def within(self, box_min, box_max) -> CameraView:
-        """The view cut to the image window through which the camera can see the base-frame box (its intrinsics
-        shifted by the window; deproject.crop_window): what the limbs need of it, and what camera_node publishes.
-        Itself where the window is the whole image or there is none."""
+    def around(self, pixels: np.ndarray) -> CameraView | None:
+        """The view cut to the robot's pixels (N, 2: u, v; those of its depth points inside the crop box) and
+        WINDOW_MARGIN_PX about them, its intrinsics shifted by the cut: what the limbs read (a profile reaches
+        past the silhouette by less than the margin, so a larger window reads the same) and what camera_node
+        publishes. None without a pixel (the camera does not see the robot)."""
+        if len(pixels) == 0:
+            return None
         k = self.intrinsics
-        window = crop_window(k, self.extrinsic, box_min, box_max)
-        if window is None or (window.u0, window.v0, window.u1, window.v1) == (0, 0, k.width, k.height):
-            return self
-        cut = Intrinsics(window.u1 - window.u0, window.v1 - window.v0, k.fx, k.fy, k.cx - window.u0,
-                         k.cy - window.v0)
-        return CameraView(self.color[window.v0:window.v1, window.u0:window.u1], cut, self.extrinsic)
+        low = np.maximum(np.min(pixels, axis=0).astype(int) - WINDOW_MARGIN_PX, 0)
+        high = np.minimum(np.max(pixels, axis=0).astype(int) + WINDOW_MARGIN_PX + 1, (k.width, k.height))
+        cut = Intrinsics(int(high[0] - low[0]), int(high[1] - low[1]), k.fx, k.fy, k.cx - low[0], k.cy - low[1])
+        return CameraView(self.color[low[1]:high[1], low[0]:high[0]], cut, self.extrinsic)
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,7 @@ from scipy import ndimage
 
 from ntcr_recon.core.cloud.deproject import Intrinsics
 from ntcr_recon.core.relocation.centerline import Centerline
-from ntcr_recon.core.relocation.limbs import CameraView, limb_offsets, placed_by_limbs
+from ntcr_recon.core.relocation.limbs import WINDOW_MARGIN_PX, CameraView, limb_offsets, placed_by_limbs
 
 RADIUS = 1.75e-3
 DEPTH = 0.09
@@ -112,22 +112,23 @@ def test_a_camera_view_names_an_image_that_does_not_fit_its_intrinsics():
         CameraView(np.zeros((240, 424, 3), np.uint8), INTRINSICS, np.eye(4))
 
 
-def test_a_view_cut_to_the_window_that_sees_a_box_keeps_its_pixels_where_they_were():
+def test_a_view_cut_around_the_robots_pixels_reads_the_limbs_as_the_whole_image():
     pose = opposed_cameras()["cam_a"]
     view = CameraView(tube_image(pose, 0.0), INTRINSICS, pose)
-    box = (np.array([-0.01, -0.004, -0.004]), np.array([0.01, 0.004, 0.004]))
-    cut = view.within(*box)
-    k, c = view.intrinsics, cut.intrinsics
-    assert c.width < k.width and c.height < k.height and cut.color.shape == (c.height, c.width, 3)
-    u0, v0 = round(k.cx - c.cx), round(k.cy - c.cy)
-    assert (c.fx, c.fy) == (k.fx, k.fy) and u0 > 0 and v0 > 0
-    np.testing.assert_array_equal(cut.color, view.color[v0:v0 + c.height, u0:u0 + c.width])
-    assert cut.within(*box) is cut  # cut once: the window is the whole image
-    # the limbs read the same off the window as off the whole image, but for stations whose profile would reach
-    # past the window (at the box's ends)
-    s = np.linspace(0.002, 0.018, 20)
     centerline = straight_centerline(0.1e-3, length=0.02)
+    # the robot's pixels as depth keeps them: its silhouette between 2 mm either side of the middle of the image
+    rows = np.arange(int(INTRINSICS.cy - 7), int(INTRINSICS.cy + 8))
+    columns = np.arange(int(INTRINSICS.cx - 47), int(INTRINSICS.cx + 48))
+    pixels = np.stack(np.meshgrid(columns, rows), axis=-1).reshape(-1, 2)
+    cut = view.around(pixels)
+    k, c = view.intrinsics, cut.intrinsics
+    u0, v0 = round(k.cx - c.cx), round(k.cy - c.cy)
+    assert (u0, v0) == (columns[0] - WINDOW_MARGIN_PX, rows[0] - WINDOW_MARGIN_PX) and (c.fx, c.fy) == (k.fx, k.fy)
+    assert (c.width, c.height) == (len(columns) + 2 * WINDOW_MARGIN_PX, len(rows) + 2 * WINDOW_MARGIN_PX)
+    np.testing.assert_array_equal(cut.color, view.color[v0:v0 + c.height, u0:u0 + c.width])
+    # the limbs read the same off the window as off the whole image, wherever the robot's pixels are
+    s = np.linspace(0.0085, 0.0115, 7)  # stations within the pixels' 4 mm
     whole, window = (limb_offsets(centerline, s, v, RADIUS).offset for v in (view, cut))
-    measured = np.isfinite(window)
-    assert np.all(np.isfinite(whole)) and measured.sum() >= len(s) - 4
-    np.testing.assert_allclose(window[measured], whole[measured], atol=1e-12)
+    assert np.all(np.isfinite(whole))
+    np.testing.assert_allclose(window, whole, rtol=0, atol=1e-15)  # the window shifts the pixel coordinates
+    assert view.around(np.zeros((0, 2), int)) is None  # a camera that does not see the robot: no view
