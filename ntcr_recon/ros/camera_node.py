@@ -144,7 +144,7 @@ class CameraNode(RigNode):
         self._cloud_publisher = self.create_publisher(PointCloud2, points_topic, SENSOR_QOS)
         self._info_publisher = self.create_publisher(
             CameraInfo, self.rig.topics.camera_topic(self.camera, "depth_info"), SENSOR_QOS)
-        # the colour window that can see the crop box, with its intrinsics: relocation_node places the axis across
+        # the colour window about the robot's pixels, with its intrinsics: relocation_node places the axis across
         # this camera's view by the tube's limbs there (core.relocation.limbs)
         self._color_publisher = self.create_publisher(Image, self.rig.topics.camera_topic(self.camera, "color"),
                                                       SENSOR_QOS)
