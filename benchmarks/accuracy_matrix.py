@@ -69,6 +69,7 @@ class Row:
     # the rig file's cam_b turned this many degrees about the base's z axis (through its optical centre) and moved
     # this many millimetres along its line of sight, off the pose the scene was rendered with
     extrinsics_off: tuple[float, float] = (0.0, 0.0)
+    limbs: bool = False                     # reconstructed with relocation.limbs (the limbs in the colour images)
 
 
 ROWS = [
@@ -207,7 +208,7 @@ def frame_pairs(simulation) -> list:
 
 
 def rig_config(simulation, side_error_deg: float = 0.0, method: str | None = None,
-               extrinsics_off: tuple[float, float] = (0.0, 0.0)):
+               extrinsics_off: tuple[float, float] = (0.0, 0.0), limbs: bool = False):
     from ntcr_recon.core.config.rig import rig_config_from_mapping
 
     parameters = simulation.rig_parameters()["/**"]["ros__parameters"]
@@ -217,7 +218,9 @@ def rig_config(simulation, side_error_deg: float = 0.0, method: str | None = Non
         moved["translation"], moved["rotation"] = perturbed_pose(moved["translation"], moved["rotation"],
                                                                  *extrinsics_off)
     if method is not None:
-        parameters["relocation"] = {"method": method}
+        parameters.setdefault("relocation", {})["method"] = method
+    if limbs:
+        parameters.setdefault("relocation", {})["limbs"] = True
     return rig_config_from_mapping(parameters)
 
 
@@ -365,7 +368,7 @@ def run_row(row: Row, frames: int = 2, seed: int = 1, method: str | None = None)
     """Render, reconstruct and measure one row; the figures, the misses and the result's warnings."""
     simulation = simulation_for(row, seed, frames)
     return reconstruct_and_measure(row.name, simulation.shape,
-                                   rig_config(simulation, row.side_error_deg, method, row.extrinsics_off),
+                                   rig_config(simulation, row.side_error_deg, method, row.extrinsics_off, row.limbs),
                                    frame_pairs(simulation), max(simulation.camera_distances
                                                                 or (simulation.camera_distance,)))
 
@@ -497,6 +500,9 @@ def main() -> int:
     parser.add_argument("--seeds", type=int, default=1,
                         help="noise seeds per row, from --seed on (default 1): a floor one seed meets by luck shows")
     parser.add_argument("--rows", default="", help="comma-separated row names (default: all)")
+    parser.add_argument("--limbs", action="store_true",
+                        help="reconstruct every row with relocation.limbs: the axis placed across the views by the "
+                        "tube's limbs in the colour images")
     parser.add_argument("--method", default="", help="relocation.method to use (default: the configured default; "
                                                      "'both': centerline and icp side by side)")
     add_detail_options(parser, "row")
@@ -526,6 +532,8 @@ def main() -> int:
     if offsets:
         rows = [replace(row, name=f"{row.name}@{turn:g}deg,{along:g}mm", extrinsics_off=(turn, along))
                 for row in rows for turn, along in offsets]
+    if args.limbs:
+        rows = [replace(row, limbs=True) for row in rows]
     methods = ["centerline", "icp"] if args.method == "both" else [args.method or None]
     print(HEADER)
     results = []

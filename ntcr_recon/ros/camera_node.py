@@ -74,7 +74,8 @@ PARAMETERS = {
     "start_time": (0.0, describe("bag / file: wall-clock time (s since the epoch) at which the first frame is due; "
                                   "camera nodes given the same value replay in step (0: when ready)", minimum=0.0,
                                   read_only=True)),
-    "wait_for_subscriber": (True, describe("bag / file: start replaying once the cloud topic has a subscriber, so a "
+    "wait_for_subscriber": (True, describe("bag / file: start replaying once the cloud topic has a subscriber (with "
+                                           "relocation.limbs: and the colour window one, or 3 s on), so a "
                                            "graph started together loses no frame", read_only=True)),
     "crop_to_robot": (True, describe("deproject only the pixels that can see the robot's crop box, and publish only "
                                      "the points inside it")),
@@ -88,6 +89,9 @@ PARAMETERS = {
                                        read_only=True)),
 }
 WAITING_LOG_PERIOD_S = 5.0
+# How long a replay waits, once its cloud has a subscriber, for one on its colour window (a graph's nodes discover
+# each other within a second or two; a camera_node alone has none, and starts after this).
+COLOR_SUBSCRIBER_GRACE_S = 3.0
 
 
 def camera_info_msg(frame: SourceFrame, frame_id: str) -> CameraInfo:
@@ -303,6 +307,12 @@ class CameraNode(RigNode):
             while self._cloud_publisher.get_subscription_count() == 0:
                 if self._stop.wait(0.05):
                     return
+            # and, for a while, one on the colour window (relocation_node's, started with the graph): frames replayed
+            # before it matched would be placed by depth alone there, and by the limbs in the offline command
+            grace = time.monotonic() + (COLOR_SUBSCRIBER_GRACE_S if self.rig.relocation.limbs else 0.0)
+            while self._color_publisher.get_subscription_count() == 0 and time.monotonic() < grace:
+                if self._stop.wait(0.05):
+                    return
         if hasattr(self._source, "skip"):
             self._source.skip = self._too_late
         try:
@@ -365,17 +375,19 @@ class CameraNode(RigNode):
         # the camera_info first: a subscriber pairing them (fusion_node's pixel footprint) has it when the cloud
         # of its stamp comes, as a driver publishes it before its image
         self._info_publisher.publish(camera_info_msg(frame, camera.frame_id))
-        self._cloud_publisher.publish(camera_cloud_to_msg(xyz, rgb, pixel, camera.frame_id, frame.stamp_ns))
-        self.frames_published += 1
-        self.stats.published(frame.stamp_ns, started)
-        # after the cloud (not in its latency), long before the cloud is filtered: the colour about the robot's
-        # pixels, as the offline command cuts it (a colour of another size than the depth, registered by scaling,
-        # goes without: relocation_node places that view by depth alone)
-        view = None if frame.color is None else CameraView.aligned(frame.color, i, camera.extrinsic)
+        # the colour about the robot's pixels before the cloud too, as the offline command cuts it: relocation_node
+        # needs it when the cloud comes through fusion and the filters (after them, it came after the cloud on a
+        # busy machine); a colour of another size than the depth (registered by scaling) goes without, and
+        # relocation_node places that view by depth alone
+        wanted = self.rig.relocation.limbs and frame.color is not None
+        view = CameraView.aligned(frame.color, i, camera.extrinsic) if wanted else None
         view = None if view is None or pixel is None else view.around(pixel)
         if view is not None:
             self._color_info_publisher.publish(intrinsics_info_msg(view.intrinsics, camera.frame_id, frame.stamp_ns))
             self._color_publisher.publish(color_image_msg(view.color, camera.frame_id, frame.stamp_ns))
+        self._cloud_publisher.publish(camera_cloud_to_msg(xyz, rgb, pixel, camera.frame_id, frame.stamp_ns))
+        self.frames_published += 1
+        self.stats.published(frame.stamp_ns, started)
 
     def destroy_node(self) -> None:
         self._stop.set()

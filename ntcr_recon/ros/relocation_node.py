@@ -101,7 +101,7 @@ class RelocationNode(RigNode):
         # comes; subscribed before the cloud, so that the executor takes an image ready with it first
         self._color: dict[str, InForce] = {camera: InForce() for camera in self.rig.camera_names}
         self._color_info: dict[str, InForce] = {camera: InForce() for camera in self.rig.camera_names}
-        for camera in self.rig.camera_names:
+        for camera in self.rig.camera_names if self.rig.relocation.limbs else ():
             self.create_subscription(Image, topic.camera_topic(camera, "color"),
                                      functools.partial(self._on_color, camera), SENSOR_QOS, raw=True)
             self.create_subscription(CameraInfo, topic.camera_topic(camera, "color_info"),
@@ -140,14 +140,16 @@ class RelocationNode(RigNode):
     def _on_color_info(self, camera: str, msg: CameraInfo) -> None:
         self._color_info[camera].add(stamp_to_ns(msg.header.stamp), intrinsics_from_camera_info(msg))
 
-    def _note_views(self, stamp_ns: int) -> None:
-        """Each camera's colour window of the frame the cloud of stamp_ns was fused from (its stamp within the
-        pairing's slop), as the offline command notes the frame pair's images before relocating it."""
-        for camera in self.rig.camera_names:
-            image = self._color[camera].nearest(stamp_ns, int(self.rig.fusion.slop * 1e9))
+    def _note_views(self, cloud) -> None:
+        """Each camera's colour window of the frame the cloud was fused from (its stamp within the pairing's slop),
+        as the offline command notes the frame pair's windows before relocating it: none for a camera without a
+        point in the cloud (fusion published the other alone) or without an image of its instant."""
+        seen = set() if cloud.camera is None else set(np.unique(cloud.camera).tolist())
+        for index, camera in enumerate(self.rig.camera_names):
+            image = self._color[camera].nearest(cloud.stamp_ns, int(self.rig.fusion.slop * 1e9))
             info = None if image is None else self._color_info[camera].at(image[0])
-            if image is None or info is None or info[0] != image[0]:
-                self._relocator.views.pop(camera, None)  # one of another instant shows the robot elsewhere
+            self._relocator.views.pop(camera, None)  # one of another instant shows the robot elsewhere
+            if index not in seen or image is None or info is None or info[0] != image[0]:
                 continue
             try:
                 color = image_to_array(decode(image[1], Image, f"colour image of '{camera}'"))
@@ -161,7 +163,8 @@ class RelocationNode(RigNode):
         started = time.perf_counter()
         msg = decode_cloud(raw, self._params["max_points"])  # refused when oversized before decoding
         cloud = stage_cloud_from_msg(msg, self.rig.base_frame, self.rig)
-        self._note_views(cloud.stamp_ns)
+        if self.rig.relocation.limbs:
+            self._note_views(cloud)
         try:
             relocation = self._relocator.relocate(cloud, warm_start=self._warm_start(cloud.stamp_ns))
         except ReconstructionError as error:

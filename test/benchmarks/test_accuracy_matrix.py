@@ -140,11 +140,10 @@ def test_a_camera_looking_into_the_notches_from_afar_is_overruled_by_the_one_fac
 
 
 def test_a_centreline_off_its_floor_says_how_uncertain_it_is():
-    """Bent 90 degrees towards cam_a (cameras 110 mm away): stereo beside the notches moves the wall each camera
-    sees and the distal part is seen by one camera, the centreline misses its floor, and the result's own
-    uncertainty (the cameras' spread across their views, the wall's deficit between the notches) says so - at least
-    as large as the error it made. (cameras110 missed it until the limbs in the colour images placed the axis.)"""
-    figures = accuracy_matrix.run_row(ROWS["bend90_toward_cam_a"], frames=2)
+    """Cameras 110 mm away: stereo beside the notches moves the wall each camera sees, the centreline misses its
+    floor, and the result's own uncertainty (the cameras' spread across their views, the wall's deficit between
+    the notches) says so - at least as large as the error it made."""
+    figures = accuracy_matrix.run_row(ROWS["cameras110"], frames=2)
     print("\n" + accuracy_matrix.format_row(figures) + "\n" + _listed(figures["warnings"]))
     assert "centerline" in figures["misses"], "this row was expected to miss; if it no longer does, pick another"
     stated = _found(figures, "CENTERLINE_UNCERTAIN")

@@ -119,12 +119,13 @@ class Relocator:
                 self.edge_bands.note_image(name, frame.depth, unit, frame.intrinsics.fx)
 
     def note_views(self, pair: FramePair, fused: Cloud) -> None:
-        """The views the next relocation places the axis with: each camera's colour image of the pair (pixel-aligned
+        """The views the next relocation places the axis with (relocation.limbs): each camera's colour image of the
+        pair (pixel-aligned
         with its depth: CameraView.aligned) cut around its pixels in the cloud fused from the pair, as camera_node
         cuts the window it publishes. A camera the pair lacks, or whose colour is of another size, has none (an
         image of another instant shows the robot elsewhere)."""
         self.views = {}
-        if fused.pixel is None or fused.camera is None:
+        if not self.config.relocation.limbs or fused.pixel is None or fused.camera is None:
             return
         for index, name in enumerate(self.config.camera_names):
             frame = pair.frames.get(name)

@@ -15,7 +15,7 @@ INTRINSICS = Intrinsics(64, 48, 50.0, 50.0, 32.0, 24.0)
 
 
 def test_note_view_keeps_the_latest_image_per_camera_and_names_a_bad_one():
-    config = rig_config_from_mapping(rig_parameters())
+    config = rig_config_from_mapping(rig_parameters(relocation={"limbs": True}))
     relocator = Relocator(config)
     camera = config.camera_names[0]
     intrinsics = INTRINSICS
@@ -42,7 +42,7 @@ def frame_of(camera: str, stamp: int, color_shape=(48, 64, 3)) -> CameraFrame:
 
 
 def test_the_views_are_the_pairs_colour_cut_about_each_cameras_pixels_in_the_fused_cloud():
-    config = rig_config_from_mapping(rig_parameters())
+    config = rig_config_from_mapping(rig_parameters(relocation={"limbs": True}))
     relocator = Relocator(config)
     cam_a, cam_b = config.camera_names[:2]
     pair = FramePair(0, {cam_a: frame_of(cam_a, 0), cam_b: frame_of(cam_b, 0)})
@@ -61,9 +61,16 @@ def test_the_views_are_the_pairs_colour_cut_about_each_cameras_pixels_in_the_fus
 def test_a_colour_image_of_another_size_than_the_depth_is_not_used():
     """A colour stream registered to depth only by scaling places no edge to a pixel: that view is placed by depth
     alone."""
-    config = rig_config_from_mapping(rig_parameters())
+    config = rig_config_from_mapping(rig_parameters(relocation={"limbs": True}))
     relocator = Relocator(config)
     camera = config.camera_names[0]
     pair = FramePair(0, {camera: frame_of(camera, 0, color_shape=(96, 128, 3))})
     relocator.note_views(pair, fused_over({0: np.array([[30, 20]])}))
+    assert relocator.views == {}
+
+
+def test_without_relocation_limbs_no_view_is_kept():
+    relocator = Relocator(rig_config_from_mapping(rig_parameters()))
+    camera = relocator.config.camera_names[0]
+    relocator.note_views(FramePair(0, {camera: frame_of(camera, 0)}), fused_over({0: np.array([[30, 20]])}))
     assert relocator.views == {}

@@ -36,7 +36,7 @@ CASES = {
 @pytest.fixture(scope="module")
 def setup(tmp_path_factory):
     root = tmp_path_factory.mktemp("camera_node")
-    rig = tiny_rig.write_rig(root / "rig.yaml")
+    rig = tiny_rig.write_rig(root / "rig.yaml", relocation={"limbs": True})  # the colour windows published too
     bags = {name: tiny_rig.write_bag(root / name, frames=FRAMES, fps=FPS, cameras=("cam_a",), **options)
             for name, options in CASES.items()}
     with RosGraph() as graph:
