@@ -56,7 +56,15 @@ from ntcr_recon.io.camera_sources import BagSource, Pacer, SourceError, SourceFr
 from ntcr_recon.ros.graph import START_DELAY_S
 from ntcr_recon.ros.messages import RCLPY, camera_cloud_to_msg, checked_intrinsics, header, stamp_msg
 from ntcr_recon.ros.node_stats import NodeStats
-from ntcr_recon.ros.node_support import LATCHED_QOS, SENSOR_QOS, ParameterError, RigNode, describe, run_node
+from ntcr_recon.ros.node_support import (
+    LATCHED_QOS,
+    SENSOR_QOS,
+    WINDOW_QOS,
+    ParameterError,
+    RigNode,
+    describe,
+    run_node,
+)
 from ntcr_recon.ros.topics import edge_band_topic
 
 SOURCES = ("bag", "realsense", "file")
@@ -151,9 +159,9 @@ class CameraNode(RigNode):
         # the colour window about the robot's pixels, with its intrinsics: relocation_node places the axis across
         # this camera's view by the tube's limbs there (core.relocation.limbs)
         self._color_publisher = self.create_publisher(Image, self.rig.topics.camera_topic(self.camera, "color"),
-                                                      SENSOR_QOS)
+                                                      WINDOW_QOS)
         self._color_info_publisher = self.create_publisher(
-            CameraInfo, self.rig.topics.camera_topic(self.camera, "color_info"), SENSOR_QOS)
+            CameraInfo, self.rig.topics.camera_topic(self.camera, "color_info"), WINDOW_QOS)
         self._clock_publisher = self.create_publisher(Clock, "/clock", 10) if self._params["publish_clock"] else None
         self._edge_band_publisher = self.create_publisher(Float64, edge_band_topic(self.rig.topics, self.camera),
                                                           LATCHED_QOS)

@@ -40,6 +40,11 @@ STAGE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=Rel
 # oversized nor counted, while the middleware's buffers held it (issue 66). The second place keeps it until the
 # node has seen (and refused) it; a node that keeps up still takes each frame as it comes.
 STAGE_INPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2, reliability=ReliabilityPolicy.RELIABLE)
+# The colour windows (camera_node -> relocation_node): reliable and transient-local, a few frames deep, so that one
+# published before relocation_node's subscription matched (at start-up) still comes, and comes whole;
+# relocation_node holds a cloud for its instant's windows (relocation_node.WINDOW_WAIT_S).
+WINDOW_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=4, reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
 # What a late subscriber still needs (the mesh): reliable and transient-local.
 LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)

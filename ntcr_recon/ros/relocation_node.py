@@ -22,8 +22,9 @@ images), as the offline command places it; until a camera's band arrives (or wit
 by the erosion of the silhouettes, which `tip_refinement` on /diagnostics names. The axis is placed across each
 camera's view by the tube's limbs in its colour window (`<ns>/<cam>/color/image_rect_raw` with
 `.../color/camera_info`, from camera_node; the one of the frame the cloud was fused from, its stamp within
-fusion.slop), as the offline command places it with the frame pair's images; without one, by depth alone
-(`centerline_limbs` on /diagnostics says which).
+fusion.slop), as the offline command places it with the frame pair's images. A cloud whose windows have not come
+waits for them (WINDOW_WAIT_S at most, or until the next cloud); without one, the view is placed by depth alone
+(a log line, and `centerline_limbs` on /diagnostics, say which).
 A cloud the core cannot reconstruct (too few points, no tube along the base axis) is logged and skipped; a cloud
 of more than `max_points` points is dropped before it is read. The centreline goes out serialized from arrays
 (ros/cdr.py): a Path of PoseStamped objects built one by one cost more than the relocation itself.
@@ -40,6 +41,7 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
+from rclpy.clock import Clock, ClockType
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from std_msgs.msg import Float64, Float64MultiArray
 from visualization_msgs.msg import MarkerArray
@@ -59,8 +61,8 @@ from ntcr_recon.ros.messages import (
 from ntcr_recon.ros.node_stats import NodeStats
 from ntcr_recon.ros.node_support import (
     LATCHED_QOS,
-    SENSOR_QOS,
     STAGE_QOS,
+    WINDOW_QOS,
     ParameterError,
     RigNode,
     describe,
@@ -76,6 +78,10 @@ from ntcr_recon.ros.result_messages import (
     pose_stamped,
 )
 from ntcr_recon.ros.topics import edge_band_topic, stage_topic
+
+# How long a cloud waits for its instant's colour windows (s): a window comes before its cloud (camera_node
+# publishes it first, and the cloud passes fusion and filter) unless the machine is busy or the graph starting.
+WINDOW_WAIT_S = 0.25
 
 PARAMETERS = {
     "output_dir": ("", describe("when set, the newest relocated cloud is also written to <output_dir>/relocated.ply")),
@@ -101,11 +107,18 @@ class RelocationNode(RigNode):
         # comes; subscribed before the cloud, so that the executor takes an image ready with it first
         self._color: dict[str, InForce] = {camera: InForce() for camera in self.rig.camera_names}
         self._color_info: dict[str, InForce] = {camera: InForce() for camera in self.rig.camera_names}
-        for camera in self.rig.camera_names if self.rig.relocation.limbs else ():
-            self.create_subscription(Image, topic.camera_topic(camera, "color"),
-                                     functools.partial(self._on_color, camera), SENSOR_QOS, raw=True)
+        self._windows = {camera: self.create_subscription(Image, topic.camera_topic(camera, "color"),
+                                                          functools.partial(self._on_color, camera), WINDOW_QOS,
+                                                          raw=True)
+                         for camera in (self.rig.camera_names if self.rig.relocation.limbs else ())}
+        for camera in self._windows:
             self.create_subscription(CameraInfo, topic.camera_topic(camera, "color_info"),
-                                     functools.partial(self._on_color_info, camera), SENSOR_QOS)
+                                     functools.partial(self._on_color_info, camera), WINDOW_QOS)
+        # a cloud whose instant's windows have not come yet waits for them, WINDOW_WAIT_S at most (steady time: a
+        # replay's /clock may stand still)
+        self._held: tuple | None = None
+        self._hold_timer = self.create_timer(WINDOW_WAIT_S, self._on_hold_expired,
+                                             clock=Clock(clock_type=ClockType.STEADY_TIME), autostart=False)
         # depth 1, unlike the other stages' inputs (STAGE_INPUT_QOS): the slowest stage, it would take the older of two
         # frames whenever it falls behind (camera-to-tip p50 94 ms against 51 at depth 1, bench_graph on this
         # machine); a giant cloud the next frame pushes out before its last fragment came never reaches it
@@ -135,10 +148,45 @@ class RelocationNode(RigNode):
     @guarded
     def _on_color(self, camera: str, raw: bytes) -> None:
         self._color[camera].add(header_stamp_ns(raw), raw)
+        self._release_when_complete()
 
     @guarded
     def _on_color_info(self, camera: str, msg: CameraInfo) -> None:
         self._color_info[camera].add(stamp_to_ns(msg.header.stamp), intrinsics_from_camera_info(msg))
+        self._release_when_complete()
+
+    def _window_of(self, camera: str, stamp_ns: int):
+        """(the colour image's raw bytes, its intrinsics) of a camera at a cloud's stamp (within fusion.slop), or
+        None when either has not come."""
+        image = self._color[camera].nearest(stamp_ns, int(self.rig.fusion.slop * 1e9))
+        info = None if image is None else self._color_info[camera].at(image[0])
+        return None if info is None or info[0] != image[0] else (image[1], info[1])
+
+    def _awaited(self, cloud) -> list[str]:
+        """The cameras with points in the cloud whose window of its instant has not come while their camera_node
+        publishes windows: the cloud waits for those."""
+        seen = set() if cloud.camera is None else set(np.unique(cloud.camera).tolist())
+        return [camera for index, camera in enumerate(self.rig.camera_names)
+                if index in seen and camera in self._windows and self._windows[camera].get_publisher_count() > 0
+                and self._window_of(camera, cloud.stamp_ns) is None]
+
+    def _release_when_complete(self) -> None:
+        if self._held is not None and not self._awaited(self._held[1]):
+            self._release()
+
+    @guarded
+    def _on_hold_expired(self) -> None:
+        if self._held is not None:
+            missing = ", ".join(self._awaited(self._held[1]))
+            self.get_logger().warning(f"no colour window of {missing} came within {WINDOW_WAIT_S:.2f} s of its "
+                                      "cloud: the axis is placed by depth alone in that view",
+                                      throttle_duration_sec=5.0)
+            self._release()
+
+    def _release(self) -> None:
+        held, self._held = self._held, None
+        self._hold_timer.cancel()
+        self._relocate(*held)
 
     def _note_views(self, cloud) -> None:
         """Each camera's colour window of the frame the cloud was fused from (its stamp within the pairing's slop),
@@ -146,14 +194,13 @@ class RelocationNode(RigNode):
         point in the cloud (fusion published the other alone) or without an image of its instant."""
         seen = set() if cloud.camera is None else set(np.unique(cloud.camera).tolist())
         for index, camera in enumerate(self.rig.camera_names):
-            image = self._color[camera].nearest(cloud.stamp_ns, int(self.rig.fusion.slop * 1e9))
-            info = None if image is None else self._color_info[camera].at(image[0])
+            window = self._window_of(camera, cloud.stamp_ns)
             self._relocator.views.pop(camera, None)  # one of another instant shows the robot elsewhere
-            if index not in seen or image is None or info is None or info[0] != image[0]:
+            if index not in seen or window is None:
                 continue
             try:
-                color = image_to_array(decode(image[1], Image, f"colour image of '{camera}'"))
-                self._relocator.note_view(camera, color, info[1])
+                color = image_to_array(decode(window[0], Image, f"colour image of '{camera}'"))
+                self._relocator.note_view(camera, color, window[1])
             except ValueError as error:  # one bad image: the axis is placed by depth alone in that view
                 self.get_logger().warning(f"colour image of '{camera}' not used: {error}", throttle_duration_sec=5.0)
 
@@ -163,7 +210,16 @@ class RelocationNode(RigNode):
         started = time.perf_counter()
         msg = decode_cloud(raw, self._params["max_points"])  # refused when oversized before decoding
         cloud = stage_cloud_from_msg(msg, self.rig.base_frame, self.rig)
-        if self.rig.relocation.limbs:
+        if self._held is not None:  # a newer cloud came: the held one goes on with the windows it has
+            self._release()
+        if self._awaited(cloud):
+            self._held = (msg, cloud, started)
+            self._hold_timer.reset()
+            return
+        self._relocate(msg, cloud, started)
+
+    def _relocate(self, msg: PointCloud2, cloud, started: float) -> None:
+        if self._windows:
             self._note_views(cloud)
         try:
             relocation = self._relocator.relocate(cloud, warm_start=self._warm_start(cloud.stamp_ns))

@@ -163,10 +163,9 @@ class RelocationConfig:
                           choices=("centerline", "icp"))
     reference_mesh: str = setting("", "method icp: a PLY/STL of the robot in the base frame ('' = the configured "
                                   "robot posed by the estimated centreline)", max_length=4096)
-    limbs: bool = setting(False, "place the axis across each camera's view by the tube's limbs in its colour image "
-                          "(core.relocation.limbs; camera_node then publishes the colour about the robot). Off by "
-                          "default: in the graph a frame whose colour came late is placed by depth alone, a few um "
-                          "off what the offline command gives")
+    limbs: bool = setting(True, "place the axis across each camera's view by the tube's limbs in its colour image "
+                          "(core.relocation.limbs; camera_node then publishes the colour about the robot, and "
+                          "relocation_node waits for it); false: by depth alone")
     gate_radius_fraction: float = setting(0.35, "gate, in outer radii", minimum=0.0, maximum=10.0,
                                           exclusive_minimum=True)
     gate_pixels: float = setting(2.0, "gate, in pixel footprints (added)", unit="px", minimum=0.0, maximum=100.0)

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import Path as PathMsg
 from scipy.spatial import cKDTree
 from sensor_msgs.msg import PointCloud2
 from shape_msgs.msg import Mesh
@@ -89,7 +90,8 @@ def read_ply_points(path: Path) -> np.ndarray:
 def replay(reference, tmp_path_factory):
     output = tmp_path_factory.mktemp("replay")
     with RosGraph() as graph:
-        out = {name: [] for name in ("relocated", "notches", "tip", "mesh", "mesh_raw")}
+        out = {name: [] for name in ("relocated", "notches", "tip", "centerline", "mesh", "mesh_raw")}
+        graph.node.create_subscription(PathMsg, "/ntcr/centerline", out["centerline"].append, COLLECT_RELIABLE)
         graph.node.create_subscription(PoseStamped, "/ntcr/tip", out["tip"].append, COLLECT_RELIABLE)
         graph.node.create_subscription(PointCloud2, "/ntcr/relocated/points", out["relocated"].append,
                                        COLLECT_RELIABLE)
@@ -185,6 +187,28 @@ def test_the_tip_is_placed_with_the_edge_band_camera_node_measured(reference, re
         print(f"tip {np.linalg.norm(got - expected.tip) * 1e6:.2f} um from the core's (a profile sample: "
               f"{sample * 1e6:.0f} um)")
         assert np.linalg.norm(got - expected.tip) < sample
+        compared += 1
+    assert compared == OUTPUTS
+
+
+def test_the_centreline_is_the_cores_placed_by_the_same_limbs(reference, replay):
+    """The axis across each camera's view is placed by the tube's limbs in that camera's colour window, which
+    camera_node publishes beside its cloud and relocation_node waits for: the graph's centreline is the core's,
+    which read the same images. Placed by depth alone in a view (a window lost or late), it moves by about
+    `centerline_limbs.moved_mm`, tens of um."""
+    config, by_offset, first, loop_span = reference
+    out, *_ = replay
+    paths = {stamp_to_ns(m.header.stamp): m for m in out["centerline"]}
+    compared = 0
+    for cloud_msg in out["relocated"][:OUTPUTS]:
+        stamp = stamp_to_ns(cloud_msg.header.stamp)
+        cloud, _ = stage_cloud_and_normals(cloud_msg, config.base_frame)
+        expected = by_offset[(stamp - first) % loop_span, tuple(int(c) for c in np.unique(cloud.camera))]
+        got = np.array([[p.pose.position.x, p.pose.position.y, p.pose.position.z] for p in paths[stamp].poses])
+        moved = expected.quality["centerline_limbs"]["moved_mm"] * 1e-3
+        off = np.max(np.linalg.norm(got - expected.centerline.points, axis=1))
+        print(f"centreline {off * 1e6:.2f} um from the core's at most (the limbs moved it {moved * 1e6:.1f} um)")
+        assert len(got) == len(expected.centerline.points) and moved > 5e-6 and off < moved / 4
         compared += 1
     assert compared == OUTPUTS
 

@@ -3,11 +3,14 @@ input (a simulated 45-degree frame pair), a malformed cloud is logged by its def
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
+from sensor_msgs.msg import CameraInfo, Image
 from shape_msgs.msg import Mesh
 from std_msgs.msg import Float64MultiArray
 from support import tiny_rig
@@ -17,7 +20,9 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from ntcr_recon.core.config.rig import load_rig_config
 from ntcr_recon.core.reconstruction.reconstructor import Reconstructor
+from ntcr_recon.core.reconstruction.relocate import Relocator
 from ntcr_recon.io.pointcloud import stamp_to_ns
+from ntcr_recon.ros.camera_node import color_image_msg, intrinsics_info_msg
 from ntcr_recon.ros.messages import (
     relocation_cloud_msg,
     relocation_from_msgs,
@@ -25,7 +30,8 @@ from ntcr_recon.ros.messages import (
     stage_cloud_from_msg,
     stage_cloud_to_msg,
 )
-from ntcr_recon.ros.node_support import LATCHED_QOS, STAGE_QOS
+from ntcr_recon.ros.node_support import LATCHED_QOS, STAGE_QOS, WINDOW_QOS
+from ntcr_recon.ros.relocation_node import WINDOW_WAIT_S
 from ntcr_recon.ros.result_messages import centerline_path_msg, mesh_from_msg, notches_from_array
 
 
@@ -301,3 +307,56 @@ def test_filter_node_refuses_a_cloud_whose_pixels_no_camera_of_the_rig_has(scene
         probe.graph.log_of(probe.process)
     assert len(probe.received) == count and probe.process.poll() is None
     test_filter_node_filters_as_the_core(scene, filter_probe)
+
+
+def test_relocation_node_waits_for_the_colour_windows_of_its_cloud(scene, relocation_probe):
+    """A cloud that comes before its instant's colour windows waits for them and is placed by the limbs there, as
+    the core places it with the pair's images; one whose windows never come goes on by depth alone after
+    WINDOW_WAIT_S, with a line saying so. (Last in the module: the window publishers stay.)"""
+    bag, config, *_ = scene
+    probe = relocation_probe
+    reconstructor = Reconstructor(config)
+    pair = tiny_rig.bag_frame_pairs(bag, config)[1]
+    filtered = stage_cloud_to_msg(reconstructor.filter(reconstructor.fuse(pair)), config.base_frame)
+    views = reconstructor.relocator.views
+    cloud = stage_cloud_from_msg(filtered, config.base_frame)
+    relocator = Relocator(config)  # as the node's: the views, and no edge band (no camera_node to measure one)
+    by_depth = relocator.relocate(cloud, warm_start=False)
+    relocator.views = views
+    by_limbs = relocator.relocate(cloud, warm_start=False)
+    assert set(views) == set(config.camera_names)
+    assert by_limbs.quality["centerline_limbs"]["moved_mm"] > 0.005 and by_depth.quality["centerline_limbs"] is None
+    set_parameter(probe.graph, "relocation_node", "warm_start", False)
+    publishers = {}
+    for camera in config.camera_names:
+        publishers[camera] = (probe.graph.node.create_publisher(Image, f"/ntcr/{camera}/color/image_rect_raw",
+                                                                WINDOW_QOS),
+                              probe.graph.node.create_publisher(CameraInfo, f"/ntcr/{camera}/color/camera_info",
+                                                                WINDOW_QOS))
+        for publisher in publishers[camera]:
+            probe.graph.wait_for_subscribers(publisher)
+
+    def centreline_of(stamp_ns: int):
+        path = next((m for m in reversed(probe.extra["centerline"]) if stamp_to_ns(m.header.stamp) == stamp_ns), None)
+        return None if path is None else np.array([[p.pose.position.x, p.pose.position.y, p.pose.position.z]
+                                                   for p in path.poses])
+
+    probe.publisher.publish(filtered)  # the cloud first: it waits
+    probe.graph.spin_until(lambda: False, 0.1)
+    assert centreline_of(pair.stamp_ns) is None
+    for camera, view in views.items():
+        frame_id, stamp = config.cameras[camera].frame_id, pair.frames[camera].stamp_ns
+        publishers[camera][1].publish(intrinsics_info_msg(view.intrinsics, frame_id, stamp))
+        publishers[camera][0].publish(color_image_msg(view.color, frame_id, stamp))
+    assert probe.graph.spin_until(lambda: centreline_of(pair.stamp_ns) is not None, 10)
+    np.testing.assert_allclose(centreline_of(pair.stamp_ns), by_limbs.centerline.points, atol=1e-7)
+
+    alone = stage_cloud_to_msg(cloud, config.base_frame)
+    alone.header.stamp.sec += 1  # an instant of which no window comes
+    log_before = len(probe.graph.log_of(probe.process))
+    sent = time.monotonic()
+    probe.publisher.publish(alone)
+    assert probe.graph.spin_until(lambda: centreline_of(stamp_to_ns(alone.header.stamp)) is not None, 10)
+    assert time.monotonic() - sent >= WINDOW_WAIT_S
+    np.testing.assert_allclose(centreline_of(stamp_to_ns(alone.header.stamp)), by_depth.centerline.points, atol=1e-7)
+    assert "no colour window of cam_a, cam_b came" in probe.graph.log_of(probe.process)[log_before:]
