@@ -35,19 +35,17 @@ from rclpy.signals import SignalHandlerOptions
 SENSOR_QOS = qos_profile_sensor_data
 # Stage outputs: reliable, depth 1 (a consumer wants the newest result, not a backlog).
 STAGE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE)
-# Stage inputs: reliable, depth 2. With depth 1 a large cloud (sent in fragments, one of 5 million points ~60 MB)
-# was pushed out by the next ordinary frame before its last fragment came: never taken, so neither dropped as
-# oversized nor counted, while the middleware's buffers held it (issue 66). The second place keeps it until the
-# node has seen (and refused) it; a node that keeps up still takes each frame as it comes.
+# Stage inputs: reliable, depth 2. At depth 1 a large cloud (fragments, 5 million points ~60 MB) was pushed out by
+# the next frame before its last fragment came: never taken, dropped nor counted (issue 66). The second place
+# keeps it until the node has seen (and refused) it; a node that keeps up still takes each frame as it comes.
 STAGE_INPUT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2, reliability=ReliabilityPolicy.RELIABLE)
-# The colour windows (camera_node -> relocation_node): reliable and transient-local, a few frames deep, so that one
-# published before relocation_node's subscription matched (at start-up) still comes, and comes whole;
-# relocation_node holds a cloud for its instant's windows (relocation_node.WINDOW_WAIT_S).
-WINDOW_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=4, reliability=ReliabilityPolicy.RELIABLE,
-                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
 # What a late subscriber still needs (the mesh): reliable and transient-local.
 LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# The colour windows (relocation_node holds a cloud for them): latched a few frames deep, so that one published
+# before the subscription matched (at start-up) still comes.
+WINDOW_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=4, reliability=LATCHED_QOS.reliability,
+                        durability=LATCHED_QOS.durability)
 
 
 class ParameterError(ValueError):

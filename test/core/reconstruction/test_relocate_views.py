@@ -70,7 +70,7 @@ def test_a_colour_image_of_another_size_than_the_depth_is_not_used():
 
 
 def test_without_relocation_limbs_no_view_is_kept():
-    relocator = Relocator(rig_config_from_mapping(rig_parameters()))
+    relocator = Relocator(rig_config_from_mapping(rig_parameters(relocation={"limbs": False})))
     camera = relocator.config.camera_names[0]
     relocator.note_views(FramePair(0, {camera: frame_of(camera, 0)}), fused_over({0: np.array([[30, 20]])}))
     assert relocator.views == {}
