@@ -177,10 +177,6 @@ class RelocationNode(RigNode):
     @guarded
     def _on_hold_expired(self) -> None:
         if self._held is not None:
-            missing = ", ".join(self._awaited(self._held[1]))
-            self.get_logger().warning(f"no colour window of {missing} came within {WINDOW_WAIT_S:.2f} s of its "
-                                      "cloud: the axis is placed by depth alone in that view",
-                                      throttle_duration_sec=5.0)
             self._release()
 
     def _release(self) -> None:
@@ -193,9 +189,12 @@ class RelocationNode(RigNode):
         as the offline command notes the frame pair's windows before relocating it: none for a camera without a
         point in the cloud (fusion published the other alone) or without an image of its instant."""
         seen = set() if cloud.camera is None else set(np.unique(cloud.camera).tolist())
+        missing = []
         for index, camera in enumerate(self.rig.camera_names):
             window = self._window_of(camera, cloud.stamp_ns)
             self._relocator.views.pop(camera, None)  # one of another instant shows the robot elsewhere
+            if index in seen and window is None:
+                missing.append(camera)
             if index not in seen or window is None:
                 continue
             try:
@@ -203,6 +202,10 @@ class RelocationNode(RigNode):
                 self._relocator.note_view(camera, color, window[1])
             except ValueError as error:  # one bad image: the axis is placed by depth alone in that view
                 self.get_logger().warning(f"colour image of '{camera}' not used: {error}", throttle_duration_sec=5.0)
+        if missing:
+            self.get_logger().warning(f"no colour window of {', '.join(missing)} came with the cloud of "
+                                      f"{cloud.stamp_ns} ns: the axis is placed by depth alone in that view",
+                                      throttle_duration_sec=5.0)
 
     @guarded
     def _on_cloud(self, raw: bytes) -> None:

@@ -341,22 +341,25 @@ def test_relocation_node_waits_for_the_colour_windows_of_its_cloud(scene, reloca
         return None if path is None else np.array([[p.pose.position.x, p.pose.position.y, p.pose.position.z]
                                                    for p in path.poses])
 
-    probe.publisher.publish(filtered)  # the cloud first: it waits
+    later = 100  # s: an instant of its own (the module's other tests sent this frame pair's cloud)
+    first = stage_cloud_to_msg(cloud, config.base_frame)
+    first.header.stamp.sec += later
+    probe.publisher.publish(first)  # the cloud before its windows: it waits
     probe.graph.spin_until(lambda: False, 0.1)
-    assert centreline_of(pair.stamp_ns) is None
+    assert centreline_of(stamp_to_ns(first.header.stamp)) is None
     for camera, view in views.items():
-        frame_id, stamp = config.cameras[camera].frame_id, pair.frames[camera].stamp_ns
+        frame_id, stamp = config.cameras[camera].frame_id, pair.frames[camera].stamp_ns + later * 10**9
         publishers[camera][1].publish(intrinsics_info_msg(view.intrinsics, frame_id, stamp))
         publishers[camera][0].publish(color_image_msg(view.color, frame_id, stamp))
-    assert probe.graph.spin_until(lambda: centreline_of(pair.stamp_ns) is not None, 10)
-    np.testing.assert_allclose(centreline_of(pair.stamp_ns), by_limbs.centerline.points, atol=1e-7)
+    assert probe.graph.spin_until(lambda: centreline_of(stamp_to_ns(first.header.stamp)) is not None, 10)
+    np.testing.assert_allclose(centreline_of(stamp_to_ns(first.header.stamp)), by_limbs.centerline.points, atol=1e-7)
 
     alone = stage_cloud_to_msg(cloud, config.base_frame)
-    alone.header.stamp.sec += 1  # an instant of which no window comes
+    alone.header.stamp.sec += later + 1  # an instant of which no window comes
     log_before = len(probe.graph.log_of(probe.process))
     sent = time.monotonic()
     probe.publisher.publish(alone)
     assert probe.graph.spin_until(lambda: centreline_of(stamp_to_ns(alone.header.stamp)) is not None, 10)
     assert time.monotonic() - sent >= WINDOW_WAIT_S
     np.testing.assert_allclose(centreline_of(stamp_to_ns(alone.header.stamp)), by_depth.centerline.points, atol=1e-7)
-    assert "no colour window of cam_a, cam_b came" in probe.graph.log_of(probe.process)[log_before:]
+    assert "no colour window of cam_a, cam_b came with the cloud" in probe.graph.log_of(probe.process)[log_before:]
