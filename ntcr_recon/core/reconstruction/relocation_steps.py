@@ -356,7 +356,9 @@ def assess(scene: Scene, aligned: Aligned, sided: Sided, end: SeenEnd, length: B
                # the notch pitches whose limbs in each camera's colour image placed the axis across its view, and
                # how far that moved it (None: no colour image)
                "centerline_limbs": None if aligned.limbs is None else {
-                   "windows": dict(aligned.limbs.windows), "moved_mm": aligned.limbs.moved_rms * 1e3},
+                   "windows": dict(aligned.limbs.windows), "moved_mm": aligned.limbs.moved_rms * 1e3,
+                   "disagreement_mm": None if aligned.limbs.disagreement is None
+                   else aligned.limbs.disagreement * 1e3},
                "robot_bend_end_off_deg": None if length.end_turn_off is None else float(np.degrees(
                    length.end_turn_off))}
     return quality, warnings

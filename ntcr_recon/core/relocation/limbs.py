@@ -226,11 +226,14 @@ def _limbs_kernel(color, pixel, sideways, half_width, ks, search, background_fro
 
 @dataclass(frozen=True)
 class LimbFigures:
-    """What the limbs said: per camera the windows they placed the axis in, and how far they moved it (m, RMS
-    over the centreline's samples; 0: not moved)."""
+    """What the limbs said: per camera the windows they placed the axis in, how far they moved it (m, RMS over the
+    centreline's samples; 0: not moved), and how well the cameras agreed on where it lies across their views (m,
+    RMS over the windows: the least squares' residual, half the difference of two opposed cameras' offsets, about
+    how far their mean may be off; None: no window measured by more cameras than it has directions)."""
 
     windows: dict[str, int]
     moved_rms: float
+    disagreement: float | None = None
 
 
 def placed_by_limbs(centerline: Centerline, views: dict[str, CameraView], outer_radius: float, window: float,
@@ -243,18 +246,18 @@ def placed_by_limbs(centerline: Centerline, views: dict[str, CameraView], outer_
     across the tangent that gives every camera placing it its offset (opposed cameras share one direction: the
     move lies along it, depth keeps the axis along the views); between windows interpolated, beyond the first and
     last faded out over a window. Up to end_s (the end of the wall seen); unchanged where no window was placed."""
-    move, windows = _limb_move(centerline, views, outer_radius, window, end_s)
+    move, windows, disagreement = _limb_move(centerline, views, outer_radius, window, end_s)
     if move is None:
         return centerline, LimbFigures(windows, 0.0)
     moved = Centerline.from_points(centerline.points + move, centerline.binormals[0],
                                    float(centerline.s[1] - centerline.s[0]))
-    return moved, LimbFigures(windows, float(np.sqrt(np.mean(np.sum(move**2, axis=1)))))
+    return moved, LimbFigures(windows, float(np.sqrt(np.mean(np.sum(move**2, axis=1)))), disagreement)
 
 
 def _limb_move(centerline: Centerline, views: dict[str, CameraView], outer_radius: float, window: float,
-               end_s: float) -> tuple[np.ndarray | None, dict[str, int]]:
-    """placed_by_limbs' move at each of the centreline's samples (None: no window placed), and the windows each
-    camera placed."""
+               end_s: float) -> tuple[np.ndarray | None, dict[str, int], float | None]:
+    """placed_by_limbs' move at each of the centreline's samples (None: no window placed), the windows each
+    camera placed, and the cameras' disagreement (LimbFigures)."""
     stations = np.arange(window / 8, max(end_s - outer_radius, window / 8), max(window / 8, 1e-5))
     count = max(int(np.ceil(end_s / window)), 1)
     which = np.minimum((stations / window).astype(int), count - 1)  # each station's window (ascending)
@@ -277,12 +280,15 @@ def _limb_move(centerline: Centerline, views: dict[str, CameraView], outer_radiu
         directions[enough, camera] = placement.across[measured[starts + sizes[enough] // 2]]
     solved = np.count_nonzero(np.any(directions != 0.0, axis=2), axis=1) >= min(MIN_CAMERAS, len(views))
     if not np.any(solved):
-        return None, placed
+        return None, placed, None
     # per window the least move giving every camera its offset; directions that are not distinct
     # (DISTINCT_DIRECTIONS_RCOND) count as one (else their small difference would carry their offsets'
     # disagreement far along the views); a camera without a row adds none
     moves = np.einsum("wjc,wc->wj", np.linalg.pinv(directions[solved], rcond=DISTINCT_DIRECTIONS_RCOND),
                       offsets[solved])
+    rows = np.any(directions[solved] != 0.0, axis=2)
+    residual = (offsets[solved] - np.einsum("wcj,wj->wc", directions[solved], moves))[rows]
+    disagreement = float(np.sqrt(np.mean(residual**2))) if len(views) >= MIN_CAMERAS else None
     centres = (np.flatnonzero(solved) + 0.5) * window
     move = np.stack([np.interp(centerline.s, centres, moves[:, axis]) for axis in range(3)], axis=1)
     # beyond the windows placed nothing says where the axis lies across the views: the move fades out over a
@@ -290,4 +296,4 @@ def _limb_move(centerline: Centerline, views: dict[str, CameraView], outer_radiu
     beyond = np.maximum(centres[0] - centerline.s, centerline.s - centres[-1]) / window
     move *= np.clip(1.0 - beyond, 0.0, 1.0)[:, None]
     # across the tangent only: a move along it would stretch the centreline
-    return move - centerline.tangents * np.einsum("ij,ij->i", move, centerline.tangents)[:, None], placed
+    return move - centerline.tangents * np.einsum("ij,ij->i", move, centerline.tangents)[:, None], placed, disagreement
