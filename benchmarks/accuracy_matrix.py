@@ -69,7 +69,7 @@ class Row:
     # the rig file's cam_b turned this many degrees about the base's z axis (through its optical centre) and moved
     # this many millimetres along its line of sight, off the pose the scene was rendered with
     extrinsics_off: tuple[float, float] = (0.0, 0.0)
-    limbs: bool = False                     # reconstructed with relocation.limbs (the limbs in the colour images)
+    limbs: bool | None = None               # relocation.limbs (the limbs in the colour images); None: the default
 
 
 ROWS = [
@@ -208,7 +208,7 @@ def frame_pairs(simulation) -> list:
 
 
 def rig_config(simulation, side_error_deg: float = 0.0, method: str | None = None,
-               extrinsics_off: tuple[float, float] = (0.0, 0.0), limbs: bool = False):
+               extrinsics_off: tuple[float, float] = (0.0, 0.0), limbs: bool | None = None):
     from ntcr_recon.core.config.rig import rig_config_from_mapping
 
     parameters = simulation.rig_parameters()["/**"]["ros__parameters"]
@@ -219,8 +219,8 @@ def rig_config(simulation, side_error_deg: float = 0.0, method: str | None = Non
                                                                  *extrinsics_off)
     if method is not None:
         parameters.setdefault("relocation", {})["method"] = method
-    if limbs:
-        parameters.setdefault("relocation", {})["limbs"] = True
+    if limbs is not None:
+        parameters.setdefault("relocation", {})["limbs"] = limbs
     return rig_config_from_mapping(parameters)
 
 
@@ -500,9 +500,9 @@ def main() -> int:
     parser.add_argument("--seeds", type=int, default=1,
                         help="noise seeds per row, from --seed on (default 1): a floor one seed meets by luck shows")
     parser.add_argument("--rows", default="", help="comma-separated row names (default: all)")
-    parser.add_argument("--limbs", action="store_true",
-                        help="reconstruct every row with relocation.limbs: the axis placed across the views by the "
-                        "tube's limbs in the colour images")
+    parser.add_argument("--no-limbs", action="store_true",
+                        help="reconstruct every row with relocation.limbs false: the axis placed across the views by "
+                        "depth alone, not by the tube's limbs in the colour images")
     parser.add_argument("--method", default="", help="relocation.method to use (default: the configured default; "
                                                      "'both': centerline and icp side by side)")
     add_detail_options(parser, "row")
@@ -532,8 +532,8 @@ def main() -> int:
     if offsets:
         rows = [replace(row, name=f"{row.name}@{turn:g}deg,{along:g}mm", extrinsics_off=(turn, along))
                 for row in rows for turn, along in offsets]
-    if args.limbs:
-        rows = [replace(row, limbs=True) for row in rows]
+    if args.no_limbs:
+        rows = [replace(row, limbs=False) for row in rows]
     methods = ["centerline", "icp"] if args.method == "both" else [args.method or None]
     print(HEADER)
     results = []
