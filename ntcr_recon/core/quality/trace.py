@@ -48,11 +48,11 @@ class Trace:
     length. backbone_shift: how far backbone.level_by_backbone moved the axis (None or 0: no camera faced the
     backbone). unsupported: the stretches of s where no camera saw trusted wall (cross_view.CrossView).
     distal_cross_view: CrossView.distal, the cameras' spread across their views in the last window, which bounds
-    the tip across the tube from below. alignment_scatter: how much the alignment's shift of the fit varies along
+    the tip across the tube from below (the limbs' disagreement where they placed that window: end_by_limbs). alignment_scatter: how much the alignment's shift of the fit varies along
     the tube (alignment.shift_scatter). misread_widths: the width each notch notch_widths.calibrate_and_check found
     misread was read at (by index), now its bend's; unchecked: the notches it could not check. held_shift: (how far
     the alignment moved the end, the s beyond which it held that shift unmeasured) (alignment.Alignment's end_shift
-    and held_from). reach: how near the tube comes to each camera (measures.CameraReach). notch_centres: the comb's
+    and held_from; with end_by_limbs its part along the views alone). reach: how near the tube comes to each camera (measures.CameraReach). notch_centres: the comb's
     notch centres along s (comb.expected_centres). wall_level: the outer wall's level about the r_o circle
     (wall.surface_band of all points). outline_offset: how far the axis lies from the middle of the tube's outline
     in the cameras' views (RMS; outline.outline_offset). across_from_fit: (the aligned axis's outline offset, the
@@ -92,6 +92,7 @@ class Trace:
     tip_along: TipAlongTube | None = None
     backbone_shift: float | None = None
     held_shift: tuple[float, float] | None = None
+    end_by_limbs: bool = False
     unsupported: tuple[tuple[float, float], ...] = ()
     misread_widths: dict[int, float] | None = None
     unchecked: list[int] | None = None
@@ -282,7 +283,9 @@ def tip_bounds(t: Trace, seen_end: float, centreline_known: float | None, apart:
                      "seen, the tip would lie that far off",
            "carried": f"the centreline carried on bending over the {carried * 1e3:.1f} mm past where its fit reached, "
                       "at the bend of the notches before",
-           "held_shift": f"the alignment moved the axis {held * 1e3:.2f} mm at the last wall it trusted, and held that "
+           "held_shift": f"the alignment moved the axis {held * 1e3:.2f} mm"
+                         f"{' along the views (across them the limbs placed it)' if t.end_by_limbs else ''}"
+                         " at the last wall it trusted, and held that "
                          f"shift unchecked over the {max(t.tip_s - held_from, 0.0) * 1e3:.1f} mm to the tip",
            "free_end": "the centreline's, at its free end"}[because]
     # bending shortens the centreline by ybar * theta: what the tip should read with the measured bend

@@ -326,6 +326,7 @@ def assess(scene: Scene, aligned: Aligned, sided: Sided, end: SeenEnd, length: B
     level, _ = surface_band(offset, settings.gate)
     near_wall = np.abs(offset - level) < settings.gate
     wall_residual = float(np.sqrt(np.mean((offset[near_wall] - level) ** 2))) if np.any(near_wall) else 0.0
+    held_shift, distal_cross_view, end_by_limbs = _distal_across(aligned, length.along.s, geometry.notch_pitch)
     quality, warnings = assess_trace(Trace(
         geometry=geometry, camera_names=scene.config.camera_names, notches=notches,
         coords_s=axis.measured.s, camera=scene.seen_by, tip_s=length.along.s, total_bend=length.total_bend,
@@ -337,12 +338,12 @@ def assess(scene: Scene, aligned: Aligned, sided: Sided, end: SeenEnd, length: B
         tip_along=length.along, crop_box=scene.config.crop_box(),
         notched_thinning=thinning.thinning, looking_into_slots=thinning.looking, tip_from_cap=end.from_cap,
         side_unsettled=sided.unsettled, side_uncertainty=sided.side_uncertainty,
-        cross_view_spread=aligned.cross_view.spread, distal_cross_view=aligned.cross_view.distal,
+        cross_view_spread=aligned.cross_view.spread, distal_cross_view=distal_cross_view,
         cross_view_offsets=aligned.cross_view.offsets,
         centerline_tolerance=scene.config.quality.centerline_tolerance,
         alignment_scatter=aligned.scatter, outline_offset=aligned.outline, across_from_fit=aligned.across_from_fit,
         unsupported=aligned.cross_view.unsupported, backbone_shift=aligned.backbone_shift, misread_widths=misread,
-        held_shift=None if alignment is None else (alignment.end_shift, alignment.held_from),
+        held_shift=held_shift, end_by_limbs=end_by_limbs,
         unchecked=unchecked, reach=length.reach,
         notch_centres=comb_centres, wall_level=level, fitted_end=length.fitted_end,
         reference_moved=reference_moved))
@@ -362,6 +363,19 @@ def assess(scene: Scene, aligned: Aligned, sided: Sided, end: SeenEnd, length: B
                "robot_bend_end_off_deg": None if length.end_turn_off is None else float(np.degrees(
                    length.end_turn_off))}
     return quality, warnings
+
+
+def _distal_across(aligned: Aligned, tip_s: float, window: float) -> tuple[tuple | None, float | None, bool]:
+    """What holds the axis across the views at the free end: (the alignment's held shift of the end, as far as
+    nothing measured it; the cameras' spread across their views there; whether the limbs placed it). Where the
+    limbs placed the axis in the last window before the tip, they measured it across the views: the held shift
+    counts along them only, the spread is the limbs' (their disagreement) instead of depth's."""
+    alignment, limbs = aligned.alignment, aligned.limbs
+    by_limbs = (limbs is not None and limbs.disagreement is not None and limbs.reach >= tip_s - window)
+    held = None if alignment is None else (
+        limbs.unchecked(alignment.end_move, tip_s - window) if by_limbs and alignment.end_move is not None
+        else alignment.end_shift, alignment.held_from)
+    return held, limbs.disagreement if by_limbs else aligned.cross_view.distal, by_limbs
 
 
 def _unrefined_tip_uncertainty(scene: Scene, centerline: Centerline, tip_s: float, footprint: float) -> float:

@@ -115,6 +115,7 @@ class Alignment:
     # lean: the shift there is held to the tube's end, and end_shift (m) is how far it moved the end
     held_from: float | None = None
     end_shift: float = 0.0
+    end_move: np.ndarray | None = None  # (3,) m: the end's move itself (end_shift its length)
 
     def moved_to(self, centerline: Centerline, fit: Centerline) -> Alignment:
         """This alignment with its axis replaced by `centerline` (outline.across_views_from): the lean removed and
@@ -122,7 +123,8 @@ class Alignment:
         shift, across = shift_from_fit(fit, centerline, centerline.length)
         lean = across.mean(axis=0)
         return dataclasses.replace(self, centerline=centerline, bias_notch_side=-float(lean[0]),
-                                   bias_binormal=-float(lean[1]), end_shift=float(np.linalg.norm(shift[-1])))
+                                   bias_binormal=-float(lean[1]), end_shift=float(np.linalg.norm(shift[-1])),
+                                   end_move=shift[-1])
 
 
 def shift_from_fit(fit: Centerline, aligned: Centerline, end_s: float) -> tuple[np.ndarray, np.ndarray]:
@@ -276,7 +278,7 @@ def align_to_trusted_wall(centerline: Centerline, coords: TubeCoordinates, frame
             break
         centerline = result.centerline
     return Alignment(result.centerline, float(bias[0]), float(bias[1]), result.trusted, coords.s, result.held_from,
-                     float(np.linalg.norm(end_move)))
+                     float(np.linalg.norm(end_move)), end_move)
 
 
 def _trusted_wall(coords: TubeCoordinates, frames: tuple, viewpoints: np.ndarray, centerline: Centerline,

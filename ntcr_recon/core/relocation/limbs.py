@@ -22,6 +22,7 @@ pass: a second pass finishes the move (PASSES).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -241,6 +242,18 @@ class LimbFigures:
     windows: dict[str, int]
     moved_rms: float
     disagreement: float | None = None
+    reach: float = 0.0                        # m: the end of the last window the limbs placed the axis in (0: none)
+    distal_across: np.ndarray | None = None   # (k, 3): the directions across the views they placed it along there
+
+    def unchecked(self, shift: np.ndarray, reaching: float) -> float:
+        """How much of a shift of the axis (3,) the limbs did not measure: its part off the directions across the
+        views they placed the axis along in their last window, when that window reaches `reaching` (m of s);
+        else all of it (m)."""
+        shift = np.asarray(shift, float)
+        if self.distal_across is None or self.reach < reaching:
+            return float(np.linalg.norm(shift))
+        across = np.linalg.pinv(self.distal_across, rcond=DISTINCT_DIRECTIONS_RCOND)  # (3, k)
+        return float(np.linalg.norm(shift - across @ (self.distal_across @ shift)))
 
 
 def placed_by_limbs(centerline: Centerline, views: dict[str, CameraView], outer_radius: float, window: float,
@@ -253,25 +266,25 @@ def placed_by_limbs(centerline: Centerline, views: dict[str, CameraView], outer_
     across the tangent that gives every camera placing it its offset (opposed cameras share one direction: the
     move lies along it, depth keeps the axis along the views); between windows interpolated, beyond the first and
     last faded out over a window. Up to end_s (the end of the wall seen); unchanged where no window was placed."""
-    moved, placed = centerline, None
+    moved, figures = centerline, None
     for _ in range(PASSES):
-        move, windows, disagreement = _limb_move(moved, views, outer_radius, window, end_s)
+        move, placed = _limb_move(moved, views, outer_radius, window, end_s)
         if move is None:  # (a later pass placing none leaves the earlier one's figures)
-            placed = placed or (windows, None)
+            figures = figures or placed
             break
         moved = Centerline.from_points(moved.points + move, moved.binormals[0], float(moved.s[1] - moved.s[0]))
-        placed = windows, disagreement
+        figures = placed
     if moved is centerline:
-        return centerline, LimbFigures(placed[0], 0.0)
+        return centerline, figures
     # how far it moved, at the centreline's own samples (a pass resamples it)
     off = moved.frames_at(centerline.s)[0] - centerline.points
-    return moved, LimbFigures(placed[0], float(np.sqrt(np.mean(np.sum(off**2, axis=1)))), placed[1])
+    return moved, dataclasses.replace(figures, moved_rms=float(np.sqrt(np.mean(np.sum(off**2, axis=1)))))
 
 
 def _limb_move(centerline: Centerline, views: dict[str, CameraView], outer_radius: float, window: float,
-               end_s: float) -> tuple[np.ndarray | None, dict[str, int], float | None]:
-    """placed_by_limbs' move at each of the centreline's samples (None: no window placed), the windows each
-    camera placed, and the cameras' disagreement (LimbFigures)."""
+               end_s: float) -> tuple[np.ndarray | None, LimbFigures]:
+    """placed_by_limbs' move at each of the centreline's samples (None: no window placed), and what the limbs
+    said (LimbFigures, but for moved_rms)."""
     stations = np.arange(window / 8, max(end_s - outer_radius, window / 8), max(window / 8, 1e-5))
     count = max(int(np.ceil(end_s / window)), 1)
     which = np.minimum((stations / window).astype(int), count - 1)  # each station's window (ascending)
@@ -294,7 +307,7 @@ def _limb_move(centerline: Centerline, views: dict[str, CameraView], outer_radiu
         directions[enough, camera] = placement.across[measured[starts + sizes[enough] // 2]]
     solved = np.count_nonzero(np.any(directions != 0.0, axis=2), axis=1) >= min(MIN_CAMERAS, len(views))
     if not np.any(solved):
-        return None, placed, None
+        return None, LimbFigures(placed, 0.0)
     # per window the least move giving every camera its offset; directions that are not distinct
     # (DISTINCT_DIRECTIONS_RCOND) count as one (else their small difference would carry their offsets'
     # disagreement far along the views); a camera without a row adds none
@@ -303,6 +316,8 @@ def _limb_move(centerline: Centerline, views: dict[str, CameraView], outer_radiu
     rows = np.any(directions[solved] != 0.0, axis=2)
     residual = (offsets[solved] - np.einsum("wcj,wj->wc", directions[solved], moves))[rows]
     disagreement = float(np.sqrt(np.mean(residual**2))) if len(views) >= MIN_CAMERAS else None
+    last = np.flatnonzero(solved)[-1]
+    distal = directions[last][np.any(directions[last] != 0.0, axis=1)]
     centres = (np.flatnonzero(solved) + 0.5) * window
     move = np.stack([np.interp(centerline.s, centres, moves[:, axis]) for axis in range(3)], axis=1)
     # beyond the windows placed nothing says where the axis lies across the views: the move fades out over a
@@ -310,4 +325,5 @@ def _limb_move(centerline: Centerline, views: dict[str, CameraView], outer_radiu
     beyond = np.maximum(centres[0] - centerline.s, centerline.s - centres[-1]) / window
     move *= np.clip(1.0 - beyond, 0.0, 1.0)[:, None]
     # across the tangent only: a move along it would stretch the centreline
-    return move - centerline.tangents * np.einsum("ij,ij->i", move, centerline.tangents)[:, None], placed, disagreement
+    return (move - centerline.tangents * np.einsum("ij,ij->i", move, centerline.tangents)[:, None],
+            LimbFigures(placed, 0.0, disagreement, float(min((last + 1) * window, end_s)), distal))

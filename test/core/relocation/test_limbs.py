@@ -6,7 +6,13 @@ from scipy import ndimage
 
 from ntcr_recon.core.cloud.deproject import Intrinsics
 from ntcr_recon.core.relocation.centerline import Centerline
-from ntcr_recon.core.relocation.limbs import WINDOW_MARGIN_PX, CameraView, limb_offsets, placed_by_limbs
+from ntcr_recon.core.relocation.limbs import (
+    WINDOW_MARGIN_PX,
+    CameraView,
+    LimbFigures,
+    limb_offsets,
+    placed_by_limbs,
+)
 
 RADIUS = 1.75e-3
 DEPTH = 0.09
@@ -132,3 +138,14 @@ def test_a_view_cut_around_the_robots_pixels_reads_the_limbs_as_the_whole_image(
     assert np.all(np.isfinite(whole))
     np.testing.assert_allclose(window, whole, rtol=0, atol=1e-15)  # the window shifts the pixel coordinates
     assert view.around(np.zeros((0, 2), int)) is None  # a camera that does not see the robot: no view
+
+
+def test_a_shift_counts_unmeasured_only_off_the_directions_the_limbs_placed_the_axis_along():
+    """Opposed cameras share one direction across their views (x here, the views along y): the limbs measured a
+    shift along x, not along the views, and nothing where their last window falls short of the stretch asked."""
+    figures = LimbFigures({"cam_a": 5, "cam_b": 5}, 1e-5, 2e-6, reach=0.04,
+                          distal_across=np.array([[1.0, 0.0, 0.0], [-0.999, 0.045, 0.0]]))
+    shift = np.array([3e-5, 4e-5, 0.0])
+    assert figures.unchecked(shift, reaching=0.035) == pytest.approx(4e-5, rel=0.05)
+    assert figures.unchecked(shift, reaching=0.045) == pytest.approx(5e-5)
+    assert LimbFigures({}, 0.0).unchecked(shift, reaching=0.0) == pytest.approx(5e-5)
