@@ -47,17 +47,19 @@ class Trace:
     (tip.TipAlongTube); its uncertainty is the tip's then, and the end seen is what is judged against the robot's
     length. backbone_shift: how far backbone.level_by_backbone moved the axis (None or 0: no camera faced the
     backbone). unsupported: the stretches of s where no camera saw trusted wall (cross_view.CrossView).
-    distal_cross_view: CrossView.distal, the cameras' spread across their views in the last window, which bounds
-    the tip across the tube from below (the limbs' disagreement where they placed that window: end_by_limbs). alignment_scatter: how much the alignment's shift of the fit varies along
-    the tube (alignment.shift_scatter). misread_widths: the width each notch notch_widths.calibrate_and_check found
-    misread was read at (by index), now its bend's; unchecked: the notches it could not check. held_shift: (how far
-    the alignment moved the end, the s beyond which it held that shift unmeasured) (alignment.Alignment's end_shift
-    and held_from; with end_by_limbs its part along the views alone). reach: how near the tube comes to each camera (measures.CameraReach). notch_centres: the comb's
-    notch centres along s (comb.expected_centres). wall_level: the outer wall's level about the r_o circle
-    (wall.surface_band of all points). outline_offset: how far the axis lies from the middle of the tube's outline
-    in the cameras' views (RMS; outline.outline_offset). across_from_fit: (the aligned axis's outline offset, the
-    fit's) when the alignment went astray and the fit placed the axis across the views (outline.across_views_from).
-    fitted_end: where the fitted curve ended, past which the centreline was carried on bending to the tip.
+    distal_cross_view: CrossView.distal, the cameras' spread across their views in the last window, which bounds the
+    tip across the tube from below (the limbs' disagreement where they placed that window: end_by_limbs).
+    alignment_scatter: how much the alignment's shift of the fit varies along the tube (alignment.shift_scatter).
+    misread_widths: the width each notch notch_widths.calibrate_and_check found misread was read at (by index), now
+    its bend's; unchecked: the notches it could not check. held_shift: (how far the alignment moved the end, the s
+    beyond which it held that shift unmeasured) (alignment.Alignment's end_shift and held_from; with end_by_limbs
+    its part along the views alone). reach: how near the tube comes to each camera (measures.CameraReach).
+    notch_centres: the comb's notch centres along s (comb.expected_centres). wall_level: the outer wall's level
+    about the r_o circle (wall.surface_band of all points). outline_offset: how far the axis lies from the middle of
+    the tube's outline in the cameras' views (RMS; outline.outline_offset). across_from_fit: (the aligned axis's
+    outline offset, the fit's) when the alignment went astray and the fit placed the axis across the views
+    (outline.across_views_from). fitted_end: where the fitted curve ended, past which the centreline was carried on
+    bending to the tip.
     reference_moved: relocated by ICP, how far it moved its reference off the centreline's pose (icp.ReferenceMove).
     """
 
@@ -102,6 +104,7 @@ class Trace:
     fitted_end: float | None = None
     reference_moved: ReferenceMove | None = None
     cross_view_offsets: tuple[tuple[float, float] | None, ...] = ()  # cross_view.CrossView.offsets
+    limbs_rigid: tuple[float, float] | None = None  # limbs.LimbFigures.rigid: the same, from the limbs
     centerline_tolerance: float | None = None  # config.rig.QualityConfig's, which the extrinsics check weighs against
 
 
@@ -171,6 +174,11 @@ class RigidOffset:
 
     offset: float
     error: float
+    # what an offset must exceed, in the centreline's tolerances, to be told from the measure's own bias: depth's
+    # matcher pulls two cameras 0.10-0.12 mm apart beside slots opening at +-45 deg, with exact extrinsics (so: its
+    # half beyond a tolerance); the limbs read 0.002-0.02 mm there, and a pose 0.1 deg off 0.08-0.13 mm, which
+    # moves the centreline as far (emulated matrix rows): beyond one tolerance, half of it
+    least: float = 2.0
 
     @property
     def disagreeing(self) -> bool:
@@ -179,7 +187,10 @@ class RigidOffset:
 
 
 def rigid_offset(t: Trace) -> RigidOffset | None:
-    """The cameras' rigid offset across their views; None unless two cameras each placed the axis."""
+    """The cameras' rigid offset across their views: from their limbs where both placed the axis there (sharp
+    where depth is smeared), else from depth; None unless two cameras each placed the axis."""
+    if t.limbs_rigid is not None:
+        return RigidOffset(*t.limbs_rigid, least=1.0)
     means = [offset for offset in t.cross_view_offsets if offset is not None]
     if len(means) != 2:
         return None
@@ -189,12 +200,12 @@ def rigid_offset(t: Trace) -> RigidOffset | None:
 
 def extrinsics_apart(t: Trace) -> float:
     """How far off the fused axis lies for the cameras' poses disagreeing (m): half their rigid offset, where it is
-    beyond the matcher's noise and that half exceeds the centreline's tolerance (the EXTRINSICS_DISAGREE check);
-    else 0 (a smaller offset is not told from a matcher's pull beside the slots, quality.checks.extrinsics)."""
+    beyond the measure's noise and `least` of the centreline's tolerances (the EXTRINSICS_DISAGREE check); else 0
+    (a smaller offset is not told from the measure's own bias, RigidOffset.least)."""
     rigid = rigid_offset(t)
     if rigid is None or t.centerline_tolerance is None or not rigid.disagreeing:
         return 0.0
-    return rigid.offset / 2 if rigid.offset / 2 > t.centerline_tolerance else 0.0
+    return rigid.offset / 2 if rigid.offset > rigid.least * t.centerline_tolerance else 0.0
 
 
 def derive(t: Trace) -> Derived:

@@ -13,7 +13,7 @@ not at the end cap, not where a prop behind matches the tube. Its offset is the 
 projected axis, in metres at the axis's depth. Shading darkens a tube towards its limbs, so each limb reads
 inward by up to a pixel (a blurred lens more); the middle cancels what the two sides share. The levels are read
 about where the axis puts each limb, so an axis a pixel or more off is moved part of the way (about half) by a
-pass: a second pass finishes the move (PASSES).
+pass (PASSES says why one).
 
     views = {"cam_a": CameraView(color, intrinsics, extrinsic), ...}
     placement = limb_offsets(centerline, s, view, outer_radius)   # per station: offset (m, NaN) along `across`
@@ -65,11 +65,16 @@ WINDOW_MARGIN_PX = 16
 # another (a prop behind the tube matching its colour, a highlight on one side).
 MIN_CAMERAS = 2
 
+# Windows both cameras must have placed for their offset apart (LimbFigures.rigid) to be measured.
+MIN_RIGID_WINDOWS = 4
+
 # Passes: the levels each limb is read between are sampled about where the axis puts it, so one pass moves an
-# axis a pixel or more off part of the way (two thirds to a half); a second, from where the first left it, finishes
-# the move (the emulated matrix's error across the views 0.043 -> 0.023 mm at 640x360, a third would move it less
-# than 0.01 mm).
-PASSES = 2
+# axis a pixel or more off part of the way (two thirds to a half); a second, from where the first left it, would
+# finish the move. Measured on both depth sources (accuracy_matrix --matcher both): the error across the views,
+# median 0.048 -> 0.041 mm, but a real-matcher row whose distal stretch one camera saw alone then lost that stretch
+# in the next frame's warm-started fit (tip 0.36 -> 14.5 mm off, warned), and the tip along the tube left its
+# stated bound on 51 -> 48 of 58 results. One pass, until the model fit of issue 61 places the axis itself.
+PASSES = 1
 
 # The cameras' directions across their views are solved for in least squares whose singular values under this share
 # of the largest are cut: two directions count as distinct beyond about 53 deg apart (tan(angle / 2) > 0.5);
@@ -244,6 +249,10 @@ class LimbFigures:
     disagreement: float | None = None
     reach: float = 0.0                        # m: the end of the last window the limbs placed the axis in (0: none)
     distal_across: np.ndarray | None = None   # (k, 3): the directions across the views they placed it along there
+    # two opposed cameras' offsets apart across their views, alike all along the tube (m; a pose in the rig file off
+    # the other's: the matcher's noise varies window to window), and its standard error; None: fewer than
+    # MIN_RIGID_WINDOWS windows both placed, or not two cameras
+    rigid: tuple[float, float] | None = None
 
     def unchecked(self, shift: np.ndarray, reaching: float) -> float:
         """How much of a shift of the axis (3,) the limbs did not measure: its part off the directions across the
@@ -316,6 +325,7 @@ def _limb_move(centerline: Centerline, views: dict[str, CameraView], outer_radiu
     rows = np.any(directions[solved] != 0.0, axis=2)
     residual = (offsets[solved] - np.einsum("wcj,wj->wc", directions[solved], moves))[rows]
     disagreement = float(np.sqrt(np.mean(residual**2))) if len(views) >= MIN_CAMERAS else None
+    rigid = _rigid_offset(offsets[solved] - np.einsum("wcj,wj->wc", directions[solved], moves), rows)
     last = np.flatnonzero(solved)[-1]
     distal = directions[last][np.any(directions[last] != 0.0, axis=1)]
     centres = (np.flatnonzero(solved) + 0.5) * window
@@ -326,4 +336,18 @@ def _limb_move(centerline: Centerline, views: dict[str, CameraView], outer_radiu
     move *= np.clip(1.0 - beyond, 0.0, 1.0)[:, None]
     # across the tangent only: a move along it would stretch the centreline
     return (move - centerline.tangents * np.einsum("ij,ij->i", move, centerline.tangents)[:, None],
-            LimbFigures(placed, 0.0, disagreement, float(min((last + 1) * window, end_s)), distal))
+            LimbFigures(placed, 0.0, disagreement, float(min((last + 1) * window, end_s)), distal, rigid))
+
+
+def _rigid_offset(residual: np.ndarray, rows: np.ndarray) -> tuple[float, float] | None:
+    """LimbFigures.rigid from the least squares' residuals (windows, cameras) where `rows` (both cameras measured).
+    Opposed cameras share one direction across their views: each window's residuals are half their offsets'
+    sum, alike in both, and that sum is how far one camera places the tube from the other (a shift of one relative
+    to the other reads with the same sign in both images)."""
+    if residual.shape[1] != 2:
+        return None
+    both = np.all(rows, axis=1)
+    sums = residual[both].sum(axis=1)
+    if len(sums) < MIN_RIGID_WINDOWS:
+        return None
+    return abs(float(np.mean(sums))), float(np.std(sums, ddof=1) / np.sqrt(len(sums)))

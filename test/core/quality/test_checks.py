@@ -20,7 +20,7 @@ from ntcr_recon.core.quality.measures import (
     unmeasured_share,
     where_notches_went_unseen,
 )
-from ntcr_recon.core.quality.trace import Trace, derive
+from ntcr_recon.core.quality.trace import Trace, derive, extrinsics_apart
 from ntcr_recon.core.relocation.bends import continued_bend
 from ntcr_recon.core.relocation.notches import Notch
 from ntcr_recon.core.relocation.outline import OUTLINE_TOLERANCE_PX
@@ -501,3 +501,23 @@ def test_cameras_whose_poses_disagree_widen_the_stated_centreline_and_tip_by_hal
     assert "EXTRINSICS_DISAGREE" not in noisy_said
     assert noisy["centerline_uncertainty_mm"] == pytest.approx(exact["centerline_uncertainty_mm"])
     assert noisy_tip.across == pytest.approx(exact_tip.across)
+
+
+@pytest.mark.parametrize(("limbs_rigid", "warned"), [((0.104e-3, 0.004e-3), True),    # 0.1 deg, straight row
+                                                     ((0.049e-3, 0.004e-3), False),   # 0.05 deg: within a tolerance
+                                                     ((0.104e-3, 0.05e-3), False)])   # within the limbs' noise
+def test_the_limbs_tell_a_pose_off_by_a_tenth_of_a_degree_that_depth_cannot(limbs_rigid, warned):
+    """Depth reads exact rigs 0.10-0.12 mm apart beside slots at +-45 deg, so it warns only beyond two tolerances;
+    the limbs read them 0.002-0.02 mm apart and a pose 0.1 deg off 0.08-0.13 mm (the emulated matrix), which moves
+    the centreline about as far: theirs warns beyond one, and wins over depth's where both measured."""
+    s = np.linspace(0.0, 50e-3, 5000)
+    trace = Trace(
+        geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=[], coords_s=s,
+        camera=(np.arange(len(s)) % 2).astype(np.int8), tip_s=50e-3, total_bend=0.0, footprint=FOOTPRINT,
+        wall_residual=0.05e-3, notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0,
+        depth_steps={}, cross_view_spread=0.03e-3, cross_view_offsets=((0.005e-3, 0.005e-3), (0.006e-3, 0.004e-3)),
+        centerline_tolerance=0.08e-3, limbs_rigid=limbs_rigid)
+    quality, warnings = assess(trace)
+    assert quality["cameras_across_view_offset_mm"] == pytest.approx(limbs_rigid[0] * 1e3)
+    assert ("EXTRINSICS_DISAGREE" in _by_code(warnings)) == warned
+    assert extrinsics_apart(trace) == (pytest.approx(limbs_rigid[0] / 2) if warned else 0.0)
