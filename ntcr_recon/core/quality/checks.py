@@ -339,17 +339,16 @@ def _mm(value: float | None) -> float | None:
 
 
 def extrinsics(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
-    """Whether the cameras' poses in the rig file agree across their views. Each camera alone places the axis
-    across its view, window by window, by the tube's limbs in its colour image (limbs.LimbFigures.rigid) or else
-    by depth (cross_view.CrossView): the noise varies along the tube, a camera whose pose is off moves every window
-    alike. Two opposed cameras' shifts read with the same sign for a shift of
-    one relative to the other, so their sum is the rigid offset between them; the fused axis lies half of it off.
-    Warned where it stands beyond trace.EXTRINSICS_SIGMAS standard errors and beyond what the measure's own bias
-    reaches (trace.RigidOffset.least; issue 62: beyond the level that breaks the floor): a matcher's window reaching
-    the slots on one side of a view pulls the two cameras' depth apart alike all along a notched tube too, the limbs
-    far less. Along the views
-    no such check exists: two opposed cameras read an offset there as they read a depth bias common to both (the
-    wall's level)."""
+    """Whether the cameras' poses in the rig file agree across their views. Each camera alone places the axis across its
+    view, window by window, by the tube's limbs in its colour image (limbs.LimbFigures.rigid) or else by depth
+    (cross_view.CrossView): the noise varies along the tube, a camera whose pose is off moves every window alike.
+    Two opposed cameras' shifts read with the same sign for a shift of one relative to the other, so their sum is
+    the rigid offset between them; the fused axis lies half of it off. Warned where it stands beyond
+    trace.EXTRINSICS_SIGMAS standard errors and beyond what the measure's own bias reaches (trace.RigidOffset.least;
+    issue 62: beyond the level that breaks the floor): a matcher's window reaching the slots on one side of a view
+    pulls the two cameras' depth apart alike all along a notched tube too, the limbs far less. Along the views no
+    such check exists: two opposed cameras read an offset there as they read a depth bias common to both (the wall's
+    level)."""
     rigid = rigid_offset(t)
     if rigid is None or t.centerline_tolerance is None:
         return {"cameras_across_view_offset_mm": None}, []

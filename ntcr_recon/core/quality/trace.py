@@ -176,8 +176,8 @@ class RigidOffset:
     error: float
     # what an offset must exceed, in the centreline's tolerances, to be told from the measure's own bias: depth's
     # matcher pulls two cameras 0.10-0.12 mm apart beside slots opening at +-45 deg, with exact extrinsics (so: its
-    # half beyond a tolerance); the limbs read 0.002-0.02 mm there, and a pose 0.1 deg off 0.08-0.13 mm, which
-    # moves the centreline as far (emulated matrix rows): beyond one tolerance, half of it
+    # half beyond a tolerance); the limbs read exact rigs 0.002-0.02 mm apart (0.01-0.07 with a real matcher), and
+    # a pose 0.1 deg off 0.08-0.13 mm (0.08-0.18), which moves the centreline as far: beyond one tolerance
     least: float = 2.0
 
     @property

@@ -322,10 +322,10 @@ def _limb_move(centerline: Centerline, views: dict[str, CameraView], outer_radiu
     # disagreement far along the views); a camera without a row adds none
     moves = np.einsum("wjc,wc->wj", np.linalg.pinv(directions[solved], rcond=DISTINCT_DIRECTIONS_RCOND),
                       offsets[solved])
-    rows = np.any(directions[solved] != 0.0, axis=2)
-    residual = (offsets[solved] - np.einsum("wcj,wj->wc", directions[solved], moves))[rows]
-    disagreement = float(np.sqrt(np.mean(residual**2))) if len(views) >= MIN_CAMERAS else None
-    rigid = _rigid_offset(offsets[solved] - np.einsum("wcj,wj->wc", directions[solved], moves), rows)
+    rows = np.any(directions[solved] != 0.0, axis=2)  # the cameras that placed each window
+    residual = offsets[solved] - np.einsum("wcj,wj->wc", directions[solved], moves)
+    disagreement = float(np.sqrt(np.mean(residual[rows] ** 2))) if len(views) >= MIN_CAMERAS else None
+    rigid = _rigid_offset(residual, rows)
     last = np.flatnonzero(solved)[-1]
     distal = directions[last][np.any(directions[last] != 0.0, axis=1)]
     centres = (np.flatnonzero(solved) + 0.5) * window
