@@ -23,8 +23,8 @@ by the erosion of the silhouettes, which `tip_refinement` on /diagnostics names.
 camera's view by the tube's limbs in its colour window (`<ns>/<cam>/color/image_rect_raw` with
 `.../color/camera_info`, from camera_node; the one of the frame the cloud was fused from, its stamp within
 fusion.slop), as the offline command places it with the frame pair's images. A cloud whose windows have not come
-waits for them (WINDOW_WAIT_S at most, or until the next cloud) from a camera that sends windows; without one, the
-view is placed by depth alone (a log line, and `centerline_limbs` on /diagnostics, say which).
+waits for them (WINDOW_WAIT_S at most, or until the next cloud); without one, the view is placed by depth alone
+(a log line, and `centerline_limbs` on /diagnostics, say which).
 A cloud the core cannot reconstruct (too few points, no tube along the base axis) is logged and skipped; a cloud
 of more than `max_points` points is dropped before it is read. The centreline goes out serialized from arrays
 (ros/cdr.py): a Path of PoseStamped objects built one by one cost more than the relocation itself.
@@ -164,12 +164,11 @@ class RelocationNode(RigNode):
 
     def _awaited(self, cloud) -> list[str]:
         """The cameras with points in the cloud whose window of its instant has not come while their camera_node
-        publishes windows (it is there, and has sent one: a source without colour, a bag of recorded clouds, sends
-        none, and its clouds do not wait): the cloud waits for those."""
+        publishes windows: the cloud waits for those."""
         seen = set() if cloud.camera is None else set(np.unique(cloud.camera).tolist())
         return [camera for index, camera in enumerate(self.rig.camera_names)
-                if index in seen and camera in self._windows and self._color[camera]
-                and self._windows[camera].get_publisher_count() > 0 and self._window_of(camera, cloud.stamp_ns) is None]
+                if index in seen and camera in self._windows and self._windows[camera].get_publisher_count() > 0
+                and self._window_of(camera, cloud.stamp_ns) is None]
 
     def _release_when_complete(self) -> None:
         if self._held is not None and not self._awaited(self._held[1]):
