@@ -162,12 +162,16 @@ class RelocationNode(RigNode):
         info = None if image is None else self._color_info[camera].at(image[0])
         return None if info is None or info[0] != image[0] else (image[1], info[1])
 
+    def _cameras_in(self, cloud) -> list[str]:
+        """The cameras with points in the cloud (fusion publishes a camera's frame alone when the other is late)."""
+        seen = () if cloud.camera is None else np.unique(cloud.camera).tolist()
+        return [self.rig.camera_names[index] for index in seen]
+
     def _awaited(self, cloud) -> list[str]:
         """The cameras with points in the cloud whose window of its instant has not come while their camera_node
         publishes windows: the cloud waits for those."""
-        seen = set() if cloud.camera is None else set(np.unique(cloud.camera).tolist())
-        return [camera for index, camera in enumerate(self.rig.camera_names)
-                if index in seen and camera in self._windows and self._windows[camera].get_publisher_count() > 0
+        return [camera for camera in self._cameras_in(cloud)
+                if camera in self._windows and self._windows[camera].get_publisher_count() > 0
                 and self._window_of(camera, cloud.stamp_ns) is None]
 
     def _release_when_complete(self) -> None:
@@ -188,14 +192,12 @@ class RelocationNode(RigNode):
         """Each camera's colour window of the frame the cloud was fused from (its stamp within the pairing's slop),
         as the offline command notes the frame pair's windows before relocating it: none for a camera without a
         point in the cloud (fusion published the other alone) or without an image of its instant."""
-        seen = set() if cloud.camera is None else set(np.unique(cloud.camera).tolist())
+        self._relocator.views.clear()  # one of another instant shows the robot elsewhere
         missing = []
-        for index, camera in enumerate(self.rig.camera_names):
+        for camera in self._cameras_in(cloud):
             window = self._window_of(camera, cloud.stamp_ns)
-            self._relocator.views.pop(camera, None)  # one of another instant shows the robot elsewhere
-            if index in seen and window is None:
+            if window is None:
                 missing.append(camera)
-            if index not in seen or window is None:
                 continue
             try:
                 color = image_to_array(decode(window[0], Image, f"colour image of '{camera}'"))

@@ -120,10 +120,9 @@ class Relocator:
 
     def note_views(self, pair: FramePair, fused: Cloud) -> None:
         """The views the next relocation places the axis with (relocation.limbs): each camera's colour image of the
-        pair (pixel-aligned
-        with its depth: CameraView.aligned) cut around its pixels in the cloud fused from the pair, as camera_node
-        cuts the window it publishes. A camera the pair lacks, or whose colour is of another size, has none (an
-        image of another instant shows the robot elsewhere)."""
+        pair (pixel-aligned with its depth: CameraView.aligned) cut around its pixels in the cloud fused from the
+        pair, as camera_node cuts the window it publishes. A camera the pair lacks, or whose colour is of another
+        size, has none (an image of another instant shows the robot elsewhere)."""
         self.views = {}
         if not self.config.relocation.limbs or fused.pixel is None or fused.camera is None:
             return

@@ -12,8 +12,12 @@ were found with contrast and lie a tube's width apart (within WIDTH_TOLERANCE_PX
 not at the end cap, not where a prop behind matches the tube. Its offset is the limbs' middle against the
 projected axis, in metres at the axis's depth. Shading darkens a tube towards its limbs, so each limb reads
 inward by up to a pixel (a blurred lens more); the middle cancels what the two sides share. The levels are read
-about where the axis puts each limb, so an axis a pixel or more off is moved part of the way (about half) by a
-pass (PASSES says why one).
+about where the axis puts each limb, so an axis a pixel or more off is moved part of the way (about half). A
+second pass from where the first left it would finish the move; measured on both depth sources (accuracy_matrix
+--matcher both) it took the error across the views from 0.048 to 0.041 mm (median), but a real-matcher row whose
+distal stretch one camera saw alone then lost that stretch in the next frame's warm-started fit (tip 0.36 -> 14.5
+mm off, warned), and the tip along the tube left its stated bound on 48 of 58 results instead of 51: one pass,
+until the model fit of issue 61 places the axis itself.
 
     views = {"cam_a": CameraView(color, intrinsics, extrinsic), ...}
     placement = limb_offsets(centerline, s, view, outer_radius)   # per station: offset (m, NaN) along `across`
@@ -67,14 +71,6 @@ MIN_CAMERAS = 2
 
 # Windows both cameras must have placed for their offset apart (LimbFigures.rigid) to be measured.
 MIN_RIGID_WINDOWS = 4
-
-# Passes: the levels each limb is read between are sampled about where the axis puts it, so one pass moves an
-# axis a pixel or more off part of the way (two thirds to a half); a second, from where the first left it, would
-# finish the move. Measured on both depth sources (accuracy_matrix --matcher both): the error across the views,
-# median 0.048 -> 0.041 mm, but a real-matcher row whose distal stretch one camera saw alone then lost that stretch
-# in the next frame's warm-started fit (tip 0.36 -> 14.5 mm off, warned), and the tip along the tube left its
-# stated bound on 51 -> 48 of 58 results. One pass, until the model fit of issue 61 places the axis itself.
-PASSES = 1
 
 # The cameras' directions across their views are solved for in least squares whose singular values under this share
 # of the largest are cut: two directions count as distinct beyond about 53 deg apart (tan(angle / 2) > 0.5);
@@ -267,27 +263,20 @@ class LimbFigures:
 
 def placed_by_limbs(centerline: Centerline, views: dict[str, CameraView], outer_radius: float, window: float,
                     end_s: float) -> tuple[Centerline, LimbFigures]:
-    """The centreline moved across the cameras' views to the middle of the tube's limbs in their images, in PASSES
-    passes (one moves it part of the way where it was off by a pixel or more: the levels each limb is read between
-    are sampled about where the axis puts it, and a shaded rim in one band pulls the crossing back).
+    """The centreline moved across the cameras' views towards the middle of the tube's limbs in their images (part
+    of the way where it was off by a pixel or more: the levels each limb is read between are sampled about where
+    the axis puts it, and a shaded rim in one band pulls the crossing back).
 
     Per window of s (a notch pitch) and camera, the median offset of its stations; per window the least move
     across the tangent that gives every camera placing it its offset (opposed cameras share one direction: the
     move lies along it, depth keeps the axis along the views); between windows interpolated, beyond the first and
     last faded out over a window. Up to end_s (the end of the wall seen); unchanged where no window was placed."""
-    moved, figures = centerline, None
-    for _ in range(PASSES):
-        move, placed = _limb_move(moved, views, outer_radius, window, end_s)
-        if move is None:  # (a later pass placing none leaves the earlier one's figures)
-            figures = figures or placed
-            break
-        moved = Centerline.from_points(moved.points + move, moved.binormals[0], float(moved.s[1] - moved.s[0]))
-        figures = placed
-    if moved is centerline:
+    move, figures = _limb_move(centerline, views, outer_radius, window, end_s)
+    if move is None:
         return centerline, figures
-    # how far it moved, at the centreline's own samples (a pass resamples it)
-    off = moved.frames_at(centerline.s)[0] - centerline.points
-    return moved, dataclasses.replace(figures, moved_rms=float(np.sqrt(np.mean(np.sum(off**2, axis=1)))))
+    moved = Centerline.from_points(centerline.points + move, centerline.binormals[0],
+                                   float(centerline.s[1] - centerline.s[0]))
+    return moved, dataclasses.replace(figures, moved_rms=float(np.sqrt(np.mean(np.sum(move**2, axis=1)))))
 
 
 def _limb_move(centerline: Centerline, views: dict[str, CameraView], outer_radius: float, window: float,
