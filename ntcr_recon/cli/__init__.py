@@ -25,6 +25,7 @@ SUBCOMMANDS = {
     "simulate": "render a synthetic dual-D405 scene into a rosbag2 bag",
     "render": "draw a bag's depth frame and raw fused cloud as a PNG",
     "reconstruct": "turn a bag into a mesh, a relocated cloud, metrics and figures",
+    "calibrate": "estimate both cameras' poses from bags of the robot, straight and bent, into a rig file",
     "run": "start the ROS 2 graph (a process per node, or all in one with --single-process)",
 }
 

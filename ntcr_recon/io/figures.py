@@ -113,3 +113,26 @@ def side_views(path, raw_xyz: np.ndarray, relocated_xyz: np.ndarray, mesh, axes:
     panels[0].set_ylabel(axis_labels[1])
     fig.tight_layout()
     _save(fig, path)
+
+
+def calibration_views(path, before: dict[str, np.ndarray], after: dict[str, np.ndarray],
+                      centerlines: list[np.ndarray]) -> None:
+    """Both cameras' points (base frame, by camera) over the fitted robots' centrelines, with the rig file's poses
+    (top) and the calibrated ones (bottom), seen across the bending plane (x, z) and along it (y, z)."""
+    plt = _pyplot()
+    fig, panels = plt.subplots(2, 2, figsize=(10, 10), sharey=True)
+    axes = np.array([[[1.0, 0, 0], [0, 0, 1.0]], [[0, 1.0, 0], [0, 0, 1.0]]])
+    for row, (points, label) in enumerate(((before, "rig file's poses"), (after, "calibrated poses"))):
+        for column, view in enumerate(axes):
+            panel = panels[row, column]
+            for name, xyz in points.items():
+                p = _project(xyz, view)
+                panel.scatter(p[:, 0], p[:, 1], s=0.2, label=name)
+            for line in centerlines:
+                c = _project(line, view)
+                panel.plot(c[:, 0], c[:, 1], color="black", linewidth=0.8)
+            panel.set_title(f"{label}, {'x' if column == 0 else 'y'}-z (mm)")
+            panel.set_aspect("equal")
+    panels[0, 0].legend(markerscale=20)
+    fig.tight_layout()
+    _save(fig, path)

@@ -1,0 +1,214 @@
+"""`ntcr-recon calibrate BAG [BAG ...] --config ROUGH.yaml --out RIG.yaml`: the rig calibrated from the robot.
+
+Each bag is one still pose of the robot (record it straight and bent, a few seconds each: `ntcr-recon simulate`
+writes such bags for the simulated rig). Every camera's depth frames are deprojected with the rough rig file's
+intrinsics and cropped round the robot's reach, grown by CROP_MARGIN_M for poses a few millimetres off; at most
+--max-points of each camera's points per bag go into one fit of both cameras' poses and every bag's notch bends
+(core.calibration.rig_fit). Out come:
+
+    RIG.yaml                the rough file with each camera's translation and rotation replaced, all else kept
+    RIG.calibration.json    per camera: the pose, how far it moved, its uncertainty (1-sigma, turns about and shifts
+                            along the base frame's axes through the robot's middle), the residual off the tube; the
+                            second camera relative to the first; per bag the fitted bends
+    RIG.calibration.png     both cameras' points over the fitted robot, with the rough poses and the calibrated ones
+
+Recordings that leave a pose parameter free are refused by name (e.g. a robot straight in every bag cannot fix the
+cameras' turn about its axis). Exit status: 0 done, 2 refused (one message on stderr naming the cause).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+# Millimetres the crop box grows by on every side: the rough poses may put the robot this far from where it is.
+CROP_MARGIN_M = 6.0e-3
+# Points per camera and bag the fit takes (an even random sample): more add time, not accuracy (the covariance
+# counts the pixels a matcher's window correlates once).
+DEFAULT_MAX_POINTS = 20000
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("bags", type=Path, nargs="+", metavar="BAG",
+                        help="rosbag2 directories, one still pose of the robot each (straight and bent)")
+    parser.add_argument("--config", type=Path, required=True,
+                        help="the rig file with hand-measured poses (within about 3 deg and 3 mm)")
+    parser.add_argument("--out", type=Path, required=True, help="the calibrated rig file to write")
+    parser.add_argument("--overwrite", action="store_true", help="replace --out (and its report) when they exist")
+    parser.add_argument("--max-points", type=int, default=DEFAULT_MAX_POINTS, metavar="N",
+                        help=f"points per camera and bag the fit takes (default {DEFAULT_MAX_POINTS})")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+class CalibrateCommandError(Exception):
+    """Stops the command with one message."""
+
+
+def main(args: argparse.Namespace) -> int:
+    try:
+        report = run(args)
+    except CalibrateCommandError as failure:
+        print(f"ntcr-recon calibrate: error: {failure}", file=sys.stderr)
+        return 2
+    for name, camera in report["cameras"].items():
+        sigma = camera["uncertainty"]
+        print(f"ntcr-recon calibrate: {name} moved {camera['moved']['turn_deg']:.3f} deg, "
+              f"{camera['moved']['shift_mm']:.3f} mm; uncertain by {_largest(sigma['turn_deg']):.3f} deg, "
+              f"{_largest(sigma['shift_mm']):.3f} mm (1-sigma, largest axis); off the tube "
+              f"{camera['residual_mm']:.3f} mm RMS", file=sys.stderr)
+    relative = report["relative"]
+    if relative:
+        print(f"ntcr-recon calibrate: {relative['camera']} relative to {relative['to']}: uncertain by "
+              f"{_largest(relative['uncertainty']['turn_deg']):.3f} deg, "
+              f"{_largest(relative['uncertainty']['shift_mm']):.3f} mm", file=sys.stderr)
+    print(f"ntcr-recon calibrate: wrote {args.out} and its report", file=sys.stderr)
+    return 0
+
+
+def _largest(by_axis: dict[str, float]) -> float:
+    return max(by_axis.values())
+
+
+def report_paths(out: Path) -> tuple[Path, Path]:
+    """The report's JSON and figure beside the calibrated rig file."""
+    stem = out.with_suffix("")
+    return stem.with_name(stem.name + ".calibration.json"), stem.with_name(stem.name + ".calibration.png")
+
+
+def run(args: argparse.Namespace) -> dict:
+    """The whole command; raises CalibrateCommandError with the cause. Returns the report."""
+    from ntcr_recon.core.calibration.rig_fit import CalibrationError
+    from ntcr_recon.core.config.rig import ConfigError, load_rig_config
+    from ntcr_recon.io.bag import bag_problem
+    from ntcr_recon.io.rig_file import RigFileError, replace_poses
+
+    if args.max_points < 100:
+        raise CalibrateCommandError(f"--max-points must be at least 100, got {args.max_points}")
+    outputs = (args.out, *report_paths(args.out))
+    if not args.overwrite and any(path.exists() for path in outputs):
+        raise CalibrateCommandError(f"{args.out} or its report exists: pass --overwrite to replace them")
+    for bag in args.bags:
+        problem = bag_problem(bag)
+        if problem:
+            raise CalibrateCommandError(problem)
+    try:
+        config = load_rig_config(args.config)
+        rough_text = args.config.read_text()
+        replace_poses(rough_text, {name: np.eye(4) for name in config.camera_names})  # refuses a file it cannot edit
+    except (ConfigError, RigFileError, OSError) as error:
+        raise CalibrateCommandError(f"bad rig configuration {args.config}: {error}") from error
+    recordings = _recordings(args, config)
+    start = {name: config.cameras[name].extrinsic for name in config.camera_names}
+    try:
+        fit = _fitted(recordings, config, start, args.no_progress)
+    except CalibrationError as error:
+        raise CalibrateCommandError(str(error)) from error
+    report = _report(args, recordings, start, fit)
+    _write(args, rough_text, fit, report, recordings, config)
+    return report
+
+
+def _recordings(args: argparse.Namespace, config) -> list:
+    """Each bag's points per camera (optical frame), sampled down to --max-points, with a progress bar over frames."""
+    from tqdm import tqdm
+
+    from ntcr_recon.core.calibration.rig_fit import Recording
+    from ntcr_recon.core.cloud.fusion import depth_points
+    from ntcr_recon.io.bag import BagError, iter_camera_frames
+
+    low, high = config.crop_box()
+    box = (low - CROP_MARGIN_M, high + CROP_MARGIN_M)
+    rng = np.random.default_rng(0)
+    recordings = []
+    with tqdm(desc="frames read", unit="frame", disable=args.no_progress) as bar:
+        for bag in args.bags:
+            points = {name: [] for name in config.camera_names}
+            try:
+                for frame in iter_camera_frames(bag, config, source="depth"):
+                    points[frame.camera].append(depth_points(frame, config, box).optical)
+                    bar.update()
+            except BagError as error:
+                raise CalibrateCommandError(str(error)) from error
+            joined = {name: np.concatenate(parts) if parts else np.empty((0, 3)) for name, parts in points.items()}
+            pixels = {name: len(values) for name, values in joined.items()}
+            sampled = {name: values[rng.choice(len(values), args.max_points, replace=False)]
+                       if len(values) > args.max_points else values for name, values in joined.items()}
+            recordings.append(Recording(str(bag), sampled, pixels))
+    return recordings
+
+
+def _fitted(recordings: list, config, start: dict, no_progress: bool):
+    from tqdm import tqdm
+
+    from ntcr_recon.core.calibration.rig_fit import SCALES_M, fit_rig
+
+    with tqdm(total=len(SCALES_M), desc="fitting rounds", unit="round", disable=no_progress) as bar:
+        return fit_rig(recordings, config.robot, start, progress=lambda _: bar.update())
+
+
+def _by_axis(values: np.ndarray) -> dict[str, float]:
+    return {axis: round(float(v), 5) for axis, v in zip("xyz", values, strict=True)}
+
+
+def _moved(start: np.ndarray, end: np.ndarray, pivot: np.ndarray) -> dict[str, float]:
+    """How far a pose moved: the turn's angle (deg) and the shift of the robot's middle (mm) as the camera saw it."""
+    from scipy.spatial.transform import Rotation
+
+    change = end @ np.linalg.inv(start)
+    angle = np.degrees(np.linalg.norm(Rotation.from_matrix(change[:3, :3]).as_rotvec()))
+    shift = change[:3, :3] @ pivot + change[:3, 3] - pivot
+    return {"turn_deg": round(float(angle), 5), "shift_mm": round(float(np.linalg.norm(shift) * 1e3), 5)}
+
+
+def _report(args: argparse.Namespace, recordings: list, start: dict, fit) -> dict:
+    from ntcr_recon.core.calibration.rig_fit import pivot_of
+    from ntcr_recon.core.config.rig import load_rig_config
+    from ntcr_recon.io.rig_file import pose_values
+
+    pivot = pivot_of(load_rig_config(args.config).robot)
+    cameras = {}
+    for name, extrinsic in fit.extrinsics.items():
+        sigma = fit.uncertainty[name]
+        cameras[name] = {**pose_values(extrinsic), "start": pose_values(start[name]),
+                         "moved": _moved(start[name], extrinsic, pivot),
+                         "uncertainty": {"turn_deg": _by_axis(sigma[:3]), "shift_mm": _by_axis(sigma[3:])},
+                         "residual_mm": round(fit.residual_mm[name], 5),
+                         "start_residual_mm": round(fit.start_residual_mm[name], 5),
+                         "inliers": round(fit.inliers[name], 4)}
+    names = list(fit.extrinsics)
+    relative = {"camera": names[1], "to": names[0],
+                "uncertainty": {"turn_deg": _by_axis(fit.relative_uncertainty[:3]),
+                                "shift_mm": _by_axis(fit.relative_uncertainty[3:])}} if len(names) > 1 else None
+    bags = [{"bag": r.name, "points": {n: len(p) for n, p in r.points.items()}, "pixels": r.pixels,
+             "bends_deg": [round(float(b), 4) for b in np.degrees(fit.bends[r.name])],
+             "total_bend_deg": round(float(np.degrees(np.sum(fit.bends[r.name]))), 3)} for r in recordings]
+    return {"config": str(args.config), "pivot_m": [float(v) for v in pivot], "cameras": cameras,
+            "relative": relative, "recordings": bags,
+            "uncertainty_is": "1-sigma from the fit's covariance; a depth bias alike over a camera's view is not in it"}
+
+
+def _write(args: argparse.Namespace, rough_text: str, fit, report: dict, recordings: list, config) -> None:
+    from ntcr_recon.core.base.transforms import transform_points
+    from ntcr_recon.core.robot.kinematics import TubeShape
+    from ntcr_recon.io.figures import calibration_views
+    from ntcr_recon.io.files import write_atomically
+    from ntcr_recon.io.rig_file import replace_poses
+
+    json_path, figure_path = report_paths(args.out)
+    text = replace_poses(rough_text, fit.extrinsics)
+    write_atomically(json_path, lambda temp: Path(temp).write_text(json.dumps(report, indent=1) + "\n"))
+    centerlines = []
+    for recording in recordings:
+        shape = TubeShape(config.robot, fit.bends[recording.name])
+        centerlines.append(shape.centerline(np.linspace(0.0, shape.length, 200))[0])
+    before, after = {}, {}
+    for name in config.camera_names:
+        optical = np.concatenate([r.points[name][:3000] for r in recordings])
+        before[name] = transform_points(config.cameras[name].extrinsic, optical)
+        after[name] = transform_points(fit.extrinsics[name], optical)
+    calibration_views(figure_path, before, after, centerlines)
+    write_atomically(args.out, lambda temp: Path(temp).write_text(text))  # last: the rig file means "done"
