@@ -1,10 +1,12 @@
-"""`ntcr-recon calibrate BAG [BAG ...] --config ROUGH.yaml --out RIG.yaml`: the rig calibrated from the robot.
+"""`ntcr-recon calibrate --straight BAG BAG [BAG ...] --config ROUGH.yaml --out RIG.yaml`: the rig calibrated from
+the robot.
 
-Each bag is one still pose of the robot (record it straight and bent, a few seconds each: `ntcr-recon simulate`
-writes such bags for the simulated rig). Every camera's depth frames are deprojected with the rough rig file's
-intrinsics and cropped round the robot's reach, grown by CROP_MARGIN_M for poses a few millimetres off; at most
---max-points of each camera's points per bag go into one fit of both cameras' poses and every bag's notch bends
-(core.calibration.rig_fit). Out come:
+Each bag is one still pose of the robot, a few seconds of it: at rest and straight (--straight: its bends are held
+at zero, so its axis fixes the base frame's z), and bent (its bends fitted, a linear profile from base to tip);
+`ntcr-recon simulate` writes such bags for the simulated rig. Every camera's depth frames are deprojected with the
+rough rig file's intrinsics and cropped round the robot's reach, grown for poses a few millimetres off
+(core.calibration.recordings); at most --max-points of each camera's points per bag go into one fit of both
+cameras' poses and every bent bag's notch bends (core.calibration.rig_fit). Out come:
 
     RIG.yaml                the rough file with each camera's translation and rotation replaced, all else kept
     RIG.calibration.json    per camera: the pose, how far it moved, its uncertainty (1-sigma, turns about and shifts
@@ -25,22 +27,19 @@ from pathlib import Path
 
 import numpy as np
 
-# Millimetres the crop box grows by on every side: the rough poses may put the robot this far from where it is.
-CROP_MARGIN_M = 6.0e-3
-# Points per camera and bag the fit takes (an even random sample): more add time, not accuracy (the covariance
-# counts the pixels a matcher's window correlates once).
-DEFAULT_MAX_POINTS = 20000
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("bags", type=Path, nargs="+", metavar="BAG",
-                        help="rosbag2 directories, one still pose of the robot each (straight and bent)")
+    parser.add_argument("bags", type=Path, nargs="*", metavar="BAG",
+                        help="rosbag2 directories, one still pose of the robot each, bent (30 deg or more)")
+    parser.add_argument("--straight", type=Path, action="append", default=[], metavar="BAG",
+                        help="a bag of the robot at rest, straight (its axis then is the base frame's z); repeatable")
     parser.add_argument("--config", type=Path, required=True,
                         help="the rig file with hand-measured poses (within about 3 deg and 3 mm)")
     parser.add_argument("--out", type=Path, required=True, help="the calibrated rig file to write")
     parser.add_argument("--overwrite", action="store_true", help="replace --out (and its report) when they exist")
-    parser.add_argument("--max-points", type=int, default=DEFAULT_MAX_POINTS, metavar="N",
-                        help=f"points per camera and bag the fit takes (default {DEFAULT_MAX_POINTS})")
+    parser.add_argument("--max-points", type=int, default=None, metavar="N",
+                        help="points per camera and bag the fit takes (default: "
+                             "core.calibration.recordings.MAX_POINTS)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -86,12 +85,14 @@ def run(args: argparse.Namespace) -> dict:
     from ntcr_recon.io.bag import bag_problem
     from ntcr_recon.io.rig_file import RigFileError, replace_poses
 
-    if args.max_points < 100:
+    if args.max_points is not None and args.max_points < 100:
         raise CalibrateCommandError(f"--max-points must be at least 100, got {args.max_points}")
     outputs = (args.out, *report_paths(args.out))
     if not args.overwrite and any(path.exists() for path in outputs):
         raise CalibrateCommandError(f"{args.out} or its report exists: pass --overwrite to replace them")
-    for bag in args.bags:
+    if not args.bags and not args.straight:
+        raise CalibrateCommandError("no bag given: record the robot straight (--straight BAG) and bent (BAG)")
+    for bag in [*args.straight, *args.bags]:
         problem = bag_problem(bag)
         if problem:
             raise CalibrateCommandError(problem)
@@ -113,32 +114,29 @@ def run(args: argparse.Namespace) -> dict:
 
 
 def _recordings(args: argparse.Namespace, config) -> list:
-    """Each bag's points per camera (optical frame), sampled down to --max-points, with a progress bar over frames."""
+    """Each bag's recording (core.calibration.recordings), with a progress bar over the frames read."""
     from tqdm import tqdm
 
-    from ntcr_recon.core.calibration.rig_fit import Recording
-    from ntcr_recon.core.cloud.fusion import depth_points
+    from ntcr_recon.core.calibration.recordings import MAX_POINTS, recording_from_frames
     from ntcr_recon.io.bag import BagError, iter_camera_frames
 
-    low, high = config.crop_box()
-    box = (low - CROP_MARGIN_M, high + CROP_MARGIN_M)
     rng = np.random.default_rng(0)
     recordings = []
     with tqdm(desc="frames read", unit="frame", disable=args.no_progress) as bar:
-        for bag in args.bags:
-            points = {name: [] for name in config.camera_names}
+        for bag, straight in [*((bag, True) for bag in args.straight), *((bag, False) for bag in args.bags)]:
+            frames = iter_camera_frames(bag, config, source="depth")
             try:
-                for frame in iter_camera_frames(bag, config, source="depth"):
-                    points[frame.camera].append(depth_points(frame, config, box).optical)
-                    bar.update()
+                recordings.append(recording_from_frames(str(bag), _counted(frames, bar), config, rng,
+                                                        args.max_points or MAX_POINTS, straight))
             except BagError as error:
                 raise CalibrateCommandError(str(error)) from error
-            joined = {name: np.concatenate(parts) if parts else np.empty((0, 3)) for name, parts in points.items()}
-            pixels = {name: len(values) for name, values in joined.items()}
-            sampled = {name: values[rng.choice(len(values), args.max_points, replace=False)]
-                       if len(values) > args.max_points else values for name, values in joined.items()}
-            recordings.append(Recording(str(bag), sampled, pixels))
     return recordings
+
+
+def _counted(items, bar):
+    for item in items:
+        bar.update()
+        yield item
 
 
 def _fitted(recordings: list, config, start: dict, no_progress: bool):
@@ -185,10 +183,11 @@ def _report(args: argparse.Namespace, recordings: list, start: dict, fit) -> dic
                                 "shift_mm": _by_axis(fit.relative_uncertainty[3:])}} if len(names) > 1 else None
     bags = [{"bag": r.name, "points": {n: len(p) for n, p in r.points.items()}, "pixels": r.pixels,
              "bends_deg": [round(float(b), 4) for b in np.degrees(fit.bends[r.name])],
-             "total_bend_deg": round(float(np.degrees(np.sum(fit.bends[r.name]))), 3)} for r in recordings]
+             "total_bend_deg": round(float(np.degrees(np.sum(fit.bends[r.name]))), 3), "straight": r.straight}
+            for r in recordings]
     return {"config": str(args.config), "pivot_m": [float(v) for v in pivot], "cameras": cameras,
             "relative": relative, "recordings": bags,
-            "uncertainty_is": "1-sigma from the fit's covariance; a depth bias alike over a camera's view is not in it"}
+            "uncertainty_is": "1-sigma, from the fit's covariance"}
 
 
 def _write(args: argparse.Namespace, rough_text: str, fit, report: dict, recordings: list, config) -> None:

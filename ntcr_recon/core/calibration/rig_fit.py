@@ -11,9 +11,8 @@ turn from the pose the last one reached, where its Jacobian is exact.
 
 What a recording cannot fix is refused by name: a straight tube is a cylinder, so neither camera's turn about the
 robot's axis is determined until the robot bends (CalibrationError says so and what to record). The uncertainty of
-each pose parameter comes from the fit's covariance, the residual's robust spread scaled up by the points a stereo
-matcher's window correlates (CORRELATED_PIXELS, of those the fit kept); a depth bias common to a camera's whole
-view is not in it (along its view it moves the camera's pose alike).
+each pose parameter comes from the fit's covariance with the points of each stretch of tube a matcher's window
+covers counted once (its depth errs alike over its window).
 
     fit = fit_rig(recordings, geometry, start_extrinsics)     # RigFit: extrinsics, uncertainties, residuals, bends
 """
@@ -35,15 +34,16 @@ from ntcr_recon.core.robot.kinematics import TubeShape
 SCALES_M = (2.0e-3, 5.0e-4, 1.5e-4, 1.0e-4)
 # Uniform bends tried for each recording's start (fractions of the notches' closing angle).
 START_BENDS = np.linspace(0.0, 1.0, 11)
-# Pixels a stereo matcher's window (the D405's is about 9 x 9) makes err together: the covariance counts them once.
-CORRELATED_PIXELS = 81
-# How much neighbouring notches' bends differ (rad): one tendon bends identical notches alike (York et al. 2015),
-# friction a little less distally. Without it a shift along the robot would trade against bends moved a notch over.
-BEND_STEP_SIGMA = np.radians(0.3)
+# Pixels across a stereo matcher's window (a D405's is about 9): its depth errs alike over so many footprints.
+WINDOW_PX = 9
+# An eigenvalue of the Gauss-Newton matrix this small against the largest leaves its direction free.
+FREE = 1e-9
 # A pose parameter whose 1-sigma exceeds this (deg or mm) is not determined by the recordings: refused.
 UNDETERMINED = 1.0
 # A recording whose total bend stays below this (rad) leaves the tube a cylinder about its axis.
 STRAIGHT_RAD = np.radians(5.0)
+# Parameters of a recording's bend profile: the first notch's bend and the last's.
+PROFILE = 2
 AXES = ("x", "y", "z")
 
 
@@ -59,6 +59,8 @@ class Recording:
     name: str
     points: dict[str, np.ndarray]
     pixels: dict[str, int]
+    straight: bool = False      # the robot at rest, straight (its bends held at zero): its axis is the base's z
+    footprint: float = 2.0e-4   # a pixel's size at the robot (m): the stretch a matcher's window errs alike over
 
 
 @dataclass(frozen=True)
@@ -91,7 +93,12 @@ class _Problem:
         self.recordings, self.geometry, self.cameras = recordings, geometry, cameras
         self.pivot = pivot_of(geometry)
         self.notches = geometry.notch_count
-        self.prior_scale = SCALES_M[0]
+        # A recording's bends vary linearly from the first notch's to the last's: one tendon bends identical notches
+        # alike, friction a little less distally (York et al. 2015). Both ends within what a notch can bend keep
+        # every notch there.
+        place = np.linspace(0.0, 1.0, self.notches)
+        self.profile = np.stack([1.0 - place, place])
+        self.outlier = 3 * SCALES_M[0]
         self.set_start(extrinsics)
         self._cache: tuple[bytes, list] | None = None
 
@@ -103,11 +110,20 @@ class _Problem:
 
     @property
     def size(self) -> int:
-        return 6 * len(self.cameras) + self.notches * len(self.recordings)
+        return 6 * len(self.cameras) + PROFILE * sum(not r.straight for r in self.recordings)
+
+    def profile_at(self, index: int) -> int | None:
+        """Where the recording's bend profile sits in x (None: a straight recording has none)."""
+        if self.recordings[index].straight:
+            return None
+        return 6 * len(self.cameras) + PROFILE * sum(not r.straight for r in self.recordings[:index])
 
     def bends(self, x: np.ndarray, index: int) -> np.ndarray:
-        start = 6 * len(self.cameras) + self.notches * index
-        return x[start:start + self.notches]
+        """The recording's bend of every notch (rad), kept within what a notch can bend."""
+        start = self.profile_at(index)
+        if start is None:
+            return np.zeros(self.notches)
+        return np.clip(x[start:start + PROFILE] @ self.profile, 0.0, self.geometry.max_notch_bend)  # rounding
 
     def extrinsics(self, x: np.ndarray) -> dict[str, np.ndarray]:
         """The camera poses x describes (turns and shifts about the pivot, on the start poses)."""
@@ -126,7 +142,7 @@ class _Problem:
             return self._cache[1]
         parts = []
         for index, centred in enumerate(self.centred):
-            shape = TubeShape(self.geometry, np.clip(self.bends(x, index), 0.0, self.geometry.max_notch_bend))
+            shape = TubeShape(self.geometry, self.bends(x, index))
             for c, name in enumerate(self.cameras):
                 if name not in centred:
                     continue
@@ -136,43 +152,37 @@ class _Problem:
                 measured = tube_distance(shape, moved + self.pivot, origin)
                 # What lies past the base plane is the clamp or its post: as far off as the loss's tail, whatever
                 # the pose, so it neither pulls nor pushes.
-                measured.distance[measured.below_base] = 3 * self.prior_scale
+                measured.distance[measured.below_base] = self.outlier
                 measured.direction[measured.below_base] = 0.0
                 parts.append((index, c, moved, shape, measured))
         self._cache = (key, parts)
         return parts
 
     def residuals(self, x: np.ndarray) -> np.ndarray:
-        return np.concatenate([part[4].distance for part in self._evaluate(x)] + [self.prior @ x])
-
-    @property
-    def prior(self) -> np.ndarray:
-        """Rows of the bends' prior: each neighbour's difference in units of BEND_STEP_SIGMA, times the loss's scale
-        (so that a difference of one sigma weighs as a point one scale off the tube)."""
-        rows = []
-        for index in range(len(self.recordings)):
-            start = 6 * len(self.cameras) + self.notches * index
-            for notch in range(self.notches - 1):
-                row = np.zeros(self.size)
-                row[start + notch], row[start + notch + 1] = -1.0, 1.0
-                rows.append(row * self.prior_scale / BEND_STEP_SIGMA)
-        return np.array(rows).reshape(-1, self.size)
+        return np.concatenate([part[4].distance for part in self._evaluate(x)])
 
     def jacobian(self, x: np.ndarray) -> np.ndarray:
         parts = self._evaluate(x)
-        prior = self.prior
-        rows = sum(len(part[4].distance) for part in parts)
-        jac = np.zeros((rows + len(prior), self.size))
-        jac[rows:] = prior
+        jac = np.zeros((sum(len(part[4].distance) for part in parts), self.size))
         row = 0
+        rows_of: dict[int, list] = {}
         for index, c, moved, shape, measured in parts:
             block = slice(row, row + len(measured.distance))
             # d distance / d turn: the gradient against the point's move (turn x its offset from the pivot).
             jac[block, 6 * c:6 * c + 3] = np.cross(moved, measured.direction)
             jac[block, 6 * c + 3:6 * c + 6] = measured.direction
-            start = 6 * len(self.cameras) + self.notches * index
-            jac[block, start:start + self.notches] = bend_jacobian(shape, measured)
+            rows_of.setdefault(index, []).append((block, shape, measured))
             row += len(measured.distance)
+        for index, blocks in rows_of.items():  # the bend profile's columns, by finite differences
+            start = self.profile_at(index)
+            if start is None:
+                continue
+            columns = bend_jacobian(blocks[0][1], np.concatenate([m.foot_s for _, _, m in blocks]),
+                                    np.concatenate([m.direction for _, _, m in blocks]), self.profile)
+            offset = 0
+            for block, _, measured in blocks:
+                jac[block, start:start + PROFILE] = columns[offset:offset + len(measured.distance)]
+                offset += len(measured.distance)
         return jac
 
     def camera_rows(self, x: np.ndarray) -> dict[str, np.ndarray]:
@@ -192,18 +202,18 @@ def _robust_rms(residuals: np.ndarray, scale: float) -> tuple[float, float]:
 
 
 def _start_bends(problem: _Problem, x: np.ndarray) -> np.ndarray:
-    """Each recording's bends started where a uniform bend fits the start poses best (Cauchy cost, first scale)."""
+    """Each recording's bend started where a uniform bend fits the start poses best (Cauchy cost, first scale)."""
     x = x.copy()
     for index in range(len(problem.recordings)):
+        start = problem.profile_at(index)
+        if start is None:
+            continue
+        ends = slice(start, start + PROFILE)
         costs = []
         for fraction in START_BENDS:
-            trial = x.copy()
-            start = 6 * len(problem.cameras) + problem.notches * index
-            trial[start:start + problem.notches] = fraction * problem.geometry.max_notch_bend
-            residual = problem.residuals(trial) / SCALES_M[0]
-            costs.append(np.sum(np.log1p(residual**2)))
-        best = START_BENDS[int(np.argmin(costs))] * problem.geometry.max_notch_bend
-        x[6 * len(problem.cameras) + problem.notches * index:][:problem.notches] = best
+            x[ends] = fraction * problem.geometry.max_notch_bend
+            costs.append(np.sum(np.log1p((problem.residuals(x) / SCALES_M[0]) ** 2)))
+        x[ends] = START_BENDS[int(np.argmin(costs))] * problem.geometry.max_notch_bend
     return x
 
 
@@ -220,13 +230,12 @@ def fit_rig(recordings: list[Recording], geometry: TubeGeometry, start: dict[str
     problem = _Problem(recordings, geometry, cameras, start)
     x = _start_bends(problem, np.zeros(problem.size))
     start_rows = problem.camera_rows(x)
-    upper = np.full(problem.size, np.inf)
-    upper[6 * len(cameras):] = geometry.max_notch_bend
-    lower = np.where(np.isinf(upper), -np.inf, 0.0)
+    lower, upper = np.full(problem.size, -np.inf), np.full(problem.size, np.inf)
+    lower[6 * len(cameras):], upper[6 * len(cameras):] = 0.0, geometry.max_notch_bend
     for round_index, scale in enumerate(SCALES_M):
         if progress:
             progress(f"round {round_index + 1}/{len(SCALES_M)}: loss scale {scale * 1e3:.2f} mm")
-        problem.prior_scale = scale
+        problem.outlier = 3 * scale
         solved = least_squares(problem.residuals, np.clip(x, lower, upper), jac=problem.jacobian,
                                bounds=(lower, upper), loss="cauchy", f_scale=scale, x_scale="jac", max_nfev=60)
         x = solved.x
@@ -236,22 +245,28 @@ def fit_rig(recordings: list[Recording], geometry: TubeGeometry, start: dict[str
 
 
 def _covariance(problem: _Problem, x: np.ndarray, scale: float) -> np.ndarray:
-    """The camera parameters' covariance, the bends marginalised: the Cauchy loss's weights, the residuals' robust
-    variance, and the points a matcher's window correlates counted once."""
+    """The camera parameters' covariance, the bends marginalised: the inverse of the Cauchy loss's Gauss-Newton
+    matrix times the residuals' robust variance, with the points of one camera and recording counted as the
+    stretches of the tube they cover, each a stereo matcher's window long (WINDOW_PX pixel footprints): a matcher
+    errs alike over its window (a wall read deeper beside a slot, under a highlight, towards a limb), so its
+    points there are one measurement, not dozens. Directions the recordings leave free (an eigenvalue below FREE of
+    the largest) are infinitely uncertain in every parameter they move."""
     residuals = problem.residuals(x)
     jac = problem.jacobian(x)
-    prior_rows = len(problem.prior)
-    data = slice(0, len(residuals) - prior_rows)
-    weights = 1.0 / (1.0 + (residuals[data] / scale) ** 2)
-    variance = np.sum(weights * residuals[data] ** 2) / max(np.sum(weights) - problem.size, 1.0)
-    pixels = sum(sum(r.pixels.values()) for r in problem.recordings)
-    correlated = max(1.0, CORRELATED_PIXELS * (len(residuals) - prior_rows) / max(pixels, 1))
-    prior = jac[len(residuals) - prior_rows:]
-    # The prior's rows weigh a bend step of BEND_STEP_SIGMA as one scale: in units of the data's variance.
-    normal = jac[data].T @ (weights[:, None] * jac[data]) / correlated + prior.T @ prior * variance / scale**2
-    covariance = np.linalg.pinv(normal, rcond=1e-12, hermitian=True) * variance
-    undetermined = np.diag(normal) <= 0
-    covariance[undetermined, undetermined] = np.inf
+    seen = np.any(jac[:, :6 * len(problem.cameras)] != 0, axis=1)  # not the clamp past the base
+    weights = np.where(seen, 1.0 / (1.0 + (residuals / scale) ** 2), 0.0)
+    variance = np.sum(weights * residuals**2) / max(np.sum(weights), 1.0)
+    stretches = 0.0
+    for index, _, _, _, measured in problem._evaluate(x):
+        inside = np.abs(measured.distance) <= 3 * scale
+        if inside.any():
+            extent = np.ptp(measured.foot_s[inside])
+            stretches += max(extent / (WINDOW_PX * problem.recordings[index].footprint), 1.0)
+    values, vectors = np.linalg.eigh(jac.T @ (weights[:, None] * jac))
+    free = values <= FREE * values.max()
+    covariance = (vectors[:, ~free] / values[~free]) @ vectors[:, ~free].T * variance * seen.sum() / max(stretches, 1)
+    loose = np.sum(vectors[:, free] ** 2, axis=1) > 1e-3
+    covariance[loose, loose] = np.inf
     return covariance[:6 * len(problem.cameras), :6 * len(problem.cameras)]
 
 
@@ -263,15 +278,13 @@ def _in_report_units(sigma: np.ndarray) -> np.ndarray:
 def _result(problem: _Problem, x: np.ndarray, start_rows: dict[str, np.ndarray]) -> RigFit:
     cameras = problem.cameras
     covariance = _covariance(problem, x, SCALES_M[-1])
-    # A cylinder's turn about its own axis leaves it in place: the covariance there is numerical noise.
     sigma = {name: _in_report_units(np.sqrt(np.abs(np.diag(covariance))[6 * c:6 * c + 6]))
              for c, name in enumerate(cameras)}
     first, second = slice(0, 6), slice(6, 12)
     relative = (covariance[first, first] + covariance[second, second] - covariance[first, second]
                 - covariance[second, first])
     relative_sigma = _in_report_units(np.sqrt(np.abs(np.diag(relative)))) if len(cameras) > 1 else np.zeros(6)
-    bends = {r.name: np.clip(problem.bends(x, i), 0.0, problem.geometry.max_notch_bend)
-             for i, r in enumerate(problem.recordings)}
+    bends = {r.name: problem.bends(x, i) for i, r in enumerate(problem.recordings)}
     _refuse_undetermined(sigma, bends)
     rows = problem.camera_rows(x)
     fits = {name: _robust_rms(rows[name], SCALES_M[-1]) for name in cameras}
@@ -283,8 +296,8 @@ def _result(problem: _Problem, x: np.ndarray, start_rows: dict[str, np.ndarray])
 
 def _refuse_undetermined(sigma: dict[str, np.ndarray], bends: dict[str, np.ndarray]) -> None:
     """CalibrationError naming each pose parameter the recordings leave free, and what to record instead."""
-    loose = [f"{name}'s {'turn about' if k < 3 else 'position along'} {AXES[k % 3]}"
-             f" (±{values[k]:.2g} {'deg' if k < 3 else 'mm'})"
+    loose = [f"{name}'s {'turn about' if k < 3 else 'position along'} {AXES[k % 3]} ("
+             + (f"±{values[k]:.2g} {'deg' if k < 3 else 'mm'})" if np.isfinite(values[k]) else "free)")
              for name, values in sigma.items() for k in range(6) if not values[k] <= UNDETERMINED]
     if not loose:
         return

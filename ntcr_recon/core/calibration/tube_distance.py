@@ -84,18 +84,19 @@ def tube_distance(shape: TubeShape, points: np.ndarray, viewpoint: np.ndarray | 
     return TubeDistance(distance, direction, foot_s, below_base)
 
 
-def bend_jacobian(shape: TubeShape, measured: TubeDistance, step: float = 1.0e-4) -> np.ndarray:
-    """d distance / d bend of each notch (N, notch_count): the centreline's move at each point's foot under a
-    small change of one notch's bend (finite differences, inside the notch's range), against the gradient."""
+def bend_jacobian(shape: TubeShape, foot_s: np.ndarray, direction: np.ndarray, changes: np.ndarray,
+                  step: float = 1.0e-4) -> np.ndarray:
+    """d distance / d bend parameter (N, M) for points with these feet and distance gradients, each parameter
+    changing the notches' bends by a row of `changes` (M, notch_count) per radian: the centreline's move at each
+    foot under a small such change (finite differences, towards where the notches can still bend), against the
+    gradient."""
     bends = shape.notch_bend
-    base, _ = shape.centerline(measured.foot_s)
-    columns = np.empty((len(measured.foot_s), len(bends)))
+    base = shape.centerline_points(foot_s)
+    columns = np.empty((len(foot_s), len(changes)))
     upper = shape.geometry.max_notch_bend
-    for notch in range(len(bends)):
-        delta = step if bends[notch] + step <= upper else -step
-        moved_bends = bends.copy()
-        moved_bends[notch] += delta
-        moved = TubeShape(shape.geometry, moved_bends)
-        centre, _ = moved.centerline(np.minimum(measured.foot_s, moved.length))
-        columns[:, notch] = -np.einsum("ij,ij->i", measured.direction, centre - base) / delta
+    for column, change in enumerate(changes):
+        delta = step if np.all(bends + step * change <= upper) and np.all(bends + step * change >= 0) else -step
+        moved = TubeShape(shape.geometry, np.clip(bends + delta * change, 0.0, upper))
+        centre = moved.centerline_points(np.minimum(foot_s, moved.length))
+        columns[:, column] = -np.einsum("ij,ij->i", direction, centre - base) / delta
     return columns

@@ -114,12 +114,12 @@ class TubeShape:
         position = np.asarray(g.base_position, dtype=float)
         rotation = g.base_rotation @ notch_side
         starts_p, starts_r = [], []
-        for length, kappa in zip(self.segment_lengths, self.segment_curvatures, strict=True):
+        offsets, turns = _arc(self.segment_lengths, self.segment_curvatures)  # every segment's at once
+        for offset, turn in zip(offsets, turns, strict=True):
             starts_p.append(position)
             starts_r.append(rotation)
-            offset, turn = _arc(np.array([length]), np.array([kappa]))
-            position = position + rotation @ offset[0]
-            rotation = rotation @ turn[0]
+            position = position + rotation @ offset
+            rotation = rotation @ turn
         self._segment_positions = np.array(starts_p)
         self._segment_rotations = np.array(starts_r)
 
@@ -128,6 +128,18 @@ class TubeShape:
 
         Frame columns: x towards the notch side, y = z cross x, z = tangent; all in the base frame.
         """
+        index, offset, turn = self._along(s)
+        start_rotation = self._segment_rotations[index]
+        positions = self._segment_positions[index] + np.einsum("nij,nj->ni", start_rotation, offset)
+        return positions, start_rotation @ turn
+
+    def centerline_points(self, s) -> np.ndarray:
+        """The positions of `centerline` alone (N, 3): a fit that moves the centreline asks for them often."""
+        index, offset, _ = self._along(s)
+        return self._segment_positions[index] + np.einsum("nij,nj->ni", self._segment_rotations[index], offset)
+
+    def _along(self, s) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per arc length (checked to lie on the robot): its segment, and the offset and turn within it."""
         s = np.atleast_1d(np.asarray(s, dtype=float))
         tolerance = 1e-9
         if s.size and (s.min() < -tolerance or s.max() > self.length + tolerance):
@@ -135,9 +147,7 @@ class TubeShape:
         s = np.clip(s, 0.0, self.length)
         index = np.clip(np.searchsorted(self.segment_starts, s, side="right") - 1, 0, len(self.segment_starts) - 1)
         offset, turn = _arc(s - self.segment_starts[index], self.segment_curvatures[index])
-        start_rotation = self._segment_rotations[index]
-        positions = self._segment_positions[index] + np.einsum("nij,nj->ni", start_rotation, offset)
-        return positions, start_rotation @ turn
+        return index, offset, turn
 
     def tip_pose(self) -> tuple[np.ndarray, np.ndarray]:
         """Tip position (3,) and frame (3, 3)."""
