@@ -48,7 +48,12 @@ AXES = ("x", "y", "z")
 
 
 class CalibrationError(ValueError):
-    """The recordings cannot give the poses asked for; the message names the parameter and what to record."""
+    """The recordings cannot give the poses asked for; the message names the parameter and what to record.
+    `free`: the parameters left free, as "<camera>.turn_<axis>" or "<camera>.shift_<axis>" (base-frame axes)."""
+
+    def __init__(self, message: str, free: tuple[str, ...] = ()):
+        super().__init__(message)
+        self.free = free
 
 
 @dataclass(frozen=True)
@@ -296,13 +301,15 @@ def _result(problem: _Problem, x: np.ndarray, start_rows: dict[str, np.ndarray])
 
 def _refuse_undetermined(sigma: dict[str, np.ndarray], bends: dict[str, np.ndarray]) -> None:
     """CalibrationError naming each pose parameter the recordings leave free, and what to record instead."""
-    loose = [f"{name}'s {'turn about' if k < 3 else 'position along'} {AXES[k % 3]} ("
-             + (f"±{values[k]:.2g} {'deg' if k < 3 else 'mm'})" if np.isfinite(values[k]) else "free)")
-             for name, values in sigma.items() for k in range(6) if not values[k] <= UNDETERMINED]
-    if not loose:
+    free = [(name, k, values[k]) for name, values in sigma.items() for k in range(6) if not values[k] <= UNDETERMINED]
+    if not free:
         return
+    named = [f"{name}'s {'turn about' if k < 3 else 'position along'} {AXES[k % 3]} ("
+             + (f"±{value:.2g} {'deg' if k < 3 else 'mm'})" if np.isfinite(value) else "free)")
+             for name, k, value in free]
     straight = all(np.sum(b) < STRAIGHT_RAD for b in bends.values())
     advice = ("the robot was straight in every recording, a cylinder that may turn about its own axis unseen: "
               "record it bent as well (a total bend of 30 deg or more)" if straight else
               "record the robot in more poses, bent in other directions")
-    raise CalibrationError(f"the recordings do not determine {', '.join(loose)}: {advice}")
+    raise CalibrationError(f"the recordings do not determine {', '.join(named)}: {advice}",
+                           tuple(f"{name}.{'turn' if k < 3 else 'shift'}_{AXES[k % 3]}" for name, k, _ in free))

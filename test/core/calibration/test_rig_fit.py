@@ -1,0 +1,92 @@
+"""The rig fitted to the robot's tube: on exact points of the true surface, what each camera sees of it."""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from ntcr_recon.core.base.transforms import invert_transform, rigid_transform, transform_points
+from ntcr_recon.core.calibration.rig_fit import CalibrationError, Recording, fit_rig, pivot_of
+from ntcr_recon.core.robot.geometry import TubeGeometry
+from ntcr_recon.core.robot.kinematics import TubeShape
+from ntcr_recon.core.robot.surface import PART_OUTER_WALL
+
+GEOMETRY = TubeGeometry()
+# Two opposed cameras 90 mm from the robot, as the simulator places them (looking along +y and -y).
+TRUE_POSES = {"cam_a": rigid_transform([0.01, -0.09, 0.022], [-0.5, -0.5, -0.5, 0.5]),
+              "cam_b": rigid_transform([0.01, 0.09, 0.022], [0.5, -0.5, 0.5, 0.5])}
+
+
+def _seen(shape: TubeShape, camera: str, rng, count=3000, noise=10e-6) -> np.ndarray:
+    """The outer wall facing the camera (optical frame), with depth noise along each pixel's ray."""
+    sample = shape.sample_surface_parts(0.1e-3)
+    wall = sample.part == PART_OUTER_WALL
+    points, normals = sample.points[wall], sample.normals[wall]
+    origin = TRUE_POSES[camera][:3, 3]
+    facing = np.einsum("ij,ij->i", normals, points - origin) < 0
+    optical = transform_points(invert_transform(TRUE_POSES[camera]), points[facing])
+    optical = optical[rng.choice(len(optical), min(count, len(optical)), replace=False)]
+    return optical * (1 + rng.normal(0, noise, len(optical)) / optical[:, 2])[:, None]
+
+
+def _recording(name, bends, rng, straight=False) -> Recording:
+    shape = TubeShape(GEOMETRY, bends)
+    points = {camera: _seen(shape, camera, rng) for camera in TRUE_POSES}
+    return Recording(name, points, {camera: len(p) for camera, p in points.items()}, straight)
+
+
+def _moved(pose, turn_deg, shift_mm, rng):
+    axis, direction = rng.normal(size=3), rng.normal(size=3)
+    moved = pose.copy()
+    moved[:3, :3] = Rotation.from_rotvec(np.radians(turn_deg) * axis / np.linalg.norm(axis)).as_matrix() @ pose[:3, :3]
+    moved[:3, 3] += direction / np.linalg.norm(direction) * shift_mm * 1e-3
+    return moved
+
+
+def _error(estimate, truth):
+    """The turn left (deg) and the robot's middle moved (mm)."""
+    change = estimate @ invert_transform(truth)
+    pivot = pivot_of(GEOMETRY)
+    return (np.degrees(np.linalg.norm(Rotation.from_matrix(change[:3, :3]).as_rotvec())),
+            np.linalg.norm(change[:3, :3] @ pivot + change[:3, 3] - pivot) * 1e3)
+
+
+@pytest.fixture(scope="module")
+def recordings():
+    rng = np.random.default_rng(7)
+    bent = np.linspace(0.06, 0.045, GEOMETRY.notch_count)  # 3.4 deg at the base to 2.6 at the tip
+    return [_recording("straight", np.zeros(GEOMETRY.notch_count), rng, straight=True),
+            _recording("bent", bent, rng)], bent
+
+
+def test_poses_two_degrees_and_millimetres_off_come_back_from_a_straight_and_a_bent_recording(recordings):
+    found, bent = recordings
+    rng = np.random.default_rng(11)
+    start = {camera: _moved(pose, 2.0, 2.0, rng) for camera, pose in TRUE_POSES.items()}
+    fit = fit_rig(found, GEOMETRY, start)
+    for camera, pose in TRUE_POSES.items():
+        turn, shift = _error(fit.extrinsics[camera], pose)
+        assert turn < 0.01 and shift < 0.01, (camera, turn, shift)
+        assert fit.residual_mm[camera] < 0.02 and fit.inliers[camera] > 0.95
+        assert fit.start_residual_mm[camera] > 0.3  # two millimetres off, the tube was far from the points
+    relative = invert_transform(fit.extrinsics["cam_a"]) @ fit.extrinsics["cam_b"]
+    turn, shift = _error(TRUE_POSES["cam_a"] @ relative, TRUE_POSES["cam_b"])
+    assert turn < 0.01 and shift < 0.01
+    np.testing.assert_allclose(fit.bends["bent"], bent, atol=np.radians(0.1))
+    np.testing.assert_array_equal(fit.bends["straight"], 0.0)
+    assert np.all(np.isfinite(fit.relative_uncertainty)) and np.all(fit.relative_uncertainty < [0.05] * 3 + [0.05] * 3)
+
+
+def test_a_robot_straight_in_every_recording_leaves_each_cameras_turn_about_its_axis_free(recordings):
+    found, _ = recordings
+    with pytest.raises(CalibrationError) as refused:
+        fit_rig([found[0]], GEOMETRY, dict(TRUE_POSES))
+    assert {"cam_a.turn_z", "cam_b.turn_z"} <= set(refused.value.free)
+    assert not {"cam_a.shift_x", "cam_b.shift_x"} & set(refused.value.free)  # across the views: seen
+
+
+def test_a_camera_that_saw_nothing_is_refused_by_name(recordings):
+    found, _ = recordings
+    blind = [Recording(r.name, {"cam_a": r.points["cam_a"], "cam_b": np.empty((0, 3))}, r.pixels, r.straight)
+             for r in found]
+    with pytest.raises(CalibrationError, match="cam_b saw none of the robot"):
+        fit_rig(blind, GEOMETRY, dict(TRUE_POSES))
