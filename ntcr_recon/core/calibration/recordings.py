@@ -32,10 +32,12 @@ def recording_from_frames(name: str, frames: Iterable[CameraFrame], config: RigC
     low, high = config.crop_box()
     box = (low - CROP_MARGIN_M, high + CROP_MARGIN_M)
     parts: dict[str, list[np.ndarray]] = {camera: [] for camera in config.camera_names}
-    footprints = []
+    footprints, views = [], {}
     for frame in frames:
         optical = depth_points(frame, config, box).optical
         parts[frame.camera].append(optical)
+        if frame.color is not None and frame.depth is not None:
+            views[frame.camera] = (frame.color, frame.intrinsics)  # the robot is still: one frame's colour serves
         if len(optical):
             footprints.append(float(np.median(optical[:, 2])) / frame.intrinsics.fx)
     points, pixels = {}, {}
@@ -45,4 +47,4 @@ def recording_from_frames(name: str, frames: Iterable[CameraFrame], config: RigC
         points[camera] = joined[rng.choice(len(joined), max_points, replace=False)] if len(joined) > max_points \
             else joined
     footprint = float(np.median(footprints)) if footprints else Recording.footprint
-    return Recording(name, points, pixels, straight, footprint)
+    return Recording(name, points, pixels, straight, footprint, views)

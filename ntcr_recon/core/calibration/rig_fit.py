@@ -20,13 +20,14 @@ covers counted once (its depth errs alike over its window).
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from ntcr_recon.core.calibration.tube_distance import bend_jacobian, tube_distance
+from ntcr_recon.core.calibration.limb_rows import LimbRows, limb_rows
+from ntcr_recon.core.calibration.tube_distance import TubeDistance, bend_jacobian, tube_distance
 from ntcr_recon.core.robot.geometry import TubeGeometry
 from ntcr_recon.core.robot.kinematics import TubeShape
 
@@ -42,6 +43,11 @@ FREE = 1e-9
 UNDETERMINED = 1.0
 # A recording whose total bend stays below this (rad) leaves the tube a cylinder about its axis.
 STRAIGHT_RAD = np.radians(5.0)
+# The limbs are read from the round whose loss scale is this small (m) on: the pose then puts each limb within the
+# pixels their search spans (core.relocation.limbs.SEARCH_PX).
+LIMBS_FROM_SCALE_M = 1.5e-4
+# A camera's limb stations count together as much as its points, each at most this many times one point.
+LIMB_WEIGHT_MAX = 3.0
 # Parameters of a recording's bend profile: the first notch's bend and the last's.
 PROFILE = 2
 AXES = ("x", "y", "z")
@@ -66,6 +72,7 @@ class Recording:
     pixels: dict[str, int]
     straight: bool = False      # the robot at rest, straight (its bends held at zero): its axis is the base's z
     footprint: float = 2.0e-4   # a pixel's size at the robot (m): the stretch a matcher's window errs alike over
+    views: dict = field(default_factory=dict)   # camera -> (colour image (H, W, 3), Intrinsics) aligned with depth
 
 
 @dataclass(frozen=True)
@@ -104,11 +111,34 @@ class _Problem:
         place = np.linspace(0.0, 1.0, self.notches)
         self.profile = np.stack([1.0 - place, place])
         self.outlier = 3 * SCALES_M[0]
+        self.limbs: list[tuple[LimbRows, np.ndarray, np.ndarray, float]] = []
         self.set_start(extrinsics)
         self._cache: tuple[bytes, list] | None = None
 
+    def measure_limbs(self, x: np.ndarray) -> None:
+        """Read every camera's limbs about the robot as x poses it (core.calibration.limb_rows), each camera's
+        stations weighted to count together as much as its points do (at most LIMB_WEIGHT_MAX each)."""
+        self.limbs = []
+        poses = self.extrinsics(x)
+        for index, recording in enumerate(self.recordings):
+            shape = TubeShape(self.geometry, self.bends(x, index))
+            for c, name in enumerate(self.cameras):
+                if name not in recording.views or not len(recording.points.get(name, ())):
+                    continue
+                rows = limb_rows(index, c, shape, *recording.views[name], poses[name])
+                if rows is None:
+                    continue
+                start = self.start[name]
+                centred = rows.points @ start[:3, :3].T + start[:3, 3] - self.pivot
+                across = rows.across @ start[:3, :3].T
+                weight = min(np.sqrt(len(recording.points[name]) / len(rows.s)), LIMB_WEIGHT_MAX)
+                self.limbs.append((rows, centred, across, weight))
+        self._cache = None
+
     def set_start(self, extrinsics: dict[str, np.ndarray]) -> None:
+        """The poses the turns and shifts start from (the limbs read so far are forgotten)."""
         self.start = {name: matrix.copy() for name, matrix in extrinsics.items()}
+        self.limbs = []
         self.centred = [{name: (points @ self.start[name][:3, :3].T + self.start[name][:3, 3]) - self.pivot
                          for name, points in recording.points.items()} for recording in self.recordings]
         self._cache = None
@@ -145,9 +175,10 @@ class _Problem:
         key = x.tobytes()
         if self._cache is not None and self._cache[0] == key:
             return self._cache[1]
-        parts = []
+        parts, shapes = [], []
         for index, centred in enumerate(self.centred):
             shape = TubeShape(self.geometry, self.bends(x, index))
+            shapes.append(shape)
             for c, name in enumerate(self.cameras):
                 if name not in centred:
                     continue
@@ -159,7 +190,15 @@ class _Problem:
                 # the pose, so it neither pulls nor pushes.
                 measured.distance[measured.below_base] = self.outlier
                 measured.direction[measured.below_base] = 0.0
-                parts.append((index, c, moved, shape, measured))
+                parts.append((index, c, moved, shape, measured, False))
+        for rows, centred, across, weight in self.limbs:
+            c = rows.camera
+            turn = Rotation.from_rotvec(x[6 * c:6 * c + 3]).as_matrix()
+            moved, direction = centred @ turn.T + x[6 * c + 3:6 * c + 6], across @ turn.T * weight
+            shape = shapes[rows.recording]
+            gap = np.einsum("ij,ij->i", direction, moved + self.pivot - shape.centerline_points(rows.s))
+            parts.append((rows.recording, c, moved, shape,
+                          TubeDistance(gap, direction, rows.s, np.zeros(len(gap), bool)), True))
         self._cache = (key, parts)
         return parts
 
@@ -171,7 +210,7 @@ class _Problem:
         jac = np.zeros((sum(len(part[4].distance) for part in parts), self.size))
         row = 0
         rows_of: dict[int, list] = {}
-        for index, c, moved, shape, measured in parts:
+        for index, c, moved, shape, measured, _ in parts:
             block = slice(row, row + len(measured.distance))
             # d distance / d turn: the gradient against the point's move (turn x its offset from the pivot).
             jac[block, 6 * c:6 * c + 3] = np.cross(moved, measured.direction)
@@ -193,8 +232,9 @@ class _Problem:
     def camera_rows(self, x: np.ndarray) -> dict[str, np.ndarray]:
         """Each camera's residuals (m), over all recordings."""
         found: dict[str, list] = {name: [] for name in self.cameras}
-        for _, c, _, _, measured in self._evaluate(x):
-            found[self.cameras[c]].append(measured.distance)
+        for _, c, _, _, measured, limbs in self._evaluate(x):
+            if not limbs:
+                found[self.cameras[c]].append(measured.distance)
         return {name: np.concatenate(values) if values else np.empty(0) for name, values in found.items()}
 
 
@@ -241,11 +281,15 @@ def fit_rig(recordings: list[Recording], geometry: TubeGeometry, start: dict[str
         if progress:
             progress(f"round {round_index + 1}/{len(SCALES_M)}: loss scale {scale * 1e3:.2f} mm")
         problem.outlier = 3 * scale
+        if scale <= LIMBS_FROM_SCALE_M:
+            problem.measure_limbs(x)
         solved = least_squares(problem.residuals, np.clip(x, lower, upper), jac=problem.jacobian,
                                bounds=(lower, upper), loss="cauchy", f_scale=scale, x_scale="jac", max_nfev=60)
         x = solved.x
         problem.set_start(problem.extrinsics(x))  # the turns restart from zero, where their Jacobian is exact
         x[:6 * len(cameras)] = 0.0
+    if SCALES_M[-1] <= LIMBS_FROM_SCALE_M:
+        problem.measure_limbs(x)  # read where the fit left the robot, for its residuals and covariance
     return _result(problem, x, start_rows)
 
 
@@ -262,7 +306,7 @@ def _covariance(problem: _Problem, x: np.ndarray, scale: float) -> np.ndarray:
     weights = np.where(seen, 1.0 / (1.0 + (residuals / scale) ** 2), 0.0)
     variance = np.sum(weights * residuals**2) / max(np.sum(weights), 1.0)
     stretches = 0.0
-    for index, _, _, _, measured in problem._evaluate(x):
+    for index, _, _, _, measured, _ in problem._evaluate(x):
         inside = np.abs(measured.distance) <= 3 * scale
         if inside.any():
             extent = np.ptp(measured.foot_s[inside])
