@@ -145,8 +145,7 @@ def format_row(name: str, start: float, result: dict, reconstruction: tuple | No
         text += f"{exact_centre:>8.3f} / {centre:<8.3f} {exact_tip:>7.3f} / {tip:<7.3f} | "
     else:
         text += f"{'':>19} {'':>17} | "
-    sigma = result["fit"].relative_uncertainty
-    return text + f"{result['seconds']:>4.0f}  sigma rel {np.round(sigma, 3)} err {np.round(result['relative'], 3)}"
+    return text + f"{result['seconds']:>4.0f}"
 
 
 def summary(rows: list[tuple[str, float, dict, tuple | None]]) -> None:
@@ -163,9 +162,15 @@ def summary(rows: list[tuple[str, float, dict, tuple | None]]) -> None:
           f"their stated sigma on every axis: {covered}/{len(fitted)}")
     if fitted:
         relative = np.array([r["relative"] for r in fitted])
+        stated = np.array([r["fit"].relative_uncertainty for r in fitted])
         print("  cam_b relative to cam_a, median |error| per axis: turn x, y, z "
               + ", ".join(f"{v:.4f}" for v in np.median(np.abs(relative[:, :3]), axis=0)) + " deg; shift x, y, z "
               + ", ".join(f"{v:.4f}" for v in np.median(np.abs(relative[:, 3:]), axis=0)) + " mm")
+        covered = np.sum(np.abs(relative) <= 2 * stated, axis=0)
+        print("  within twice the stated sigma, per axis: turn x, y, z " + ", ".join(str(n) for n in covered[:3])
+              + "; shift x, y, z " + ", ".join(str(n) for n in covered[3:]) + f" (of {len(fitted)}); median "
+              "stated/measured " + ", ".join(f"{v:.2f}" for v in np.median(stated / np.maximum(np.abs(relative),
+                                                                                           1e-6), axis=0)))
     reconstructions = [rec for _, _, r, rec in rows if rec and "refused" not in r]
     if reconstructions:
         held = sum(1 for (exact, _), (centre, _) in reconstructions

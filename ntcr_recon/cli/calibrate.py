@@ -187,7 +187,8 @@ def _report(args: argparse.Namespace, recordings: list, start: dict, fit) -> dic
             for r in recordings]
     return {"config": str(args.config), "pivot_m": [float(v) for v in pivot], "cameras": cameras,
             "relative": relative, "recordings": bags,
-            "uncertainty_is": "1-sigma, from the fit's covariance"}
+            "uncertainty_is": "1-sigma, from the fit's covariance; "
+                              "without a matcher's depth bias along each camera's view"}
 
 
 def _write(args: argparse.Namespace, rough_text: str, fit, report: dict, recordings: list, config) -> None:

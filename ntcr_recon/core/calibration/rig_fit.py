@@ -3,16 +3,20 @@
 The robot defines the base frame (DESIGN.md): its proximal segment's axis is z, its base end cap z = 0, the notch
 side x, as the rig file's `robot` section places it. Over every recording at once, one robust least-squares
 problem (scipy.optimize.least_squares, Cauchy loss) fits each camera's pose (a turn and a shift about the robot's
-middle, applied to the rig file's pose) and each recording's bend of every notch (the robot's kinematics,
-core.robot.kinematics; a recording holds the robot still) so that every point the cameras saw lies on the robot's
-tube (core.calibration.tube_distance). The loss's scale narrows over rounds (SCALES_M), so a start a few
-millimetres and degrees off is pulled in before the wall's tenth of a millimetre decides; each round restarts the
-turn from the pose the last one reached, where its Jacobian is exact.
+middle, applied to the rig file's pose) and each bent recording's bends (a linear profile from the first notch to
+the last, core.robot.kinematics; a straight recording's are zero, so its axis is z) so that every point the
+cameras saw lies on the robot's tube as its camera sees it (core.calibration.tube_distance) and, once the fit is
+within a pixel, the tube's axis lies midway between its limbs in each colour image (core.calibration.limb_rows).
+The loss's scale narrows over rounds (SCALES_M), so a start a few millimetres and degrees off is pulled in before
+the wall's tenth of a millimetre decides; each round restarts the turns from the pose the last one reached, where
+their Jacobian is exact.
 
-What a recording cannot fix is refused by name: a straight tube is a cylinder, so neither camera's turn about the
-robot's axis is determined until the robot bends (CalibrationError says so and what to record). The uncertainty of
-each pose parameter comes from the fit's covariance with the points of each stretch of tube a matcher's window
-covers counted once (its depth errs alike over its window).
+What the recordings cannot fix is refused by name: a straight tube is a cylinder, so neither camera's turn about
+the robot's axis is determined until the robot bends (CalibrationError says so and what to record). The uncertainty
+of each pose parameter comes from the fit's covariance with the points of each stretch of tube a matcher's window
+covers counted once (its depth errs alike over its window). It does not hold a matcher's bias of depth that varies
+along the tube (the notches smeared into its window, a highlight), which moves the cameras along their views and
+turns them about the axes across them: benchmarks/calibration_matrix.py measures by how much.
 
     fit = fit_rig(recordings, geometry, start_extrinsics)     # RigFit: extrinsics, uncertainties, residuals, bends
 """
@@ -65,7 +69,7 @@ class CalibrationError(ValueError):
 @dataclass(frozen=True)
 class Recording:
     """One still pose of the robot: each camera's points of it in its own optical frame (m), and how many pixels
-    those points were taken from (for the covariance's correlation)."""
+    those points were sampled from."""
 
     name: str
     points: dict[str, np.ndarray]
@@ -306,7 +310,9 @@ def _covariance(problem: _Problem, x: np.ndarray, scale: float) -> np.ndarray:
     weights = np.where(seen, 1.0 / (1.0 + (residuals / scale) ** 2), 0.0)
     variance = np.sum(weights * residuals**2) / max(np.sum(weights), 1.0)
     stretches = 0.0
-    for index, _, _, _, measured, _ in problem._evaluate(x):
+    for index, _, _, _, measured, limbs in problem._evaluate(x):
+        if limbs:
+            continue
         inside = np.abs(measured.distance) <= 3 * scale
         if inside.any():
             extent = np.ptp(measured.foot_s[inside])
