@@ -145,7 +145,8 @@ def format_row(name: str, start: float, result: dict, reconstruction: tuple | No
         text += f"{exact_centre:>8.3f} / {centre:<8.3f} {exact_tip:>7.3f} / {tip:<7.3f} | "
     else:
         text += f"{'':>19} {'':>17} | "
-    return text + f"{result['seconds']:>4.0f}"
+    slots = "".join(f" CAMERA_FACES_SLOTS:{name}" for name in result["fit"].facing_slots)
+    return text + f"{result['seconds']:>4.0f}{slots}"
 
 
 def summary(rows: list[tuple[str, float, dict, tuple | None]]) -> None:

@@ -11,7 +11,9 @@ cameras' poses and every bent bag's notch bends (core.calibration.rig_fit). Out 
     RIG.yaml                the rough file with each camera's translation and rotation replaced, all else kept
     RIG.calibration.json    per camera: the pose, how far it moved, its uncertainty (1-sigma, turns about and shifts
                             along the base frame's axes through the robot's middle), the residual off the tube; the
-                            second camera relative to the first; per bag the fitted bends
+                            second camera relative to the first; per bag the fitted bends; warnings (code
+                            CAMERA_FACES_SLOTS: a camera looks into the notches' slots, its pose along its view
+                            suspect)
     RIG.calibration.png     both cameras' points over the fitted robot, with the rough poses and the calibrated ones
 
 Recordings that leave a pose parameter free are refused by name (e.g. a robot straight in every bag cannot fix the
@@ -27,6 +29,9 @@ from pathlib import Path
 
 import numpy as np
 
+# Points per camera and recording the figure draws, and how near the fitted tube (m) they must lie to be drawn.
+FIGURE_POINTS = 4000
+FIGURE_BAND_M = 1.0e-3
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("bags", type=Path, nargs="*", metavar="BAG",
@@ -64,6 +69,8 @@ def main(args: argparse.Namespace) -> int:
         print(f"ntcr-recon calibrate: {relative['camera']} relative to {relative['to']}: uncertain by "
               f"{_largest(relative['uncertainty']['turn_deg']):.3f} deg, "
               f"{_largest(relative['uncertainty']['shift_mm']):.3f} mm", file=sys.stderr)
+    for warning in report["warnings"]:
+        print(f"ntcr-recon calibrate: warn: [{warning['code']}] {warning['message']}", file=sys.stderr)
     print(f"ntcr-recon calibrate: wrote {args.out} and its report", file=sys.stderr)
     return 0
 
@@ -185,14 +192,21 @@ def _report(args: argparse.Namespace, recordings: list, start: dict, fit) -> dic
              "bends_deg": [round(float(b), 4) for b in np.degrees(fit.bends[r.name])],
              "total_bend_deg": round(float(np.degrees(np.sum(fit.bends[r.name]))), 3), "straight": r.straight}
             for r in recordings]
+    warnings = [{"code": "CAMERA_FACES_SLOTS", "camera": name, "angle_deg": round(angle, 2),
+                 "message": f"{name} looks into the notches' slots ({angle:.0f} deg off the side they open to): its "
+                            "depth there reads the slots' floors smeared into the spines, and its pose along its "
+                            "view may be off by a millimetre; record the robot turned in its clamp so that the "
+                            "notches open sideways to both cameras"}
+                for name, angle in fit.facing_slots.items()]
     return {"config": str(args.config), "pivot_m": [float(v) for v in pivot], "cameras": cameras,
-            "relative": relative, "recordings": bags,
+            "relative": relative, "recordings": bags, "warnings": warnings,
             "uncertainty_is": "1-sigma, from the fit's covariance; "
                               "without a matcher's depth bias along each camera's view"}
 
 
 def _write(args: argparse.Namespace, rough_text: str, fit, report: dict, recordings: list, config) -> None:
     from ntcr_recon.core.base.transforms import transform_points
+    from ntcr_recon.core.calibration.tube_distance import tube_distance
     from ntcr_recon.core.robot.kinematics import TubeShape
     from ntcr_recon.io.figures import calibration_views
     from ntcr_recon.io.files import write_atomically
@@ -201,14 +215,18 @@ def _write(args: argparse.Namespace, rough_text: str, fit, report: dict, recordi
     json_path, figure_path = report_paths(args.out)
     text = replace_poses(rough_text, fit.extrinsics)
     write_atomically(json_path, lambda temp: Path(temp).write_text(json.dumps(report, indent=1) + "\n"))
-    centerlines = []
+    centerlines, before, after = [], {name: [] for name in config.camera_names}, {name: [] for name in
+                                                                               config.camera_names}
     for recording in recordings:
         shape = TubeShape(config.robot, fit.bends[recording.name])
         centerlines.append(shape.centerline(np.linspace(0.0, shape.length, 200))[0])
-    before, after = {}, {}
-    for name in config.camera_names:
-        optical = np.concatenate([r.points[name][:3000] for r in recordings])
-        before[name] = transform_points(config.cameras[name].extrinsic, optical)
-        after[name] = transform_points(fit.extrinsics[name], optical)
+        for name, optical in recording.points.items():
+            fitted = transform_points(fit.extrinsics[name], optical[:FIGURE_POINTS])
+            # the robot's points only (as the fit placed them): the post and the backdrop would hide it
+            robot = np.abs(tube_distance(shape, fitted).distance) < FIGURE_BAND_M
+            before[name].append(transform_points(config.cameras[name].extrinsic, optical[:FIGURE_POINTS][robot]))
+            after[name].append(fitted[robot])
+    before = {name: np.concatenate(parts) for name, parts in before.items()}
+    after = {name: np.concatenate(parts) for name, parts in after.items()}
     calibration_views(figure_path, before, after, centerlines)
     write_atomically(args.out, lambda temp: Path(temp).write_text(text))  # last: the rig file means "done"

@@ -118,9 +118,10 @@ def side_views(path, raw_xyz: np.ndarray, relocated_xyz: np.ndarray, mesh, axes:
 def calibration_views(path, before: dict[str, np.ndarray], after: dict[str, np.ndarray],
                       centerlines: list[np.ndarray]) -> None:
     """Both cameras' points (base frame, by camera) over the fitted robots' centrelines, with the rig file's poses
-    (top) and the calibrated ones (bottom), seen across the bending plane (x, z) and along it (y, z)."""
+    (top) and the calibrated ones (bottom), seen across the bending plane (x, z) and along it (y, z), framed on the
+    robot."""
     plt = _pyplot()
-    fig, panels = plt.subplots(2, 2, figsize=(10, 10), sharey=True)
+    fig, panels = plt.subplots(2, 2, figsize=(8, 10), width_ratios=(3, 1))
     axes = np.array([[[1.0, 0, 0], [0, 0, 1.0]], [[0, 1.0, 0], [0, 0, 1.0]]])
     for row, (points, label) in enumerate(((before, "rig file's poses"), (after, "calibrated poses"))):
         for column, view in enumerate(axes):
@@ -133,6 +134,11 @@ def calibration_views(path, before: dict[str, np.ndarray], after: dict[str, np.n
                 panel.plot(c[:, 0], c[:, 1], color="black", linewidth=0.8)
             panel.set_title(f"{label}, {'x' if column == 0 else 'y'}-z (mm)")
             panel.set_aspect("equal")
+            robot = _project(np.concatenate(centerlines), view)
+            low, high = robot.min(axis=0) - 4.0, robot.max(axis=0) + 4.0  # the robot and 4 mm round it
+            panel.set_xlim(low[0], high[0])
+            panel.set_ylim(low[1], high[1])
+            panel.locator_params(axis="x", nbins=4 if column == 0 else 3)
     panels[0, 0].legend(markerscale=20)
     fig.tight_layout()
     _save(fig, path)

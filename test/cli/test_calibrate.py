@@ -60,6 +60,7 @@ def test_the_calibrated_rig_file_is_the_rough_one_with_poses_nearer_the_truth(re
     assert report["cameras"]["cam_a"]["moved"]["turn_deg"] > 1.5
     assert 0 < report["relative"]["uncertainty"]["turn_deg"]["z"] < 1.0
     assert [r["straight"] for r in report["recordings"]] == [True, False]
+    assert report["warnings"] == []  # the notches open sideways to both cameras
     assert 55 < report["recordings"][1]["total_bend_deg"] < 65
     assert matplotlib.image.imread(figure_file).shape[2] in (3, 4)
     # written again only when asked

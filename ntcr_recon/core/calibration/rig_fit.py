@@ -41,6 +41,8 @@ SCALES_M = (2.0e-3, 5.0e-4, 1.5e-4, 1.0e-4)
 START_BENDS = np.linspace(0.0, 1.0, 11)
 # Pixels across a stereo matcher's window (a D405's is about 9): its depth errs alike over so many footprints.
 WINDOW_PX = 9
+# A camera within this angle of the side the notches open to looks into their slots (rad).
+SLOTS_FACING = np.radians(45.0)
 # An eigenvalue of the Gauss-Newton matrix this small against the largest leaves its direction free.
 FREE = 1e-9
 # A pose parameter whose 1-sigma exceeds this (deg or mm) is not determined by the recordings: refused.
@@ -92,6 +94,22 @@ class RigFit:
     inliers: dict[str, float]              # share of each camera's points within 3 loss scales of the tube
     bends: dict[str, np.ndarray]           # per recording, each notch's fitted bend (rad)
     start_residual_mm: dict[str, float]
+    facing_slots: dict[str, float] = field(default_factory=dict)   # camera -> deg off the slots (slots_in_view)
+
+
+def slots_in_view(geometry: TubeGeometry, extrinsics: dict[str, np.ndarray]) -> dict[str, float]:
+    """The cameras that look into the notches' slots (within SLOTS_FACING of the side they open to), each with the
+    angle (deg) between its direction from the robot and that side. A matcher's window there averages the slots'
+    floors with the spines: its depth reads deep in a pattern along the tube the fit takes for the camera's pose
+    (with the notches towards cam_a, cam_a came out 1 mm nearer along its view)."""
+    side = geometry.base_rotation @ np.array([np.cos(geometry.notch_side), np.sin(geometry.notch_side), 0.0])
+    facing = {}
+    for name, extrinsic in extrinsics.items():
+        towards = extrinsic[:3, 3] - pivot_of(geometry)
+        angle = float(np.degrees(np.arccos(np.clip(side @ towards / np.linalg.norm(towards), -1.0, 1.0))))
+        if angle < np.degrees(SLOTS_FACING):
+            facing[name] = angle
+    return facing
 
 
 def pivot_of(geometry: TubeGeometry) -> np.ndarray:
@@ -335,18 +353,22 @@ def _result(problem: _Problem, x: np.ndarray, start_rows: dict[str, np.ndarray])
     covariance = _covariance(problem, x, SCALES_M[-1])
     sigma = {name: _in_report_units(np.sqrt(np.abs(np.diag(covariance))[6 * c:6 * c + 6]))
              for c, name in enumerate(cameras)}
-    first, second = slice(0, 6), slice(6, 12)
-    relative = (covariance[first, first] + covariance[second, second] - covariance[first, second]
-                - covariance[second, first])
-    relative_sigma = _in_report_units(np.sqrt(np.abs(np.diag(relative)))) if len(cameras) > 1 else np.zeros(6)
+    relative_sigma = np.zeros(6)
+    if len(cameras) > 1:  # the second camera relative to the first
+        first, second = slice(0, 6), slice(6, 12)
+        relative = (covariance[first, first] + covariance[second, second] - covariance[first, second]
+                    - covariance[second, first])
+        relative_sigma = _in_report_units(np.sqrt(np.abs(np.diag(relative))))
     bends = {r.name: problem.bends(x, i) for i, r in enumerate(problem.recordings)}
     _refuse_undetermined(sigma, bends)
     rows = problem.camera_rows(x)
     fits = {name: _robust_rms(rows[name], SCALES_M[-1]) for name in cameras}
     starts = {name: _robust_rms(start_rows[name], SCALES_M[0])[0] for name in cameras}
-    return RigFit(problem.extrinsics(x), sigma, relative_sigma,
+    extrinsics = problem.extrinsics(x)
+    return RigFit(extrinsics, sigma, relative_sigma,
                   {name: fits[name][0] * 1e3 for name in cameras}, {name: fits[name][1] for name in cameras},
-                  bends, {name: value * 1e3 for name, value in starts.items()})
+                  bends, {name: value * 1e3 for name, value in starts.items()},
+                  slots_in_view(problem.geometry, extrinsics))
 
 
 def _refuse_undetermined(sigma: dict[str, np.ndarray], bends: dict[str, np.ndarray]) -> None:

@@ -363,7 +363,7 @@ def extrinsics(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
                              f"the cameras place the axis {offset * 1e3:.2f} mm apart across their views, alike all "
                              f"along the tube ({offset / error:.0f} standard errors: not the matcher's noise){turn}: "
                              "their poses in the rig file disagree, and the centreline lies about half of that off; "
-                             "recalibrate the rig's extrinsics", offset_mm=offset * 1e3,
+                             "recalibrate with `ntcr-recon calibrate`", offset_mm=offset * 1e3,
                              offset_error_mm=error * 1e3,
                              turn_deg=None if distance is None else math.degrees(offset / distance))]
 

@@ -99,7 +99,8 @@ CODES: dict[str, Code] = {
                               "the robot"),
     "EXTRINSICS_DISAGREE": Code("warn", "the cameras place the axis apart across their views alike all along the "
                                 "tube: their poses in the rig file disagree (figures: the offset, as a turn)",
-                                "recalibrate the rig's extrinsics; check the cameras' mounts"),
+                                "recalibrate with `ntcr-recon calibrate` (README: Calibrating the rig); check the "
+                                "cameras' mounts"),
     # the tip
     "TIP_ON_ERODED_RIM": Code("info", "the tip rests on a stereo-eroded rim, uncertain as stated", "none"),
     "TIP_ON_END_CAP": Code("info", "the tip is the end cap's plane (the tube points at a camera), uncertain as "

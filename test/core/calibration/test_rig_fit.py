@@ -5,7 +5,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from ntcr_recon.core.base.transforms import invert_transform, rigid_transform, transform_points
-from ntcr_recon.core.calibration.rig_fit import CalibrationError, Recording, fit_rig, pivot_of
+from ntcr_recon.core.calibration.rig_fit import CalibrationError, Recording, fit_rig, pivot_of, slots_in_view
 from ntcr_recon.core.robot.geometry import TubeGeometry
 from ntcr_recon.core.robot.kinematics import TubeShape
 from ntcr_recon.core.robot.surface import PART_OUTER_WALL
@@ -90,3 +90,12 @@ def test_a_camera_that_saw_nothing_is_refused_by_name(recordings):
              for r in found]
     with pytest.raises(CalibrationError, match="cam_b saw none of the robot"):
         fit_rig(blind, GEOMETRY, dict(TRUE_POSES))
+
+
+def test_a_camera_the_notches_open_towards_is_named_with_its_angle():
+    import dataclasses
+
+    assert slots_in_view(GEOMETRY, TRUE_POSES) == {}  # notches towards +x: side-on to both
+    towards_cam_a = dataclasses.replace(GEOMETRY, notch_side=np.radians(-80.0))  # cam_a sits at -y
+    facing = slots_in_view(towards_cam_a, TRUE_POSES)
+    assert list(facing) == ["cam_a"] and 2.0 < facing["cam_a"] < 8.0  # 10 deg off -y, cam_a 6 deg off it in x
