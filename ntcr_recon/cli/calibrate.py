@@ -115,7 +115,7 @@ def run(args: argparse.Namespace) -> dict:
         fit = _fitted(recordings, config, start, args.no_progress)
     except CalibrationError as error:
         raise CalibrateCommandError(str(error)) from error
-    report = _report(args, recordings, start, fit)
+    report = _report(args, recordings, start, fit, config)
     _write(args, rough_text, fit, report, recordings, config)
     return report
 
@@ -141,6 +141,7 @@ def _recordings(args: argparse.Namespace, config) -> list:
 
 
 def _counted(items, bar):
+    """The items, the progress bar moved on by each."""
     for item in items:
         bar.update()
         yield item
@@ -169,12 +170,11 @@ def _moved(start: np.ndarray, end: np.ndarray, pivot: np.ndarray) -> dict[str, f
     return {"turn_deg": round(float(angle), 5), "shift_mm": round(float(np.linalg.norm(shift) * 1e3), 5)}
 
 
-def _report(args: argparse.Namespace, recordings: list, start: dict, fit) -> dict:
+def _report(args: argparse.Namespace, recordings: list, start: dict, fit, config) -> dict:
     from ntcr_recon.core.calibration.rig_fit import pivot_of
-    from ntcr_recon.core.config.rig import load_rig_config
     from ntcr_recon.io.rig_file import pose_values
 
-    pivot = pivot_of(load_rig_config(args.config).robot)
+    pivot = pivot_of(config.robot)
     cameras = {}
     for name, extrinsic in fit.extrinsics.items():
         sigma = fit.uncertainty[name]
