@@ -16,6 +16,10 @@ cameras' poses and every bent bag's notch bends (core.calibration.rig_fit). Out 
                             suspect)
     RIG.calibration.png     both cameras' points over the fitted robot, with the rough poses and the calibrated ones
 
+`--target MESH` calibrates from a rigid object instead (a machined block, balls on a post: for a rig without a
+robot mounted yet): every BAG is a view of it, its mesh's frame is the base frame, and the fit has no bends and no
+limbs (core.calibration.target).
+
 Recordings that leave a pose parameter free are refused by name (e.g. a robot straight in every bag cannot fix the
 cameras' turn about its axis). Exit status: 0 done, 2 refused (one message on stderr naming the cause).
 """
@@ -41,6 +45,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", type=Path, required=True,
                         help="the rig file with hand-measured poses (within about 3 deg and 3 mm)")
     parser.add_argument("--out", type=Path, required=True, help="the calibrated rig file to write")
+    parser.add_argument("--target", type=Path, default=None, metavar="MESH",
+                        help="calibrate from a rigid object instead of the robot (a machined block, balls on a post): "
+                             "its mesh (.ply, .stl, .obj) in the base frame; every BAG a view of it")
+    parser.add_argument("--target-unit", choices=("m", "mm"), default="m", help="the mesh's length unit (default m)")
     parser.add_argument("--overwrite", action="store_true", help="replace --out (and its report) when they exist")
     parser.add_argument("--max-points", type=int, default=None, metavar="N",
                         help="points per camera and bag the fit takes (default: "
@@ -109,18 +117,38 @@ def run(args: argparse.Namespace) -> dict:
         replace_poses(rough_text, {name: np.eye(4) for name in config.camera_names})  # refuses a file it cannot edit
     except (ConfigError, RigFileError, OSError) as error:
         raise CalibrateCommandError(f"bad rig configuration {args.config}: {error}") from error
-    recordings = _recordings(args, config)
+    target = _target(args) if args.target is not None else None
+    recordings = _recordings(args, config, target)
     start = {name: config.cameras[name].extrinsic for name in config.camera_names}
     try:
-        fit = _fitted(recordings, config, start, args.no_progress)
+        fit = _fitted(recordings, config, start, args.no_progress, target)
     except CalibrationError as error:
         raise CalibrateCommandError(str(error)) from error
     report = _report(args, recordings, start, fit, config)
-    _write(args, rough_text, fit, report, recordings, config)
+    _write(args, rough_text, fit, report, recordings, config, target)
     return report
 
 
-def _recordings(args: argparse.Namespace, config) -> list:
+def _target(args: argparse.Namespace):
+    """The --target mesh, sampled (core.calibration.target.RigidTarget); a file open3d cannot read, or one without
+    triangles, is refused."""
+    import open3d as o3d
+
+    from ntcr_recon.core.calibration.target import RigidTarget
+
+    if not args.target.is_file():
+        raise CalibrateCommandError(f"no target mesh at {args.target}")
+    mesh = o3d.io.read_triangle_mesh(str(args.target))
+    vertices, triangles = np.asarray(mesh.vertices), np.asarray(mesh.triangles)
+    if not len(triangles):
+        raise CalibrateCommandError(f"the target {args.target} has no triangles (a .ply, .stl or .obj mesh is needed)")
+    try:
+        return RigidTarget.from_mesh(vertices * (1e-3 if args.target_unit == "mm" else 1.0), triangles)
+    except ValueError as error:
+        raise CalibrateCommandError(f"the target {args.target}: {error}") from error
+
+
+def _recordings(args: argparse.Namespace, config, target=None) -> list:
     """Each bag's recording (core.calibration.recordings), with a progress bar over the frames read."""
     from tqdm import tqdm
 
@@ -129,12 +157,13 @@ def _recordings(args: argparse.Namespace, config) -> list:
 
     rng = np.random.default_rng(0)
     recordings = []
+    box = None if target is None else (target.samples.min(axis=0), target.samples.max(axis=0))
     with tqdm(desc="frames read", unit="frame", disable=args.no_progress) as bar:
         for bag, straight in [*((bag, True) for bag in args.straight), *((bag, False) for bag in args.bags)]:
             frames = iter_camera_frames(bag, config, source="depth")
             try:
                 recordings.append(recording_from_frames(str(bag), _counted(frames, bar), config, rng,
-                                                        args.max_points or MAX_POINTS, straight))
+                                                        args.max_points or MAX_POINTS, straight, box))
             except BagError as error:
                 raise CalibrateCommandError(str(error)) from error
     return recordings
@@ -147,13 +176,13 @@ def _counted(items, bar):
         yield item
 
 
-def _fitted(recordings: list, config, start: dict, no_progress: bool):
+def _fitted(recordings: list, config, start: dict, no_progress: bool, target=None):
     from tqdm import tqdm
 
     from ntcr_recon.core.calibration.rig_fit import SCALES_M, fit_rig
 
     with tqdm(total=len(SCALES_M), desc="fitting rounds", unit="round", disable=no_progress) as bar:
-        return fit_rig(recordings, config.robot, start, progress=lambda _: bar.update())
+        return fit_rig(recordings, config.robot, start, progress=lambda _: bar.update(), target=target)
 
 
 def _by_axis(values: np.ndarray) -> dict[str, float]:
@@ -204,7 +233,8 @@ def _report(args: argparse.Namespace, recordings: list, start: dict, fit, config
                               "without a matcher's depth bias along each camera's view"}
 
 
-def _write(args: argparse.Namespace, rough_text: str, fit, report: dict, recordings: list, config) -> None:
+def _write(args: argparse.Namespace, rough_text: str, fit, report: dict, recordings: list, config,
+           target=None) -> None:
     from ntcr_recon.core.base.transforms import transform_points
     from ntcr_recon.core.calibration.tube_distance import tube_distance
     from ntcr_recon.core.robot.kinematics import TubeShape
@@ -219,14 +249,16 @@ def _write(args: argparse.Namespace, rough_text: str, fit, report: dict, recordi
                                                                                config.camera_names}
     for recording in recordings:
         shape = TubeShape(config.robot, fit.bends[recording.name])
-        centerlines.append(shape.centerline(np.linspace(0.0, shape.length, 200))[0])
+        centerlines.append(shape.centerline(np.linspace(0.0, shape.length, 200))[0] if target is None
+                           else target.samples[::max(len(target.samples) // 2000, 1)])
         for name, optical in recording.points.items():
             fitted = transform_points(fit.extrinsics[name], optical[:FIGURE_POINTS])
-            # the robot's points only (as the fit placed them): the post and the backdrop would hide it
-            robot = np.abs(tube_distance(shape, fitted).distance) < FIGURE_BAND_M
+            # the robot's (the target's) points only, as the fit placed them: the post and the backdrop would hide it
+            model = tube_distance(shape, fitted) if target is None else target.distance(fitted)
+            robot = np.abs(model.distance) < FIGURE_BAND_M
             before[name].append(transform_points(config.cameras[name].extrinsic, optical[:FIGURE_POINTS][robot]))
             after[name].append(fitted[robot])
     before = {name: np.concatenate(parts) for name, parts in before.items()}
     after = {name: np.concatenate(parts) for name, parts in after.items()}
-    calibration_views(figure_path, before, after, centerlines)
+    calibration_views(figure_path, before, after, centerlines, as_points=target is not None)
     write_atomically(args.out, lambda temp: Path(temp).write_text(text))  # last: the rig file means "done"

@@ -116,10 +116,10 @@ def side_views(path, raw_xyz: np.ndarray, relocated_xyz: np.ndarray, mesh, axes:
 
 
 def calibration_views(path, before: dict[str, np.ndarray], after: dict[str, np.ndarray],
-                      centerlines: list[np.ndarray]) -> None:
+                      centerlines: list[np.ndarray], as_points: bool = False) -> None:
     """Both cameras' points (base frame, by camera) over the fitted robots' centrelines, with the rig file's poses
     (top) and the calibrated ones (bottom), seen across the bending plane (x, z) and along it (y, z), framed on the
-    robot."""
+    robot. as_points: the model is a point set (a target's surface), drawn as dots."""
     plt = _pyplot()
     fig, panels = plt.subplots(2, 2, figsize=(8, 10), width_ratios=(3, 1))
     axes = np.array([[[1.0, 0, 0], [0, 0, 1.0]], [[0, 1.0, 0], [0, 0, 1.0]]])
@@ -131,7 +131,7 @@ def calibration_views(path, before: dict[str, np.ndarray], after: dict[str, np.n
                 panel.scatter(p[:, 0], p[:, 1], s=0.2, label=name)
             for line in centerlines:
                 c = _project(line, view)
-                panel.plot(c[:, 0], c[:, 1], color="black", linewidth=0.8)
+                panel.plot(c[:, 0], c[:, 1], "." if as_points else "-", color="black", linewidth=0.8, markersize=0.5)
             panel.set_title(f"{label}, {'x' if column == 0 else 'y'}-z (mm)")
             panel.set_aspect("equal")
             robot = _project(np.concatenate(centerlines), view)

@@ -77,3 +77,22 @@ def test_a_straight_robot_alone_is_refused_and_nothing_written(recorded, capsys)
     assert "turn about z" in capsys.readouterr().err
     assert not out.exists() and not any(path.exists() for path in report_paths(out))
     assert cli_main(["calibrate", "--config", str(work / "rough.yaml"), "--out", str(out), "--no-progress"]) == 2
+
+
+def test_a_target_mesh_is_read_in_its_unit_and_one_without_triangles_is_refused(recorded, tmp_path, capsys):
+    import argparse
+
+    import open3d as o3d
+
+    from ntcr_recon.cli.calibrate import _target
+
+    box = o3d.geometry.TriangleMesh.create_box(20.0, 10.0, 30.0)  # millimetres
+    o3d.io.write_triangle_mesh(str(tmp_path / "block.ply"), box)
+    target = _target(argparse.Namespace(target=tmp_path / "block.ply", target_unit="mm"))
+    np.testing.assert_allclose(target.samples.max(axis=0), [0.02, 0.01, 0.03], atol=2e-4)
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(box.vertices)))
+    o3d.io.write_point_cloud(str(tmp_path / "points.ply"), cloud)
+    work, _, _ = recorded
+    assert cli_main(["calibrate", str(work / "bent"), "--target", str(tmp_path / "points.ply"), "--config",
+                     str(work / "rough.yaml"), "--out", str(tmp_path / "rig.yaml"), "--no-progress"]) == 2
+    assert "has no triangles" in capsys.readouterr().err

@@ -26,10 +26,12 @@ MAX_POINTS = 8000
 
 
 def recording_from_frames(name: str, frames: Iterable[CameraFrame], config: RigConfig, rng: np.random.Generator,
-                          max_points: int = MAX_POINTS, straight: bool = False) -> Recording:
+                          max_points: int = MAX_POINTS, straight: bool = False,
+                          box: tuple[np.ndarray, np.ndarray] | None = None) -> Recording:
     """The frames' points per configured camera (depth frames only), sampled down to max_points; `straight`: the
-    robot was at rest, straight, in all of them."""
-    low, high = config.crop_box()
+    robot was at rest, straight, in all of them. box: where to look (base frame; default the rig's crop box), grown
+    by CROP_MARGIN_M."""
+    low, high = config.crop_box() if box is None else box
     box = (low - CROP_MARGIN_M, high + CROP_MARGIN_M)
     parts: dict[str, list[np.ndarray]] = {camera: [] for camera in config.camera_names}
     footprints, views = [], {}

@@ -31,6 +31,7 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from ntcr_recon.core.calibration.limb_rows import LimbRows, limb_rows
+from ntcr_recon.core.calibration.target import RigidTarget
 from ntcr_recon.core.calibration.tube_distance import TubeDistance, bend_jacobian, tube_distance
 from ntcr_recon.core.robot.geometry import TubeGeometry
 from ntcr_recon.core.robot.kinematics import TubeShape
@@ -123,9 +124,9 @@ class _Problem:
     """The residuals and Jacobian over [turn, shift] per camera and the bends per recording."""
 
     def __init__(self, recordings: list[Recording], geometry: TubeGeometry, cameras: tuple[str, ...],
-                 extrinsics: dict[str, np.ndarray]):
-        self.recordings, self.geometry, self.cameras = recordings, geometry, cameras
-        self.pivot = pivot_of(geometry)
+                 extrinsics: dict[str, np.ndarray], target: RigidTarget | None = None):
+        self.recordings, self.geometry, self.cameras, self.target = recordings, geometry, cameras, target
+        self.pivot = pivot_of(geometry) if target is None else target.centre
         self.notches = geometry.notch_count
         # A recording's bends vary linearly from the first notch's to the last's: one tendon bends identical notches
         # alike, friction a little less distally (York et al. 2015). Both ends within what a notch can bend keep
@@ -141,6 +142,8 @@ class _Problem:
         """Read every camera's limbs about the robot as x poses it (core.calibration.limb_rows), each camera's
         stations weighted to count together as much as its points do (at most LIMB_WEIGHT_MAX each)."""
         self.limbs = []
+        if self.target is not None:
+            return  # a target's edges are not read
         poses = self.extrinsics(x)
         for index, recording in enumerate(self.recordings):
             shape = TubeShape(self.geometry, self.bends(x, index))
@@ -171,7 +174,7 @@ class _Problem:
 
     def profile_at(self, index: int) -> int | None:
         """Where the recording's bend profile sits in x (None: a straight recording has none)."""
-        if self.recordings[index].straight:
+        if self.recordings[index].straight or self.target is not None:
             return None
         return 6 * len(self.cameras) + PROFILE * sum(not r.straight for r in self.recordings[:index])
 
@@ -206,6 +209,9 @@ class _Problem:
                     continue
                 turn = Rotation.from_rotvec(x[6 * c:6 * c + 3]).as_matrix()
                 moved = centred[name] @ turn.T + x[6 * c + 3:6 * c + 6]
+                if self.target is not None:
+                    parts.append((index, c, moved, shape, self.target.distance(moved + self.pivot), False))
+                    continue
                 origin = turn @ (self.start[name][:3, 3] - self.pivot) + self.pivot + x[6 * c + 3:6 * c + 6]
                 measured = tube_distance(shape, moved + self.pivot, origin)
                 # What lies past the base plane is the clamp or its post: as far off as the loss's tail, whatever
@@ -285,8 +291,9 @@ def _start_bends(problem: _Problem, x: np.ndarray) -> np.ndarray:
 
 
 def fit_rig(recordings: list[Recording], geometry: TubeGeometry, start: dict[str, np.ndarray],
-            progress: Callable[[str], None] | None = None) -> RigFit:
-    """Both cameras' poses (base frame) and every recording's bends fitted to what the cameras saw."""
+            progress: Callable[[str], None] | None = None, target: RigidTarget | None = None) -> RigFit:
+    """Both cameras' poses (base frame) and every recording's bends fitted to what the cameras saw; with a
+    `target`, the cameras' poses in its frame, fitted to its surface (every recording a view of it)."""
     cameras = tuple(start)
     if not recordings:
         raise CalibrationError("no recording to calibrate from")
@@ -294,7 +301,7 @@ def fit_rig(recordings: list[Recording], geometry: TubeGeometry, start: dict[str
         if not any(len(r.points.get(name, ())) for r in recordings):
             raise CalibrationError(f"{name} saw none of the robot in any recording: check its rough pose and "
                                    "that the robot is in its view")
-    problem = _Problem(recordings, geometry, cameras, start)
+    problem = _Problem(recordings, geometry, cameras, start, target)
     x = _start_bends(problem, np.zeros(problem.size))
     start_rows = problem.camera_rows(x)
     lower, upper = np.full(problem.size, -np.inf), np.full(problem.size, np.inf)
@@ -360,7 +367,7 @@ def _result(problem: _Problem, x: np.ndarray, start_rows: dict[str, np.ndarray])
                     - covariance[second, first])
         relative_sigma = _in_report_units(np.sqrt(np.abs(np.diag(relative))))
     bends = {r.name: problem.bends(x, i) for i, r in enumerate(problem.recordings)}
-    _refuse_undetermined(sigma, bends)
+    _refuse_undetermined(sigma, bends, problem.target is not None)
     rows = problem.camera_rows(x)
     fits = {name: _robust_rms(rows[name], SCALES_M[-1]) for name in cameras}
     starts = {name: _robust_rms(start_rows[name], SCALES_M[0])[0] for name in cameras}
@@ -368,10 +375,10 @@ def _result(problem: _Problem, x: np.ndarray, start_rows: dict[str, np.ndarray])
     return RigFit(extrinsics, sigma, relative_sigma,
                   {name: fits[name][0] * 1e3 for name in cameras}, {name: fits[name][1] for name in cameras},
                   bends, {name: value * 1e3 for name, value in starts.items()},
-                  slots_in_view(problem.geometry, extrinsics))
+                  slots_in_view(problem.geometry, extrinsics) if problem.target is None else {})
 
 
-def _refuse_undetermined(sigma: dict[str, np.ndarray], bends: dict[str, np.ndarray]) -> None:
+def _refuse_undetermined(sigma: dict[str, np.ndarray], bends: dict[str, np.ndarray], target: bool = False) -> None:
     """CalibrationError naming each pose parameter the recordings leave free, and what to record instead."""
     free = [(name, k, values[k]) for name, values in sigma.items() for k in range(6) if not values[k] <= UNDETERMINED]
     if not free:
@@ -380,7 +387,9 @@ def _refuse_undetermined(sigma: dict[str, np.ndarray], bends: dict[str, np.ndarr
              + (f"±{value:.2g} {'deg' if k < 3 else 'mm'})" if np.isfinite(value) else "free)")
              for name, k, value in free]
     straight = all(np.sum(b) < STRAIGHT_RAD for b in bends.values())
-    advice = ("the robot was straight in every recording, a cylinder that may turn about its own axis unseen: "
+    advice = ("the target is symmetric where the cameras see it: use one that is not (a block with a step, balls "
+              "of different sizes)" if target else
+              "the robot was straight in every recording, a cylinder that may turn about its own axis unseen: "
               "record it bent as well (a total bend of 30 deg or more)" if straight else
               "record the robot in more poses, bent in other directions")
     raise CalibrationError(f"the recordings do not determine {', '.join(named)}: {advice}",

@@ -99,3 +99,51 @@ def test_a_camera_the_notches_open_towards_is_named_with_its_angle():
     towards_cam_a = dataclasses.replace(GEOMETRY, notch_side=np.radians(-80.0))  # cam_a sits at -y
     facing = slots_in_view(towards_cam_a, TRUE_POSES)
     assert list(facing) == ["cam_a"] and 2.0 < facing["cam_a"] < 8.0  # 10 deg off -y, cam_a 6 deg off it in x
+
+
+def _hull_target(points):
+    from scipy.spatial import ConvexHull
+
+    from ntcr_recon.core.calibration.target import RigidTarget
+
+    hull = ConvexHull(points)
+    return RigidTarget.from_mesh(points, hull.simplices)
+
+
+def _seen_target(target, camera, rng, count=4000, noise=20e-6):
+    """The target's faces that face the camera (a convex target hides nothing else), optical frame, with depth
+    noise along each pixel's ray."""
+    outward = np.sign(np.einsum("ij,ij->i", target.samples - target.centre, target.normals))[:, None] * target.normals
+    origin = TRUE_POSES[camera][:3, 3]
+    facing = np.einsum("ij,ij->i", outward, target.samples - origin) < 0
+    optical = transform_points(invert_transform(TRUE_POSES[camera]), target.samples[facing])
+    optical = optical[rng.choice(len(optical), min(count, len(optical)), replace=False)]
+    return optical * (1 + rng.normal(0, noise, len(optical)) / optical[:, 2])[:, None]
+
+
+def test_a_rigid_target_mesh_gives_the_poses_in_its_own_frame():
+    rng = np.random.default_rng(5)
+    corners = np.array([[0, -6, 0], [14, -5, 2], [12, 7, -1], [-1, 6, 3], [1, -4, 20], [11, -6, 17], [9, 5, 24],
+                        [-2, 4, 16], [5, 0, 30]], float) * 1e-3  # an irregular solid about 15 x 13 x 30 mm
+    target = _hull_target(corners)
+    points = {camera: _seen_target(target, camera, rng) for camera in TRUE_POSES}
+    recording = Recording("block", points, {camera: len(p) for camera, p in points.items()}, straight=True)
+    start = {camera: _moved(pose, 2.0, 2.0, rng) for camera, pose in TRUE_POSES.items()}
+    fit = fit_rig([recording], GEOMETRY, start, target=target)
+    for camera, pose in TRUE_POSES.items():
+        change = fit.extrinsics[camera] @ invert_transform(pose)
+        turn = np.degrees(np.linalg.norm(Rotation.from_matrix(change[:3, :3]).as_rotvec()))
+        shift = np.linalg.norm(change[:3, :3] @ target.centre + change[:3, 3] - target.centre) * 1e3
+        assert turn < 0.02 and shift < 0.01, (camera, turn, shift)
+    assert fit.facing_slots == {}
+
+
+def test_a_ball_leaves_every_turn_about_its_centre_free():
+    rng = np.random.default_rng(6)
+    directions = rng.normal(size=(3000, 3))
+    ball = _hull_target(directions / np.linalg.norm(directions, axis=1)[:, None] * 8e-3 + [0.01, 0.0, 0.022])
+    points = {camera: _seen_target(ball, camera, rng) for camera in TRUE_POSES}
+    with pytest.raises(CalibrationError, match="symmetric") as refused:
+        fit_rig([Recording("ball", points, {c: len(p) for c, p in points.items()}, straight=True)], GEOMETRY,
+                dict(TRUE_POSES), target=ball)
+    assert {"cam_a.turn_x", "cam_a.turn_y", "cam_a.turn_z"} <= set(refused.value.free)
