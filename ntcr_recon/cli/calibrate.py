@@ -106,7 +106,8 @@ def run(args: argparse.Namespace) -> dict:
     if not args.overwrite and any(path.exists() for path in outputs):
         raise CalibrateCommandError(f"{args.out} or its report exists: pass --overwrite to replace them")
     if not args.bags and not args.straight:
-        raise CalibrateCommandError("no bag given: record the robot straight (--straight BAG) and bent (BAG)")
+        raise CalibrateCommandError("no bag given: record the robot straight (--straight BAG) and bent (BAG), or "
+                                    "views of the --target")
     for bag in [*args.straight, *args.bags]:
         problem = bag_problem(bag)
         if problem:
@@ -124,7 +125,7 @@ def run(args: argparse.Namespace) -> dict:
         fit = _fitted(recordings, config, start, args.no_progress, target)
     except CalibrationError as error:
         raise CalibrateCommandError(str(error)) from error
-    report = _report(args, recordings, start, fit, config)
+    report = _report(args, recordings, start, fit, config, target)
     _write(args, rough_text, fit, report, recordings, config, target)
     return report
 
@@ -199,11 +200,11 @@ def _moved(start: np.ndarray, end: np.ndarray, pivot: np.ndarray) -> dict[str, f
     return {"turn_deg": round(float(angle), 5), "shift_mm": round(float(np.linalg.norm(shift) * 1e3), 5)}
 
 
-def _report(args: argparse.Namespace, recordings: list, start: dict, fit, config) -> dict:
+def _report(args: argparse.Namespace, recordings: list, start: dict, fit, config, target=None) -> dict:
     from ntcr_recon.core.calibration.rig_fit import pivot_of
     from ntcr_recon.io.rig_file import pose_values
 
-    pivot = pivot_of(config.robot)
+    pivot = pivot_of(config.robot) if target is None else target.centre  # what the turns are about
     cameras = {}
     for name, extrinsic in fit.extrinsics.items():
         sigma = fit.uncertainty[name]
@@ -227,7 +228,8 @@ def _report(args: argparse.Namespace, recordings: list, start: dict, fit, config
                             "view may be off by a millimetre; record the robot turned in its clamp so that the "
                             "notches open sideways to both cameras"}
                 for name, angle in fit.facing_slots.items()]
-    return {"config": str(args.config), "pivot_m": [float(v) for v in pivot], "cameras": cameras,
+    return {"config": str(args.config), "target": None if args.target is None else str(args.target),
+            "pivot_m": [float(v) for v in pivot], "cameras": cameras,
             "relative": relative, "recordings": bags, "warnings": warnings,
             "uncertainty_is": "1-sigma, from the fit's covariance; "
                               "without a matcher's depth bias along each camera's view"}
