@@ -18,7 +18,11 @@ covers counted once (its depth errs alike over its window). It does not hold a m
 along the tube (the notches smeared into its window, a highlight), which moves the cameras along their views and
 turns them about the axes across them: benchmarks/calibration_matrix.py measures by how much.
 
+With a rigid `target` instead (core.calibration.target: a mesh, for a rig without a robot), the same fit has no
+bends and no limbs, and the mesh's frame is the base frame.
+
     fit = fit_rig(recordings, geometry, start_extrinsics)     # RigFit: extrinsics, uncertainties, residuals, bends
+    fit = fit_rig(recordings, geometry, start_extrinsics, target=RigidTarget.from_mesh(vertices, triangles))
 """
 
 from __future__ import annotations
