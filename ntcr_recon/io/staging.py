@@ -37,7 +37,10 @@ PREVIOUS_INFIX = ".previous-"  # .<target name>.previous-<pid>-<random>: the old
 # process, so an interrupted run leaves the old result or the new one in place, never neither.
 SWAP_LOCK = threading.Lock()
 _ACTIVE: set[Path] = set()  # this process's staging directories, for remove_active_staging
+_PREFIXES: set[Path] = set()  # where they are made (parent / name prefix), registered before mkdtemp makes one
 
+# Tries at removing a staging directory the main thread is still writing into (remove_active_staging).
+REMOVAL_ATTEMPTS = 20
 _AT_FDCWD = -100
 _RENAME_EXCHANGE = 2
 
@@ -58,7 +61,9 @@ def staged_directory(target: str | os.PathLike, *, created_by_writer: bool = Fal
     try:  # said of the target, before any work: not "Permission denied: .../.out.partial-1234-x" at the end
         target.parent.mkdir(parents=True, exist_ok=True)
         remove_stale_staging(target)
-        staging = Path(tempfile.mkdtemp(dir=target.parent, prefix=f".{target.name}{STAGING_INFIX}{os.getpid()}-"))
+        prefix = f".{target.name}{STAGING_INFIX}{os.getpid()}-"
+        _PREFIXES.add(target.parent / prefix)  # a Ctrl-C between mkdtemp and _ACTIVE.add finds it by its name
+        staging = Path(tempfile.mkdtemp(dir=target.parent, prefix=prefix))
     except OSError as error:
         refusal = StagingError(f"{target} cannot be written: {error.strerror or error} in {target.parent}")
         refusal.errno = error.errno
@@ -86,9 +91,17 @@ def staged_directory(target: str | os.PathLike, *, created_by_writer: bool = Fal
 
 
 def remove_active_staging() -> None:
-    """Remove this process's staging directories (a process ending on Ctrl-C: its targets stay as they were)."""
-    for staging in list(_ACTIVE):
-        shutil.rmtree(staging, ignore_errors=True)
+    """Remove this process's staging directories (a process ending on Ctrl-C: its targets stay as they were). The
+    main thread may still be writing into one (a figure, a mesh): a file it adds while the tree is removed leaves
+    the directory standing, so the removal is tried again until it is gone."""
+    found = set(_ACTIVE)
+    for prefix in list(_PREFIXES):
+        found.update(prefix.parent.glob(_glob_escape(prefix.name) + "*"))
+    for staging in found:
+        for _ in range(REMOVAL_ATTEMPTS):
+            shutil.rmtree(staging, ignore_errors=True)
+            if not os.path.lexists(staging):
+                break
 
 
 def _checked_target(target: str | os.PathLike) -> Path:
