@@ -78,10 +78,13 @@ def on_shutdown(event, context) -> list:
 async def hold_until_tests_done(context) -> None:
     """The launch ends (LaunchService.run returns) once its processes have exited; launch_testing then fails the run
     unless its active tests have finished, which they do a moment after the shutdown they wait for. Wait for them
-    (their runner thread, launch_testing's 'test_runner_thread'), 60 s at most."""
+    (their runner thread, launch_testing's 'test_runner_thread'), and for every started process's exit: once the
+    tests are over launch_testing shuts the launch down itself, which cancels its run task, and an exit not yet
+    recorded then is lost (CI saw the other five nodes' exits missing so). 60 s at most."""
     deadline = time.monotonic() + 60.0
     runners = [thread for thread in threading.enumerate() if thread.name == "test_runner_thread"]
-    while time.monotonic() < deadline and (not active_tests_done.is_set() or any(t.is_alive() for t in runners)):
+    while time.monotonic() < deadline and (not active_tests_done.is_set() or any(t.is_alive() for t in runners)
+                                           or len(exits) < len(starts)):
         await asyncio.sleep(0.05)
 
 
