@@ -203,7 +203,7 @@ def relocation_from_msgs(cloud_msg: PointCloud2, path: Path, expected_frame: str
                              p.pose.orientation.w] for p in path.poses])
     rotations = np.stack([quaternion_to_matrix(q) for q in quaternions])
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
-    centerline = Centerline(s, points, rotations[:, :, 2], rotations[:, :, 0], rotations[:, :, 1])
+    centerline = Centerline.from_frames(s, points, rotations)
     return RelocationResult(centerline, points[-1], [], cloud, normals, 0, coordinates, 0, part, coordinates)
 
 

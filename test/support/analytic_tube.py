@@ -37,7 +37,7 @@ def wall_points(length: float, spacing: float = FOOTPRINT, angles=(-math.pi, mat
 def true_centerline(shape: TubeShape, samples: int = 2000) -> Centerline:
     s = np.linspace(0.0, shape.length, samples)
     points, frames = shape.centerline(s)
-    return Centerline(s, points, frames[:, :, 2], frames[:, :, 0], frames[:, :, 1])
+    return Centerline.from_frames(s, points, frames)
 
 
 def displaced_centerline(shape: TubeShape, towards_notches) -> Centerline:

@@ -25,6 +25,8 @@ from ntcr_recon.core.robot.kinematics import TubeShape
 
 # Stations along the robot where the limbs are read (m): about a pixel at 90 mm.
 STATION_STEP_M = 0.2e-3
+# The model's axis is sampled this finely for the limbs' search (m).
+AXIS_STEP_M = 0.1e-3
 # Least stations a camera's recording needs for its limbs to count.
 MIN_STATIONS = 10
 
@@ -48,9 +50,8 @@ def limb_rows(recording: int, camera: int, shape: TubeShape, color: np.ndarray, 
     view = CameraView.aligned(color, intrinsics, extrinsic)
     if view is None:
         return None
-    s = np.linspace(0.0, shape.length, max(int(np.ceil(shape.length / 0.1e-3)), 1) + 1)
-    centres, frames = shape.centerline(s)
-    centerline = Centerline(s, centres, frames[:, :, 2], frames[:, :, 0], frames[:, :, 1])
+    s = np.linspace(0.0, shape.length, max(int(np.ceil(shape.length / AXIS_STEP_M)), 1) + 1)
+    centerline = Centerline.from_frames(s, *shape.centerline(s))
     stations = np.arange(STATION_STEP_M, shape.length - STATION_STEP_M, STATION_STEP_M)
     placement = limb_offsets(centerline, stations, view, shape.geometry.outer_radius)
     found = np.isfinite(placement.offset)

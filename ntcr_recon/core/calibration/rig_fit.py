@@ -206,7 +206,7 @@ class _Problem:
             return self._cache[1]
         parts, shapes = [], []
         for index, centred in enumerate(self.centred):
-            shape = TubeShape(self.geometry, self.bends(x, index))
+            shape = TubeShape(self.geometry, self.bends(x, index)) if self.target is None else None
             shapes.append(shape)
             for c, name in enumerate(self.cameras):
                 if name not in centred:

@@ -268,6 +268,13 @@ class Centerline:
         return self.points[-1]
 
     @classmethod
+    def from_frames(cls, s: np.ndarray, points: np.ndarray, frames: np.ndarray) -> Centerline:
+        """A centreline from samples and their frames (N, 3, 3), columns x towards the notch side (the normal),
+        y = z cross x (the binormal), z the tangent: as core.robot.kinematics.TubeShape.centerline and a Path's
+        orientations give them."""
+        return cls(s, points, frames[:, :, 2], frames[:, :, 0], frames[:, :, 1])
+
+    @classmethod
     def from_points(cls, points: np.ndarray, binormal_hint: np.ndarray, step: float) -> Centerline:
         """Re-sample a polyline at uniform arc-length steps and attach frames.
 

@@ -78,7 +78,7 @@ def test_a_curve_that_stops_short_of_the_last_notch_carries_on_bending_over_it_t
     def tip_error(stop_s: float) -> tuple[float, float]:
         s = np.arange(0.0, stop_s, 0.1e-3)
         points, frames = shape.centerline(s)
-        cut = Centerline(s, points, frames[:, :, 2], frames[:, :, 0], frames[:, :, 1])
+        cut = Centerline.from_frames(s, points, frames)
         carried = continued_bend(cut, shape.length, centres, GEOMETRY)
         along_tangent = cut.frames_at(np.array([shape.length]))[0][0]
         landed = carried.frames_at(np.array([shape.length]))[0][0]
