@@ -63,9 +63,9 @@ def moved_pose(extrinsic: np.ndarray, turn_deg: float, shift_mm: float, rng: np.
 
 def pose_error(estimate: np.ndarray, truth: np.ndarray, pivot: np.ndarray) -> np.ndarray:
     """Per base-frame axis: the turn left over (deg) and where it puts the robot's middle off (mm)."""
-    change = estimate @ np.linalg.inv(truth)
-    turn = np.degrees(Rotation.from_matrix(change[:3, :3]).as_rotvec())
-    return np.concatenate([turn, (change[:3, :3] @ pivot + change[:3, 3] - pivot) * 1e3])
+    from ntcr_recon.core.calibration.rig_fit import pose_change
+
+    return pose_change(truth, estimate, pivot)
 
 
 def with_poses(config, extrinsics: dict[str, np.ndarray]):

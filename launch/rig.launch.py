@@ -46,6 +46,8 @@ def graph_nodes(context, source_parameters) -> list[Node]:
         extra = {"use_sim_time": use_sim_time}
         if executable == "mesh_node":
             extra["rate"] = float(LaunchConfiguration("mesh_rate").perform(context))
+        if executable == "relocation_node":  # calibration.refine's ~/write_calibration edits this file
+            extra["rig_file"] = os.path.abspath(config)
         nodes.append(Node(package="ntcr_recon", executable=executable, name=executable, output="screen",
                           parameters=[config, extra], respawn=True, respawn_delay=RESPAWN_DELAY_S))
     return nodes

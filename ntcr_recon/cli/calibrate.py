@@ -192,12 +192,11 @@ def _by_axis(values: np.ndarray) -> dict[str, float]:
 
 def _moved(start: np.ndarray, end: np.ndarray, pivot: np.ndarray) -> dict[str, float]:
     """How far a pose moved: the turn's angle (deg) and the shift of the robot's middle (mm) as the camera saw it."""
-    from scipy.spatial.transform import Rotation
+    from ntcr_recon.core.calibration.rig_fit import pose_change
 
-    change = end @ np.linalg.inv(start)
-    angle = np.degrees(np.linalg.norm(Rotation.from_matrix(change[:3, :3]).as_rotvec()))
-    shift = change[:3, :3] @ pivot + change[:3, 3] - pivot
-    return {"turn_deg": round(float(angle), 5), "shift_mm": round(float(np.linalg.norm(shift) * 1e3), 5)}
+    change = pose_change(start, end, pivot)
+    return {"turn_deg": round(float(np.linalg.norm(change[:3])), 5),
+            "shift_mm": round(float(np.linalg.norm(change[3:])), 5)}
 
 
 def _report(args: argparse.Namespace, recordings: list, start: dict, fit, config, target=None) -> dict:

@@ -77,6 +77,8 @@ def node_commands(args: argparse.Namespace, camera_names: list[str]) -> list[Nod
         parameters = {"use_sim_time": True} if args.use_sim_time else {}
         if node in ("mesh_node", "relocation_node") and args.output is not None:
             parameters["output_dir"] = str(args.output.resolve())
+        if node == "relocation_node":  # calibration.refine's ~/write_calibration edits this file
+            parameters["rig_file"] = str(Path(args.config).resolve())
         parameters.update(extra.pop(node, {}))
         commands.append(NodeCommand(node, _argv(node, node, args.config, parameters), parameters))
     if extra:

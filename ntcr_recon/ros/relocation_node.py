@@ -13,7 +13,10 @@ Publishes (reliable, depth 1; all in the base frame, stamped with the input clou
                             WARN, error ERROR; a cloud without a result ERROR), the frame's stamp and warning
                             codes in the message, and as key-values `status`, `stamp_ns`, `codes`,
                             `uncertainty_mm.<centerline|tip|notch_width>`, `warning.<CODE>` (severity: sentence)
-                            and the rest of the self-check (core.quality.checks); codes: core.quality.findings
+                            and the rest of the self-check (core.quality.checks); codes: core.quality.findings.
+                            With `calibration.refine`, each refinement's status too (ros.calibration_refiner)
+Serves `~/write_calibration` (std_srvs/Trigger): with `calibration.refine`, the rig file (`rig_file`) written with
+the second camera's refined pose to `refined_rig_file`.
 The relocation is the offline command's own (core.reconstruction.relocate.Relocator, without the Reconstructor's
 frame loop around it: fusion's region of interest is camera_node's crop window here). It warm-starts from the
 previous frame's centreline, as the offline command does over a bag. The
@@ -43,13 +46,15 @@ from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from rclpy.clock import Clock, ClockType
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
-from std_msgs.msg import Float64, Float64MultiArray
+from std_msgs.msg import Float64, Float64MultiArray, Header
+from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
 from ntcr_recon.core.cloud.pairing import InForce, stamp_jump
 from ntcr_recon.core.reconstruction.relocate import ReconstructionError, Relocator
 from ntcr_recon.io.bag import image_to_array
 from ntcr_recon.io.pointcloud import stamp_to_ns
+from ntcr_recon.ros.calibration_refiner import OnlineRefiner
 from ntcr_recon.ros.cdr import header_stamp_ns
 from ntcr_recon.ros.messages import (
     decode,
@@ -82,12 +87,17 @@ from ntcr_recon.ros.topics import edge_band_topic, stage_topic
 # How long a cloud waits for its instant's colour windows (s): a window comes before its cloud (camera_node
 # publishes it first, and the cloud passes fusion and filter) unless the machine is busy or the graph starting.
 WINDOW_WAIT_S = 0.25
+# How often a running calibration refinement is checked for its result (s).
+REFINE_POLL_S = 1.0
 
 PARAMETERS = {
     "output_dir": ("", describe("when set, the newest relocated cloud is also written to <output_dir>/relocated.ply")),
     "warm_start": (True, describe("start each frame's centreline iteration from the previous frame's (as the "
                                   "offline command does); false: every frame from the base, independently")),
     "max_points": max_points_parameter(),
+    "rig_file": ("", describe("the rig file this graph was started with (the launch files and `ntcr-recon run` set "
+                              "it): with calibration.refine, ~/write_calibration writes it with the refined pose")),
+    "refined_rig_file": ("", describe("where ~/write_calibration writes ('' = <rig_file>.refined.yaml beside it)")),
 }
 
 
@@ -128,12 +138,18 @@ class RelocationNode(RigNode):
         for camera in self.rig.camera_names:
             self.create_subscription(Float64, edge_band_topic(topic, camera),
                                      functools.partial(self._on_edge_band, camera), LATCHED_QOS)
+        # calibration.refine: the refined pose written on request, its status polled from the worker
+        self.create_service(Trigger, "~/write_calibration", self._on_write_calibration)
+        self.create_timer(REFINE_POLL_S, self._poll_refinement)
         self.get_logger().info("relocating filtered clouds onto the reference robot")
 
     def configure(self, rig, params: dict) -> None:
         if params["output_dir"] and not PathLib(params["output_dir"]).expanduser().is_dir():
             raise ParameterError(f"parameter 'output_dir': {params['output_dir']!r} is not an existing folder")
         self.rig, self._relocator, self._params = rig, Relocator(rig), params
+        if getattr(self, "_refiner", None) is not None:
+            self._refiner.close()
+        self._refiner = OnlineRefiner(rig, self.get_logger(), self.get_name()) if rig.calibration.refine else None
         for camera, band in self._edge_bands.items():  # received before a change of parameters
             if camera in rig.camera_names:
                 self._relocator.note_edge_band(camera, band)
@@ -248,8 +264,39 @@ class RelocationNode(RigNode):
         self._markers.publish(self._notch_markers.array(notches, position, frame_rotations(normal, binormal, tangent),
                                                         frame, stamp))
         self._publish_quality(relocation, msg.header)
+        if self._refiner is not None:
+            self._refiner.offer(cloud, self._relocator.views)
         if self._params["output_dir"]:
             self._write(PathLib(self._params["output_dir"]).expanduser() / "relocated.ply", relocation)
+
+    @guarded
+    def _poll_refinement(self) -> None:
+        status = None if self._refiner is None else self._refiner.poll()
+        if status is not None:
+            self._diagnostics.publish(DiagnosticArray(header=Header(stamp=self.get_clock().now().to_msg()),
+                                                      status=[status]))
+
+    def _on_write_calibration(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        """~/write_calibration: the rig file with the refined pose written (OnlineRefiner.write); a failure is the
+        response's message, never the node's end."""
+        try:
+            if self._refiner is None:
+                response.success, response.message = False, "calibration.refine is off in the rig configuration"
+            else:
+                response.success, response.message = self._refiner.write(self._params["rig_file"],
+                                                                          self._params["refined_rig_file"])
+        except Exception as error:  # a bug must not take the graph down
+            response.success, response.message = False, f"unexpected {type(error).__name__}: {error}"
+        if response.success:
+            self.get_logger().info(f"write_calibration: {response.message}")
+        else:
+            self.get_logger().warning(f"write_calibration: {response.message}")
+        return response
+
+    def destroy_node(self) -> None:
+        if self._refiner is not None:
+            self._refiner.close()
+        super().destroy_node()
 
     def _warm_start(self, stamp_ns: int) -> bool:
         """Whether this frame starts from the previous frame's centreline: not after a jump of the stamps either way

@@ -124,11 +124,19 @@ def pivot_of(geometry: TubeGeometry) -> np.ndarray:
     return np.asarray(geometry.base_position, float) + axis * geometry.length / 2.0
 
 
+def pose_change(start: np.ndarray, end: np.ndarray, pivot: np.ndarray) -> np.ndarray:
+    """How a pose (4x4, base frame) moved from `start` to `end`, per base-frame axis: the turn (rotation vector,
+    deg) and where it moved the point `pivot` (the robot's middle) as the camera sees it (mm)."""
+    change = end @ np.linalg.inv(start)
+    turn = np.degrees(Rotation.from_matrix(change[:3, :3]).as_rotvec())
+    return np.concatenate([turn, (change[:3, :3] @ pivot + change[:3, 3] - pivot) * 1e3])
+
+
 class _Problem:
     """The residuals and Jacobian over [turn, shift] per camera and the bends per recording."""
 
     def __init__(self, recordings: list[Recording], geometry: TubeGeometry, cameras: tuple[str, ...],
-                 extrinsics: dict[str, np.ndarray], target: RigidTarget | None = None):
+                 extrinsics: dict[str, np.ndarray], target: RigidTarget | None = None, held: tuple[str, ...] = ()):
         self.recordings, self.geometry, self.cameras, self.target = recordings, geometry, cameras, target
         self.pivot = pivot_of(geometry) if target is None else target.centre
         self.notches = geometry.notch_count
@@ -141,6 +149,10 @@ class _Problem:
         self.limbs: list[tuple[LimbRows, np.ndarray, np.ndarray, float]] = []
         self.set_start(extrinsics)
         self._cache: tuple[bytes, list] | None = None
+        # the parameters fitted: all but the held cameras' poses
+        self.varied = np.ones(self.size, bool)
+        for c, name in enumerate(cameras):
+            self.varied[6 * c:6 * c + 6] = name not in held
 
     def measure_limbs(self, x: np.ndarray) -> None:
         """Read every camera's limbs about the robot as x poses it (core.calibration.limb_rows), each camera's
@@ -295,9 +307,12 @@ def _start_bends(problem: _Problem, x: np.ndarray) -> np.ndarray:
 
 
 def fit_rig(recordings: list[Recording], geometry: TubeGeometry, start: dict[str, np.ndarray],
-            progress: Callable[[str], None] | None = None, target: RigidTarget | None = None) -> RigFit:
+            progress: Callable[[str], None] | None = None, target: RigidTarget | None = None,
+            held: tuple[str, ...] = ()) -> RigFit:
     """Both cameras' poses (base frame) and every recording's bends fitted to what the cameras saw; with a
-    `target`, the cameras' poses in its frame, fitted to its surface (every recording a view of it)."""
+    `target`, the cameras' poses in its frame, fitted to its surface (every recording a view of it). `held`: the
+    cameras whose start pose is kept (core.calibration.refine holds the first and refines the second against it):
+    their uncertainty is zero, the others' is then relative to them."""
     cameras = tuple(start)
     if not recordings:
         raise CalibrationError("no recording to calibrate from")
@@ -305,20 +320,29 @@ def fit_rig(recordings: list[Recording], geometry: TubeGeometry, start: dict[str
         if not any(len(r.points.get(name, ())) for r in recordings):
             raise CalibrationError(f"{name} saw none of the robot in any recording: check its rough pose and "
                                    "that the robot is in its view")
-    problem = _Problem(recordings, geometry, cameras, start, target)
+    problem = _Problem(recordings, geometry, cameras, start, target, held)
     x = _start_bends(problem, np.zeros(problem.size))
     start_rows = problem.camera_rows(x)
     lower, upper = np.full(problem.size, -np.inf), np.full(problem.size, np.inf)
     lower[6 * len(cameras):], upper[6 * len(cameras):] = 0.0, geometry.max_notch_bend
+    varied = problem.varied
+    lower, upper = lower[varied], upper[varied]
+
+    def full(values: np.ndarray) -> np.ndarray:
+        whole = np.zeros(problem.size)
+        whole[varied] = values
+        return whole
+
     for round_index, scale in enumerate(SCALES_M):
         if progress:
             progress(f"round {round_index + 1}/{len(SCALES_M)}: loss scale {scale * 1e3:.2f} mm")
         problem.outlier = 3 * scale
         if scale <= LIMBS_FROM_SCALE_M:
             problem.measure_limbs(x)
-        solved = least_squares(problem.residuals, np.clip(x, lower, upper), jac=problem.jacobian,
-                               bounds=(lower, upper), loss="cauchy", f_scale=scale, x_scale="jac", max_nfev=60)
-        x = solved.x
+        solved = least_squares(lambda v: problem.residuals(full(v)), np.clip(x[varied], lower, upper),
+                               jac=lambda v: problem.jacobian(full(v))[:, varied], bounds=(lower, upper),
+                               loss="cauchy", f_scale=scale, x_scale="jac", max_nfev=60)
+        x = full(solved.x)
         problem.set_start(problem.extrinsics(x))  # the turns restart from zero, where their Jacobian is exact
         x[:6 * len(cameras)] = 0.0
     if SCALES_M[-1] <= LIMBS_FROM_SCALE_M:
@@ -334,8 +358,9 @@ def _covariance(problem: _Problem, x: np.ndarray, scale: float) -> np.ndarray:
     points there are one measurement, not dozens. Directions the recordings leave free (an eigenvalue below FREE of
     the largest) are infinitely uncertain in every parameter they move."""
     residuals = problem.residuals(x)
-    jac = problem.jacobian(x)
-    seen = np.any(jac[:, :6 * len(problem.cameras)] != 0, axis=1)  # not the clamp past the base
+    whole = problem.jacobian(x)
+    seen = np.any(whole[:, :6 * len(problem.cameras)] != 0, axis=1)  # not the clamp past the base
+    jac = whole[:, problem.varied]  # a held camera's pose is certain
     weights = np.where(seen, 1.0 / (1.0 + (residuals / scale) ** 2), 0.0)
     variance = np.sum(weights * residuals**2) / max(np.sum(weights), 1.0)
     stretches = 0.0
@@ -348,9 +373,11 @@ def _covariance(problem: _Problem, x: np.ndarray, scale: float) -> np.ndarray:
             stretches += max(extent / (WINDOW_PX * problem.recordings[index].footprint), 1.0)
     values, vectors = np.linalg.eigh(jac.T @ (weights[:, None] * jac))
     free = values <= FREE * values.max()
-    covariance = (vectors[:, ~free] / values[~free]) @ vectors[:, ~free].T * variance * seen.sum() / max(stretches, 1)
+    fitted = (vectors[:, ~free] / values[~free]) @ vectors[:, ~free].T * variance * seen.sum() / max(stretches, 1)
     loose = np.sum(vectors[:, free] ** 2, axis=1) > 1e-3
-    covariance[loose, loose] = np.inf
+    fitted[loose, loose] = np.inf
+    covariance = np.zeros((problem.size, problem.size))
+    covariance[np.ix_(problem.varied, problem.varied)] = fitted
     return covariance[:6 * len(problem.cameras), :6 * len(problem.cameras)]
 
 
@@ -382,6 +409,11 @@ def _result(problem: _Problem, x: np.ndarray, start_rows: dict[str, np.ndarray])
                   slots_in_view(problem.geometry, extrinsics) if problem.target is None else {})
 
 
+def parameter_code(camera: str, k: int) -> str:
+    """The code of a camera's k-th pose parameter (0-2 turns, 3-5 shifts about the base frame's axes)."""
+    return f"{camera}.{'turn' if k < 3 else 'shift'}_{AXES[k % 3]}"
+
+
 def _refuse_undetermined(sigma: dict[str, np.ndarray], bends: dict[str, np.ndarray], target: bool = False) -> None:
     """CalibrationError naming each pose parameter the recordings leave free, and what to record instead."""
     free = [(name, k, values[k]) for name, values in sigma.items() for k in range(6) if not values[k] <= UNDETERMINED]
@@ -397,4 +429,4 @@ def _refuse_undetermined(sigma: dict[str, np.ndarray], bends: dict[str, np.ndarr
               "record it bent as well (a total bend of 30 deg or more)" if straight else
               "record the robot in more poses, bent in other directions")
     raise CalibrationError(f"the recordings do not determine {', '.join(named)}: {advice}",
-                           tuple(f"{name}.{'turn' if k < 3 else 'shift'}_{AXES[k % 3]}" for name, k, _ in free))
+                           tuple(parameter_code(name, k) for name, k, _ in free))

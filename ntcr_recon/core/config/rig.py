@@ -227,6 +227,21 @@ class QualityConfig:
 
 
 @dataclass(frozen=True)
+class CalibrationConfig:
+    """Refining the second camera's pose relative to the first from the robot as the graph runs (relocation_node;
+    core.calibration.refine)."""
+
+    refine: bool = setting(False, "relocation_node refines the second camera's pose relative to the first from the "
+                           "robot (the model fit of `ntcr-recon calibrate`, the first camera held), reports it on "
+                           "/diagnostics and writes it on request (service ~/write_calibration); needs the robot bent "
+                           "30 deg or more in some frames")
+    refine_frames: int = setting(4, "frames each refinement fits at once, spread over refine_period", minimum=1,
+                                 maximum=50)
+    refine_period: float = setting(30.0, "a refinement at most this often, over the frames of the last period",
+                                   unit="s", minimum=1.0, maximum=86400.0)
+
+
+@dataclass(frozen=True)
 class RigConfig:
     """The whole rig: its frames and cameras, the robot, and the stages' parameters."""
 
@@ -243,6 +258,7 @@ class RigConfig:
     mesh: MeshConfig = field(default_factory=MeshConfig)
     metrics: MetricsConfig = field(default_factory=MetricsConfig)
     quality: QualityConfig = field(default_factory=QualityConfig)
+    calibration: CalibrationConfig = field(default_factory=CalibrationConfig)
 
     @property
     def flying_pixel_step(self) -> float:
@@ -291,6 +307,7 @@ STAGE_SECTIONS = {
     "mesh": MeshConfig,
     "metrics": MetricsConfig,
     "quality": QualityConfig,
+    "calibration": CalibrationConfig,
 }
 
 

@@ -3,35 +3,11 @@
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+from support.tube_views import GEOMETRY, TRUE_POSES
+from support.tube_views import recording as _recording
 
-from ntcr_recon.core.base.transforms import invert_transform, rigid_transform, transform_points
+from ntcr_recon.core.base.transforms import invert_transform, transform_points
 from ntcr_recon.core.calibration.rig_fit import CalibrationError, Recording, fit_rig, pivot_of, slots_in_view
-from ntcr_recon.core.robot.geometry import TubeGeometry
-from ntcr_recon.core.robot.kinematics import TubeShape
-from ntcr_recon.core.robot.surface import PART_OUTER_WALL
-
-GEOMETRY = TubeGeometry()
-# Two opposed cameras 90 mm from the robot, as the simulator places them (looking along +y and -y).
-TRUE_POSES = {"cam_a": rigid_transform([0.01, -0.09, 0.022], [-0.5, -0.5, -0.5, 0.5]),
-              "cam_b": rigid_transform([0.01, 0.09, 0.022], [0.5, -0.5, 0.5, 0.5])}
-
-
-def _seen(shape: TubeShape, camera: str, rng, count=3000, noise=10e-6) -> np.ndarray:
-    """The outer wall facing the camera (optical frame), with depth noise along each pixel's ray."""
-    sample = shape.sample_surface_parts(0.1e-3)
-    wall = sample.part == PART_OUTER_WALL
-    points, normals = sample.points[wall], sample.normals[wall]
-    origin = TRUE_POSES[camera][:3, 3]
-    facing = np.einsum("ij,ij->i", normals, points - origin) < 0
-    optical = transform_points(invert_transform(TRUE_POSES[camera]), points[facing])
-    optical = optical[rng.choice(len(optical), min(count, len(optical)), replace=False)]
-    return optical * (1 + rng.normal(0, noise, len(optical)) / optical[:, 2])[:, None]
-
-
-def _recording(name, bends, rng, straight=False) -> Recording:
-    shape = TubeShape(GEOMETRY, bends)
-    points = {camera: _seen(shape, camera, rng) for camera in TRUE_POSES}
-    return Recording(name, points, {camera: len(p) for camera, p in points.items()}, straight)
 
 
 def _moved(pose, turn_deg, shift_mm, rng):
