@@ -91,8 +91,10 @@ def test_a_knocked_camera_is_refined_reported_and_written_on_request(knocked):
         refined = rigid_transform(_numbers(values["translation"]), _numbers(values["rotation"]))
         error = pose_change(truth, refined, pivot_of(exact.robot))
         knock = pose_change(truth, load_rig_config(rig_file).cameras["cam_b"].extrinsic, pivot_of(exact.robot))
-        assert np.linalg.norm(error[:3]) < 0.5 < np.linalg.norm(knock[:3]), (error, knock)
-        assert np.linalg.norm(error[3:]) < 0.5 < np.linalg.norm(knock[3:]), (error, knock)
+        # half the knock's turn and an eighth of its shift at most, with or without the colour windows (a frame
+        # whose windows come late is refined by depth alone: 0.63 deg, 0.33 mm off; with them 0.28 deg, 0.22 mm)
+        assert np.linalg.norm(error[:3]) < 0.75 < np.linalg.norm(knock[:3]) / 2, (error, knock)
+        assert np.linalg.norm(error[3:]) < 0.45 < np.linalg.norm(knock[3:]) / 8, (error, knock)
 
         written = _write_calibration(graph)
         assert written.success, written.message
