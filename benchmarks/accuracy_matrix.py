@@ -440,6 +440,17 @@ def within_tolerance(figures: dict, tolerance) -> bool:
             and figures["width_max"] <= tolerance.notch_width_tolerance)
 
 
+def why_not_ok(figures: dict, tolerance) -> str:
+    """What kept a result from status ok: its warn and error codes, and each stated uncertainty beyond its
+    tolerance (stated / tolerance, mm)."""
+    codes = [f.code for f in figures["warnings"] if getattr(f, "severity", "warn") != "info"]
+    limits = {"centerline": tolerance.centerline_tolerance, "tip": tolerance.tip_tolerance,
+              "notch_width": tolerance.notch_width_tolerance}
+    beyond = [f"{name} {stated:.3f}/{limits[name] * 1e3:.2f}" for name, stated in figures["uncertainty"].items()
+              if stated is not None and name in limits and stated > limits[name] * 1e3]
+    return ", ".join(codes + beyond) or "-"
+
+
 def print_status(results: list[dict]) -> None:
     """The summary's lines on what the results say of themselves (issue 63): how many say ok / warn / error, the
     results saying ok that miss the tolerance (at most 5 %), the share of those within it that say ok (at least
@@ -457,6 +468,9 @@ def print_status(results: list[dict]) -> None:
     print(f"  status: ok {said['ok']}, warn {said['warn']}, error {said['error']}; ok yet missing the tolerance: "
           f"{len(wrong_ok)}/{said['ok']}{f' ({chr(44).join(wrong_ok)})' if wrong_ok else ''}; within the tolerance "
           f"and saying ok: {sum(r['status'] == 'ok' for r in within)}/{len(within)}")
+    for r in within:
+        if r["status"] != "ok":
+            print(f"    within yet {r['status']}: {r['row']} ({why_not_ok(r, tolerance)})")
     bounds = {name: [(r["uncertainty"].get(name), r[key] * 1e3) for r in judged if math.isfinite(r[key])]
               for name, key in BOUNDED.items()}
     bounds["per notch"] = [(r["width_stated"].get(i, math.nan) * 1e3, error * 1e3) for r in judged

@@ -79,10 +79,13 @@ def with_poses(config, extrinsics: dict[str, np.ndarray]):
     return replace(config, cameras=cameras)
 
 
-def rendered(rig: Row, matcher: str, frames: int, seed: int) -> dict:
-    """The rig's straight and bent scenes: their simulation (truth), frames and exact rig config."""
+def rendered(rig: Row, matcher: str, frames: int, seed: int, labels: tuple[str, ...] = ("straight", "bent")) -> dict:
+    """The rig's straight and bent scenes (those of `labels`): their simulation (truth), frames and exact rig
+    config."""
     scenes = {}
     for label, extra in (("straight", ("--bend-deg", "0")), ("bent", () if "--bend-deg" in rig.args else BENT)):
+        if label not in labels:
+            continue
         row = accuracy_matrix.with_matcher(replace(rig, args=(*rig.args, *extra)), matcher, False)
         simulation = accuracy_matrix.simulation_for(row, seed, frames)
         pairs = accuracy_matrix.frame_pairs(simulation)

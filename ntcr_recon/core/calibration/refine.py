@@ -15,8 +15,8 @@ What it resolves: across the views, the tube's limbs fix the second camera to a 
 along them only depth does, and a matcher's depth bias that differs along the tube (the notches smeared into its
 window, a highlight) moves the refined pose by 0.2-0.5 deg and about 0.2 mm with an exact rig
 (benchmarks/calibration_matrix.py --refine). A refinement therefore reports the change against the rig file beside
-its uncertainty and calls it `significant` only beyond REFINE_RESOLUTION as well as beyond SIGNIFICANT_SIGMAS of its
-own uncertainty: it corrects a camera knocked by a degree or a millimetre, and a smaller drift is better told by the
+its uncertainty and calls it `significant` only beyond REFINE_RESOLUTION and beyond its own uncertainty
+(SIGNIFICANT_CHI2): it corrects a camera knocked by a degree or a millimetre, and a smaller drift is better told by the
 reconstruction's own EXTRINSICS_DISAGREE check (core.quality.checks.extrinsics).
 """
 
@@ -34,11 +34,12 @@ from ntcr_recon.core.config.rig import CalibrationConfig, RigConfig
 
 # Points per camera and frame a refinement takes (a fit over a few frames: fewer than calibrate's per bag).
 REFINE_POINTS = MAX_POINTS // 2
-# A change is significant beyond this many of its 1-sigma uncertainties...
-SIGNIFICANT_SIGMAS = 2.0
-# ...and beyond what the fit reaches with an exact rig (deg, mm; benchmarks/calibration_matrix.py --refine: up to
-# 0.5 deg and 0.23 mm on emulated depth and the real matcher's).
-REFINE_RESOLUTION = (0.5, 0.3)
+# A change is significant where its six parameters' sum of squared standard scores exceeds this (chi-square, 6
+# degrees of freedom: 5 % of exact rigs beyond it, were the uncertainties exact; they are 2-3 times the errors)...
+SIGNIFICANT_CHI2 = 12.6
+# ...and its turn or shift beyond what the fit reaches with an exact rig (deg, mm; benchmarks/refine_matrix.py: up to
+# 0.55 deg and 0.2 mm on emulated depth).
+REFINE_RESOLUTION = (0.6, 0.3)
 
 
 @dataclass(frozen=True)
@@ -54,17 +55,21 @@ class RefinedPose:
     frames: int
 
     @property
+    def chi2(self) -> float:
+        """The change's sum of squared standard scores (its parameters taken as independent)."""
+        return float(np.sum((self.change / np.maximum(self.uncertainty, 1e-9)) ** 2))
+
+    @property
     def significant(self) -> bool:
         """The rig file's pose is off by more than the refinement's own uncertainty and resolution."""
-        turn, shift = np.abs(self.change[:3]), np.abs(self.change[3:])
-        beyond = np.abs(self.change) > SIGNIFICANT_SIGMAS * self.uncertainty
-        return bool(np.any(beyond[:3] & (turn > REFINE_RESOLUTION[0]))
-                    or np.any(beyond[3:] & (shift > REFINE_RESOLUTION[1])))
+        beyond_resolution = (np.linalg.norm(self.change[:3]) > REFINE_RESOLUTION[0]
+                             or np.linalg.norm(self.change[3:]) > REFINE_RESOLUTION[1])
+        return bool(beyond_resolution and self.chi2 > SIGNIFICANT_CHI2)
 
     def as_dict(self) -> dict:
         """The figures as plain numbers (for /diagnostics and a report)."""
         return {"camera": self.camera, "reference": self.reference, "frames": self.frames,
-                "significant": self.significant,
+                "significant": self.significant, "chi2": round(self.chi2, 2),
                 "turn_deg": [round(float(v), 4) for v in self.change[:3]],
                 "shift_mm": [round(float(v), 4) for v in self.change[3:]],
                 "uncertainty_turn_deg": [round(float(v), 4) for v in self.uncertainty[:3]],

@@ -10,6 +10,7 @@ Layout (config/sim_rig.yaml is the documented example, generated from this schem
         cam_b: {...}
         robot: {TubeGeometry keys}
         topics: {...}  fusion: {...}  filters: {...}  relocation: {...}  mesh: {...}  metrics: {...}
+        quality: {...}  calibration: {...}
 
 Every key is declared once, below (and TubeGeometry's in `geometry`), with its default, unit, range and
 description (`schema.setting`); loading, the nodes' parameter descriptors and the documented file all read

@@ -82,6 +82,7 @@ def test_a_knocked_camera_is_refined_reported_and_written_on_request(knocked):
                 frame_id, stamp_ns = exact.cameras[name].frame_id, stamp_ns + second * 10**9
                 windows[name][1].publish(intrinsics_info_msg(view.intrinsics, frame_id, stamp_ns))
                 windows[name][0].publish(color_image_msg(view.color, frame_id, stamp_ns))
+            graph.spin_until(lambda: False, 0.5)  # the windows in before their cloud, even on a busy machine
             probe.send_and_wait(msg)
         assert graph.spin_until(lambda: statuses, 90), graph.all_logs()
         status = statuses[-1]
