@@ -341,7 +341,8 @@ def _mm(value: float | None) -> float | None:
 def extrinsics(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
     """Whether the cameras' poses in the rig file agree across their views. Each camera alone places the axis across its
     view, window by window, by the tube's limbs in its colour image (limbs.LimbFigures.rigid) or else by depth
-    (cross_view.CrossView): the noise varies along the tube, a camera whose pose is off moves every window alike.
+    (cross_view.CrossView), and by its whole outline where that lies beyond what those reach (a pose a millimetre
+    off; trace.GROSS_OFFSET_PX): the noise varies along the tube, a camera whose pose is off moves every window alike.
     Two opposed cameras' shifts read with the same sign for a shift of one relative to the other, so their sum is
     the rigid offset between them; the fused axis lies half of it off. Warned where it stands beyond
     trace.EXTRINSICS_SIGMAS standard errors and beyond what the measure's own bias reaches (trace.RigidOffset.least;
@@ -362,8 +363,9 @@ def extrinsics(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
     return figures, [finding("EXTRINSICS_DISAGREE",
                              f"the cameras place the axis {offset * 1e3:.2f} mm apart across their views, alike all "
                              f"along the tube ({offset / error:.0f} standard errors: not the matcher's noise){turn}: "
-                             "their poses in the rig file disagree, and the centreline lies about half of that off; "
-                             "recalibrate with `ntcr-recon calibrate`", offset_mm=offset * 1e3,
+                             "their poses in the rig file disagree, and the centreline lies "
+                             f"{'up to all' if rigid.whole else 'about half'} of that off; "
+                             "recalibrate with `ntcr-recon calibrate`", offset_mm=offset * 1e3, by_outlines=rigid.whole,
                              offset_error_mm=error * 1e3,
                              turn_deg=None if distance is None else math.degrees(offset / distance))]
 

@@ -30,6 +30,9 @@ FREE_END_FACTOR = math.sqrt(3.0)
 DISTAL_CROSS_VIEW_FACTOR = 2.0
 # A mean shift across the views this many standard errors from none is rigid, not the matcher's noise.
 EXTRINSICS_SIGMAS = 3.0
+# Cameras whose outlines lie more than this many pixel footprints apart across their views are off by more than the
+# limbs look for (limbs.SEARCH_PX) and the trusted wall's gate lets in: their outlines tell the offset
+GROSS_OFFSET_PX = 3.0
 
 
 @dataclass(frozen=True)
@@ -105,6 +108,7 @@ class Trace:
     reference_moved: ReferenceMove | None = None
     cross_view_offsets: tuple[tuple[float, float] | None, ...] = ()  # cross_view.CrossView.offsets
     limbs_rigid: tuple[float, float] | None = None  # limbs.LimbFigures.rigid: the same, from the limbs
+    outline_offsets: tuple[tuple[float, float] | None, ...] = ()  # outline.outline_camera_offsets: from the outlines
     centerline_tolerance: float | None = None  # config.rig.QualityConfig's, which the extrinsics check weighs against
 
 
@@ -179,6 +183,9 @@ class RigidOffset:
     # half beyond a tolerance); the limbs read exact rigs 0.002-0.02 mm apart (0.01-0.07 with a real matcher), and
     # a pose 0.1 deg off 0.08-0.13 mm (0.08-0.18), which moves the centreline as far: beyond one tolerance
     least: float = 2.0
+    # read from the cameras' whole outlines (an offset beyond the limbs' reach): the fused axis then lies anywhere
+    # between the two cameras' own (the fit and the alignment may follow either), up to all of it off
+    whole: bool = False
 
     @property
     def disagreeing(self) -> bool:
@@ -186,26 +193,43 @@ class RigidOffset:
         return self.offset > EXTRINSICS_SIGMAS * self.error
 
 
-def rigid_offset(t: Trace) -> RigidOffset | None:
-    """The cameras' rigid offset across their views: from their limbs where both placed the axis there (sharp
-    where depth is smeared), else from depth; None unless two cameras each placed the axis."""
-    if t.limbs_rigid is not None:
-        return RigidOffset(*t.limbs_rigid, least=1.0)
-    means = [offset for offset in t.cross_view_offsets if offset is not None]
+def _summed(offsets: tuple) -> tuple[float, float] | None:
+    """Two opposed cameras' mean shifts across their views summed (their rigid offset), with its standard error;
+    None unless exactly two cameras each placed the axis."""
+    means = [offset for offset in offsets if offset is not None]
     if len(means) != 2:
         return None
     (mean_a, error_a), (mean_b, error_b) = means
-    return RigidOffset(abs(mean_a + mean_b), math.hypot(error_a, error_b))
+    return abs(mean_a + mean_b), math.hypot(error_a, error_b)
+
+
+def rigid_offset(t: Trace) -> RigidOffset | None:
+    """The cameras' rigid offset across their views: from their whole outlines where those lie beyond what the limbs'
+    search and the trusted wall's gate reach (GROSS_OFFSET_PX: a pose a millimetre off moves one camera's whole tube
+    out of both), else from their limbs where both placed the axis there (sharp where depth is smeared), else from
+    depth; None unless two cameras each placed the axis."""
+    outlines = _summed(t.outline_offsets)
+    if outlines is not None and outlines[0] > GROSS_OFFSET_PX * t.footprint:
+        gross = RigidOffset(*outlines, least=1.0, whole=True)
+        if gross.disagreeing:
+            return gross
+    if t.limbs_rigid is not None:
+        return RigidOffset(*t.limbs_rigid, least=1.0)
+    summed = _summed(t.cross_view_offsets)
+    return None if summed is None else RigidOffset(*summed)
 
 
 def extrinsics_apart(t: Trace) -> float:
-    """How far off the fused axis lies for the cameras' poses disagreeing (m): half their rigid offset, where it is
-    beyond the measure's noise and `least` of the centreline's tolerances (the EXTRINSICS_DISAGREE check); else 0
-    (a smaller offset is not told from the measure's own bias, RigidOffset.least)."""
+    """How far off the fused axis lies for the cameras' poses disagreeing (m): half their rigid offset (all of it,
+    read from the outlines: RigidOffset.whole), where it is beyond the measure's noise and `least` of the
+    centreline's tolerances (the EXTRINSICS_DISAGREE check); else 0 (a smaller offset is not told from the
+    measure's own bias, RigidOffset.least)."""
     rigid = rigid_offset(t)
     if rigid is None or t.centerline_tolerance is None or not rigid.disagreeing:
         return 0.0
-    return rigid.offset / 2 if rigid.offset > rigid.least * t.centerline_tolerance else 0.0
+    if rigid.offset <= rigid.least * t.centerline_tolerance:
+        return 0.0
+    return rigid.offset if rigid.whole else rigid.offset / 2
 
 
 def derive(t: Trace) -> Derived:

@@ -20,7 +20,7 @@ from ntcr_recon.core.relocation.centerline import Centerline, TubeCoordinates
 from ntcr_recon.core.relocation.cross_view import cross_view_spread
 from ntcr_recon.core.relocation.limbs import placed_by_limbs
 from ntcr_recon.core.relocation.notches import spine_wall
-from ntcr_recon.core.relocation.outline import across_views_from, outline_offset, went_astray
+from ntcr_recon.core.relocation.outline import across_views_from, outline_camera_offsets, outline_offset, went_astray
 from ntcr_recon.core.relocation.reference import along_rays
 from ntcr_recon.core.relocation.tip import tube_end
 from ntcr_recon.core.relocation.wall import band_gate
@@ -74,12 +74,16 @@ def align(scene: Scene, fitted: Axis) -> Aligned:
         coords, frames = centerline.project_with_frames(cloud.xyz, coords.s)
     # what each camera alone says about the axis across its view: the fused axis is known no better
     cross_view = cross_view_spread(centerline, coords, frames, viewpoints, seen_by, len(scene.origins), trust)
+    # and each camera's whole outline across its view: a pose a millimetre off, beyond the wall's gate and the limbs'
+    # search, shows there
+    outlines = outline_camera_offsets(coords, frames, cloud.xyz, viewpoints, seen_by, len(scene.origins), geometry, end)
     # each point as its camera saw it: along its viewing ray onto the wall
     rays = along_rays(coords, frames, viewpoints, geometry.outer_radius, settings.gate)
     return Aligned(Axis(centerline, coords, frames, rays), alignment, cross_view, backbone_shift,
                    # the axis against the middle of the tube's outline in each camera's view (depth errors lie
                    # along the rays)
-                   outline_of(coords, frames) if outline is None else outline, across_from_fit, scatter, limbs)
+                   outline_of(coords, frames) if outline is None else outline, across_from_fit, scatter, limbs,
+                   outlines)
 
 
 def _wall_band_gate(coords: TubeCoordinates, centerline: Centerline, geometry, gate: float, footprint: float

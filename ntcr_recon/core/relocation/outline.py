@@ -91,6 +91,26 @@ def outline_offset(coords: TubeCoordinates, frames: tuple, xyz: np.ndarray, view
     return float(np.sqrt(np.mean(middles ** 2))) if len(middles) else None
 
 
+def outline_camera_offsets(coords: TubeCoordinates, frames: tuple, xyz: np.ndarray, viewpoints: np.ndarray,
+                           camera: np.ndarray, cameras: int, geometry: TubeGeometry, end_s: float,
+                           minimum_windows: int = 4, minimum_points: int = 30) -> tuple:
+    """Per camera (in camera order): the mean over windows of the middle of its points' extent across its view about
+    the axis, and that mean's standard error (m); None for a camera whose outline was seen whole in fewer than
+    minimum_windows windows. Every point within an outer radius of the wall counts (not the wall's gate): a camera
+    whose pose in the rig file is a millimetre or more off has its whole outline that far across its view, where the
+    wall's gate and the limbs' search (limbs.SEARCH_PX) no longer reach it. Across its view a camera's outline does
+    not depend on its depth, so a pose off the camera's moves it alike in every window (trace.rigid_offset)."""
+    position, tangent, _, _ = frames
+    camera = np.ascontiguousarray(camera, np.intp)
+    middles = _outline_middles(coords.s, coords.radius, np.ascontiguousarray(xyz, dtype=float), position, tangent,
+                               np.ascontiguousarray(viewpoints, dtype=float), camera, cameras,
+                               geometry.outer_radius, geometry.outer_radius, end_s, geometry.notch_pitch,
+                               np.cos(LEAST_CROSSING), minimum_points, *EXTENT_PERCENTILES, WIDTH_TOLERANCE_RADII)
+    per_camera = middles.reshape(-1, cameras).T
+    return tuple((float(np.mean(seen)), float(np.std(seen, ddof=1) / np.sqrt(len(seen))))
+                 if len(seen := column[np.isfinite(column)]) >= minimum_windows else None for column in per_camera)
+
+
 @jit
 def _outline_middles(s, radius, xyz, position, tangent, viewpoints, camera, cameras, outer_radius, gate, end_s,
                      window, least_crossing_cosine, minimum_points, low_percentile, high_percentile,

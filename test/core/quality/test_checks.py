@@ -521,3 +521,30 @@ def test_the_limbs_tell_a_pose_off_by_a_tenth_of_a_degree_that_depth_cannot(limb
     assert quality["cameras_across_view_offset_mm"] == pytest.approx(limbs_rigid[0] * 1e3)
     assert ("EXTRINSICS_DISAGREE" in _by_code(warnings)) == warned
     assert extrinsics_apart(trace) == (pytest.approx(limbs_rigid[0] / 2) if warned else 0.0)
+
+
+@pytest.mark.parametrize(("outlines", "warned", "whole"), [
+    (((-0.80e-3, 0.02e-3), (-0.78e-3, 0.03e-3)), True, True),   # 1 deg about z at 90 mm: 1.6 mm, past the limbs
+    (((-0.05e-3, 0.02e-3), (-0.04e-3, 0.03e-3)), False, False),  # within the limbs' reach: theirs decides
+    (((-0.80e-3, 0.5e-3), (-0.78e-3, 0.5e-3)), False, False)])   # within the outlines' own noise
+def test_a_pose_a_millimetre_off_is_told_by_the_outlines_where_the_limbs_no_longer_reach(outlines, warned, whole):
+    """A camera whose pose is a millimetre off has its whole tube beyond the limbs' search and the trusted wall's
+    gate: those read nothing amiss (here 0.01 mm), the outlines read the offset, and the fused axis may lie up to
+    all of it off (the fit follows either camera)."""
+    s = np.linspace(0.0, 50e-3, 5000)
+    trace = Trace(
+        geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=[], coords_s=s,
+        camera=(np.arange(len(s)) % 2).astype(np.int8), tip_s=50e-3, total_bend=0.0, footprint=FOOTPRINT,
+        wall_residual=0.05e-3, notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0,
+        depth_steps={}, cross_view_spread=0.03e-3, cross_view_offsets=((0.005e-3, 0.005e-3), (0.006e-3, 0.004e-3)),
+        centerline_tolerance=0.08e-3, limbs_rigid=(0.01e-3, 0.004e-3), outline_offsets=outlines)
+    quality, warnings = assess(trace)
+    said = _by_code(warnings)
+    assert ("EXTRINSICS_DISAGREE" in said) == warned
+    if whole:
+        assert said["EXTRINSICS_DISAGREE"][0].figures["by_outlines"] is True
+        assert quality["cameras_across_view_offset_mm"] == pytest.approx(1.58)
+        assert extrinsics_apart(trace) == pytest.approx(1.58e-3)
+        assert quality["uncertainty_mm"]["centerline"] > 1.58
+    else:
+        assert quality["cameras_across_view_offset_mm"] == pytest.approx(0.01)
