@@ -503,6 +503,18 @@ def test_cameras_whose_poses_disagree_widen_the_stated_centreline_and_tip_by_hal
     assert noisy_tip.across == pytest.approx(exact_tip.across)
 
 
+def _offsets_trace(**measured) -> Trace:
+    """A straight tube's trace whose depth places both cameras' axes alike (0.01 mm apart across their views), with
+    what the limbs and the outlines measured."""
+    s = np.linspace(0.0, 50e-3, 5000)
+    return Trace(
+        geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=[], coords_s=s,
+        camera=(np.arange(len(s)) % 2).astype(np.int8), tip_s=50e-3, total_bend=0.0, footprint=FOOTPRINT,
+        wall_residual=0.05e-3, notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0,
+        depth_steps={}, cross_view_spread=0.03e-3, cross_view_offsets=((0.005e-3, 0.005e-3), (0.006e-3, 0.004e-3)),
+        centerline_tolerance=0.08e-3, **measured)
+
+
 @pytest.mark.parametrize(("limbs_rigid", "warned"), [((0.104e-3, 0.004e-3), True),    # 0.1 deg, straight row
                                                      ((0.049e-3, 0.004e-3), False),   # 0.05 deg: within a tolerance
                                                      ((0.104e-3, 0.05e-3), False)])   # within the limbs' noise
@@ -510,13 +522,7 @@ def test_the_limbs_tell_a_pose_off_by_a_tenth_of_a_degree_that_depth_cannot(limb
     """Depth reads exact rigs 0.10-0.12 mm apart beside slots at +-45 deg, so it warns only beyond two tolerances;
     the limbs read them 0.002-0.02 mm apart and a pose 0.1 deg off 0.08-0.13 mm (the emulated matrix), which moves
     the centreline about as far: theirs warns beyond one, and wins over depth's where both measured."""
-    s = np.linspace(0.0, 50e-3, 5000)
-    trace = Trace(
-        geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=[], coords_s=s,
-        camera=(np.arange(len(s)) % 2).astype(np.int8), tip_s=50e-3, total_bend=0.0, footprint=FOOTPRINT,
-        wall_residual=0.05e-3, notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0,
-        depth_steps={}, cross_view_spread=0.03e-3, cross_view_offsets=((0.005e-3, 0.005e-3), (0.006e-3, 0.004e-3)),
-        centerline_tolerance=0.08e-3, limbs_rigid=limbs_rigid)
+    trace = _offsets_trace(limbs_rigid=limbs_rigid)
     quality, warnings = assess(trace)
     assert quality["cameras_across_view_offset_mm"] == pytest.approx(limbs_rigid[0] * 1e3)
     assert ("EXTRINSICS_DISAGREE" in _by_code(warnings)) == warned
@@ -531,13 +537,7 @@ def test_a_pose_a_millimetre_off_is_told_by_the_outlines_where_the_limbs_no_long
     """A camera whose pose is a millimetre off has its whole tube beyond the limbs' search and the trusted wall's
     gate: those read nothing amiss (here 0.01 mm), the outlines read the offset, and the fused axis may lie up to
     all of it off (the fit follows either camera)."""
-    s = np.linspace(0.0, 50e-3, 5000)
-    trace = Trace(
-        geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=[], coords_s=s,
-        camera=(np.arange(len(s)) % 2).astype(np.int8), tip_s=50e-3, total_bend=0.0, footprint=FOOTPRINT,
-        wall_residual=0.05e-3, notch_side=0.0, configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0,
-        depth_steps={}, cross_view_spread=0.03e-3, cross_view_offsets=((0.005e-3, 0.005e-3), (0.006e-3, 0.004e-3)),
-        centerline_tolerance=0.08e-3, limbs_rigid=(0.01e-3, 0.004e-3), outline_offsets=outlines)
+    trace = _offsets_trace(limbs_rigid=(0.01e-3, 0.004e-3), outline_offsets=outlines)
     quality, warnings = assess(trace)
     said = _by_code(warnings)
     assert ("EXTRINSICS_DISAGREE" in said) == warned
