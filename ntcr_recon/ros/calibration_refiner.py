@@ -15,7 +15,6 @@ to do; the node goes on, and the last refinement stays the one ~/write_calibrati
 from __future__ import annotations
 
 import multiprocessing
-from concurrent.futures import Future, ProcessPoolExecutor
 from pathlib import Path
 
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
@@ -29,12 +28,16 @@ from ntcr_recon.io.rig_file import RigFileError, pose_values, write_poses
 REFINED_CODE = "EXTRINSICS_REFINED"
 
 
-def _refine_in_worker(recordings: list, config: RigConfig) -> RefinedPose | str:
-    """The refinement, or the reason the frames cannot give it (a string: exceptions cross processes badly)."""
+def _refine_in_worker(connection, recordings: list, config: RigConfig) -> None:
+    """Sends the refinement, or the reason there is none (a string: exceptions cross processes badly)."""
     try:
-        return refine_relative(recordings, config)
+        outcome: RefinedPose | str = refine_relative(recordings, config)
     except CalibrationError as error:
-        return str(error)
+        outcome = str(error)
+    except Exception as error:  # a bug: said on /diagnostics, the node goes on
+        outcome = f"the refinement failed: {type(error).__name__}: {error}"
+    connection.send(outcome)
+    connection.close()
 
 
 class OnlineRefiner:
@@ -44,8 +47,10 @@ class OnlineRefiner:
         self.config, self.log, self.node_name = config, log, node_name
         self.window = RefineWindow(config.calibration)
         self.latest: RefinedPose | None = None
-        self._job: Future | None = None
-        self._executor: ProcessPoolExecutor | None = None
+        # the running refinement: a spawned process (not forked: the node's DDS threads must not be copied), and
+        # the end of the pipe its result comes on
+        self._job: multiprocessing.Process | None = None
+        self._result = None
         self._frame = 0
 
     def offer(self, cloud: Cloud, views: dict) -> None:
@@ -58,21 +63,30 @@ class OnlineRefiner:
                                                           {name: (v.color, v.intrinsics) for name, v in
                                                            views.items()}, seed=self._frame))
         if self._job is None and self.window.due(stamp):
-            if self._executor is None:  # spawned, not forked: the node's DDS threads must not be copied
-                self._executor = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
-            self._job = self._executor.submit(_refine_in_worker, self.window.take(stamp), self.config)
+            context = multiprocessing.get_context("spawn")
+            self._result, sending = context.Pipe(duplex=False)
+            self._job = context.Process(target=_refine_in_worker, args=(sending, self.window.take(stamp), self.config),
+                                        name="calibration refine", daemon=True)
+            self._job.start()
+            sending.close()  # the worker's end: a worker that dies closes it, and the pipe then says so
             self.log.info(f"refining {self.config.camera_names[1]}'s pose against {self.config.camera_names[0]}'s "
                           f"over {len(self.window.frames)} frames")
 
     def poll(self) -> DiagnosticStatus | None:
         """The finished refinement's status (None while none finished since the last poll)."""
-        if self._job is None or not self._job.done():
+        if self._job is None or not self._result.poll():
             return None
-        job, self._job = self._job, None
         try:
-            outcome = job.result()
-        except Exception as error:  # the worker died (memory, a signal): said, and the next period tries again
-            outcome = f"the refinement's worker failed: {error!r}"
+            outcome = self._result.recv()
+        except (EOFError, OSError):  # the worker died (memory, a signal): said, and the next period tries again
+            outcome = f"the refinement's worker ended without a result (exit code {self._job.exitcode})"
+        self._job.join(timeout=1.0)
+        self._result.close()
+        self._job = self._result = None
+        return self.report(outcome)
+
+    def report(self, outcome: RefinedPose | str) -> DiagnosticStatus:
+        """A refinement's status (a string: why there is none), logged; a refinement becomes the latest."""
         if isinstance(outcome, str):
             self.log.warning(f"calibration refine: no refinement: {outcome}")
             return self._status(DiagnosticStatus.STALE, f"no refinement: {outcome}", {})
@@ -120,5 +134,7 @@ class OnlineRefiner:
                       f"{figures['shift_mm']} mm from {source.name}")
 
     def close(self) -> None:
-        if self._executor is not None:
-            self._executor.shutdown(wait=False, cancel_futures=True)
+        """A running refinement is stopped (its frames are the node's: nothing is lost but the fit)."""
+        if self._job is not None and self._job.is_alive():
+            self._job.terminate()
+            self._job.join(timeout=1.0)

@@ -1,7 +1,6 @@
 """relocation_node's calibration refine, without a graph: a finished refinement as its /diagnostics status, and the
 rig file written with it (test/ros/graph/test_node_refine.py runs it in the node)."""
 
-from concurrent.futures import Future
 from pathlib import Path
 
 import numpy as np
@@ -26,11 +25,8 @@ class _Log:
 
 
 def _finished(refiner: OnlineRefiner, outcome) -> DiagnosticStatus:
-    job = Future()
-    job.set_result(outcome)
-    refiner._job = job
-    status = refiner.poll()
-    assert refiner.poll() is None  # said once
+    status = refiner.report(outcome)
+    assert refiner.poll() is None  # none running
     return status
 
 

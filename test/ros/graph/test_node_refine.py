@@ -5,6 +5,9 @@ rig file with it on request (~/write_calibration); without refine the service sa
 
 from __future__ import annotations
 
+import signal
+from pathlib import Path
+
 import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -107,6 +110,17 @@ def test_a_knocked_camera_is_refined_reported_and_written_on_request(knocked):
         assert len(out.read_text().splitlines()) == len(rig_file.read_text().splitlines())
         assert process.poll() is None
 
+        # Ctrl-C while a refinement runs: the node stops at once, its worker with it
+        msg, _ = frames[0]
+        msg.header.stamp.sec += 5
+        probe.send_and_wait(msg)
+        assert graph.spin_until(lambda: graph.log_of(process).count("refining cam_b") == 2, 20), graph.all_logs()
+        workers = _children(process.pid)
+        assert workers, "no refinement worker running"
+        process.send_signal(signal.SIGINT)
+        assert process.wait(timeout=10) == 0, graph.all_logs()
+        assert graph.spin_until(lambda: not any(Path(f"/proc/{pid}").exists() for pid in workers), 5)
+
 
 def test_without_refine_the_service_says_it_is_off(knocked):
     rig_file, *_ = knocked
@@ -114,6 +128,12 @@ def test_without_refine_the_service_says_it_is_off(knocked):
         graph.start("relocation_node", "--params-file", str(rig_file))
         response = _write_calibration(graph)
         assert not response.success and "calibration.refine is off" in response.message
+
+
+def _children(pid: int) -> list[int]:
+    """The processes a process started (Linux /proc)."""
+    return [int(child) for task in Path(f"/proc/{pid}/task").iterdir()
+            for child in (task / "children").read_text().split()]
 
 
 def _numbers(text: str) -> list[float]:
