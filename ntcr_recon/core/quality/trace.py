@@ -108,7 +108,7 @@ class Trace:
     reference_moved: ReferenceMove | None = None
     cross_view_offsets: tuple[tuple[float, float] | None, ...] = ()  # cross_view.CrossView.offsets
     limbs_rigid: tuple[float, float] | None = None  # limbs.LimbFigures.rigid: the same, from the limbs
-    outline_offsets: tuple[tuple[float, float] | None, ...] = ()  # outline.outline_camera_offsets: from the outlines
+    outline_rigid: tuple[float, float] | None = None  # outline.outline_rigid_offset: the same, from the outlines
     centerline_tolerance: float | None = None  # config.rig.QualityConfig's, which the extrinsics check weighs against
 
 
@@ -204,17 +204,19 @@ def _summed(offsets: tuple) -> tuple[float, float] | None:
 
 
 def rigid_offset(t: Trace) -> RigidOffset | None:
-    """The cameras' rigid offset across their views: from their whole outlines where those lie beyond what the limbs'
-    search and the trusted wall's gate reach (GROSS_OFFSET_PX: a pose a millimetre off moves one camera's whole tube
-    out of both), else from their limbs where both placed the axis there (sharp where depth is smeared), else from
-    depth; None unless two cameras each placed the axis."""
-    outlines = _summed(t.outline_offsets)
-    if outlines is not None and outlines[0] > GROSS_OFFSET_PX * t.footprint:
-        gross = RigidOffset(*outlines, least=1.0, whole=True)
-        if gross.disagreeing:
-            return gross
+    """The cameras' rigid offset across their views: from their limbs where both placed the axis there (sharp where
+    depth is smeared; found within limbs.SEARCH_PX of the fused axis in both views, the cameras cannot be further
+    apart than that); else from their whole outlines where those lie beyond what the trusted wall's gate reaches
+    (GROSS_OFFSET_PX: a pose a millimetre off moves one camera's whole tube out of it, and out of the limbs' search);
+    else from depth; None unless two cameras each placed the axis. Not the outlines where the limbs were found: a
+    stereo matcher fattens a silhouette on one side, the same side of both opposed views, which reads as an offset
+    (0.85 mm with the real matcher, the robot bent towards a camera, an exact rig)."""
     if t.limbs_rigid is not None:
         return RigidOffset(*t.limbs_rigid, least=1.0)
+    if t.outline_rigid is not None and t.outline_rigid[0] > GROSS_OFFSET_PX * t.footprint:
+        gross = RigidOffset(*t.outline_rigid, least=1.0, whole=True)
+        if gross.disagreeing:
+            return gross
     summed = _summed(t.cross_view_offsets)
     return None if summed is None else RigidOffset(*summed)
 

@@ -20,7 +20,7 @@ from ntcr_recon.core.relocation.centerline import Centerline, TubeCoordinates
 from ntcr_recon.core.relocation.cross_view import cross_view_spread
 from ntcr_recon.core.relocation.limbs import placed_by_limbs
 from ntcr_recon.core.relocation.notches import spine_wall
-from ntcr_recon.core.relocation.outline import across_views_from, outline_camera_offsets, outline_offset, went_astray
+from ntcr_recon.core.relocation.outline import across_views_from, outline_offset, outline_rigid_offset, went_astray
 from ntcr_recon.core.relocation.reference import along_rays
 from ntcr_recon.core.relocation.tip import tube_end
 from ntcr_recon.core.relocation.wall import band_gate
@@ -76,7 +76,7 @@ def align(scene: Scene, fitted: Axis) -> Aligned:
     cross_view = cross_view_spread(centerline, coords, frames, viewpoints, seen_by, len(scene.origins), trust)
     # and each camera's whole outline across its view: a pose a millimetre off, beyond the wall's gate and the limbs'
     # search, shows there
-    outlines = outline_camera_offsets(coords, frames, cloud.xyz, viewpoints, seen_by, len(scene.origins), geometry, end)
+    outlines = outline_rigid_offset(coords, frames, cloud.xyz, viewpoints, seen_by, len(scene.origins), geometry, end)
     # each point as its camera saw it: along its viewing ray onto the wall
     rays = along_rays(coords, frames, viewpoints, geometry.outer_radius, settings.gate)
     return Aligned(Axis(centerline, coords, frames, rays), alignment, cross_view, backbone_shift,

@@ -126,7 +126,7 @@ class Aligned:
                                                         # fit's placement across the views was taken
     scatter: float | None = None                  # m, alignment.shift_scatter
     limbs: LimbFigures | None = None              # what the limbs in the colour images did (None: no image)
-    outline_offsets: tuple = ()                   # outline.outline_camera_offsets of the final axis
+    outline_rigid: tuple[float, float] | None = None  # outline.outline_rigid_offset about the final axis
 
 
 @dataclass(frozen=True)
@@ -341,7 +341,7 @@ def assess(scene: Scene, aligned: Aligned, sided: Sided, end: SeenEnd, length: B
         side_unsettled=sided.unsettled, side_uncertainty=sided.side_uncertainty,
         cross_view_spread=aligned.cross_view.spread, distal_cross_view=distal_cross_view,
         cross_view_offsets=aligned.cross_view.offsets,
-        limbs_rigid=None if aligned.limbs is None else aligned.limbs.rigid, outline_offsets=aligned.outline_offsets,
+        limbs_rigid=None if aligned.limbs is None else aligned.limbs.rigid, outline_rigid=aligned.outline_rigid,
         centerline_tolerance=scene.config.quality.centerline_tolerance,
         alignment_scatter=aligned.scatter, outline_offset=aligned.outline, across_from_fit=aligned.across_from_fit,
         unsupported=aligned.cross_view.unsupported, backbone_shift=aligned.backbone_shift, misread_widths=misread,

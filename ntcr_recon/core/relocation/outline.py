@@ -91,24 +91,31 @@ def outline_offset(coords: TubeCoordinates, frames: tuple, xyz: np.ndarray, view
     return float(np.sqrt(np.mean(middles ** 2))) if len(middles) else None
 
 
-def outline_camera_offsets(coords: TubeCoordinates, frames: tuple, xyz: np.ndarray, viewpoints: np.ndarray,
-                           camera: np.ndarray, cameras: int, geometry: TubeGeometry, end_s: float,
-                           minimum_windows: int = 4, minimum_points: int = 30) -> tuple:
-    """Per camera (in camera order): the mean over windows of the middle of its points' extent across its view about
-    the axis, and that mean's standard error (m); None for a camera whose outline was seen whole in fewer than
-    minimum_windows windows. Every point within an outer radius of the wall counts (not the wall's gate): a camera
-    whose pose in the rig file is a millimetre or more off has its whole outline that far across its view, where the
-    wall's gate and the limbs' search (limbs.SEARCH_PX) no longer reach it. Across its view a camera's outline does
-    not depend on its depth, so a pose off the camera's moves it alike in every window (trace.rigid_offset)."""
+def outline_rigid_offset(coords: TubeCoordinates, frames: tuple, xyz: np.ndarray, viewpoints: np.ndarray,
+                         camera: np.ndarray, cameras: int, geometry: TubeGeometry, end_s: float,
+                         minimum_windows: int = 4, minimum_points: int = 30) -> tuple[float, float] | None:
+    """How far apart two opposed cameras' outlines lie across their views (m), the mean over the windows where both
+    saw the tube's outline whole of the sum of their middles' offsets from the axis (a shift of one camera relative
+    to the other reads with the same sign in both views), and that mean's standard error; None for other than two
+    cameras or fewer than minimum_windows such windows. Every point within an outer radius of the wall counts (not
+    the wall's gate): a camera whose pose in the rig file is a millimetre or more off has its whole outline that far
+    across its view, where the wall's gate and the limbs' search (limbs.SEARCH_PX) no longer reach it. Across its
+    view a camera's outline does not depend on its depth, so a pose off the camera's moves it alike in every window
+    (trace.rigid_offset); only windows both cameras saw whole count, so that a stretch one sees end-on or cut
+    short does not pass for an offset."""
+    if cameras != 2:
+        return None
     position, tangent, _, _ = frames
     camera = np.ascontiguousarray(camera, np.intp)
     middles = _outline_middles(coords.s, coords.radius, np.ascontiguousarray(xyz, dtype=float), position, tangent,
                                np.ascontiguousarray(viewpoints, dtype=float), camera, cameras,
                                geometry.outer_radius, geometry.outer_radius, end_s, geometry.notch_pitch,
                                np.cos(LEAST_CROSSING), minimum_points, *EXTENT_PERCENTILES, WIDTH_TOLERANCE_RADII)
-    per_camera = middles.reshape(-1, cameras).T
-    return tuple((float(np.mean(seen)), float(np.std(seen, ddof=1) / np.sqrt(len(seen))))
-                 if len(seen := column[np.isfinite(column)]) >= minimum_windows else None for column in per_camera)
+    summed = middles.reshape(-1, cameras).sum(axis=1)
+    summed = summed[np.isfinite(summed)]
+    if len(summed) < minimum_windows:
+        return None
+    return abs(float(np.mean(summed))), float(np.std(summed, ddof=1) / np.sqrt(len(summed)))
 
 
 @jit

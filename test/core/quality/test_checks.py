@@ -529,22 +529,24 @@ def test_the_limbs_tell_a_pose_off_by_a_tenth_of_a_degree_that_depth_cannot(limb
     assert extrinsics_apart(trace) == (pytest.approx(limbs_rigid[0] / 2) if warned else 0.0)
 
 
-@pytest.mark.parametrize(("outlines", "warned", "whole"), [
-    (((-0.80e-3, 0.02e-3), (-0.78e-3, 0.03e-3)), True, True),   # 1 deg about z at 90 mm: 1.6 mm, past the limbs
-    (((-0.05e-3, 0.02e-3), (-0.04e-3, 0.03e-3)), False, False),  # within the limbs' reach: theirs decides
-    (((-0.80e-3, 0.5e-3), (-0.78e-3, 0.5e-3)), False, False)])   # within the outlines' own noise
-def test_a_pose_a_millimetre_off_is_told_by_the_outlines_where_the_limbs_no_longer_reach(outlines, warned, whole):
+@pytest.mark.parametrize(("outlines", "limbs", "warned", "expected_mm"), [
+    ((1.58e-3, 0.04e-3), None, True, 1.58),                  # 1 deg about z at 90 mm: 1.6 mm, past the limbs
+    ((0.09e-3, 0.04e-3), None, False, 0.011),                # within the wall's gate: depth decides
+    ((1.58e-3, 0.7e-3), None, False, 0.011),                 # within the outlines' own noise
+    ((0.85e-3, 0.09e-3), (0.01e-3, 0.004e-3), False, 0.01)])  # limbs found in both views: a fattened outline
+def test_a_pose_a_millimetre_off_is_told_by_the_outlines_where_the_limbs_no_longer_reach(outlines, limbs, warned,
+                                                                                        expected_mm):
     """A camera whose pose is a millimetre off has its whole tube beyond the limbs' search and the trusted wall's
-    gate: those read nothing amiss (here 0.01 mm), the outlines read the offset, and the fused axis may lie up to
-    all of it off (the fit follows either camera)."""
-    trace = _offsets_trace(limbs_rigid=(0.01e-3, 0.004e-3), outline_offsets=outlines)
+    gate: the limbs place nothing in its view, depth reads nothing amiss (here 0.011 mm), the outlines read the
+    offset, and the fused axis may lie up to all of it off (the fit follows either camera). Where the limbs were
+    found in both views, theirs decides: a matcher fattens both opposed outlines on the same side, which the
+    outlines read as an offset (0.85 mm with the real matcher, an exact rig)."""
+    trace = _offsets_trace(outline_rigid=outlines, limbs_rigid=limbs)
     quality, warnings = assess(trace)
     said = _by_code(warnings)
     assert ("EXTRINSICS_DISAGREE" in said) == warned
-    if whole:
+    assert quality["cameras_across_view_offset_mm"] == pytest.approx(expected_mm)
+    if warned:
         assert said["EXTRINSICS_DISAGREE"][0].figures["by_outlines"] is True
-        assert quality["cameras_across_view_offset_mm"] == pytest.approx(1.58)
         assert extrinsics_apart(trace) == pytest.approx(1.58e-3)
         assert quality["uncertainty_mm"]["centerline"] > 1.58
-    else:
-        assert quality["cameras_across_view_offset_mm"] == pytest.approx(0.01)
