@@ -98,7 +98,9 @@ CODES: dict[str, Code] = {
     "CAMERA_SHORT_VIEW": Code("warn", "a camera saw under half of the robot's length", "check its view of "
                               "the robot"),
     "EXTRINSICS_DISAGREE": Code("warn", "the cameras place the axis apart across their views alike all along the "
-                                "tube: their poses in the rig file disagree (figures: the offset, as a turn)",
+                                "tube: their poses in the rig file disagree (figures: the offset, as a turn; "
+                                "by_outlines: read from the cameras' whole outlines, a pose a millimetre or more "
+                                "off, the centreline then up to all of it off)",
                                 "recalibrate with `ntcr-recon calibrate` (README: Calibrating the rig); check the "
                                 "cameras' mounts"),
     # the tip
