@@ -9,12 +9,13 @@ stays, and only the second camera moves. Frames are taken spread over `calibrati
 
     window = RefineWindow(config.calibration)
     window.offer(stamp_s, recording_from_cloud("frame", cloud, config, views))   # every relocated frame
-    if window.due(stamp_s): refined = refine_relative(window.take(), config)     # RefinedPose, or CalibrationError
+    if window.due(stamp_s): refined = refine_relative(window.take(stamp_s), config)  # RefinedPose | CalibrationError
 
 What it resolves: across the views, the tube's limbs fix the second camera to a few hundredths of a millimetre;
 along them only depth does, and a matcher's depth bias that differs along the tube (the notches smeared into its
 window, a highlight) moves the refined pose by 0.2-0.5 deg and about 0.2 mm with an exact rig
-(benchmarks/calibration_matrix.py --refine). A refinement therefore reports the change against the rig file beside
+(benchmarks/refine_matrix.py), and with the real matcher's depth most rigs leave a turn undetermined (refused,
+CalibrationError naming it). A refinement therefore reports the change against the rig file beside
 its uncertainty and calls it `significant` only beyond REFINE_RESOLUTION and beyond its own uncertainty
 (SIGNIFICANT_CHI2): it corrects a camera knocked by a degree or a millimetre, and a smaller drift is better told by the
 reconstruction's own EXTRINSICS_DISAGREE check (core.quality.checks.extrinsics).
