@@ -89,12 +89,18 @@ def main(args: argparse.Namespace) -> int:
               f"{quality['centerline_bias_mm']['notch_side']:+.3f} mm (removed), centreline uncertain by "
               f"{_millimetres(quality.get('centerline_uncertainty_mm'))}, tip by "
               f"{_millimetres(quality.get('tip_uncertainty_mm'))} along the tube and "
-              f"{_millimetres(quality.get('tip_across_uncertainty_mm'))} across it", file=sys.stderr)
+              f"{_millimetres(quality.get('tip_across_uncertainty_mm'))} across it; the cameras place the axis "
+              f"{_millimetres(quality.get('cameras_across_view_offset_mm'))} apart across their views"
+              f"{_as_turn(quality.get('cameras_across_view_turn_deg'))}", file=sys.stderr)
     for warning in result["warnings"]:  # errors first (core.quality.findings.sort_by_severity)
         print(f"ntcr-recon reconstruct: {warning['severity']}: [{warning['code']}] {warning['message']}",
               file=sys.stderr)
     print(f"ntcr-recon reconstruct: status {result['status']}", file=sys.stderr)
     return 0
+
+
+def _as_turn(degrees: float | None) -> str:
+    return "" if degrees is None else f" (a turn of one camera by {degrees:.3f} deg)"
 
 
 def _positive_int(text: str) -> int:

@@ -61,6 +61,11 @@ def test_outputs_and_schema(reconstruction):
     assert result["status"] in ("ok", "warn", "error")
     assert set(result["quality"]["uncertainty_mm"]) == {"centerline", "tip", "notch_width"}
     assert result["quality"]["notches_found"] == len(result["notches"])
+    # how far apart the cameras place the axis, and the turn of one camera about 90 mm away that explains it (an
+    # exact rig: within a tolerance, no EXTRINSICS_DISAGREE)
+    offset, turn = (result["quality"][key] for key in ("cameras_across_view_offset_mm", "cameras_across_view_turn_deg"))
+    assert 0.0 <= offset < 0.08 and turn == pytest.approx(math.degrees(offset / 90.0), rel=0.25)
+    assert "EXTRINSICS_DISAGREE" not in {warning["code"] for warning in result["warnings"]}
     # coded records (core.quality.findings), errors first
     for warning in result["warnings"]:
         assert warning["code"] in CODES and warning["severity"] == CODES[warning["code"]].severity

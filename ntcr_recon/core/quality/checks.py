@@ -352,22 +352,22 @@ def extrinsics(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
     level)."""
     rigid = rigid_offset(t)
     if rigid is None or t.centerline_tolerance is None:
-        return {"cameras_across_view_offset_mm": None}, []
+        return {"cameras_across_view_offset_mm": None, "cameras_across_view_turn_deg": None}, []
     offset, error = rigid.offset, rigid.error
-    figures = {"cameras_across_view_offset_mm": offset * 1e3}
+    distance = _camera_distance(t)
+    # every result says how far apart the cameras place the axis, and the turn of one camera that would explain it
+    turn_deg = None if distance is None else math.degrees(offset / distance)
+    figures = {"cameras_across_view_offset_mm": offset * 1e3, "cameras_across_view_turn_deg": turn_deg}
     if not extrinsics_apart(t):
         return figures, []
-    distance = _camera_distance(t)
-    turn = ("" if distance is None
-            else f", as a turn of one about the robot about {math.degrees(offset / distance):.2f} deg")
+    turn = "" if turn_deg is None else f", as a turn of one about the robot about {turn_deg:.2f} deg"
     return figures, [finding("EXTRINSICS_DISAGREE",
                              f"the cameras place the axis {offset * 1e3:.2f} mm apart across their views, alike all "
                              f"along the tube ({offset / error:.0f} standard errors: not the matcher's noise){turn}: "
                              "their poses in the rig file disagree, and the centreline lies "
                              f"{'up to all' if rigid.whole else 'about half'} of that off; "
                              "recalibrate with `ntcr-recon calibrate`", offset_mm=offset * 1e3, by_outlines=rigid.whole,
-                             offset_error_mm=error * 1e3,
-                             turn_deg=None if distance is None else math.degrees(offset / distance))]
+                             offset_error_mm=error * 1e3, turn_deg=turn_deg)]
 
 
 def _camera_distance(t: Trace) -> float | None:
