@@ -54,7 +54,6 @@ from ntcr_recon.core.cloud.pairing import InForce, stamp_jump
 from ntcr_recon.core.reconstruction.relocate import ReconstructionError, Relocator
 from ntcr_recon.io.bag import image_to_array
 from ntcr_recon.io.pointcloud import stamp_to_ns
-from ntcr_recon.ros.calibration_refiner import OnlineRefiner
 from ntcr_recon.ros.cdr import header_stamp_ns
 from ntcr_recon.ros.messages import (
     decode,
@@ -149,7 +148,11 @@ class RelocationNode(RigNode):
         self.rig, self._relocator, self._params = rig, Relocator(rig), params
         if getattr(self, "_refiner", None) is not None:
             self._refiner.close()
-        self._refiner = OnlineRefiner(rig, self.get_logger(), self.get_name()) if rig.calibration.refine else None
+        self._refiner = None
+        if rig.calibration.refine:  # imported only then: the fit's modules (scipy.optimize) cost the start 0.15 s
+            from ntcr_recon.ros.calibration_refiner import OnlineRefiner
+
+            self._refiner = OnlineRefiner(rig, self.get_logger(), self.get_name())
         for camera, band in self._edge_bands.items():  # received before a change of parameters
             if camera in rig.camera_names:
                 self._relocator.note_edge_band(camera, band)
