@@ -46,8 +46,8 @@ def refined(scenes: dict, knock: float, seed: int) -> dict:
     recordings = []
     for index, pair in enumerate(scenes["bent"]["pairs"]):
         cloud = reconstructor.filter(reconstructor.fuse(pair))
-        views = {name: (view.color, view.intrinsics) for name, view in reconstructor.relocator.views.items()}
-        recordings.append(recording_from_cloud(f"frame {index}", cloud, knocked, views, seed=index))
+        recordings.append(recording_from_cloud(f"frame {index}", cloud, knocked, reconstructor.relocator.views,
+                                               seed=index))
     started = time.perf_counter()
     try:
         pose = refine_relative(recordings, knocked)

@@ -59,9 +59,8 @@ class OnlineRefiner:
         stamp = cloud.stamp_ns * 1e-9
         if cloud.camera is not None and self.window.wants(stamp):
             self._frame += 1
-            self.window.offer(stamp, recording_from_cloud(f"frame {self._frame}", cloud, self.config,
-                                                          {name: (v.color, v.intrinsics) for name, v in
-                                                           views.items()}, seed=self._frame))
+            self.window.offer(stamp, recording_from_cloud(f"frame {self._frame}", cloud, self.config, views,
+                                                          seed=self._frame))
         if self._job is None and self.window.due(stamp):
             context = multiprocessing.get_context("spawn")
             self._result, sending = context.Pipe(duplex=False)
@@ -89,7 +88,7 @@ class OnlineRefiner:
         """A refinement's status (a string: why there is none), logged; a refinement becomes the latest."""
         if isinstance(outcome, str):
             self.log.warning(f"calibration refine: no refinement: {outcome}")
-            return self._status(DiagnosticStatus.STALE, f"no refinement: {outcome}", {})
+            return self._status(DiagnosticStatus.STALE, f"no refinement: {outcome}")
         self.latest = outcome
         figures = outcome.as_dict()
         said = (f"{outcome.camera} against {outcome.reference}: turns {figures['turn_deg']} deg, shifts "
@@ -98,18 +97,19 @@ class OnlineRefiner:
         if outcome.significant:
             self.log.warning(f"calibration refine: {said}: the rig file's pose is off; write the refined one with "
                              "the service ~/write_calibration or recalibrate with `ntcr-recon calibrate`")
-            return self._status(DiagnosticStatus.WARN, f"{REFINED_CODE}: {said}", figures)
+            return self._status(DiagnosticStatus.WARN, f"{REFINED_CODE}: {said}", outcome)
         self.log.info(f"calibration refine: {said}: agrees with the rig file")
-        return self._status(DiagnosticStatus.OK, said, figures)
+        return self._status(DiagnosticStatus.OK, said, outcome)
 
-    def _status(self, level: int, message: str, figures: dict) -> DiagnosticStatus:
-        values = {"code": REFINED_CODE if level == DiagnosticStatus.WARN and figures else ""}
-        for key in ("turn_deg", "shift_mm", "uncertainty_turn_deg", "uncertainty_shift_mm"):
-            values.update({f"{key}.{axis}": f"{v:.4f}" for axis, v in zip("xyz", figures.get(key, ()), strict=False)})
-        if self.latest is not None and figures:
-            pose = pose_values(self.latest.extrinsic)
-            values.update(camera=self.latest.camera, frames=str(self.latest.frames),
-                          significant=str(self.latest.significant).lower(),
+    def _status(self, level: int, message: str, refined: RefinedPose | None = None) -> DiagnosticStatus:
+        """The status with the refinement's figures as key-values (none without one)."""
+        values = {"code": REFINED_CODE if refined is not None and refined.significant else ""}
+        if refined is not None:
+            figures, pose = refined.as_dict(), pose_values(refined.extrinsic)
+            for key in ("turn_deg", "shift_mm", "uncertainty_turn_deg", "uncertainty_shift_mm"):
+                values.update({f"{key}.{axis}": f"{v:.4f}" for axis, v in zip("xyz", figures[key], strict=True)})
+            values.update(camera=refined.camera, frames=str(refined.frames),
+                          significant=str(refined.significant).lower(),
                           translation=str(pose["translation"]), rotation=str(pose["rotation"]))
         status = DiagnosticStatus(name=f"{self.node_name}: calibration refine", hardware_id="ntcr", level=level,
                                   message=message)

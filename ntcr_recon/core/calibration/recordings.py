@@ -46,7 +46,11 @@ def recording_from_frames(name: str, frames: Iterable[CameraFrame], config: RigC
     for camera, found in parts.items():
         joined = np.concatenate(found) if found else np.empty((0, 3))
         pixels[camera] = len(joined)
-        points[camera] = joined[rng.choice(len(joined), max_points, replace=False)] if len(joined) > max_points \
-            else joined
+        points[camera] = sampled(joined, max_points, rng)
     footprint = float(np.median(footprints)) if footprints else Recording.footprint
     return Recording(name, points, pixels, straight, footprint, views)
+
+
+def sampled(points: np.ndarray, max_points: int, rng: np.random.Generator) -> np.ndarray:
+    """At most max_points of the points, an even random sample (all of them when fewer)."""
+    return points[rng.choice(len(points), max_points, replace=False)] if len(points) > max_points else points

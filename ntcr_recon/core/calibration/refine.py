@@ -28,10 +28,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ntcr_recon.core.calibration.recordings import MAX_POINTS
+from ntcr_recon.core.base.transforms import invert_transform, transform_points
+from ntcr_recon.core.calibration.recordings import MAX_POINTS, sampled
 from ntcr_recon.core.calibration.rig_fit import Recording, fit_rig, pivot_of, pose_change
 from ntcr_recon.core.cloud.points import Cloud
 from ntcr_recon.core.config.rig import CalibrationConfig, RigConfig
+from ntcr_recon.core.relocation.limbs import CameraView
 
 # Points per camera and frame a refinement takes (a fit over a few frames: fewer than calibrate's per bag).
 REFINE_POINTS = MAX_POINTS // 2
@@ -39,7 +41,7 @@ REFINE_POINTS = MAX_POINTS // 2
 # degrees of freedom: 5 % of exact rigs beyond it, were the uncertainties exact; they are 2-3 times the errors)...
 SIGNIFICANT_CHI2 = 12.6
 # ...and its turn or shift beyond what the fit reaches with an exact rig (deg, mm; benchmarks/refine_matrix.py: up to
-# 0.55 deg and 0.2 mm on emulated depth).
+# 0.54 deg and 0.27 mm on emulated depth; 0.69 deg and 0.31 mm with the real matcher's, where the chi-square decides).
 REFINE_RESOLUTION = (0.6, 0.3)
 
 
@@ -78,24 +80,22 @@ class RefinedPose:
                 "residual_mm": {name: round(float(v), 4) for name, v in self.residual_mm.items()}}
 
 
-def recording_from_cloud(name: str, cloud: Cloud, config: RigConfig, views: dict | None = None,
+def recording_from_cloud(name: str, cloud: Cloud, config: RigConfig, views: dict[str, CameraView] | None = None,
                          max_points: int = REFINE_POINTS, seed: int = 0) -> Recording:
     """A fused cloud (base frame, each point's camera known) as a calibration recording: each camera's points moved
     back into its optical frame by the rig file's pose, at most max_points of them (an even random sample).
-    views: camera -> (colour image, Intrinsics) of the cloud's instant, for the limbs."""
+    views: each camera's colour window of the cloud's instant (the relocator's), for the limbs."""
     if cloud.camera is None:
         raise ValueError("the cloud does not say which camera saw each point: it cannot refine a camera's pose")
     rng = np.random.default_rng(seed)
     points, pixels = {}, {}
     for index, camera in enumerate(config.camera_names):
-        mine = cloud.xyz[cloud.camera == index]
-        pose = config.cameras[camera].extrinsic
-        optical = (mine - pose[:3, 3]) @ pose[:3, :3]
+        optical = transform_points(invert_transform(config.cameras[camera].extrinsic), cloud.xyz[cloud.camera == index])
         pixels[camera] = len(optical)
-        points[camera] = optical[rng.choice(len(optical), max_points, replace=False)] \
-            if len(optical) > max_points else optical
+        points[camera] = sampled(optical, max_points, rng)
     footprint = cloud.pixel_footprint if cloud.pixel_footprint > 0 else Recording.footprint
-    return Recording(name, points, pixels, straight=False, footprint=footprint, views=dict(views or {}))
+    return Recording(name, points, pixels, straight=False, footprint=footprint,
+                     views={camera: (view.color, view.intrinsics) for camera, view in (views or {}).items()})
 
 
 def refine_relative(recordings: list[Recording], config: RigConfig) -> RefinedPose:

@@ -409,11 +409,6 @@ def _result(problem: _Problem, x: np.ndarray, start_rows: dict[str, np.ndarray])
                   slots_in_view(problem.geometry, extrinsics) if problem.target is None else {})
 
 
-def parameter_code(camera: str, k: int) -> str:
-    """The code of a camera's k-th pose parameter (0-2 turns, 3-5 shifts about the base frame's axes)."""
-    return f"{camera}.{'turn' if k < 3 else 'shift'}_{AXES[k % 3]}"
-
-
 def _refuse_undetermined(sigma: dict[str, np.ndarray], bends: dict[str, np.ndarray], target: bool = False) -> None:
     """CalibrationError naming each pose parameter the recordings leave free, and what to record instead."""
     free = [(name, k, values[k]) for name, values in sigma.items() for k in range(6) if not values[k] <= UNDETERMINED]
@@ -429,4 +424,4 @@ def _refuse_undetermined(sigma: dict[str, np.ndarray], bends: dict[str, np.ndarr
               "record it bent as well (a total bend of 30 deg or more)" if straight else
               "record the robot in more poses, bent in other directions")
     raise CalibrationError(f"the recordings do not determine {', '.join(named)}: {advice}",
-                           tuple(parameter_code(name, k) for name, k, _ in free))
+                           tuple(f"{name}.{'turn' if k < 3 else 'shift'}_{AXES[k % 3]}" for name, k, _ in free))

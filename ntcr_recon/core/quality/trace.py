@@ -193,16 +193,6 @@ class RigidOffset:
         return self.offset > EXTRINSICS_SIGMAS * self.error
 
 
-def _summed(offsets: tuple) -> tuple[float, float] | None:
-    """Two opposed cameras' mean shifts across their views summed (their rigid offset), with its standard error;
-    None unless exactly two cameras each placed the axis."""
-    means = [offset for offset in offsets if offset is not None]
-    if len(means) != 2:
-        return None
-    (mean_a, error_a), (mean_b, error_b) = means
-    return abs(mean_a + mean_b), math.hypot(error_a, error_b)
-
-
 def rigid_offset(t: Trace) -> RigidOffset | None:
     """The cameras' rigid offset across their views: from their limbs where both placed the axis there (sharp where
     depth is smeared; found within limbs.SEARCH_PX of the fused axis in both views, the cameras cannot be further
@@ -217,8 +207,11 @@ def rigid_offset(t: Trace) -> RigidOffset | None:
         gross = RigidOffset(*t.outline_rigid, least=1.0, whole=True)
         if gross.disagreeing:
             return gross
-    summed = _summed(t.cross_view_offsets)
-    return None if summed is None else RigidOffset(*summed)
+    means = [offset for offset in t.cross_view_offsets if offset is not None]
+    if len(means) != 2:
+        return None
+    (mean_a, error_a), (mean_b, error_b) = means
+    return RigidOffset(abs(mean_a + mean_b), math.hypot(error_a, error_b))
 
 
 def extrinsics_apart(t: Trace) -> float:

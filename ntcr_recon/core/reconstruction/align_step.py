@@ -75,8 +75,9 @@ def align(scene: Scene, fitted: Axis) -> Aligned:
     # what each camera alone says about the axis across its view: the fused axis is known no better
     cross_view = cross_view_spread(centerline, coords, frames, viewpoints, seen_by, len(scene.origins), trust)
     # and each camera's whole outline across its view: a pose a millimetre off, beyond the wall's gate and the limbs'
-    # search, shows there
-    outlines = outline_rigid_offset(coords, frames, cloud.xyz, viewpoints, seen_by, len(scene.origins), geometry, end)
+    # search, shows there (not needed where the limbs were found in both views: theirs decides, trace.rigid_offset)
+    outlines = (None if limbs is not None and limbs.rigid is not None else
+                outline_rigid_offset(coords, frames, cloud.xyz, viewpoints, seen_by, len(scene.origins), geometry, end))
     # each point as its camera saw it: along its viewing ray onto the wall
     rays = along_rays(coords, frames, viewpoints, geometry.outer_radius, settings.gate)
     return Aligned(Axis(centerline, coords, frames, rays), alignment, cross_view, backbone_shift,

@@ -81,12 +81,9 @@ def outline_offset(coords: TubeCoordinates, frames: tuple, xyz: np.ndarray, view
     there, of how far across the view the middle of the camera's wall points' extent lies from the axis; None
     where no window's outline was seen whole. coords, frames: the points' projection onto the centreline checked;
     viewpoints: each point's camera's optical centre; camera: each point's camera index; gate: the wall's."""
-    position, tangent, _, _ = frames
     camera = np.ascontiguousarray(camera, np.intp)
-    middles = _outline_middles(coords.s, coords.radius, np.ascontiguousarray(xyz, dtype=float), position, tangent,
-                               np.ascontiguousarray(viewpoints, dtype=float), camera, int(camera.max()) + 1,
-                               geometry.outer_radius, gate, end_s, geometry.notch_pitch, np.cos(LEAST_CROSSING),
-                               minimum_points, *EXTENT_PERCENTILES, WIDTH_TOLERANCE_RADII)
+    middles = _middles(coords, frames, xyz, viewpoints, camera, int(camera.max()) + 1, geometry, gate, end_s,
+                       minimum_points)
     middles = middles[np.isfinite(middles)]
     return float(np.sqrt(np.mean(middles ** 2))) if len(middles) else None
 
@@ -105,17 +102,23 @@ def outline_rigid_offset(coords: TubeCoordinates, frames: tuple, xyz: np.ndarray
     short does not pass for an offset."""
     if cameras != 2:
         return None
-    position, tangent, _, _ = frames
-    camera = np.ascontiguousarray(camera, np.intp)
-    middles = _outline_middles(coords.s, coords.radius, np.ascontiguousarray(xyz, dtype=float), position, tangent,
-                               np.ascontiguousarray(viewpoints, dtype=float), camera, cameras,
-                               geometry.outer_radius, geometry.outer_radius, end_s, geometry.notch_pitch,
-                               np.cos(LEAST_CROSSING), minimum_points, *EXTENT_PERCENTILES, WIDTH_TOLERANCE_RADII)
+    middles = _middles(coords, frames, xyz, viewpoints, np.ascontiguousarray(camera, np.intp), cameras, geometry,
+                       geometry.outer_radius, end_s, minimum_points)
     summed = middles.reshape(-1, cameras).sum(axis=1)
     summed = summed[np.isfinite(summed)]
     if len(summed) < minimum_windows:
         return None
     return abs(float(np.mean(summed))), float(np.std(summed, ddof=1) / np.sqrt(len(summed)))
+
+
+def _middles(coords: TubeCoordinates, frames: tuple, xyz: np.ndarray, viewpoints: np.ndarray, camera: np.ndarray,
+             cameras: int, geometry: TubeGeometry, gate: float, end_s: float, minimum_points: int) -> np.ndarray:
+    """_outline_middles over the points within `gate` of the wall, windows of a notch pitch."""
+    position, tangent, _, _ = frames
+    return _outline_middles(coords.s, coords.radius, np.ascontiguousarray(xyz, dtype=float), position, tangent,
+                            np.ascontiguousarray(viewpoints, dtype=float), camera, cameras, geometry.outer_radius,
+                            gate, end_s, geometry.notch_pitch, np.cos(LEAST_CROSSING), minimum_points,
+                            *EXTENT_PERCENTILES, WIDTH_TOLERANCE_RADII)
 
 
 @jit
