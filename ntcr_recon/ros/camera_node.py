@@ -57,8 +57,8 @@ from ntcr_recon.ros.graph import START_DELAY_S
 from ntcr_recon.ros.messages import RCLPY, camera_cloud_to_msg, checked_intrinsics, header, stamp_msg
 from ntcr_recon.ros.node_stats import NodeStats
 from ntcr_recon.ros.node_support import (
+    CAMERA_QOS,
     LATCHED_QOS,
-    SENSOR_QOS,
     WINDOW_QOS,
     ParameterError,
     RigNode,
@@ -153,9 +153,9 @@ class CameraNode(RigNode):
         super().__init__(node_name, PARAMETERS)
         self.stats = NodeStats(self, f"ntcr_recon: camera {self.camera}", status=self._status)
         points_topic = self.rig.topics.camera_topic(self.camera, "points")
-        self._cloud_publisher = self.create_publisher(PointCloud2, points_topic, SENSOR_QOS)
+        self._cloud_publisher = self.create_publisher(PointCloud2, points_topic, CAMERA_QOS)
         self._info_publisher = self.create_publisher(
-            CameraInfo, self.rig.topics.camera_topic(self.camera, "depth_info"), SENSOR_QOS)
+            CameraInfo, self.rig.topics.camera_topic(self.camera, "depth_info"), CAMERA_QOS)
         # the colour window about the robot's pixels, with its intrinsics: relocation_node places the axis across
         # this camera's view by the tube's limbs there (core.relocation.limbs)
         self._color_publisher = self.create_publisher(Image, self.rig.topics.camera_topic(self.camera, "color"),

@@ -41,8 +41,10 @@ from ntcr_recon.ros.messages import (
 )
 from ntcr_recon.ros.node_stats import NodeStats
 from ntcr_recon.ros.node_support import (
+    CAMERA_QOS,
     SENSOR_QOS,
     STAGE_QOS,
+    ParameterError,
     RigNode,
     describe,
     guarded,
@@ -61,7 +63,12 @@ PARAMETERS = {
     "diagnostics_period": (1.0, describe("seconds between /diagnostics messages (read at start)", minimum=0.05,
                                          maximum=60.0, read_only=True)),
     "max_points": max_points_parameter(),
+    "camera_reliability": ("reliable", describe(
+        "how the camera clouds and camera_infos are subscribed: reliable (camera_node, realsense-ros's default) | "
+        "best_effort (a driver publishing sensor-data QoS, e.g. realsense-ros with pointcloud.pointcloud_qos:="
+        "SENSOR_DATA: a reliable subscription never hears it)", read_only=True)),
 }
+CAMERA_RELIABILITY = {"reliable": CAMERA_QOS, "best_effort": SENSOR_QOS}
 DIAGNOSTIC_NAME = "ntcr_recon: fusion"
 
 
@@ -82,13 +89,14 @@ class FusionNode(RigNode):
         self._publisher = self.create_publisher(PointCloud2, stage_topic(self.rig.topics, "fused/points"), STAGE_QOS)
         self.stats = NodeStats(self, DIAGNOSTIC_NAME, diagnostics_period=self._params["diagnostics_period"],
                                status=self._status)
+        camera_qos = CAMERA_RELIABILITY[self._params["camera_reliability"]]
         for name in self.rig.camera_names:
             # serialized: a cloud's size is read from its header before it is decoded (a 5-million-point one
             # decoded by rclpy took 75-150 MB the process kept)
             self.create_subscription(PointCloud2, self.rig.topics.camera_topic(name, "points"),
-                                     lambda raw, name=name: self._on_cloud((name, raw)), SENSOR_QOS, raw=True)
+                                     lambda raw, name=name: self._on_cloud((name, raw)), camera_qos, raw=True)
             self.create_subscription(CameraInfo, self.rig.topics.camera_topic(name, "depth_info"),
-                                     lambda msg, name=name: self._on_info((name, msg)), SENSOR_QOS)
+                                     lambda msg, name=name: self._on_info((name, msg)), camera_qos)
         self.get_logger().info(f"fusing {', '.join(self.rig.camera_names)} within {self.rig.fusion.slop * 1e3:.1f} ms "
                                f"into '{self.rig.base_frame}'")
 
@@ -97,6 +105,9 @@ class FusionNode(RigNode):
         return self._pairer.counts
 
     def configure(self, rig, params: dict) -> None:
+        if params["camera_reliability"] not in CAMERA_RELIABILITY:
+            raise ParameterError(f"parameter 'camera_reliability' must be one of {tuple(CAMERA_RELIABILITY)}, "
+                                 f"got '{params['camera_reliability']}'")
         self.rig, self._params = rig, params
         slop_ns, timeout_ns = int(rig.fusion.slop * 1e9), int(rig.fusion.camera_timeout * 1e9)
         queue_size = int(params["queue_size"]) or rig_queue_size(rig)

@@ -4,12 +4,14 @@ returns."""
 
 from __future__ import annotations
 
+import subprocess
+
 import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from sensor_msgs.msg import CameraInfo, PointCloud2
 from support import tiny_rig
-from support.ros_graph import RosGraph
+from support.ros_graph import VENV_BIN, RosGraph
 from support.stage_probe import COLLECT_RELIABLE, StageProbe, set_parameter
 
 from ntcr_recon.core.cloud.deproject import depth_to_points
@@ -17,7 +19,7 @@ from ntcr_recon.core.cloud.fusion import CameraFrame, FramePair, fuse
 from ntcr_recon.core.config.rig import load_rig_config
 from ntcr_recon.io.pointcloud import cloud_to_msg, stamp_to_ns
 from ntcr_recon.ros.messages import RCLPY, camera_cloud_to_msg, header, stage_cloud_from_msg
-from ntcr_recon.ros.node_support import SENSOR_QOS
+from ntcr_recon.ros.node_support import CAMERA_QOS, SENSOR_QOS
 
 PERIOD = 33_333_333
 
@@ -39,9 +41,9 @@ def fusion(tmp_path_factory):
     with RosGraph() as graph:
         process = graph.start("fusion_node", "--params-file", str(rig_path))
         probe = StageProbe(graph, process, "/ntcr/cam_a/depth/color/points", "/ntcr/fused/points",
-                           input_qos=SENSOR_QOS)
-        probe.publisher_b = graph.node.create_publisher(PointCloud2, "/ntcr/cam_b/depth/color/points", SENSOR_QOS)
-        infos = {c: graph.node.create_publisher(CameraInfo, f"/ntcr/{c}/depth/camera_info", SENSOR_QOS)
+                           input_qos=CAMERA_QOS)
+        probe.publisher_b = graph.node.create_publisher(PointCloud2, "/ntcr/cam_b/depth/color/points", CAMERA_QOS)
+        infos = {c: graph.node.create_publisher(CameraInfo, f"/ntcr/{c}/depth/camera_info", CAMERA_QOS)
                  for c in tiny_rig.CAMERAS}
         probe.diagnostics = []
         graph.node.create_subscription(DiagnosticArray, "/diagnostics", probe.diagnostics.append, COLLECT_RELIABLE)
@@ -226,7 +228,7 @@ def test_pixels_outside_the_camera_image_are_dropped_before_a_grid_is_allocated(
     ("cx", 2, float("nan"), "camera_info of cam_a: cx is nan"),
 ])
 def test_camera_info_with_an_impossible_value_is_dropped_naming_it(fusion, field, index, value, expected):
-    publisher = fusion.graph.node.create_publisher(CameraInfo, "/ntcr/cam_a/depth/camera_info", SENSOR_QOS)
+    publisher = fusion.graph.node.create_publisher(CameraInfo, "/ntcr/cam_a/depth/camera_info", CAMERA_QOS)
     fusion.graph.wait_for_subscribers(publisher)
     info = CameraInfo(header=header("cam_a_optical_frame", 0), width=tiny_rig.INTRINSICS.width,
                       height=tiny_rig.INTRINSICS.height)
@@ -242,7 +244,7 @@ def test_camera_info_with_an_impossible_value_is_dropped_naming_it(fusion, field
 def test_each_cloud_takes_the_camera_info_in_force_at_its_own_stamp(fusion):
     # issue 65: a camera_info stamped later that came first (recordings give no order within an instant, a replay
     # may deliver it ahead) is not the one in force for an earlier cloud; the newest received was taken before
-    publishers = {c: fusion.graph.node.create_publisher(CameraInfo, f"/ntcr/{c}/depth/camera_info", SENSOR_QOS)
+    publishers = {c: fusion.graph.node.create_publisher(CameraInfo, f"/ntcr/{c}/depth/camera_info", CAMERA_QOS)
                   for c in tiny_rig.CAMERAS}
     later, earlier = 5_000 * PERIOD, 4_990 * PERIOD
     for camera, publisher in publishers.items():
@@ -267,3 +269,32 @@ def test_each_cloud_takes_the_camera_info_in_force_at_its_own_stamp(fusion):
 
     before, after = footprint_at(earlier), footprint_at(later)
     assert before > 0 and after == pytest.approx(before / 2, rel=1e-5)
+
+
+def test_a_best_effort_camera_is_heard_with_camera_reliability_best_effort(tmp_path):
+    # a driver set to sensor-data QoS (realsense-ros with pointcloud.pointcloud_qos:=SENSOR_DATA) offers best
+    # effort, which the default reliable subscription never hears
+    rig_path = tiny_rig.write_rig(tmp_path / "rig.yaml", fusion={"slop": 0.010, "camera_timeout": 0.3})
+    with RosGraph() as graph:
+        process = graph.start("fusion_node", "--params-file", str(rig_path), "-p", "camera_reliability:=best_effort")
+        probe = StageProbe(graph, process, "/ntcr/cam_a/depth/color/points", "/ntcr/fused/points",
+                           input_qos=SENSOR_QOS)
+        probe.publisher_b = graph.node.create_publisher(PointCloud2, "/ntcr/cam_b/depth/color/points", SENSOR_QOS)
+        graph.wait_for_subscribers(probe.publisher_b)
+        stamp = 10 * PERIOD
+        for _ in range(20):
+            send_pair(probe, stamp, stamp + 4_000_000)
+            if graph.spin_until(lambda: any(stamp_to_ns(m.header.stamp) == stamp for m in probe.received), 0.5):
+                break
+        fused = [m for m in probe.received if stamp_to_ns(m.header.stamp) == stamp]
+        assert fused, graph.all_logs()
+        assert set(stage_cloud_from_msg(fused[0], "ntcr_base").camera) == {0, 1}
+
+
+def test_an_unknown_camera_reliability_is_refused_by_name(tmp_path):
+    rig_path = tiny_rig.write_rig(tmp_path / "rig.yaml")
+    result = subprocess.run([str(VENV_BIN / "fusion_node"), "--ros-args", "--params-file", str(rig_path),
+                             "-p", "camera_reliability:=sometimes"], capture_output=True, text=True, timeout=30)
+    assert result.returncode == 2, result.stderr
+    assert "parameter 'camera_reliability' must be one of ('reliable', 'best_effort'), got 'sometimes'" \
+        in result.stderr, result.stderr
