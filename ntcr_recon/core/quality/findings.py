@@ -175,8 +175,9 @@ def notch_width_uncertainties(width_vs_bend: Mapping[int, float], indices: Itera
 
 def every_notch_factor(count: int) -> float:
     """What turns per-notch 90 % bounds into a bound every one of `count` notches stays within 90 % of the time:
-    each must then hold with probability 0.9 ** (1 / count) (their errors independent), a wider normal quantile."""
-    return float(NormalDist().inv_cdf(0.9 ** (1.0 / count))) / Z90 if count > 1 else 1.0
+    each must then hold with probability p = 0.9 ** (1 / count) (their errors independent): |error| within the
+    normal quantile of (1 + p) / 2, as Z90 is of (1 + 0.9) / 2 (an error may fall on either side)."""
+    return float(NormalDist().inv_cdf((1.0 + 0.9 ** (1.0 / count)) / 2.0)) / Z90 if count > 1 else 1.0
 
 
 def uncertainty_mm(quality: Mapping[str, Any], notch_uncertainties_mm: Iterable[float]) -> dict[str, float | None]:
