@@ -150,7 +150,7 @@ def print_details(figures: dict, args: argparse.Namespace) -> None:
         by_view = ("" if "centerline_across_views" not in figures else
                    f"; centreline error along the views {figures['centerline_along_views'] * 1e3:.3f}, across them "
                    f"{figures['centerline_across_views'] * 1e3:.3f}")
-        widest = figures["uncertainty"].get("notch_width")
+        widest = (figures.get("uncertainty") or {}).get("notch_width")
         if widest is not None and math.isfinite(figures["width_max"]):  # the bound on the notch widths' largest error
             by_view += (f"; widest notch error {figures['width_max'] * 1e3:.3f}/{widest:.3f}"
                         + ("" if figures["width_max"] * 1e3 <= widest else " OVER"))

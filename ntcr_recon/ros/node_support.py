@@ -22,21 +22,14 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import (
-    DurabilityPolicy,
-    HistoryPolicy,
-    QoSProfile,
-    ReliabilityPolicy,
-    qos_profile_sensor_data,
-)
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from rclpy.signals import SignalHandlerOptions
 
 # What a best-effort publisher (a camera driver set to sensor-data QoS) can be heard with: keep the last few.
 SENSOR_QOS = qos_profile_sensor_data
-# Camera clouds and their camera_info: reliable, keep the last 5. Best effort lost a fragmented cloud on a loaded
-# machine (CI: fusion heard 14.2 of the 14.4 clouds/s sent, and the pair was gone); a reliable writer still serves
-# best-effort readers (RViz's sensor-data), is what realsense-ros offers by default, and with KEEP_LAST never
-# waits for a slow reader.
+# Camera clouds and their camera_info: reliable, the last 5 (best effort lost a fragmented cloud, and its pair, on a
+# loaded machine). A reliable writer serves best-effort readers too (RViz), is realsense-ros's default, and with
+# KEEP_LAST never waits for a slow reader.
 CAMERA_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5, reliability=ReliabilityPolicy.RELIABLE)
 # Stage outputs: reliable, depth 1 (a consumer wants the newest result, not a backlog).
 STAGE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE)

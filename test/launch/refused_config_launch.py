@@ -31,11 +31,11 @@ import launch_testing
 import pytest
 import yaml
 from ament_index_python.packages import get_package_share_directory
-from launch.actions import IncludeLaunchDescription, LogInfo, OpaqueCoroutine, RegisterEventHandler
+from launch.actions import IncludeLaunchDescription, LogInfo, RegisterEventHandler
 from launch.event_handlers import OnProcessExit, OnProcessStart, OnShutdown
 from launch.launch_description_sources import PythonLaunchDescriptionSource
 
-from launch import LaunchDescription
+from launch import Action, LaunchDescription
 
 CONFIG_REFUSED = 2  # ntcr_recon.ros.graph.CONFIG_REFUSED (the test is meant to notice if it changes)
 REFUSING_NODE = "mesh_node"
@@ -68,11 +68,27 @@ def bad_rig_file() -> str:
     return path
 
 
+class HoldUntilTestsDone(Action):
+    """hold_until_tests_done as an action the launch waits for. Not an OpaqueCoroutine: that cancels itself on
+    any later Shutdown (launch_testing's own, once the tests are over), and a cancelled action ends the launch's
+    run at once ("run task was canceled"), the other nodes' exits unrecorded (CI)."""
+
+    _future = None
+
+    def execute(self, context) -> None:
+        self._future = context.asyncio_loop.create_task(hold_until_tests_done(context))
+
+    def get_asyncio_future(self):
+        return self._future
+
+
 def on_shutdown(event, context) -> list:
-    """Record the reason (and say it: launch does not), then keep the launch up until the active tests are over."""
+    """Record the reason (and say it: launch does not), then, on the first shutdown, keep the launch up until the
+    active tests are over."""
     shutdowns.append(event.reason)
+    first = not shut_down.is_set()
     shut_down.set()
-    return [LogInfo(msg=f"launch shut down: {event.reason}"), OpaqueCoroutine(coroutine=hold_until_tests_done)]
+    return [LogInfo(msg=f"launch shut down: {event.reason}"), *([HoldUntilTestsDone()] if first else [])]
 
 
 async def hold_until_tests_done(context) -> None:
