@@ -1,8 +1,9 @@
 """fusion_node: the cameras' clouds, paired by stamp -> `<ns>/fused/points` in the base frame (paper Eq. 9).
 
-Subscribes every configured camera's `<ns>/<cam>/depth/color/points` (sensor-data QoS; the cloud must carry
-the camera's configured frame_id) and `<ns>/<cam>/depth/camera_info` (its focal length gives the pixel
-footprint the later stages scale with, its size bounds the clouds' pixel fields). When a buffered frame is
+Subscribes every configured camera's `<ns>/<cam>/depth/color/points` (reliable; `camera_reliability:=best_effort`
+for a driver publishing sensor-data QoS; the cloud must carry the camera's configured frame_id) and
+`<ns>/<cam>/depth/camera_info` (its focal length gives the pixel footprint the later stages scale with, its size
+bounds the clouds' pixel fields). When a buffered frame is
 released, and alone or not, is the core's `core.cloud.pairing.FramePairer` (pairs within `fusion.slop`, a camera
 silent past `fusion.camera_timeout` of the cameras' own stamps, `queue_size` frames per camera, superseded
 pairs, a jump back of the stamps); the fusion is `core.cloud.fusion.fuse` with each camera's extrinsics. This node
