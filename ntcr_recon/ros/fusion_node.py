@@ -3,12 +3,11 @@
 Subscribes every configured camera's `<ns>/<cam>/depth/color/points` (reliable; `camera_reliability:=best_effort`
 for a driver publishing sensor-data QoS; the cloud must carry the camera's configured frame_id) and
 `<ns>/<cam>/depth/camera_info` (its focal length gives the pixel footprint the later stages scale with, its size
-bounds the clouds' pixel fields). When a buffered frame is
-released, and alone or not, is the core's `core.cloud.pairing.FramePairer` (pairs within `fusion.slop`, a camera
-silent past `fusion.camera_timeout` of the cameras' own stamps, `queue_size` frames per camera, superseded
-pairs, a jump back of the stamps); the fusion is `core.cloud.fusion.fuse` with each camera's extrinsics. This node
-converts, calls them and publishes; a silent camera is logged and named on `/diagnostics` (WARN) until it
-returns (OK).
+bounds the clouds' pixel fields). When a buffered frame is released, and alone or not, is the core's
+`core.cloud.pairing.FramePairer` (pairs within `fusion.slop`, a camera silent past `fusion.camera_timeout` of the
+cameras' own stamps, `queue_size` frames per camera, superseded pairs, a jump back of the stamps); the fusion is
+`core.cloud.fusion.fuse` with each camera's extrinsics. This node converts, calls them and publishes; a silent
+camera is logged and named on `/diagnostics` (WARN) until it returns (OK).
 
 Every input is bounded before anything is allocated for it: a cloud of more than `max_points` points, or
 whose pixel_u/pixel_v lie outside the camera's image (camera_info, else the configured width/height), and a

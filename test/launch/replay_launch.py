@@ -53,9 +53,11 @@ class TestReplay(unittest.TestCase):
         # the clouds), counted from the first tip this node hears on: a tip that went out before this subscription
         # was matched never reaches it (volatile), and the info subscription may match first (CI: 71 of 76 while
         # every node published every frame; here the misses were the window's first places)
-        node.create_subscription(CameraInfo, "/ntcr/cam_a/depth/camera_info",
-                                 lambda m: tips and pairs.append(m.header.stamp.sec * 10**9 + m.header.stamp.nanosec),
-                                 qos_profile_sensor_data)
+        def count_frame(info: CameraInfo) -> None:
+            if tips:
+                pairs.append(info.header.stamp.sec * 10**9 + info.header.stamp.nanosec)
+
+        node.create_subscription(CameraInfo, "/ntcr/cam_a/depth/camera_info", count_frame, qos_profile_sensor_data)
         try:
             end = time.monotonic() + WINDOW_S
             while time.monotonic() < end:
