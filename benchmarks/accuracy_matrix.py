@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/accuracy_matrix.py [--frames 2] [--rows NAME,NAME...] [--method centerline|icp|both]
         [--seed 1] [--seeds 1] [--simulate='--no-left-right-check'] [--matcher emulated|sgbm|both] [--warnings]
-        [--stated]
+        [--stated] [--no-limbs] [--model-fit]
 
 Each row is rendered by the simulator exactly as `ntcr-recon simulate OUT <row's options>` renders it (the
 same argument parser and `build_simulation`, in process, without writing the bag), reconstructed as
@@ -70,6 +70,7 @@ class Row:
     # this many millimetres along its line of sight, off the pose the scene was rendered with
     extrinsics_off: tuple[float, float] = (0.0, 0.0)
     limbs: bool | None = None               # relocation.limbs (the limbs in the colour images); None: the default
+    model_fit: bool | None = None           # relocation.model_fit (the robot's own model fitted); None: the default
 
 
 ROWS = [
@@ -212,7 +213,8 @@ def frame_pairs(simulation) -> list:
 
 
 def rig_config(simulation, side_error_deg: float = 0.0, method: str | None = None,
-               extrinsics_off: tuple[float, float] = (0.0, 0.0), limbs: bool | None = None):
+               extrinsics_off: tuple[float, float] = (0.0, 0.0), limbs: bool | None = None,
+               model_fit: bool | None = None):
     from ntcr_recon.core.config.rig import rig_config_from_mapping
 
     parameters = simulation.rig_parameters()["/**"]["ros__parameters"]
@@ -225,6 +227,8 @@ def rig_config(simulation, side_error_deg: float = 0.0, method: str | None = Non
         parameters.setdefault("relocation", {})["method"] = method
     if limbs is not None:
         parameters.setdefault("relocation", {})["limbs"] = limbs
+    if model_fit is not None:
+        parameters.setdefault("relocation", {})["model_fit"] = model_fit
     return rig_config_from_mapping(parameters)
 
 
@@ -372,7 +376,8 @@ def run_row(row: Row, frames: int = 2, seed: int = 1, method: str | None = None)
     """Render, reconstruct and measure one row; the figures, the misses and the result's warnings."""
     simulation = simulation_for(row, seed, frames)
     return reconstruct_and_measure(row.name, simulation.shape,
-                                   rig_config(simulation, row.side_error_deg, method, row.extrinsics_off, row.limbs),
+                                   rig_config(simulation, row.side_error_deg, method, row.extrinsics_off, row.limbs,
+                                              row.model_fit),
                                    frame_pairs(simulation), max(simulation.camera_distances
                                                                 or (simulation.camera_distance,)))
 
@@ -521,6 +526,9 @@ def main() -> int:
     parser.add_argument("--no-limbs", action="store_true",
                         help="reconstruct every row with relocation.limbs false: the axis placed across the views by "
                         "depth alone, not by the tube's limbs in the colour images")
+    parser.add_argument("--model-fit", action="store_true",
+                        help="reconstruct every row with relocation.model_fit true: the robot's own model (its roll "
+                        "and bends) fitted to the points and limbs places the axis")
     parser.add_argument("--method", default="", help="relocation.method to use (default: the configured default; "
                                                      "'both': centerline and icp side by side)")
     add_detail_options(parser, "row")
@@ -552,6 +560,8 @@ def main() -> int:
                 for row in rows for turn, along in offsets]
     if args.no_limbs:
         rows = [replace(row, limbs=False) for row in rows]
+    if args.model_fit:
+        rows = [replace(row, model_fit=True) for row in rows]
     methods = ["centerline", "icp"] if args.method == "both" else [args.method or None]
     print(HEADER)
     results = []

@@ -63,7 +63,7 @@ def test_every_test_module_is_in_exactly_one_tier():
 
 
 # The core's layers, lowest first: a module imports from its own layer and those below it, never above.
-CORE_LAYERS = ("base", "robot", "config", "cloud", "relocation", "calibration", "quality", "reconstruction")
+CORE_LAYERS = ("base", "robot", "config", "cloud", "relocation", "calibration", "fit", "quality", "reconstruction")
 
 
 

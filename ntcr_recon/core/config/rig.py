@@ -167,6 +167,9 @@ class RelocationConfig:
     limbs: bool = setting(True, "place the axis across each camera's view by the tube's limbs in its colour image "
                           "(core.relocation.limbs; camera_node then publishes the colour about the robot, and "
                           "relocation_node waits for it); false: by depth alone")
+    model_fit: bool = setting(False, "fit the robot's own model (its roll in the clamp and one bend per notch: "
+                              "core.fit.robot_fit) to the points and the limbs, and relocate about its axis; false: "
+                              "about the centreline fitted freely")
     gate_radius_fraction: float = setting(0.35, "gate, in outer radii", minimum=0.0, maximum=10.0,
                                           exclusive_minimum=True)
     gate_pixels: float = setting(2.0, "gate, in pixel footprints (added)", unit="px", minimum=0.0, maximum=100.0)

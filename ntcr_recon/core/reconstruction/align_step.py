@@ -29,7 +29,7 @@ from ntcr_recon.core.relocation.wall import band_gate
 ALIGNMENT_PASSES = 3
 
 
-def align(scene: Scene, fitted: Axis) -> Aligned:
+def align(scene: Scene, fitted: Axis, model: Centerline | None = None) -> Aligned:
     """Step 2: the fitted axis moved onto the wall stereo measures without bias (core.relocation.alignment), checked
     against the tube's outline in each camera's view (relocation.outline), levelled by the cameras facing the
     backbone and placed across the views by the tube's limbs in the colour images (relocation.limbs, where the
@@ -69,7 +69,9 @@ def align(scene: Scene, fitted: Axis) -> Aligned:
     # across the views the limbs in the colour images place the axis sharper than any depth (core.relocation.limbs)
     placed, limbs = (placed_by_limbs(leveled, scene.views, geometry.outer_radius, geometry.notch_pitch, end)
                      if scene.views else (leveled, None))
-    if placed is not centerline:  # levelled or placed by the limbs: the points projected once onto where it ends
+    if model is not None:
+        placed = model
+    if placed is not centerline:  # levelled or placed by the limbs or the model: the points projected once onto it
         centerline, outline = placed, None
         coords, frames = centerline.project_with_frames(cloud.xyz, coords.s)
     # what each camera alone says about the axis across its view: the fused axis is known no better

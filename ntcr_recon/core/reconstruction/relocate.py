@@ -24,6 +24,7 @@ from ntcr_recon.core.cloud.deproject import Intrinsics
 from ntcr_recon.core.cloud.fusion import FramePair
 from ntcr_recon.core.cloud.points import Cloud
 from ntcr_recon.core.config.rig import RigConfig
+from ntcr_recon.core.fit.robot_fit import RobotFit, fit_robot, model_axis
 from ntcr_recon.core.quality.findings import Finding, result_status
 from ntcr_recon.core.quality.measures import depth_step
 from ntcr_recon.core.reconstruction.align_step import align
@@ -101,10 +102,11 @@ class Relocator:
         # per camera, its latest colour image (aligned with its depth) with its intrinsics and pose: the limbs there
         # place the axis across the views (core.relocation.limbs)
         self.views: dict[str, CameraView] = {}
+        self.fit: RobotFit | None = None  # the previous call's model fit (relocation.model_fit; the warm start)
 
     def reset(self) -> None:
-        """Forget the previous centreline (the next frame starts cold)."""
-        self.prior = None
+        """Forget the previous centreline and model fit (the next frame starts cold)."""
+        self.prior, self.fit = None, None
 
     def note_frames(self, pair: FramePair) -> None:
         """The depth step each camera's data show, measured once per camera (for the self-check); and its latest
@@ -172,7 +174,8 @@ class Relocator:
         fitted = Axis(centerline, coords, frames)
         # 2. alignment: the reference tube shifted onto the wall points stereo measures without bias; each point
         # then as its camera saw it, along its viewing ray onto the wall (relocation.alignment, relocation.reference)
-        aligned = align(scene, fitted)
+        aligned = align(scene, fitted, self._model(cloud, settings, fitted.centerline, warm_start)
+                        if seen_by is not None else None)
         axis = aligned.axis
         # 3. tip, coarse: where the wall stops, over the sectors the cameras can see (core.relocation.tip)
         coarse_end = tube_end(axis.measured, geometry.outer_radius, settings.gate, settings.cell,
@@ -253,6 +256,17 @@ class Relocator:
         moved = replace(moved, coordinates=centerline.project(moved.points))
         return moved, rotation @ tip + translation, reference_move(points, rotation, translation, tip, tip_tangent)
 
+
+    def _model(self, cloud: Cloud, settings, guide: Centerline, warm_start: bool) -> Centerline | None:
+        """Step 1': the robot's own model (its roll and bends) fitted to the points and the limbs in the colour
+        views (core.fit.robot_fit), warm-started from the previous call's fit, else from the freely fitted
+        centreline (`guide`); its axis (None: relocation.model_fit off)."""
+        if not self.config.relocation.model_fit:
+            return None
+        views = {index: self.views[name] for index, name in enumerate(self.config.camera_names) if name in self.views}
+        self.fit = fit_robot(cloud.xyz, cloud.camera, self._camera_origins, self.geometry, views,
+                             guide, self.fit if warm_start else None)
+        return model_axis(self.fit, self.geometry, settings.bin_length)
 
     def _centerline(self, cloud: Cloud, settings, warm_start: bool):
         prior = self.prior if warm_start else None

@@ -138,6 +138,32 @@ class TubeShape:
         index, offset, _ = self._along(s)
         return self._segment_positions[index] + np.einsum("nij,nj->ni", self._segment_rotations[index], offset)
 
+    def centerline_jacobian(self, s) -> np.ndarray:
+        """How the centreline's positions at arc lengths s move with each notch's bend: (N, notch_count, 3), m/rad.
+
+        A notch's bend turns everything distal of it about its bend axis through the notch's end, moves that end
+        along its arc, and shortens the arc by ybar per radian (so at a fixed s the point lies further along the
+        chain); within the notch only the arc's curvature changes (dkappa/dtheta = h / L^2)."""
+        s = np.clip(np.atleast_1d(np.asarray(s, dtype=float)), 0.0, self.length)
+        position, frames = self.centerline(s)
+        g = self.geometry
+        ybar, jacobian = g.neutral_axis_offset, np.zeros((len(s), g.notch_count, 3))
+        for k, theta in enumerate(self.notch_bend):
+            segment = 1 + 2 * k
+            start, length = self.segment_starts[segment], self.segment_lengths[segment]
+            rotation, origin = self._segment_rotations[segment], self._segment_positions[segment]
+            chord, chord_rate = _unit_arc_chord(theta)
+            end = origin + rotation @ (length * chord)
+            distal = s >= start + length
+            jacobian[distal, k] = (rotation @ (length * chord_rate - ybar * chord)
+                                   + np.cross(rotation[:, 1], position[distal] - end)
+                                   + ybar * frames[distal, :, 2])
+            inside = (s >= start) & ~distal
+            if inside.any():
+                rate = _arc_curvature_rate(s[inside] - start, self.notch_curvature[k])
+                jacobian[inside, k] = rate @ rotation.T * (g.notch_width / length**2)
+        return jacobian
+
     def _along(self, s) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Per arc length (checked to lie on the robot): its segment, and the offset and turn within it."""
         s = np.atleast_1d(np.asarray(s, dtype=float))
@@ -205,3 +231,23 @@ def _arc(length: np.ndarray, kappa: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     rotation[:, 2, 0] = -s
     rotation[:, 2, 2] = c
     return offset, rotation
+
+
+def _unit_arc_chord(theta: float) -> tuple[np.ndarray, np.ndarray]:
+    """The chord of an arc of unit length turning by theta towards local +x, (1 - cos) / theta and sin / theta,
+    and its derivative by theta (series near straight)."""
+    if abs(theta) < 1e-4:
+        return (np.array([theta / 2.0, 0.0, 1.0 - theta**2 / 6.0]),
+                np.array([0.5 - theta**2 / 8.0, 0.0, -theta / 3.0]))
+    c, s = math.cos(theta), math.sin(theta)
+    return (np.array([(1.0 - c) / theta, 0.0, s / theta]),
+            np.array([(theta * s - 1.0 + c) / theta**2, 0.0, (theta * c - s) / theta**2]))
+
+
+def _arc_curvature_rate(u: np.ndarray, kappa: float) -> np.ndarray:
+    """d offset / d kappa (N, 3) of points u along a constant-curvature arc bending towards local +x."""
+    if abs(kappa) * float(np.max(u)) < 1e-4:
+        return np.stack([u**2 / 2.0, np.zeros_like(u), -kappa * u**3 / 3.0], axis=1)
+    ku = kappa * u
+    return np.stack([(ku * np.sin(ku) - 1.0 + np.cos(ku)) / kappa**2, np.zeros_like(u),
+                     (ku * np.cos(ku) - np.sin(ku)) / kappa**2], axis=1)

@@ -150,3 +150,23 @@ def test_a_region_of_interest_that_no_longer_holds_the_robot_never_fails_a_frame
     print(f"\ntip after a region of interest beside the robot: {np.linalg.norm(again.tip - cold.tip) * 1e3:.3f} mm "
           "from the cold start's")
     assert np.linalg.norm(again.tip - cold.tip) < 0.02e-3
+
+
+def test_the_robots_own_model_fitted_places_the_axis(scene):
+    """relocation.model_fit: the robot's roll and bends fitted to the points (core.fit.robot_fit) place the axis the
+    notches, the tip and the relocation work about; the fit is kept for the next frame's warm start."""
+    name, config, shape, pair, _, free = scene
+    reconstructor = Reconstructor(replace(config, relocation=replace(config.relocation, model_fit=True)))
+    result = reconstructor.process(pair)
+    s = np.linspace(0.0, shape.length, 4000)
+    truth, _ = shape.centerline(s)
+    rmse = centerline_rmse(result.relocation.centerline.points, truth)
+    free_rmse = centerline_rmse(free.relocation.centerline.points, truth)
+    tip_error = np.linalg.norm(result.relocation.tip - shape.tip_pose()[0])
+    print(f"\n{name}: model fit centreline RMSE {rmse * 1e3:.3f} mm (free {free_rmse * 1e3:.3f}), tip error "
+          f"{tip_error * 1e3:.3f} mm, {len(result.relocation.notches)} notches")
+    assert rmse <= 0.03e-3 and tip_error <= 0.08e-3
+    assert len(result.relocation.notches) == config.robot.notch_count
+    assert reconstructor.relocator.fit is not None
+    reconstructor.relocator.reset()
+    assert reconstructor.relocator.fit is None

@@ -174,3 +174,21 @@ def test_from_mapping_round_trips_and_names_bad_keys():
         TubeGeometry.from_mapping({"notch_width": "wide"})
     with pytest.raises(ValueError, match="robot.base_position"):
         TubeGeometry.from_mapping({"base_position": [0.0, 1.0]})
+
+
+@pytest.mark.parametrize("bends_deg", [np.linspace(0.0, 9.0, 16), np.zeros(16), np.full(16, 3.0)])
+def test_centerline_jacobian_is_the_derivative_of_the_centreline_by_each_bend(bends_deg):
+    geometry = TubeGeometry(notch_side=0.7)
+    shape = TubeShape(geometry, np.radians(bends_deg))
+    s = np.linspace(0.0, shape.length - 1e-5, 1200)  # (the tip itself moves off the shortened robot)
+    jacobian = shape.centerline_jacobian(s)
+    step = 1e-6
+    for notch in (0, 7, 15):
+        bends = shape.notch_bend.copy()
+        bends[notch] += step
+        moved = TubeShape(geometry, bends)
+        numeric = (moved.centerline_points(s) - shape.centerline_points(s)) / step
+        # (forward differences: O(step))
+        np.testing.assert_allclose(jacobian[:, notch], numeric, atol=1e-4 * np.abs(numeric).max())
+    # nothing proximal of a notch moves with its bend
+    assert not np.any(jacobian[s < shape.notch_table()[7]["start_s"], 7])

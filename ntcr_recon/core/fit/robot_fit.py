@@ -1,0 +1,264 @@
+"""The robot's own model fitted to one frame (issue 61, part 2): its roll in the clamp and one bend per notch.
+
+The robot is known but for a handful of numbers (core.robot.kinematics): with its base where the rig file puts it,
+its shape is its roll about the base's axis (the side its notches open to) and each notch's bend. One robust
+least-squares problem (scipy.optimize.least_squares, Cauchy loss) fits them to what both cameras saw:
+
+- every depth point lies on the tube of the robot's outer radius as its camera sees it (the half facing it; core.
+  calibration.tube_distance), after its camera's depth bias is taken off along its line of sight: a matcher reads a
+  shiny wall too deep, a rig file's pose may be a little off along the view. With the base held where the rig file
+  puts it, the proximal tube fixes each camera's bias; two opposed cameras reading alike too deep see the tube
+  fatter, not moved;
+- the model's axis lies midway between the tube's limbs in each camera's colour image (the sharp measurement:
+  core.calibration.limb_rows), read about the model once the depth fit has it within a pixel.
+
+A change of a parameter moves the model's centreline; every residual is a distance along a known direction (the
+wall's normal, the direction across a view), so its Jacobian is that direction against the centreline's move at
+the residual's arc length (finite differences of the kinematics: one shape per parameter). The loss's scale
+narrows over rounds (SCALES_M), so a start some tenths of a millimetre off is pulled in before the wall's noise
+decides.
+
+    fit = fit_robot(points, camera, origins, geometry, views, guide)      # RobotFit; guide: the free centreline
+    fit = fit_robot(..., start=previous_fit)                              # warm start: the previous frame's
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from ntcr_recon.core.calibration.limb_rows import limb_rows
+from ntcr_recon.core.calibration.tube_distance import tube_distance
+from ntcr_recon.core.relocation.centerline import Centerline, base_pose
+from ntcr_recon.core.robot.geometry import TubeGeometry
+from ntcr_recon.core.robot.kinematics import TubeShape
+
+# The robust loss's scale per round (m): from a start's tenths of a millimetre to the wall's depth noise.
+SCALES_M = (5.0e-4, 1.5e-4, 1.0e-4)
+# The limbs are read from the round whose scale is this small on (the model then within a pixel or two).
+LIMBS_FROM_SCALE_M = 1.5e-4
+# A cold start: the rolls about the configured one it is started from (deg), and the samples of the freely fitted
+# centreline it is started on.
+START_ROLLS_DEG = (0.0, -90.0, 90.0, 180.0)
+GUIDE_SAMPLES = 100
+# Points the fit takes (an even sample): more add time, not accuracy.
+MAX_POINTS = 1500
+# A camera's limb stations count together as much as its points, each at most this many times one point.
+LIMB_WEIGHT_MAX = 3.0
+# What the parameters typically change by (the solver's scaling): roll, bends (rad), biases (m).
+ROLL_SCALE_RAD, BEND_SCALE_RAD, BIAS_SCALE_M = 0.05, 0.01, 1.0e-4
+# A camera's depth bias stays within this (m): a matcher reading a wall a millimetre off is not reading it.
+MAX_BIAS_M = 1.0e-3
+# How far beside a notch's opening the wall is not counted (m): about two pixels at 90 mm.
+CUT_MARGIN_M = 0.4e-3
+# Evaluations per round (a cold start's, a warm start's).
+MAX_EVALUATIONS = 40
+WARM_EVALUATIONS = 8
+
+
+@dataclass(frozen=True)
+class RobotFit:
+    """The fitted robot: its shape (roll and bends), each camera's depth bias (m, + read too deep), each
+    camera's robust RMS off the fitted tube (mm) and its limb stations, and the robust cost reached."""
+
+    shape: TubeShape
+    roll: float
+    bias: np.ndarray            # per camera index
+    residual_mm: dict[int, float]
+    limb_stations: dict[int, int]
+    parameters: np.ndarray      # roll, bends, biases
+
+
+class _Problem:
+    """Residuals and Jacobian over x = [roll, bend per notch, depth bias per camera]."""
+
+    def __init__(self, points: np.ndarray, camera: np.ndarray, origins: np.ndarray, geometry: TubeGeometry):
+        self.points, self.camera, self.origins, self.geometry = points, camera, origins, geometry
+        sight = points - origins[camera]
+        self.rays = sight / np.linalg.norm(sight, axis=1)[:, None]
+        self.notches = geometry.notch_count
+        self.outlier = 3 * SCALES_M[0]
+        self.limbs: list[tuple[int, np.ndarray, np.ndarray, np.ndarray, float]] = []  # camera, s, middles, across, w
+        self.counted = np.ones(len(points), bool)  # the depth points the fit rests on (clear_of_cuts)
+        self.ignored = np.zeros(len(points), bool)  # past the base or beside a cut, as last evaluated
+        self._cache: tuple[bytes, tuple] | None = None
+
+    @property
+    def size(self) -> int:
+        return self.notches + 1 + len(self.origins)
+
+    def shape(self, x: np.ndarray) -> TubeShape:
+        geometry = replace(self.geometry, notch_side=math.remainder(float(x[0]), 2 * math.pi))
+        return TubeShape(geometry, np.clip(x[1:1 + self.notches], 0.0, geometry.max_notch_bend))
+
+    def _evaluate(self, x: np.ndarray) -> tuple:
+        """Residuals, their directions, their arc lengths, which are depth rows, and the shape."""
+        key = x.tobytes()
+        if self._cache is not None and self._cache[0] == key:
+            return self._cache[1]
+        shape = self.shape(x)
+        corrected = self.points - x[1 + self.notches:][self.camera, None] * self.rays
+        # each point seen from its own camera (the half of the tube facing it)
+        measured = tube_distance(shape, corrected, self.origins[self.camera])
+        # a wall seen edge-on is where a matcher fattens the silhouette: each point counts as its wall faces its
+        # camera (the limbs place the axis across the view)
+        facing = np.abs(np.einsum("ij,ij->i", measured.direction, self.rays))
+        # past the base plane (the clamp or its post) or beside a cut: as far off as the loss's tail, whatever the
+        # shape
+        self.ignored = measured.below_base | ~self.counted
+        distance = np.where(self.ignored, self.outlier, measured.distance * facing)
+        direction = np.where(self.ignored[:, None], 0.0, measured.direction * facing[:, None])
+        foot = measured.foot_s
+        parts = [(distance, direction, foot)]
+        for _, s, middles, across, weight in self.limbs:
+            s = np.minimum(s, shape.length)
+            gap = np.einsum("ij,ij->i", across, middles - shape.centerline_points(s)) * weight
+            parts.append((gap, across * weight, s))
+        result = (np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]),
+                  np.concatenate([p[2] for p in parts]), len(corrected), shape)
+        self._cache = (key, result)
+        return result
+
+    def residuals(self, x: np.ndarray) -> np.ndarray:
+        return self._evaluate(x)[0]
+
+    def jacobian(self, x: np.ndarray) -> np.ndarray:
+        _, direction, foot, depth_rows, shape = self._evaluate(x)
+        jac = np.zeros((len(foot), self.size))
+        # the roll turns the robot about its base's axis; a bend moves what lies past its notch (kinematics)
+        axis = self.geometry.base_rotation[:, 2]
+        at = shape.centerline_points(np.minimum(foot, shape.length))
+        jac[:, 0] = -np.einsum("ij,ij->i", direction, np.cross(axis, at - np.asarray(self.geometry.base_position)))
+        jac[:, 1:1 + self.notches] = -np.einsum("ij,ikj->ik", direction, shape.centerline_jacobian(foot))
+        along = -np.einsum("ij,ij->i", direction[:depth_rows], self.rays)
+        for c in range(len(self.origins)):
+            jac[:depth_rows, 1 + self.notches + c] = np.where(self.camera == c, along, 0.0)
+        return jac
+
+    def clear_of_cuts(self, x: np.ndarray, margin: float) -> None:
+        """Count only the depth points clear of the notches' openings as x poses the robot (grown by `margin`
+        along the tube and round it): a matcher's window reaching into a slot reads the wall beside it deep, in a
+        pattern along the tube the bends would follow."""
+        shape = self.shape(x)
+        corrected = self.points - x[1 + self.notches:][self.camera, None] * self.rays
+        s = tube_distance(shape, corrected).foot_s
+        position, frames = shape.centerline(s)
+        offset = corrected - position
+        angle = np.arctan2(np.einsum("ij,ij->i", offset, frames[:, :, 1]),
+                           np.einsum("ij,ij->i", offset, frames[:, :, 0]))
+        table = shape.notch_table()
+        starts = np.array([n["start_s"] for n in table]) - margin
+        ends = np.array([n["end_s"] for n in table]) + margin
+        index = np.searchsorted(starts, s, side="right") - 1
+        near_cut = (index >= 0) & (s <= ends[np.maximum(index, 0)])
+        opening = np.abs(angle) < self.geometry.gap_half_angle + margin / self.geometry.outer_radius
+        self.counted = ~(near_cut & opening)
+        self._cache = None
+
+    def read_limbs(self, x: np.ndarray, views: dict[int, object]) -> None:
+        """Every camera's limbs about the robot as x poses it (core.calibration.limb_rows), in the base frame, each
+        camera's stations weighted to count together as much as its points (at most LIMB_WEIGHT_MAX each)."""
+        self.limbs = []
+        shape = self.shape(x)
+        for c, view in views.items():
+            rows = limb_rows(0, c, shape, view.color, view.intrinsics, view.extrinsic)
+            points = int(np.sum(self.camera == c))
+            if rows is None or not points:
+                continue
+            rotation, origin = view.extrinsic[:3, :3], view.extrinsic[:3, 3]
+            weight = min(math.sqrt(points / len(rows.s)), LIMB_WEIGHT_MAX)
+            self.limbs.append((c, rows.s, rows.points @ rotation.T + origin, rows.across @ rotation.T, weight))
+        self._cache = None
+
+
+def _start_from(guide: Centerline, problem: _Problem, roll: float) -> np.ndarray:
+    """The roll and bends whose centreline lies nearest a freely fitted one (`guide`, core.relocation.centerline_fit:
+    robust to where the model would start far off), started from rolls about the configured one (START_ROLLS_DEG);
+    no depth biases."""
+    geometry = problem.geometry
+    s = np.linspace(0.0, min(guide.length, geometry.length), GUIDE_SAMPLES)
+    target = guide.frames_at(s)[0]
+    axis, base = geometry.base_rotation[:, 2], np.asarray(geometry.base_position, float)
+
+    def residuals(x: np.ndarray) -> np.ndarray:
+        shape = problem.shape(x)
+        return (shape.centerline_points(np.minimum(s, shape.length)) - target).ravel()
+
+    def jacobian(x: np.ndarray) -> np.ndarray:
+        shape = problem.shape(x)
+        at = np.minimum(s, shape.length)
+        turn = np.cross(axis, shape.centerline_points(at) - base)
+        return np.concatenate([turn[:, None, :], shape.centerline_jacobian(at)], axis=1).transpose(0, 2, 1).reshape(
+            3 * len(s), -1)
+
+    upper = np.full(problem.notches, geometry.max_notch_bend)
+    best = None
+    for turn in np.radians(START_ROLLS_DEG):
+        start = np.concatenate([[roll + turn], upper * 0.1])
+        solved = least_squares(residuals, start, jac=jacobian, bounds=(np.concatenate([[-np.inf], upper * 0]),
+                                                                       np.concatenate([[np.inf], upper])))
+        if best is None or solved.cost < best.cost:
+            best = solved
+    return np.concatenate([best.x, np.zeros(len(problem.origins))])
+
+
+def fit_robot(points: np.ndarray, camera: np.ndarray, origins: np.ndarray, geometry: TubeGeometry,
+              views: dict[int, object], guide: Centerline, start: RobotFit | None = None,
+              rng: np.random.Generator | None = None) -> RobotFit:
+    """The robot's roll, bends and each camera's depth bias fitted to its points (N, 3, base frame; each
+    seen by camera index `camera` from `origins` (C, 3)) and to its limbs in `views` (camera index ->
+    core.relocation.limbs.CameraView). guide: the centreline fitted freely to the same points (the cold start's);
+    start: a previous frame's fit (its roll and bends are the start, the guide unused)."""
+    rng = np.random.default_rng(0) if rng is None else rng
+    if len(points) > MAX_POINTS:
+        keep = np.sort(rng.choice(len(points), MAX_POINTS, replace=False))
+        points, camera = points[keep], camera[keep]
+    problem = _Problem(points, camera, origins, geometry)
+    roll = geometry.notch_side
+    x = start.parameters.copy() if start is not None else _start_from(guide, problem, roll)
+    # the roll within half a turn of its start (a straight robot leaves it free: it stays where it started)
+    cameras = len(origins)
+    lower = np.concatenate([[x[0] - math.pi], np.zeros(problem.notches), np.full(cameras, -MAX_BIAS_M)])
+    upper = np.concatenate([[x[0] + math.pi], np.full(problem.notches, geometry.max_notch_bend),
+                            np.full(cameras, MAX_BIAS_M)])
+    typical = np.concatenate([[ROLL_SCALE_RAD], np.full(problem.notches, BEND_SCALE_RAD),
+                              np.full(cameras, BIAS_SCALE_M)])
+    # a warm start is near: each round converges in a few evaluations (a robot that moved a millimetre since needs
+    # the wide scales still)
+    evaluations = MAX_EVALUATIONS if start is None else WARM_EVALUATIONS
+    for scale in SCALES_M:
+        problem.outlier = 3 * scale
+        problem.clear_of_cuts(x, CUT_MARGIN_M)
+        if scale <= LIMBS_FROM_SCALE_M and views:
+            problem.read_limbs(x, views)
+        solved = least_squares(problem.residuals, np.clip(x, lower, upper), jac=problem.jacobian,
+                               bounds=(lower, upper), loss="cauchy", f_scale=scale, x_scale=typical,
+                               max_nfev=evaluations)
+        x = solved.x
+    if views:
+        problem.read_limbs(x, views)
+    residuals = problem.residuals(x)[:len(points)]
+    residual_mm = {}
+    for c in range(len(origins)):
+        mine = residuals[(camera == c) & ~problem.ignored]
+        inside = mine[np.abs(mine) <= 3 * SCALES_M[-1]]
+        residual_mm[c] = float(np.sqrt(np.mean(inside**2)) * 1e3) if len(inside) else math.nan
+    stations = {c: len(s) for c, s, *_ in problem.limbs}
+    return RobotFit(problem.shape(x), math.remainder(float(x[0]), 2 * math.pi), x[1 + problem.notches:].copy(),
+                    residual_mm, stations, x.copy())
+
+
+def model_axis(fit: RobotFit, configured: TubeGeometry, step: float) -> Centerline:
+    """The fitted robot's centreline as the relocation's axis: samples `step` apart from the base to the robot's
+    reach (core.robot.geometry.reach; past the tip it runs straight on, where the end is looked for), its frames
+    untwisted about the configured robot's bend plane as the freely fitted centreline's are (the side the notches
+    open to is measured against them)."""
+    geometry = fit.shape.geometry
+    on_robot = np.arange(0.0, fit.shape.length, step / 4)
+    points, frames = fit.shape.centerline(np.append(on_robot, fit.shape.length))
+    beyond = np.arange(step / 4, geometry.reach - fit.shape.length + step, step / 4)
+    points = np.concatenate([points, points[-1] + beyond[:, None] * frames[-1, :, 2]])
+    return Centerline.from_points(points, base_pose(configured)[2], step)
