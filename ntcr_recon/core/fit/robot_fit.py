@@ -5,10 +5,10 @@ its shape is its roll about the base's axis (the side its notches open to) and e
 least-squares problem (scipy.optimize.least_squares, Cauchy loss) fits them to what both cameras saw:
 
 - every depth point lies on the tube of the robot's outer radius as its camera sees it (the half facing it; core.
-  calibration.tube_distance), after its camera's depth bias is taken off along its line of sight: a matcher reads a
-  shiny wall too deep, a rig file's pose may be a little off along the view. With the base held where the rig file
-  puts it, the proximal tube fixes each camera's bias; two opposed cameras reading alike too deep see the tube
-  fatter, not moved;
+  calibration.tube_distance), after a depth bias common to both cameras is taken off along its line of sight: two
+  opposed cameras reading a shiny wall alike too deep see the tube fatter, not moved, and the bias is what the
+  tube's known radius makes of that (a bias per camera was tried: with the base held, it traded with the bends
+  along the views, and the matrix's centreline got worse on more rows than it got better);
 - the model's axis lies midway between the tube's limbs in each camera's colour image (the sharp measurement:
   core.calibration.limb_rows), read about the model once the depth fit has it within a pixel.
 
@@ -48,9 +48,9 @@ GUIDE_SAMPLES = 100
 MAX_POINTS = 1500
 # A camera's limb stations count together as much as its points, each at most this many times one point.
 LIMB_WEIGHT_MAX = 3.0
-# What the parameters typically change by (the solver's scaling): roll, bends (rad), biases (m).
+# What the parameters typically change by (the solver's scaling): roll, bends (rad), bias (m).
 ROLL_SCALE_RAD, BEND_SCALE_RAD, BIAS_SCALE_M = 0.05, 0.01, 1.0e-4
-# A camera's depth bias stays within this (m): a matcher reading a wall a millimetre off is not reading it.
+# The common depth bias stays within this (m): a matcher reading a wall a millimetre off is not reading it.
 MAX_BIAS_M = 1.0e-3
 # How far beside a notch's opening the wall is not counted (m): about two pixels at 90 mm.
 CUT_MARGIN_M = 0.4e-3
@@ -61,19 +61,19 @@ WARM_EVALUATIONS = 8
 
 @dataclass(frozen=True)
 class RobotFit:
-    """The fitted robot: its shape (roll and bends), each camera's depth bias (m, + read too deep), each
+    """The fitted robot: its shape (roll and bends), the depth bias both cameras share (m, + read too deep), each
     camera's robust RMS off the fitted tube (mm) and its limb stations, and the robust cost reached."""
 
     shape: TubeShape
     roll: float
-    bias: np.ndarray            # per camera index
+    bias: float
     residual_mm: dict[int, float]
     limb_stations: dict[int, int]
-    parameters: np.ndarray      # roll, bends, biases
+    parameters: np.ndarray      # roll, bends, bias
 
 
 class _Problem:
-    """Residuals and Jacobian over x = [roll, bend per notch, depth bias per camera]."""
+    """Residuals and Jacobian over x = [roll, bend per notch, common depth bias]."""
 
     def __init__(self, points: np.ndarray, camera: np.ndarray, origins: np.ndarray, geometry: TubeGeometry):
         self.points, self.camera, self.origins, self.geometry = points, camera, origins, geometry
@@ -88,7 +88,7 @@ class _Problem:
 
     @property
     def size(self) -> int:
-        return self.notches + 1 + len(self.origins)
+        return self.notches + 2
 
     def shape(self, x: np.ndarray) -> TubeShape:
         geometry = replace(self.geometry, notch_side=math.remainder(float(x[0]), 2 * math.pi))
@@ -100,7 +100,7 @@ class _Problem:
         if self._cache is not None and self._cache[0] == key:
             return self._cache[1]
         shape = self.shape(x)
-        corrected = self.points - x[1 + self.notches:][self.camera, None] * self.rays
+        corrected = self.points - x[-1] * self.rays
         # each point seen from its own camera (the half of the tube facing it)
         measured = tube_distance(shape, corrected, self.origins[self.camera])
         # a wall seen edge-on is where a matcher fattens the silhouette: each point counts as its wall faces its
@@ -133,9 +133,7 @@ class _Problem:
         at = shape.centerline_points(np.minimum(foot, shape.length))
         jac[:, 0] = -np.einsum("ij,ij->i", direction, np.cross(axis, at - np.asarray(self.geometry.base_position)))
         jac[:, 1:1 + self.notches] = -np.einsum("ij,ikj->ik", direction, shape.centerline_jacobian(foot))
-        along = -np.einsum("ij,ij->i", direction[:depth_rows], self.rays)
-        for c in range(len(self.origins)):
-            jac[:depth_rows, 1 + self.notches + c] = np.where(self.camera == c, along, 0.0)
+        jac[:depth_rows, -1] = -np.einsum("ij,ij->i", direction[:depth_rows], self.rays)
         return jac
 
     def clear_of_cuts(self, x: np.ndarray, margin: float) -> None:
@@ -143,7 +141,7 @@ class _Problem:
         along the tube and round it): a matcher's window reaching into a slot reads the wall beside it deep, in a
         pattern along the tube the bends would follow."""
         shape = self.shape(x)
-        corrected = self.points - x[1 + self.notches:][self.camera, None] * self.rays
+        corrected = self.points - x[-1] * self.rays
         s = tube_distance(shape, corrected).foot_s
         position, frames = shape.centerline(s)
         offset = corrected - position
@@ -177,18 +175,18 @@ class _Problem:
 def _start_from(guide: Centerline, problem: _Problem, roll: float) -> np.ndarray:
     """The roll and bends whose centreline lies nearest a freely fitted one (`guide`, core.relocation.centerline_fit:
     robust to where the model would start far off), started from rolls about the configured one (START_ROLLS_DEG);
-    no depth biases."""
+    no depth bias."""
     geometry = problem.geometry
     s = np.linspace(0.0, min(guide.length, geometry.length), GUIDE_SAMPLES)
     target = guide.frames_at(s)[0]
     axis, base = geometry.base_rotation[:, 2], np.asarray(geometry.base_position, float)
 
     def residuals(x: np.ndarray) -> np.ndarray:
-        shape = problem.shape(x)
+        shape = problem.shape(np.append(x, 0.0))
         return (shape.centerline_points(np.minimum(s, shape.length)) - target).ravel()
 
     def jacobian(x: np.ndarray) -> np.ndarray:
-        shape = problem.shape(x)
+        shape = problem.shape(np.append(x, 0.0))
         at = np.minimum(s, shape.length)
         turn = np.cross(axis, shape.centerline_points(at) - base)
         return np.concatenate([turn[:, None, :], shape.centerline_jacobian(at)], axis=1).transpose(0, 2, 1).reshape(
@@ -202,13 +200,13 @@ def _start_from(guide: Centerline, problem: _Problem, roll: float) -> np.ndarray
                                                                        np.concatenate([[np.inf], upper])))
         if best is None or solved.cost < best.cost:
             best = solved
-    return np.concatenate([best.x, np.zeros(len(problem.origins))])
+    return np.append(best.x, 0.0)
 
 
 def fit_robot(points: np.ndarray, camera: np.ndarray, origins: np.ndarray, geometry: TubeGeometry,
               views: dict[int, object], guide: Centerline, start: RobotFit | None = None,
               rng: np.random.Generator | None = None) -> RobotFit:
-    """The robot's roll, bends and each camera's depth bias fitted to its points (N, 3, base frame; each
+    """The robot's roll, bends and the cameras' common depth bias fitted to its points (N, 3, base frame; each
     seen by camera index `camera` from `origins` (C, 3)) and to its limbs in `views` (camera index ->
     core.relocation.limbs.CameraView). guide: the centreline fitted freely to the same points (the cold start's);
     start: a previous frame's fit (its roll and bends are the start, the guide unused)."""
@@ -220,12 +218,9 @@ def fit_robot(points: np.ndarray, camera: np.ndarray, origins: np.ndarray, geome
     roll = geometry.notch_side
     x = start.parameters.copy() if start is not None else _start_from(guide, problem, roll)
     # the roll within half a turn of its start (a straight robot leaves it free: it stays where it started)
-    cameras = len(origins)
-    lower = np.concatenate([[x[0] - math.pi], np.zeros(problem.notches), np.full(cameras, -MAX_BIAS_M)])
-    upper = np.concatenate([[x[0] + math.pi], np.full(problem.notches, geometry.max_notch_bend),
-                            np.full(cameras, MAX_BIAS_M)])
-    typical = np.concatenate([[ROLL_SCALE_RAD], np.full(problem.notches, BEND_SCALE_RAD),
-                              np.full(cameras, BIAS_SCALE_M)])
+    lower = np.concatenate([[x[0] - math.pi], np.zeros(problem.notches), [-MAX_BIAS_M]])
+    upper = np.concatenate([[x[0] + math.pi], np.full(problem.notches, geometry.max_notch_bend), [MAX_BIAS_M]])
+    typical = np.concatenate([[ROLL_SCALE_RAD], np.full(problem.notches, BEND_SCALE_RAD), [BIAS_SCALE_M]])
     # a warm start is near: each round converges in a few evaluations (a robot that moved a millimetre since needs
     # the wide scales still)
     evaluations = MAX_EVALUATIONS if start is None else WARM_EVALUATIONS
@@ -247,8 +242,8 @@ def fit_robot(points: np.ndarray, camera: np.ndarray, origins: np.ndarray, geome
         inside = mine[np.abs(mine) <= 3 * SCALES_M[-1]]
         residual_mm[c] = float(np.sqrt(np.mean(inside**2)) * 1e3) if len(inside) else math.nan
     stations = {c: len(s) for c, s, *_ in problem.limbs}
-    return RobotFit(problem.shape(x), math.remainder(float(x[0]), 2 * math.pi), x[1 + problem.notches:].copy(),
-                    residual_mm, stations, x.copy())
+    return RobotFit(problem.shape(x), math.remainder(float(x[0]), 2 * math.pi), float(x[-1]), residual_mm, stations,
+                    x.copy())
 
 
 def model_axis(fit: RobotFit, configured: TubeGeometry, step: float) -> Centerline:

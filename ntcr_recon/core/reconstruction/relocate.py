@@ -174,8 +174,8 @@ class Relocator:
         fitted = Axis(centerline, coords, frames)
         # 2. alignment: the reference tube shifted onto the wall points stereo measures without bias; each point
         # then as its camera saw it, along its viewing ray onto the wall (relocation.alignment, relocation.reference)
-        aligned = align(scene, fitted, self._model(cloud, settings, fitted.centerline, warm_start)
-                        if seen_by is not None else None)
+        model = self._model(cloud, settings, fitted.centerline, warm_start) if seen_by is not None else None
+        aligned = align(scene, fitted, model)
         axis = aligned.axis
         # 3. tip, coarse: where the wall stops, over the sectors the cameras can see (core.relocation.tip)
         coarse_end = tube_end(axis.measured, geometry.outer_radius, settings.gate, settings.cell,
@@ -202,7 +202,8 @@ class Relocator:
         # 5'. tip along the tube: the robot's own length at the bend measured weighed in (core.relocation.tip)
         length = tip_by_length(scene, axis.centerline, end, thinning.off, comb_centres, notches)
         centerline, along = length.centerline, length.along
-        tip_s = along.s
+        # with the robot's own model fitted, its tip: the robot's known length at the bends measured
+        tip_s = along.s if model is None else self.fit.shape.length
         # the rims the matcher moves (over the cut faces the cameras see), against the spines' known length; a
         # notch whose width its bend rules out was misread, and is given its bend's
         notches, misread, unchecked = calibrate_and_check(notches, geometry, centerline,
