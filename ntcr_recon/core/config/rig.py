@@ -24,8 +24,7 @@ size of one depth pixel on the robot, measured from the data).
     load_robot_geometry(path) -> TubeGeometry     # a robot description file, or a rig file's robot section
     flatten_parameters(RigConfig | dict) -> dict  # dotted names -> value, for nodes to declare (config.parameters)
     unflatten_parameters(dict) -> dict            # the inverse, for nodes that read declared parameters
-    rig_parameter_keys(camera_names) -> dict      # dotted name -> schema Key, for the nodes' descriptors
-                                                  # (config.parameters)
+    rig_parameter_keys(camera_names) -> dict      # dotted name -> schema Key, the nodes' descriptors (parameters)
 """
 
 from __future__ import annotations
@@ -154,9 +153,8 @@ class FilterConfig:
 
 @dataclass(frozen=True)
 class RelocationConfig:
-    """Reference-guided relocation; lengths relative to the outer radius r_o or to the pixel footprint.
-    gate = gate_radius_fraction r_o + gate_pixels footprints: a point this close to the reference surface is
-    relocated onto it, a farther one rejected."""
+    """Reference-guided relocation; lengths relative to the outer radius r_o or to the pixel footprint. gate =
+    gate_radius_fraction r_o + gate_pixels footprints: a point this close to the reference surface is relocated."""
 
     method: str = setting("centerline", "how observed points reach the reference surface: centerline (the "
                           "tube's own coordinates, each point along its viewing ray onto the wall) or icp (the "
@@ -167,9 +165,8 @@ class RelocationConfig:
     limbs: bool = setting(True, "place the axis across each camera's view by the tube's limbs in its colour image "
                           "(core.relocation.limbs; camera_node then publishes the colour about the robot, and "
                           "relocation_node waits for it); false: by depth alone")
-    model_fit: bool = setting(False, "fit the robot's own model (its roll in the clamp and one bend per notch: "
-                              "core.fit.robot_fit) to the points and the limbs, and relocate about its axis; false: "
-                              "about the centreline fitted freely")
+    model_fit: bool = setting(False, "fit the robot's own model (its roll and a bend per notch: core.fit.robot_fit) "
+                              "to the points and limbs, and relocate about its axis; false: the free centreline's")
     gate_radius_fraction: float = setting(0.35, "gate, in outer radii", minimum=0.0, maximum=10.0,
                                           exclusive_minimum=True)
     gate_pixels: float = setting(2.0, "gate, in pixel footprints (added)", unit="px", minimum=0.0, maximum=100.0)

@@ -57,6 +57,9 @@ CUT_MARGIN_M = 0.4e-3
 # Evaluations per round (a cold start's, a warm start's).
 MAX_EVALUATIONS = 40
 WARM_EVALUATIONS = 8
+# A warm start whose points lie no farther off the last frame's fit than this many times its loss found them:
+# the robot is still.
+STILL_LOSS_RATIO = 1.3
 
 
 @dataclass(frozen=True)
@@ -70,6 +73,16 @@ class RobotFit:
     residual_mm: dict[int, float]
     limb_stations: dict[int, int]
     parameters: np.ndarray      # roll, bends, bias
+    loss_per_point: float       # the mean robust loss of the depth points at the last scale (_loss_per_point)
+
+    def figures(self, camera_names: tuple[str, ...]) -> dict:
+        """What the fit found, as plain numbers (the result's quality.model_fit): roll (deg), bends (deg), the
+        depth bias (mm), and per camera the robust RMS off the fitted tube (mm) and the limb stations read."""
+        return {"roll_deg": round(math.degrees(self.roll), 3),
+                "bends_deg": [round(float(v), 4) for v in np.degrees(self.shape.notch_bend)],
+                "depth_bias_mm": round(self.bias * 1e3, 4),
+                "residual_mm": {camera_names[c]: round(v, 4) for c, v in self.residual_mm.items() if math.isfinite(v)},
+                "limb_stations": {camera_names[c]: n for c, n in self.limb_stations.items()}}
 
 
 class _Problem:
@@ -221,10 +234,14 @@ def fit_robot(points: np.ndarray, camera: np.ndarray, origins: np.ndarray, geome
     lower = np.concatenate([[x[0] - math.pi], np.zeros(problem.notches), [-MAX_BIAS_M]])
     upper = np.concatenate([[x[0] + math.pi], np.full(problem.notches, geometry.max_notch_bend), [MAX_BIAS_M]])
     typical = np.concatenate([[ROLL_SCALE_RAD], np.full(problem.notches, BEND_SCALE_RAD), [BIAS_SCALE_M]])
-    # a warm start is near: each round converges in a few evaluations (a robot that moved a millimetre since needs
-    # the wide scales still)
-    evaluations = MAX_EVALUATIONS if start is None else WARM_EVALUATIONS
-    for scale in SCALES_M:
+    # a warm start is near: each round converges in a few evaluations; one where the robot still lies as the last
+    # frame's fit left it (its points as far off as they were then) needs the last round only, a robot that moved
+    # a millimetre since the wide scales still
+    scales, evaluations = SCALES_M, MAX_EVALUATIONS
+    if start is not None:
+        still = _loss_per_point(problem, x) <= STILL_LOSS_RATIO * start.loss_per_point
+        scales, evaluations = (SCALES_M[-1:] if still else SCALES_M), WARM_EVALUATIONS
+    for scale in scales:
         problem.outlier = 3 * scale
         problem.clear_of_cuts(x, CUT_MARGIN_M)
         if scale <= LIMBS_FROM_SCALE_M and views:
@@ -233,8 +250,7 @@ def fit_robot(points: np.ndarray, camera: np.ndarray, origins: np.ndarray, geome
                                bounds=(lower, upper), loss="cauchy", f_scale=scale, x_scale=typical,
                                max_nfev=evaluations)
         x = solved.x
-    if views:
-        problem.read_limbs(x, views)
+    loss = _loss_per_point(problem, x)
     residuals = problem.residuals(x)[:len(points)]
     residual_mm = {}
     for c in range(len(origins)):
@@ -243,7 +259,16 @@ def fit_robot(points: np.ndarray, camera: np.ndarray, origins: np.ndarray, geome
         residual_mm[c] = float(np.sqrt(np.mean(inside**2)) * 1e3) if len(inside) else math.nan
     stations = {c: len(s) for c, s, *_ in problem.limbs}
     return RobotFit(problem.shape(x), math.remainder(float(x[0]), 2 * math.pi), float(x[-1]), residual_mm, stations,
-                    x.copy())
+                    x.copy(), loss)
+
+
+def _loss_per_point(problem: _Problem, x: np.ndarray) -> float:
+    """The mean Cauchy loss at the last round's scale of the depth points the fit counts about the robot as x
+    poses it (the walls beside the slots as x places them)."""
+    problem.outlier = 3 * SCALES_M[-1]
+    problem.clear_of_cuts(x, CUT_MARGIN_M)
+    residuals = problem.residuals(x)[:len(problem.points)][~problem.ignored]
+    return float(np.mean(np.log1p((residuals / SCALES_M[-1]) ** 2))) if len(residuals) else math.inf
 
 
 def model_axis(fit: RobotFit, configured: TubeGeometry, step: float) -> Centerline:

@@ -216,6 +216,8 @@ class Relocator:
         quality, warnings = assess(scene, aligned, sided, end, length, notches=notches, tip=tip, thinning=thinning,
                                    misread=misread, unchecked=unchecked, comb_centres=comb_centres,
                                    reference_moved=reference_moved)
+        if model is not None:
+            quality = {**quality, "model_fit": self.fit.figures(self.config.camera_names)}
         # the next frame warm-starts from the fit's own fixed point, not from the aligned curve (else each call
         # would shift the curve once more, and results would depend on what came before)
         self.prior = fitted.centerline

@@ -71,6 +71,10 @@ def test_a_warm_start_stays_where_the_robot_is_and_follows_it(truth, origins):
     warm = _fit(moved, rng, origins, start=cold)
     assert _centerline_error(warm, moved) < 15e-6
     assert _centerline_error(cold, moved) > 3 * _centerline_error(warm, moved)
+    # the next frame: the robot still (only the last round runs), its points as far off the fit as before
+    still = _fit(moved, rng, origins, start=warm)
+    assert _centerline_error(still, moved) < 15e-6
+    assert still.loss_per_point < 1.3 * warm.loss_per_point
 
 
 def test_the_model_axis_runs_from_the_base_past_the_tip_to_the_robots_reach(truth, origins):

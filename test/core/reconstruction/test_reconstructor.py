@@ -167,6 +167,10 @@ def test_the_robots_own_model_fitted_places_the_axis(scene):
           f"{tip_error * 1e3:.3f} mm, {len(result.relocation.notches)} notches")
     assert rmse <= 0.03e-3 and tip_error <= 0.08e-3
     assert len(result.relocation.notches) == config.robot.notch_count
-    assert reconstructor.relocator.fit is not None
+    figures = result.relocation.quality["model_fit"]
+    assert len(figures["bends_deg"]) == config.robot.notch_count and set(figures["residual_mm"]) <= set(
+        config.camera_names)
+    assert abs(np.sum(figures["bends_deg"]) - np.degrees(np.sum(shape.notch_bend))) < 2.0
+    assert "model_fit" not in free.relocation.quality
     reconstructor.relocator.reset()
     assert reconstructor.relocator.fit is None
