@@ -14,9 +14,10 @@ least-squares problem (scipy.optimize.least_squares, Cauchy loss) fits them to w
 
 A change of a parameter moves the model's centreline; every residual is a distance along a known direction (the
 wall's normal, the direction across a view), so its Jacobian is that direction against the centreline's move at
-the residual's arc length (finite differences of the kinematics: one shape per parameter). The loss's scale
+the residual's arc length (core.robot.kinematics.TubeShape.centerline_jacobian, analytic). The loss's scale
 narrows over rounds (SCALES_M), so a start some tenths of a millimetre off is pulled in before the wall's noise
-decides.
+decides. A cold start is the model nearest the centreline fitted freely to the same points (robust where the model
+started far off would settle on a wrong roll); a warm start, the previous frame's fit.
 
     fit = fit_robot(points, camera, origins, geometry, views, guide)      # RobotFit; guide: the free centreline
     fit = fit_robot(..., start=previous_fit)                              # warm start: the previous frame's
@@ -65,7 +66,7 @@ STILL_LOSS_RATIO = 1.3
 @dataclass(frozen=True)
 class RobotFit:
     """The fitted robot: its shape (roll and bends), the depth bias both cameras share (m, + read too deep), each
-    camera's robust RMS off the fitted tube (mm) and its limb stations, and the robust cost reached."""
+    camera's robust RMS off the fitted tube (mm) and its limb stations, and the robust loss reached."""
 
     shape: TubeShape
     roll: float
