@@ -42,6 +42,9 @@ def build_parser() -> tuple[argparse.ArgumentParser, dict[str, argparse.Argument
 
 
 INTERRUPTED = 130  # 128 + SIGINT, as a shell reports a command Ctrl-C ended
+# Set once Ctrl-C came: the interrupt thread ends the process. What the main thread meets meanwhile (its staging
+# directory removed under it: a file not found) is neither reported nor its exit status (main holds it).
+INTERRUPTING = threading.Event()
 
 
 def exit_on_interrupt(command: str) -> None:
@@ -53,6 +56,8 @@ def exit_on_interrupt(command: str) -> None:
 
     def wait() -> None:
         signal.sigwait({signal.SIGINT})
+        sys.stderr = open(os.devnull, "w")  # noqa: SIM115 - the process ends here; this thread writes to fd 2
+        INTERRUPTING.set()
         SWAP_LOCK.acquire()  # never released: the process ends here
         remove_active_staging()  # what this run had written so far; --out keeps what it held
         os.write(2, f"\nntcr-recon {command}: interrupted\n".encode())
@@ -76,6 +81,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:  # one that came before the handling above was in place
         print(f"ntcr-recon {chosen}: interrupted", file=sys.stderr)
         return INTERRUPTED
+    finally:
+        if INTERRUPTING.is_set():  # the interrupt thread ends the process with 130; no other status may
+            threading.Event().wait()
 
 
 def _main(argv: list[str]) -> int:

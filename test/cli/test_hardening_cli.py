@@ -172,3 +172,22 @@ def test_ctrl_c_during_reconstruct_is_one_line_and_exit_130_whenever_it_comes(tm
         assert (out / "result.json").read_text() == "previous" and leftovers(tmp_path) == []
         interrupted += 1
     assert interrupted >= 4
+
+
+def test_ctrl_c_while_the_command_meets_an_error_still_ends_with_one_line_and_130():
+    # CI: Ctrl-C as the outputs were written; the interrupt thread removed the staging directory, the main thread
+    # met a file not found there, reported it and exited 2 before the interrupt thread ended the process
+    probe = (
+        "import os, signal, sys\n"
+        "from ntcr_recon import cli\n"
+        "def failing(argv):\n"
+        "    os.kill(os.getpid(), signal.SIGINT)\n"
+        "    assert cli.INTERRUPTING.wait(10)\n"
+        "    print('ntcr-recon reconstruct: --out x: could not write: No such file or directory', file=sys.stderr)\n"
+        "    return 2\n"
+        "cli._main = failing\n"
+        "sys.argv = ['ntcr-recon', 'reconstruct', 'x']\n"
+        "sys.exit(cli.main())\n")
+    result = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 130, result.stderr
+    assert result.stderr.strip().splitlines() == ["ntcr-recon reconstruct: interrupted"]

@@ -143,25 +143,29 @@ class TubeShape:
 
         A notch's bend turns everything distal of it about its bend axis through the notch's end, moves that end
         along its arc, and shortens the arc by ybar per radian (so at a fixed s the point lies further along the
-        chain); within the notch only the arc's curvature changes (dkappa/dtheta = h / L^2)."""
+        chain); within the notch only the arc's curvature changes (dkappa/dtheta = h / L^2). Every notch bends about
+        the same axis (the robot bends in one plane), so the turn splits into a part per notch and one per point."""
         s = np.clip(np.atleast_1d(np.asarray(s, dtype=float)), 0.0, self.length)
         position, frames = self.centerline(s)
         g = self.geometry
-        ybar, jacobian = g.neutral_axis_offset, np.zeros((len(s), g.notch_count, 3))
-        for k, theta in enumerate(self.notch_bend):
-            segment = 1 + 2 * k
-            start, length = self.segment_starts[segment], self.segment_lengths[segment]
-            rotation, origin = self._segment_rotations[segment], self._segment_positions[segment]
-            chord, chord_rate = _unit_arc_chord(theta)
-            end = origin + rotation @ (length * chord)
-            distal = s >= start + length
-            jacobian[distal, k] = (rotation @ (length * chord_rate - ybar * chord)
-                                   + np.cross(rotation[:, 1], position[distal] - end)
-                                   + ybar * frames[distal, :, 2])
-            inside = (s >= start) & ~distal
-            if inside.any():
-                rate = _arc_curvature_rate(s[inside] - start, self.notch_curvature[k])
-                jacobian[inside, k] = rate @ rotation.T * (g.notch_width / length**2)
+        ybar, segments = g.neutral_axis_offset, 1 + 2 * np.arange(g.notch_count)
+        starts, lengths = self.segment_starts[segments], self.segment_lengths[segments]
+        rotations, origins = self._segment_rotations[segments], self._segment_positions[segments]
+        chord, chord_rate = (np.array(v) for v in zip(*(_unit_arc_chord(t) for t in self.notch_bend), strict=True))
+        ends = origins + np.einsum("kij,kj->ki", rotations, lengths[:, None] * chord)
+        end_rate = np.einsum("kij,kj->ki", rotations, lengths[:, None] * chord_rate - ybar * chord)
+        axis = rotations[0][:, 1]
+        per_notch = end_rate - np.cross(axis, ends)
+        per_point = np.cross(axis, position) + ybar * frames[:, :, 2]
+        distal = s[:, None] >= (starts + lengths)[None, :]
+        jacobian = np.where(distal[:, :, None], per_notch[None, :, :] + per_point[:, None, :], 0.0)
+        notch = np.searchsorted(starts, s, side="right") - 1
+        inside = np.flatnonzero((notch >= 0) & (s < starts[notch] + lengths[notch]))
+        if len(inside):
+            k = notch[inside]
+            rate = _arc_curvature_rate(s[inside] - starts[k], self.notch_curvature[k])
+            curvature_rate = g.notch_width / lengths[k] ** 2
+            jacobian[inside, k] = np.einsum("nij,nj->ni", rotations[k], rate) * curvature_rate[:, None]
         return jacobian
 
     def _along(self, s) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -244,10 +248,12 @@ def _unit_arc_chord(theta: float) -> tuple[np.ndarray, np.ndarray]:
             np.array([(theta * s - 1.0 + c) / theta**2, 0.0, (theta * c - s) / theta**2]))
 
 
-def _arc_curvature_rate(u: np.ndarray, kappa: float) -> np.ndarray:
-    """d offset / d kappa (N, 3) of points u along a constant-curvature arc bending towards local +x."""
-    if abs(kappa) * float(np.max(u)) < 1e-4:
-        return np.stack([u**2 / 2.0, np.zeros_like(u), -kappa * u**3 / 3.0], axis=1)
+def _arc_curvature_rate(u: np.ndarray, kappa: np.ndarray) -> np.ndarray:
+    """d offset / d kappa (N, 3) of points u along constant-curvature arcs (each its kappa) bending towards local
+    +x (series near straight)."""
     ku = kappa * u
-    return np.stack([(ku * np.sin(ku) - 1.0 + np.cos(ku)) / kappa**2, np.zeros_like(u),
-                     (ku * np.cos(ku) - np.sin(ku)) / kappa**2], axis=1)
+    small = np.abs(ku) < 1e-4
+    safe = np.where(small, 1.0, kappa)
+    x = np.where(small, u**2 / 2.0, (ku * np.sin(ku) - 1.0 + np.cos(ku)) / safe**2)
+    z = np.where(small, -kappa * u**3 / 3.0, (ku * np.cos(ku) - np.sin(ku)) / safe**2)
+    return np.stack([x, np.zeros_like(u), z], axis=1)

@@ -366,3 +366,26 @@ def test_relocation_node_waits_for_the_colour_windows_of_its_cloud(scene, reloca
     assert time.monotonic() - sent >= WINDOW_WAIT_S
     np.testing.assert_allclose(centreline_of(stamp_to_ns(alone.header.stamp)), by_depth.centerline.points, atol=1e-7)
     assert "no colour window of cam_a, cam_b came with the cloud" in probe.graph.log_of(probe.process)[log_before:]
+
+
+def test_relocation_node_fits_the_robots_own_model_as_the_core(scene):
+    """relocation.model_fit set at the node's start (`-p`): it places the axis by the robot's own model fitted, as
+    the core does, and its result carries what the fit found."""
+    from dataclasses import replace
+
+    bag, config, _, filtered, _ = scene
+    fitting = replace(config, relocation=replace(config.relocation, model_fit=True))
+    expected = Reconstructor(fitting).relocate(stage_cloud_from_msg(filtered[0], config.base_frame))
+    free = Reconstructor(config).relocate(stage_cloud_from_msg(filtered[0], config.base_frame))
+    assert "model_fit" in expected.quality and not np.allclose(expected.tip, free.tip, atol=1e-6)
+    with RosGraph() as graph:
+        process = graph.start("relocation_node", "--params-file", str(bag / "rig.yaml"), "-p",
+                              "relocation.model_fit:=true")
+        probe = StageProbe(graph, process, "/ntcr/filtered/points", "/ntcr/relocated/points")
+        tips = []
+        graph.node.create_subscription(PoseStamped, "/ntcr/tip", tips.append, COLLECT_RELIABLE)
+        cloud = stage_cloud_from_msg(probe.send_and_wait(filtered[0]), config.base_frame)
+        assert graph.spin_until(lambda: tips, 10)
+    np.testing.assert_allclose(cloud.xyz, expected.relocated.xyz, atol=1e-6)
+    tip = tips[-1].pose.position
+    np.testing.assert_allclose([tip.x, tip.y, tip.z], expected.tip, atol=1e-9)
