@@ -282,7 +282,7 @@ class _Problem:
         return {name: np.concatenate(values) if values else np.empty(0) for name, values in found.items()}
 
 
-def _robust_rms(residuals: np.ndarray, scale: float) -> tuple[float, float]:
+def robust_rms(residuals: np.ndarray, scale: float) -> tuple[float, float]:
     """The RMS (m) of residuals within 3 scales, and their share."""
     inside = np.abs(residuals) <= 3 * scale
     if not inside.any():
@@ -400,8 +400,8 @@ def _result(problem: _Problem, x: np.ndarray, start_rows: dict[str, np.ndarray])
     bends = {r.name: problem.bends(x, i) for i, r in enumerate(problem.recordings)}
     _refuse_undetermined(sigma, bends, problem.target is not None)
     rows = problem.camera_rows(x)
-    fits = {name: _robust_rms(rows[name], SCALES_M[-1]) for name in cameras}
-    starts = {name: _robust_rms(start_rows[name], SCALES_M[0])[0] for name in cameras}
+    fits = {name: robust_rms(rows[name], SCALES_M[-1]) for name in cameras}
+    starts = {name: robust_rms(start_rows[name], SCALES_M[0])[0] for name in cameras}
     extrinsics = problem.extrinsics(x)
     return RigFit(extrinsics, sigma, relative_sigma,
                   {name: fits[name][0] * 1e3 for name in cameras}, {name: fits[name][1] for name in cameras},

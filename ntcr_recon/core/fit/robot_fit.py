@@ -32,7 +32,8 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from ntcr_recon.core.calibration.limb_rows import limb_rows
-from ntcr_recon.core.calibration.tube_distance import tube_distance
+from ntcr_recon.core.calibration.rig_fit import robust_rms
+from ntcr_recon.core.calibration.tube_distance import TubeDistance, tube_distance
 from ntcr_recon.core.relocation.centerline import Centerline, base_pose
 from ntcr_recon.core.robot.geometry import TubeGeometry
 from ntcr_recon.core.robot.kinematics import TubeShape
@@ -99,6 +100,7 @@ class _Problem:
         self.counted = np.ones(len(points), bool)  # the depth points the fit rests on (clear_of_cuts)
         self.ignored = np.zeros(len(points), bool)  # past the base or beside a cut, as last evaluated
         self._cache: tuple[bytes, tuple] | None = None
+        self._measured_at: tuple[bytes, TubeShape, TubeDistance] | None = None
 
     @property
     def size(self) -> int:
@@ -108,15 +110,22 @@ class _Problem:
         geometry = replace(self.geometry, notch_side=math.remainder(float(x[0]), 2 * math.pi))
         return TubeShape(geometry, np.clip(x[1:1 + self.notches], 0.0, geometry.max_notch_bend))
 
+    def _measured(self, x: np.ndarray) -> tuple[TubeShape, TubeDistance]:
+        """The shape x poses and each point's distance to its tube as its own camera sees it (the half facing it),
+        the bias taken off along its ray: computed once per x (the counted points change between rounds only)."""
+        key = x.tobytes()
+        if self._measured_at is None or self._measured_at[0] != key:
+            shape = self.shape(x)
+            corrected = self.points - x[-1] * self.rays
+            self._measured_at = (key, shape, tube_distance(shape, corrected, self.origins[self.camera]))
+        return self._measured_at[1], self._measured_at[2]
+
     def _evaluate(self, x: np.ndarray) -> tuple:
         """Residuals, their directions, their arc lengths, which are depth rows, and the shape."""
         key = x.tobytes()
         if self._cache is not None and self._cache[0] == key:
             return self._cache[1]
-        shape = self.shape(x)
-        corrected = self.points - x[-1] * self.rays
-        # each point seen from its own camera (the half of the tube facing it)
-        measured = tube_distance(shape, corrected, self.origins[self.camera])
+        shape, measured = self._measured(x)
         # a wall seen edge-on is where a matcher fattens the silhouette: each point counts as its wall faces its
         # camera (the limbs place the axis across the view)
         facing = np.abs(np.einsum("ij,ij->i", measured.direction, self.rays))
@@ -125,28 +134,31 @@ class _Problem:
         self.ignored = measured.below_base | ~self.counted
         distance = np.where(self.ignored, self.outlier, measured.distance * facing)
         direction = np.where(self.ignored[:, None], 0.0, measured.direction * facing[:, None])
-        foot = measured.foot_s
-        parts = [(distance, direction, foot)]
+        parts = [(distance, direction, measured.foot_s)]
         for _, s, middles, across, weight in self.limbs:
             s = np.minimum(s, shape.length)
             gap = np.einsum("ij,ij->i", across, middles - shape.centerline_points(s)) * weight
             parts.append((gap, across * weight, s))
         result = (np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]),
-                  np.concatenate([p[2] for p in parts]), len(corrected), shape)
+                  np.concatenate([p[2] for p in parts]), len(self.points), shape)
         self._cache = (key, result)
         return result
 
     def residuals(self, x: np.ndarray) -> np.ndarray:
         return self._evaluate(x)[0]
 
+    def centerline_rates(self, shape: TubeShape, s: np.ndarray) -> np.ndarray:
+        """How the shape's centreline at arc lengths s moves with the roll and each bend, (N, 1 + notches, 3): the
+        roll turns the robot about its base's axis, a bend what lies past its notch (kinematics)."""
+        at = np.minimum(s, shape.length)
+        turn = np.cross(self.geometry.base_rotation[:, 2],
+                        shape.centerline_points(at) - np.asarray(self.geometry.base_position, float))
+        return np.concatenate([turn[:, None, :], shape.centerline_jacobian(at)], axis=1)
+
     def jacobian(self, x: np.ndarray) -> np.ndarray:
         _, direction, foot, depth_rows, shape = self._evaluate(x)
         jac = np.zeros((len(foot), self.size))
-        # the roll turns the robot about its base's axis; a bend moves what lies past its notch (kinematics)
-        axis = self.geometry.base_rotation[:, 2]
-        at = shape.centerline_points(np.minimum(foot, shape.length))
-        jac[:, 0] = -np.einsum("ij,ij->i", direction, np.cross(axis, at - np.asarray(self.geometry.base_position)))
-        jac[:, 1:1 + self.notches] = -np.einsum("ij,ikj->ik", direction, shape.centerline_jacobian(foot))
+        jac[:, :-1] = -np.einsum("ij,ikj->ik", direction, self.centerline_rates(shape, foot))
         jac[:depth_rows, -1] = -np.einsum("ij,ij->i", direction[:depth_rows], self.rays)
         return jac
 
@@ -154,11 +166,10 @@ class _Problem:
         """Count only the depth points clear of the notches' openings as x poses the robot (grown by `margin`
         along the tube and round it): a matcher's window reaching into a slot reads the wall beside it deep, in a
         pattern along the tube the bends would follow."""
-        shape = self.shape(x)
-        corrected = self.points - x[-1] * self.rays
-        s = tube_distance(shape, corrected).foot_s
+        shape, measured = self._measured(x)
+        s = measured.foot_s
         position, frames = shape.centerline(s)
-        offset = corrected - position
+        offset = self.points - x[-1] * self.rays - position
         angle = np.arctan2(np.einsum("ij,ij->i", offset, frames[:, :, 1]),
                            np.einsum("ij,ij->i", offset, frames[:, :, 0]))
         table = shape.notch_table()
@@ -186,30 +197,26 @@ class _Problem:
         self._cache = None
 
 
-def _start_from(guide: Centerline, problem: _Problem, roll: float) -> np.ndarray:
+def _start_from(guide: Centerline, problem: _Problem) -> np.ndarray:
     """The roll and bends whose centreline lies nearest a freely fitted one (`guide`, core.relocation.centerline_fit:
     robust to where the model would start far off), started from rolls about the configured one (START_ROLLS_DEG);
     no depth bias."""
     geometry = problem.geometry
     s = np.linspace(0.0, min(guide.length, geometry.length), GUIDE_SAMPLES)
     target = guide.frames_at(s)[0]
-    axis, base = geometry.base_rotation[:, 2], np.asarray(geometry.base_position, float)
 
     def residuals(x: np.ndarray) -> np.ndarray:
         shape = problem.shape(np.append(x, 0.0))
         return (shape.centerline_points(np.minimum(s, shape.length)) - target).ravel()
 
     def jacobian(x: np.ndarray) -> np.ndarray:
-        shape = problem.shape(np.append(x, 0.0))
-        at = np.minimum(s, shape.length)
-        turn = np.cross(axis, shape.centerline_points(at) - base)
-        return np.concatenate([turn[:, None, :], shape.centerline_jacobian(at)], axis=1).transpose(0, 2, 1).reshape(
-            3 * len(s), -1)
+        rates = problem.centerline_rates(problem.shape(np.append(x, 0.0)), s)
+        return rates.transpose(0, 2, 1).reshape(3 * len(s), -1)
 
     upper = np.full(problem.notches, geometry.max_notch_bend)
     best = None
     for turn in np.radians(START_ROLLS_DEG):
-        start = np.concatenate([[roll + turn], upper * 0.1])
+        start = np.concatenate([[geometry.notch_side + turn], upper * 0.1])
         solved = least_squares(residuals, start, jac=jacobian, bounds=(np.concatenate([[-np.inf], upper * 0]),
                                                                        np.concatenate([[np.inf], upper])))
         if best is None or solved.cost < best.cost:
@@ -229,8 +236,7 @@ def fit_robot(points: np.ndarray, camera: np.ndarray, origins: np.ndarray, geome
         keep = np.sort(rng.choice(len(points), MAX_POINTS, replace=False))
         points, camera = points[keep], camera[keep]
     problem = _Problem(points, camera, origins, geometry)
-    roll = geometry.notch_side
-    x = start.parameters.copy() if start is not None else _start_from(guide, problem, roll)
+    x = start.parameters.copy() if start is not None else _start_from(guide, problem)
     # the roll within half a turn of its start (a straight robot leaves it free: it stays where it started)
     lower = np.concatenate([[x[0] - math.pi], np.zeros(problem.notches), [-MAX_BIAS_M]])
     upper = np.concatenate([[x[0] + math.pi], np.full(problem.notches, geometry.max_notch_bend), [MAX_BIAS_M]])
@@ -253,11 +259,8 @@ def fit_robot(points: np.ndarray, camera: np.ndarray, origins: np.ndarray, geome
         x = solved.x
     loss = _loss_per_point(problem, x)
     residuals = problem.residuals(x)[:len(points)]
-    residual_mm = {}
-    for c in range(len(origins)):
-        mine = residuals[(camera == c) & ~problem.ignored]
-        inside = mine[np.abs(mine) <= 3 * SCALES_M[-1]]
-        residual_mm[c] = float(np.sqrt(np.mean(inside**2)) * 1e3) if len(inside) else math.nan
+    residual_mm = {c: robust_rms(residuals[(camera == c) & ~problem.ignored], SCALES_M[-1])[0] * 1e3
+                   for c in range(len(origins))}
     stations = {c: len(s) for c, s, *_ in problem.limbs}
     return RobotFit(problem.shape(x), math.remainder(float(x[0]), 2 * math.pi), float(x[-1]), residual_mm, stations,
                     x.copy(), loss)
