@@ -7,23 +7,30 @@ numbers, stream profiles and extrinsics), the robot and the stages' settings; ev
 dies is started again after `respawn_delay` seconds (as `ntcr-recon run` does), and a camera that is not
 plugged in is waited for by its camera_node (a log line every few seconds, /diagnostics ERROR). A node that
 refuses its configuration (exit code 2) would refuse it at every respawn: the launch is shut down instead, as
-`ntcr-recon run` stops the graph. The stage nodes and the respawn delay are `ntcr-recon run`'s
-(ntcr_recon.ros.graph).
+`ntcr-recon run` stops the graph. The stage nodes, the respawn delay and the nodes' DDS transports (UDP, unless
+FASTDDS_BUILTIN_TRANSPORTS says otherwise) are `ntcr-recon run`'s (ntcr_recon.ros.graph).
 """
 
 import os
 
 import yaml
 from ament_index_python.packages import get_package_share_directory
-from launch.actions import DeclareLaunchArgument, EmitEvent, LogInfo, OpaqueFunction, RegisterEventHandler
+from launch.actions import (
+    DeclareLaunchArgument,
+    EmitEvent,
+    LogInfo,
+    OpaqueFunction,
+    RegisterEventHandler,
+    SetEnvironmentVariable,
+)
 from launch.conditions import IfCondition
 from launch.event_handlers import OnProcessExit
 from launch.events import Shutdown
-from launch.substitutions import LaunchConfiguration
+from launch.substitutions import EnvironmentVariable, LaunchConfiguration
 from launch_ros.actions import Node
 
 from launch import LaunchDescription
-from ntcr_recon.ros.graph import CONFIG_REFUSED, RESPAWN_DELAY_S, STAGE_NODES
+from ntcr_recon.ros.graph import CONFIG_REFUSED, NODE_TRANSPORTS, RESPAWN_DELAY_S, STAGE_NODES
 
 
 def camera_names(config_path: str) -> list[str]:
@@ -70,6 +77,10 @@ def shutdown_on_refused_configuration(event, context) -> list:
 def common_arguments(default_config: str) -> list:
     share = get_package_share_directory("ntcr_recon")
     return [
+        # the nodes' DDS transports where the environment does not choose them: a respawned node would hear
+        # nothing over shared memory (ntcr_recon.ros.graph)
+        *(SetEnvironmentVariable(name, EnvironmentVariable(name, default_value=value))
+          for name, value in NODE_TRANSPORTS.items()),
         RegisterEventHandler(OnProcessExit(on_exit=shutdown_on_refused_configuration)),
         DeclareLaunchArgument("config", default_value=default_config, description="rig configuration (YAML)"),
         DeclareLaunchArgument("mesh_rate", default_value="1.0", description="meshes per second"),

@@ -15,11 +15,17 @@ exits non-zero, naming it. `--no-respawn` stops the graph at any node's exit ins
 nodes exchanging PointCloud2 over the middleware): one Python interpreter instead of six, which a machine with
 fewer cores than nodes may prefer; one process per node (the default) lets a many-core rig run the stages in
 parallel. bench_graph.py measures both.
+
+The nodes talk over UDP on the loopback (NODE_TRANSPORTS), not Fast DDS's shared memory, unless the environment
+chooses the transports itself: a reader SIGKILLed on shared memory leaves its port behind, and the node started
+again in its place is matched yet hears nothing (eProsima/Fast-DDS#5053, #5469; in a CI run here, a respawned
+fusion_node heard 0 Hz for 40 s while the cameras published at 29 Hz). rig.launch.py sets the same.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import subprocess
 import sys
@@ -35,6 +41,13 @@ CONFIG_REFUSED = 2   # a node's exit code when it refuses its parameters: respaw
 RESPAWN_DELAY_S = 1.0
 RESPAWN_MAX_DELAY_S = 30.0
 STABLE_S = 60.0      # a node that ran this long before dying starts again from the shortest delay
+# The DDS transports of the nodes, where the environment does not set them (the module docstring says why).
+NODE_TRANSPORTS = {"FASTDDS_BUILTIN_TRANSPORTS": "UDPv4"}
+
+
+def node_environment(environ=None) -> dict[str, str]:
+    """The environment a node process starts with: this one's (os.environ), NODE_TRANSPORTS where it has none."""
+    return {**NODE_TRANSPORTS, **(os.environ if environ is None else environ)}
 
 
 @dataclass
@@ -200,7 +213,8 @@ def run_processes(commands: list[NodeCommand], duration: float = 0.0, respawn: b
 def _start(command: NodeCommand) -> subprocess.Popen:
     # Own process group: a terminal's Ctrl-C reaches this command only, which stops the nodes in order. Out of
     # our group, a node would outlive a SIGKILLed runner: the kernel sends it SIGTERM then (Linux).
-    return subprocess.Popen(command.argv, start_new_session=True, preexec_fn=_terminate_with_parent())
+    return subprocess.Popen(command.argv, start_new_session=True, preexec_fn=_terminate_with_parent(),
+                            env=node_environment())
 
 
 PR_SET_PDEATHSIG = 1  # linux/prctl.h

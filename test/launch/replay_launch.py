@@ -80,6 +80,25 @@ class TestReplay(unittest.TestCase):
         # and skips one; runs here read 97-100 %, CI 93-96 %. A graph that stalls or loses a camera reads far less.
         self.assertGreaterEqual(reached, 0.90 * len(counted))
 
+    def test_the_nodes_talk_over_udp(self):
+        # rig.launch.py's default transports (ntcr_recon.ros.graph.NODE_TRANSPORTS): a node respawned on shared
+        # memory may hear nothing. The nodes are this process's children (launch starts them).
+        transports = {}
+        for pid in filter(str.isdigit, os.listdir("/proc")):
+            try:
+                with open(f"/proc/{pid}/stat") as stat:
+                    parent = int(stat.read().rsplit(")", 1)[1].split()[1])
+                with open(f"/proc/{pid}/cmdline", "rb") as cmdline:
+                    command = cmdline.read().decode(errors="replace")
+                with open(f"/proc/{pid}/environ", "rb") as environ:
+                    entries = environ.read().decode(errors="replace").split("\0")
+            except OSError:  # ended meanwhile
+                continue
+            if parent == os.getpid() and "__node:=" in command:
+                transports[pid] = dict(e.split("=", 1) for e in entries if "=" in e).get("FASTDDS_BUILTIN_TRANSPORTS")
+        self.assertGreaterEqual(len(transports), 6)  # two cameras and four stages
+        self.assertEqual(set(transports.values()), {"UDPv4"})
+
 
 @launch_testing.post_shutdown_test()
 class TestShutdown(unittest.TestCase):

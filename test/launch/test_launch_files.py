@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -94,6 +95,7 @@ def test_replay_launch_brings_the_frame_pairs_to_the_tip(colcon_install):
     assert "frame pairs reached /ntcr/tip" in output, output[-3000:]
     print(next(line for line in output.splitlines() if "frame pairs reached /ntcr/tip" in line))  # -s: the figure
     assert "compiling the numba kernels" not in output  # compiled before, never inside the frames
+    assert re.search(r"test_the_nodes_talk_over_udp .*\.\.\. ok", output), output[-3000:]
 
 
 def test_rig_launch_without_cameras_waits_and_ends_on_ctrl_c(colcon_install):

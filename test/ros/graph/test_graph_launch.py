@@ -138,12 +138,25 @@ def test_run_respawns_a_node_that_dies_and_the_graph_goes_on(tmp_path):
             assert sorted(after.values()) == sorted(children)  # every node there, fusion_node a new process
             assert {pid for pid, name in after.items() if name == "fusion_node"} != {children["fusion_node"]}
             assert all(children[name] in after for name in children if name != "fusion_node")
+            # over UDP, not shared memory: a respawned reader there may hear nothing (ros.graph.NODE_TRANSPORTS)
+            assert all(environment_of(pid)["FASTDDS_BUILTIN_TRANSPORTS"] == "UDPv4" for pid in after)
         finally:
             run.send_signal(signal.SIGINT)
             code = run.wait(timeout=60)
     text = log_path.read_text()
     assert "fusion_node exited with code -9; starting it again in 1 s" in text, text
     assert code == 0, text
+
+
+def environment_of(pid: int) -> dict[str, str]:
+    entries = Path(f"/proc/{pid}/environ").read_bytes().decode(errors="replace").split("\0")
+    return dict(entry.split("=", 1) for entry in entries if "=" in entry)
+
+
+def test_nodes_take_udp_unless_the_environment_chooses_the_transports():
+    assert graph.node_environment({"PATH": "/bin"}) == {"PATH": "/bin", "FASTDDS_BUILTIN_TRANSPORTS": "UDPv4"}
+    chosen = {"FASTDDS_BUILTIN_TRANSPORTS": "SHM"}
+    assert graph.node_environment(chosen) == chosen
 
 
 def test_nodes_end_when_run_is_killed(tmp_path):
