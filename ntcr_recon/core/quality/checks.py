@@ -274,6 +274,7 @@ def centerline(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
             "centerline_bias_mm": {"notch_side": t.bias_notch_side * 1e3, "binormal": t.bias_binormal * 1e3},
             "notched_thinning_mm": _mm(t.notched_thinning), "cameras_looking_into_slots": list(t.looking_into_slots),
             "centerline_cross_view_mm": _mm(t.cross_view_spread),
+            "centerline_level_scatter_mm": _mm(t.level_scatter),
             "centerline_cross_view_at_tip_mm": _mm(t.distal_cross_view),
             "centerline_alignment_scatter_mm": _mm(t.alignment_scatter),
             "centerline_outline_offset_mm": _mm(t.outline_offset),
@@ -291,6 +292,14 @@ def _centerline_uncertain(t: Trace, d: Derived) -> Finding:
                "across their views, and the wall between the notches reads "
                f"{(t.notched_thinning or 0.0) * 1e3:+.2f} mm deeper than the plain tube); "
                f"{abs(t.bias_notch_side) * 1e3:.2f} mm of lean towards the notch side was removed")
+    if t.limbs_across is not None:
+        disagreement, share = t.limbs_across
+        message += (f"; across the views the tube's limbs in the colour images placed the axis over {share:.0%} of "
+                    f"the length, agreeing to {disagreement * 1e3:.3f} mm")
+    if t.level_scatter is not None:
+        message += (f"; the walls the two cameras see read apart by an amount that varies along the tube by "
+                    f"{2 * t.level_scatter * 1e3:.3f} mm (SD), half of which the axis, midway, may be off along the "
+                    "views")
     if t.alignment_scatter:
         message += (f", a correction that varies along the tube by {t.alignment_scatter * 1e3:.2f} mm (RMS), which "
                     "the wall facing the cameras cannot tell from a wall stereo moved alike in every view")
@@ -305,7 +314,8 @@ def _centerline_uncertain(t: Trace, d: Derived) -> Finding:
     return finding("CENTERLINE_UNCERTAIN", message, uncertainty_mm=d.uncertainty * 1e3, outline_offset_mm=_mm(d.astray),
                    cross_view_mm=(t.cross_view_spread or 0.0) * 1e3,
                    notched_thinning_mm=(t.notched_thinning or 0.0) * 1e3,
-                   alignment_scatter_mm=(t.alignment_scatter or 0.0) * 1e3,
+                   alignment_scatter_mm=(t.alignment_scatter or 0.0) * 1e3, level_scatter_mm=_mm(t.level_scatter),
+                   limbs_disagreement_mm=None if t.limbs_across is None else t.limbs_across[0] * 1e3,
                    one_camera_wall_level_mm=t.wall_level * 1e3 if d.resting_on_level else None)
 
 

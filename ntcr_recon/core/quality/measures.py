@@ -18,6 +18,7 @@ import numpy as np
 from scipy.ndimage import uniform_filter1d
 
 from ntcr_recon.core.base.robust import median
+from ntcr_recon.core.quality.findings import Z90
 from ntcr_recon.core.relocation.centerline import cameras_round_tube
 from ntcr_recon.core.relocation.wall import surface_band
 from ntcr_recon.core.robot.comb import expected_centres, inside_intervals
@@ -286,31 +287,45 @@ def carried_to_tip(fitted_end: float | None, tip_s: float, notch_centres: np.nda
 def centerline_uncertainty(cross_view_spread: float | None, notched_thinning: float | None,
                            looking_into_slots: tuple[str, ...] = (), levelled: bool = False,
                            one_sided: tuple[float, float] | None = None, astray: float | None = None,
-                           varying_lean: float | None = None) -> float | None:
-    """How far the centreline may be off (m), from what the data show of stereo's bias beside the notches;
-    None when neither could be measured.
+                           varying_lean: float | None = None, limbs: tuple[float, float] | None = None,
+                           level_scatter: float | None = None) -> float | None:
+    """How far the centreline may be off (m), from what the data show of where each view places it; None when
+    nothing could be measured.
 
     Across a camera's line of sight each camera places the axis by itself: their spread about the fused axis
-    (cross_view.cross_view_spread) is how well the fused one is known that way. Along the lines of sight the
-    cameras' levels decide, and a matcher whose window averages the spines with the slots reads the wall between
-    the notches deeper than the plain tube (notched_thinning), a deficit no fit can place: a lean of about as
-    much, twice it when a camera looks into the slots (carried by that camera alone, it reads half pooled) unless
-    a camera facing the backbone placed the axis along the views (levelled). one_sided: (the share of the length
-    seen by one camera alone, the outer wall's level about the r_o circle, m): there the axis along that camera's
-    view rests on the level the fit gives its one side, which no second view checks and which stereo's
-    flattening changes with distance and view angle by up to the level itself: that much again over that share.
-    varying_lean: how much the alignment's shift of the fit varies along the tube (alignment.shift_scatter): the
-    cameras' spread misses a facing wall stereo moved alike in every view, and that shows there.
-    The four are orthogonal: added in quadrature (the share as weight, as the RMS over the length). astray:
+    (cross_view.cross_view_spread) is how well the fused one is known that way by depth. Where the tube's limbs in
+    the colour images placed it (limbs: (their disagreement, the share of the length seen they placed it over)),
+    it is known across the views as well as the limbs agree: Z90 times their disagreement there (the least
+    squares' residual, each window's own error), depth's spread over the rest.
+    Along the lines of sight the cameras' levels decide. Each window's axis lies midway between the two walls, off
+    by half the difference of their depth biases, which no depth measures; biases that vary independently vary as
+    their sum does, which shows in how far apart the walls read (level_scatter, cross_view.CrossView.level_scatter):
+    Z90 times that. A matcher whose window averages the spines with the slots reads the wall between the notches
+    deeper than the plain tube (notched_thinning): carried by a camera that looks into the slots alone, the axis
+    leans away from it by up to twice that (it reads half pooled) unless a camera facing the backbone placed the
+    axis along the views (levelled). Without level_scatter (not two cameras), the deficit bounds the lean whoever
+    looks into the slots. one_sided: (the share of the length seen by one camera alone, the outer wall's level about
+    the r_o circle, m): there the axis along that camera's view rests on the level the fit gives its one side,
+    which no second view checks and which stereo's flattening changes with distance and view angle by up to the level
+    itself: that much again over that share. varying_lean: how much the alignment's shift of the fit varies along
+    the tube (alignment.shift_scatter): the cameras' spread misses a facing wall stereo moved alike in every view,
+    and that shows there.
+    The terms are orthogonal: added in quadrature (the shares as weights, as the RMS over the length). astray:
     how far the axis lies from the middle of the tube's outline where that shows it went astray (m): the wall
-    the four are measured on moved with it, and the axis is known no better than that.
+    the others are measured on moved with it, and the axis is known no better than that.
     """
-    if cross_view_spread is None and notched_thinning is None:
+    if cross_view_spread is None and notched_thinning is None and limbs is None and level_scatter is None:
         return astray
-    along_views = (2.0 if looking_into_slots and not levelled else 1.0) * (notched_thinning or 0.0)
+    across = cross_view_spread or 0.0
+    if limbs is not None:
+        disagreement, share = limbs
+        across = float(np.sqrt(share * (Z90 * disagreement) ** 2 + (1.0 - share) * across**2))
+    slot_lean = 2.0 * (notched_thinning or 0.0) if looking_into_slots and not levelled else 0.0
+    along_views = (float(np.hypot(Z90 * level_scatter, slot_lean)) if level_scatter is not None
+                   else slot_lean or (notched_thinning or 0.0))
     share, level = one_sided if one_sided is not None else (0.0, 0.0)
-    return max(float(np.sqrt((cross_view_spread or 0.0) ** 2 + along_views ** 2 + share * level ** 2
-                             + (varying_lean or 0.0) ** 2)), astray or 0.0)
+    return max(float(np.sqrt(across**2 + along_views**2 + share * level**2 + (varying_lean or 0.0) ** 2)),
+               astray or 0.0)
 
 
 def nearest_box_face(point: np.ndarray, box: tuple[np.ndarray, np.ndarray]) -> tuple[int, float, float]:

@@ -90,6 +90,10 @@ class Trace:
     side_unsettled: tuple[float, float] | None = None
     side_uncertainty: float | None = None
     cross_view_spread: float | None = None
+    level_scatter: float | None = None  # cross_view.CrossView.level_scatter
+    # where the limbs in the colour images placed the axis across the views (limbs.LimbFigures): their disagreement
+    # (m) and the share of the length seen they placed it over
+    limbs_across: tuple[float, float] | None = None
     distal_cross_view: float | None = None
     alignment_scatter: float | None = None
     outline_offset: float | None = None
@@ -240,7 +244,8 @@ def derive(t: Trace) -> Derived:
     astray = t.outline_offset if went_astray(t.outline_offset, footprint) else None
     levelled = bool(t.backbone_shift)
     uncertainty = centerline_uncertainty(t.cross_view_spread, t.notched_thinning, t.looking_into_slots, levelled,
-                                         one_sided=resting_on_level, astray=astray, varying_lean=t.alignment_scatter)
+                                         one_sided=resting_on_level, astray=astray, varying_lean=t.alignment_scatter,
+                                         limbs=t.limbs_across, level_scatter=t.level_scatter)
     # where no camera's view showed the tube's outline whole, nothing checked the axis across the views (outline.py):
     # it is known there no better than that check resolves, a pixel footprint, whatever the cameras' spread says
     outline_unchecked = t.camera is not None and t.outline_offset is None

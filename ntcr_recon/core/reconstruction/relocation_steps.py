@@ -274,8 +274,20 @@ def centreline_thinning(scene: Scene, aligned: Aligned, axis: Axis, wall, tip_s:
                                 cut_intervals(geometry, axis.centerline, 0.0), tip_s, settings.gate,
                                 2 * settings.cell, spine=wall[0])
     looking = tuple(cameras_looking_into_slots(axis.centerline, geometry, scene.origins, scene.config.camera_names))
-    off = centerline_uncertainty(aligned.cross_view.spread, thinning, looking, bool(aligned.backbone_shift)) or 0.0
+    off = centerline_uncertainty(aligned.cross_view.spread, thinning, looking, bool(aligned.backbone_shift),
+                                 limbs=limbs_across(aligned, tip_s, geometry.notch_pitch),
+                                 level_scatter=aligned.cross_view.level_scatter) or 0.0
     return Thinning(thinning, looking, off)
+
+
+def limbs_across(aligned: Aligned, tip_s: float, window: float) -> tuple[float, float] | None:
+    """Where the limbs placed the axis across the views (quality.measures.centerline_uncertainty): their
+    disagreement (m) and the share of the windows up to tip_s every camera placed (what the least squares solved);
+    None where they placed none, or one camera alone."""
+    limbs = aligned.limbs
+    if limbs is None or limbs.disagreement is None or len(limbs.windows) < 2:
+        return None
+    return limbs.disagreement, min(min(limbs.windows.values()) / max(np.ceil(tip_s / window), 1.0), 1.0)
 
 
 def tip_by_length(scene: Scene, centerline: Centerline, end: SeenEnd, centreline_off: float,
@@ -340,6 +352,8 @@ def assess(scene: Scene, aligned: Aligned, sided: Sided, end: SeenEnd, length: B
         notched_thinning=thinning.thinning, looking_into_slots=thinning.looking, tip_from_cap=end.from_cap,
         side_unsettled=sided.unsettled, side_uncertainty=sided.side_uncertainty,
         cross_view_spread=aligned.cross_view.spread, distal_cross_view=distal_cross_view,
+        level_scatter=aligned.cross_view.level_scatter,
+        limbs_across=limbs_across(aligned, length.along.s, geometry.notch_pitch),
         cross_view_offsets=aligned.cross_view.offsets,
         limbs_rigid=None if aligned.limbs is None else aligned.limbs.rigid, outline_rigid=aligned.outline_rigid,
         centerline_tolerance=scene.config.quality.centerline_tolerance,

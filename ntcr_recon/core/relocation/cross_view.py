@@ -24,6 +24,11 @@ class CrossView:
     # camera placing the axis in fewer than MIN_OFFSET_WINDOWS windows. What the windows share is rigid: a pose
     # in the rig file off the camera's (matcher noise varies window to window)
     offsets: tuple[tuple[float, float] | None, ...] = ()
+    # how much two cameras' walls apart vary along the tube (m, half the standard deviation over the windows both
+    # placed of the sum of their wall levels about the fused axis; None: not two cameras, or fewer than
+    # MIN_OFFSET_WINDOWS windows): each window's axis lies midway between the walls, off by half their depth
+    # biases' difference, which no depth measures; the biases varying independently, it varies as their sum does
+    level_scatter: float | None = None
 
 
 MIN_OFFSET_WINDOWS = 4  # windows a camera's mean shift across its view is taken over, at least
@@ -64,8 +69,13 @@ def cross_view_spread(centerline: Centerline, coords: TubeCoordinates, frames: t
     last = slope[np.flatnonzero(solvable.any(axis=1))[-1]]
     offsets = tuple((float(np.mean(b)), float(np.std(b, ddof=1) / np.sqrt(len(b))))
                     if len(b := column[~np.isnan(column)]) >= MIN_OFFSET_WINDOWS else None for column in slope.T)
+    # each camera's wall level per window: the offset at sin(a) = 0
+    level = (offset - np.nan_to_num(slope) * sine) / np.maximum(count, 1)
+    both = np.all(solvable, axis=1) if cameras == 2 else np.zeros(len(count), bool)
+    level_scatter = (float(np.std(level[both].sum(axis=1), ddof=1) / 2)
+                     if np.count_nonzero(both) >= MIN_OFFSET_WINDOWS else None)
     return CrossView(float(np.sqrt(np.nanmean(slope ** 2))), unsupported,
-                     float(np.sqrt(np.nanmean(last ** 2))), offsets)
+                     float(np.sqrt(np.nanmean(last ** 2))), offsets, level_scatter)
 
 
 def _unsupported(best_count: np.ndarray, window: float, margin: float, end_s: float, minimum_points: int

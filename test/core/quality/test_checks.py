@@ -361,6 +361,14 @@ def test_quality_gives_the_centreline_an_uncertainty_and_warns_above_its_floor()
     assert centerline_uncertainty(None, None, astray=0.5e-3) == pytest.approx(0.5e-3)
     # an alignment whose correction varies along the tube: that much again, in quadrature
     assert centerline_uncertainty(0.03e-3, 0.0, varying_lean=0.04e-3) == pytest.approx(0.05e-3)
+    # across the views the limbs' disagreement where they placed the axis (Z90 times it), depth's spread over the
+    # rest; along them Z90 times how much the walls apart vary, with the slots' lean only where a camera looks in
+    z = 1.645
+    assert centerline_uncertainty(0.08e-3, 0.03e-3, limbs=(0.01e-3, 1.0), level_scatter=0.02e-3) == pytest.approx(
+        math.hypot(z * 0.01e-3, z * 0.02e-3))
+    assert centerline_uncertainty(0.08e-3, 0.03e-3, ("cam_a",), limbs=(0.01e-3, 0.5),
+                                  level_scatter=0.02e-3) == pytest.approx(
+        math.sqrt(0.5 * (z * 0.01e-3) ** 2 + 0.5 * 0.08e-3**2 + (z * 0.02e-3) ** 2 + (2 * 0.03e-3) ** 2))
 
     # a robot 50 mm long, seen to its tip (one ending short of its length states its tip as far off)
     seen_to_tip = dataclasses.replace(GEOMETRY, proximal_length=GEOMETRY.proximal_length - 3e-3)

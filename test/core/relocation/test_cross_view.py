@@ -75,3 +75,27 @@ def test_a_stretch_where_no_camera_sees_its_wall_facing_it_is_reported_unsupport
           f"{np.round(np.array(one_window) * 1e3, 2).tolist()} mm")
     assert len(distal) == 1 and distal[0] == pytest.approx((21e-3, length - margin))
     assert one_window == ()
+
+
+def test_level_scatter_is_half_how_much_the_walls_apart_vary_along_the_tube():
+    """Opposed cameras' walls at their true level: nothing varies (under 2 um). cam_a's wall moved along its view
+    (-y) by +-0.05 mm in alternate 3 mm windows: the walls apart vary by 0.05 mm about their mean, half of which is
+    0.025 mm (what the fused axis, midway, may be off along the views where the biases vary independently); the same
+    move in every window (a depth bias, or a pose off along the view) varies nothing."""
+    length = 30e-3
+    geometry, points, camera, viewpoints, centerline = opposed_cameras_on_a_straight_tube(length)
+
+    def scatter(shift_of_window):
+        along = np.where(camera == 0, shift_of_window(points[:, 2]), 0.0)
+        moved = points + along[:, None] * np.array([0.0, -1.0, 0.0])
+        coords, frames = centerline.project_with_frames(moved)
+        return cross_view_spread(centerline, coords, frames, viewpoints, camera, 2,
+                                 WallTrust(geometry, 0.8e-3, FOOTPRINT, length)).level_scatter
+
+    still = scatter(lambda z: np.zeros_like(z))
+    alternating = scatter(lambda z: np.where((z // geometry.notch_pitch) % 2 == 0, 0.05e-3, -0.05e-3))
+    uniform = scatter(lambda z: np.full_like(z, 0.05e-3))
+    print(f"\nlevel scatter: still {still * 1e6:.1f} um, alternating +-0.05 mm {alternating * 1e6:.1f} um, "
+          f"uniform 0.05 mm {uniform * 1e6:.1f} um")
+    assert still < 2e-6 and uniform < 2e-6
+    assert alternating == pytest.approx(0.05e-3 / 2 * math.sqrt(10 / 9), rel=0.2)
