@@ -292,6 +292,9 @@ def _centerline_uncertain(t: Trace, d: Derived) -> Finding:
                "across their views, and the wall between the notches reads "
                f"{(t.notched_thinning or 0.0) * 1e3:+.2f} mm deeper than the plain tube); "
                f"{abs(t.bias_notch_side) * 1e3:.2f} mm of lean towards the notch side was removed")
+    if t.alignment_scatter:
+        message += (f", a correction that varies along the tube by {t.alignment_scatter * 1e3:.2f} mm (RMS), which "
+                    "the wall facing the cameras cannot tell from a wall stereo moved alike in every view")
     if t.limbs_across is not None:
         disagreement, share = t.limbs_across
         message += (f"; across the views the tube's limbs in the colour images placed the axis over {share:.0%} of "
@@ -300,9 +303,6 @@ def _centerline_uncertain(t: Trace, d: Derived) -> Finding:
         message += (f"; the walls the two cameras see read apart by an amount that varies along the tube by "
                     f"{2 * t.level_scatter * 1e3:.3f} mm (SD), half of which the axis, midway, may be off along the "
                     "views")
-    if t.alignment_scatter:
-        message += (f", a correction that varies along the tube by {t.alignment_scatter * 1e3:.2f} mm (RMS), which "
-                    "the wall facing the cameras cannot tell from a wall stereo moved alike in every view")
     if d.resting_on_level:
         message += (f"; over the distal {sum(d.one_sided.values()) * 1e3:.0f} mm seen by one camera alone, the wall's "
                     f"level ({t.wall_level * 1e3:+.2f} mm, the flattening of the views) places the axis along that "
