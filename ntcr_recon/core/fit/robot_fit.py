@@ -110,14 +110,17 @@ class _Problem:
         geometry = replace(self.geometry, notch_side=math.remainder(float(x[0]), 2 * math.pi))
         return TubeShape(geometry, np.clip(x[1:1 + self.notches], 0.0, geometry.max_notch_bend))
 
+    def corrected(self, x: np.ndarray) -> np.ndarray:
+        """The depth points with the depth bias x poses (its last parameter) taken off along their rays."""
+        return self.points - x[-1] * self.rays
+
     def _measured(self, x: np.ndarray) -> tuple[TubeShape, TubeDistance]:
         """The shape x poses and each point's distance to its tube as its own camera sees it (the half facing it),
         the bias taken off along its ray: computed once per x (the counted points change between rounds only)."""
         key = x.tobytes()
         if self._measured_at is None or self._measured_at[0] != key:
             shape = self.shape(x)
-            corrected = self.points - x[-1] * self.rays
-            self._measured_at = (key, shape, tube_distance(shape, corrected, self.origins[self.camera]))
+            self._measured_at = (key, shape, tube_distance(shape, self.corrected(x), self.origins[self.camera]))
         return self._measured_at[1], self._measured_at[2]
 
     def _evaluate(self, x: np.ndarray) -> tuple:
@@ -169,7 +172,7 @@ class _Problem:
         shape, measured = self._measured(x)
         s = measured.foot_s
         position, frames = shape.centerline(s)
-        offset = self.points - x[-1] * self.rays - position
+        offset = self.corrected(x) - position
         angle = np.arctan2(np.einsum("ij,ij->i", offset, frames[:, :, 1]),
                            np.einsum("ij,ij->i", offset, frames[:, :, 0]))
         table = shape.notch_table()
