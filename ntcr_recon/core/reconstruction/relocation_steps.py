@@ -283,7 +283,8 @@ def centreline_thinning(scene: Scene, aligned: Aligned, axis: Axis, wall, tip_s:
 def limbs_across(aligned: Aligned, tip_s: float, window: float) -> tuple[float, float] | None:
     """Where the limbs placed the axis across the views (quality.measures.centerline_uncertainty): their
     disagreement (m) and the share of the windows up to tip_s they placed: the fewest any camera placed (the least
-    squares, which needs every camera in a window, solved at most that many); None where they placed none, or one camera alone."""
+    squares, which needs every camera in a window, solved at most that many); None where they placed none, or one
+    camera alone."""
     limbs = aligned.limbs
     if limbs is None or limbs.disagreement is None or len(limbs.windows) < 2:
         return None
