@@ -13,7 +13,7 @@ measure with live in quality.measures; the tip's two checks in quality.tip_check
     tip_end                 TIP_ON_END_CAP, TIP_ON_ERODED_RIM
     camera_views            DISTAL_ONE_CAMERA, CAMERA_SHORT_VIEW
     tip_against_length      TIP_OFF_LENGTH, TUBE_ENDS_SHORT, TIP_CARRIED
-    notch_side              NOTCH_SIDE_UNSETTLED, ROBOT_ROLLED
+    notch_side              NOTCH_SIDE_UNSETTLED, ROBOT_ROLLED, NOTCH_SIDE_OFF
     depth_resolution        PIXEL_FOOTPRINT_COARSE, DEPTH_QUANTISED
     centerline              CENTERLINE_UNCERTAIN, OUTLINE_UNCHECKED, ALIGNMENT_ASTRAY, CENTERLINE_UNSUPPORTED,
                             DISTAL_END_ON, SLOTS_LEAN
@@ -208,9 +208,11 @@ def notch_side(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
     if abs(side_off) > SIDE_OFF_DEG:
         known_deg = None if t.side_uncertainty is None else math.degrees(t.side_uncertainty)
         known = "" if known_deg is None else f" (known to +-{known_deg:.0f} deg)"
-        rolled = ("is rolled in its clamp" if known_deg is None or abs(side_off) > known_deg
+        beyond = known_deg is None or abs(side_off) > known_deg
+        rolled = ("is rolled in its clamp" if beyond
                   else "may be rolled in its clamp: the offset is within what the side is known to")
-        warnings.append(finding("ROBOT_ROLLED",
+        # within what the measurement is known to, the offset proves no roll: a note (the measured side is used)
+        warnings.append(finding("ROBOT_ROLLED" if beyond else "NOTCH_SIDE_OFF",
                                 f"the notches open {side_off:+.0f} deg from the configured robot.notch_side{known}: "
                                 f"the robot {rolled} (measured side used)", side_off_deg=side_off,
                                 side_uncertainty_deg=known_deg))

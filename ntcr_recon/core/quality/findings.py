@@ -79,6 +79,9 @@ CODES: dict[str, Code] = {
                                  "side is kept", "check the robot's roll in its clamp (robot.notch_side)"),
     "ROBOT_ROLLED": Code("warn", "the notches open away from the configured robot.notch_side (the measured side "
                          "is used)", "correct robot.notch_side, or the robot's roll in its clamp"),
+    "NOTCH_SIDE_OFF": Code("info", "the notches open away from the configured robot.notch_side, by no more than "
+                           "the measured side is known to (the measured side is used)",
+                           "none; if it recurs, check robot.notch_side"),
     # the centreline
     "CENTERLINE_UNCERTAIN": Code("info", "the centreline's stated uncertainty exceeds the floor, and why",
                                  "see the figures: cameras closer, or a camera facing the backbone"),

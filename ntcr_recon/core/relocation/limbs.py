@@ -125,8 +125,11 @@ class LimbPlacement:
     across: np.ndarray      # (S, 3) unit, base frame: across the view, perpendicular to the tangent
 
 
-def limb_offsets(centerline: Centerline, s: np.ndarray, view: CameraView, outer_radius: float) -> LimbPlacement:
-    """How far across the camera's view the middle of the tube's limbs lies from the centreline at stations s."""
+def limb_offsets(centerline: Centerline, s: np.ndarray, view: CameraView, outer_radius: float,
+                 end_s: float = np.inf) -> LimbPlacement:
+    """How far across the camera's view the middle of the tube's limbs lies from the centreline at stations s;
+    none within the end disc's reach of end_s in the image (outer_radius |cos| of the tangent to the line of
+    sight: a profile there may cross the end cap's outline instead of the limbs)."""
     position, tangent, _, _ = centerline.frames_at(np.asarray(s, float))
     rotation, origin = view.extrinsic[:3, :3], view.extrinsic[:3, 3]
     optical, heading = (position - origin) @ rotation, tangent @ rotation
@@ -146,6 +149,7 @@ def limb_offsets(centerline: Centerline, s: np.ndarray, view: CameraView, outer_
     length = np.linalg.norm(sideways, axis=1)
     view_dir = optical / np.linalg.norm(optical, axis=1)[:, None]
     crossing = np.linalg.norm(np.cross(heading, view_dir), axis=1) > np.cos(LEAST_CROSSING)
+    crossing &= np.asarray(s, float) <= end_s - outer_radius * np.abs(np.einsum("ij,ij->i", heading, view_dir))
     half_width = k.fx * outer_radius / np.sqrt(np.maximum(safe**2 - outer_radius**2, 1e-12))
     reach = half_width + SEARCH_PX + BACKGROUND_PX[1] + 1.0
     inside = ((pixel[:, 0] - reach >= 0) & (pixel[:, 0] + reach <= k.width - 1)
@@ -283,14 +287,14 @@ def _limb_move(centerline: Centerline, views: dict[str, CameraView], outer_radiu
                end_s: float) -> tuple[np.ndarray | None, LimbFigures]:
     """placed_by_limbs' move at each of the centreline's samples (None: no window placed), and what the limbs
     said (LimbFigures, but for moved_rms)."""
-    stations = np.arange(window / 8, max(end_s - outer_radius, window / 8), max(window / 8, 1e-5))
+    stations = np.arange(window / 8, max(end_s, window / 8), max(window / 8, 1e-5))
     count = max(int(np.ceil(end_s / window)), 1)
     which = np.minimum((stations / window).astype(int), count - 1)  # each station's window (ascending)
     directions = np.zeros((count, len(views), 3))  # per window and camera: its direction across the view...
     offsets = np.zeros((count, len(views)))         # ...and the median offset of its stations (0, 0: none)
     placed = {}
     for camera, (name, view) in enumerate(views.items()):
-        placement = limb_offsets(centerline, stations, view, outer_radius)
+        placement = limb_offsets(centerline, stations, view, outer_radius, end_s)
         measured = np.flatnonzero(np.isfinite(placement.offset))  # in s order, so grouped by window
         sizes = np.bincount(which[measured], minlength=count)
         enough = sizes >= MIN_STATIONS

@@ -87,7 +87,8 @@ def test_quality_says_what_is_doubtful():
             tip_s=50e-3, total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.05e-3, notch_side=math.radians(20),
             configured_side=0.0, bias_notch_side=0.0, bias_binormal=0.0, depth_steps={},
             side_uncertainty=math.radians(known_deg)))[1]
-        (side,) = _by_code(side_warnings)["ROBOT_ROLLED"]
+        (side,) = _by_code(side_warnings)["ROBOT_ROLLED" if rolled_beyond else "NOTCH_SIDE_OFF"]
+        assert side.severity == ("warn" if rolled_beyond else "info")
         assert side.figures["side_uncertainty_deg"] == pytest.approx(known_deg)
         assert (abs(side.figures["side_off_deg"]) > side.figures["side_uncertainty_deg"]) == rolled_beyond
     cap_warnings = assess(Trace(

@@ -149,3 +149,19 @@ def test_a_shift_counts_unmeasured_only_off_the_directions_the_limbs_placed_the_
     assert figures.unchecked(shift, reaching=0.035) == pytest.approx(4e-5, rel=0.05)
     assert figures.unchecked(shift, reaching=0.045) == pytest.approx(5e-5)
     assert LimbFigures({}, 0.0).unchecked(shift, reaching=0.0) == pytest.approx(5e-5)
+
+
+def test_the_limbs_are_read_up_to_the_end_seen_less_the_end_discs_reach():
+    """Side on, the end disc reaches nothing along the axis in the image: the limbs are read right up to the end
+    seen and the last window is placed (the tip's across bound then rests on them); none past that end."""
+    views = views_of(axis_y=0.0)
+    centerline = straight_centerline(0.0)
+    end_s = 0.0201
+    s = np.linspace(0.015, 0.025, 41)
+    placement = limb_offsets(centerline, s, views["cam_a"], RADIUS, end_s=end_s)
+    measured = np.isfinite(placement.offset)
+    assert not np.any(measured[s > end_s])
+    assert np.count_nonzero(measured[(s <= end_s) & (s > end_s - RADIUS)]) >= 6
+    _, figures = placed_by_limbs(centerline, views, RADIUS, window=3.2e-3, end_s=centerline.length)
+    assert figures.reach == pytest.approx(centerline.length, abs=1e-6)
+    assert figures.windows == {"cam_a": 10, "cam_b": 10}
