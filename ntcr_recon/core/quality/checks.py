@@ -96,12 +96,16 @@ def notches_found(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
                                 unseen_by={name: list(indices) for name, indices in unseen.items()},
                                 unmarked=unmarked))
     dips = sorted(n.index for n in t.notches if n.signal == "dip")
-    if dips:
+    outlined = sorted(n.index for n in t.notches if n.signal == "outline")
+    if dips or outlined:
+        shown = [f"notches {', '.join(map(str, dips))} show only as a shallow dip of the wall's coverage where the "
+                 "comb puts them"] if dips else []
+        shown += [f"notches {', '.join(map(str, outlined))} show in no depth, only as the tube's outline receding "
+                  "where the comb puts them in a colour image"] if outlined else []
         warnings.append(finding("NOTCH_WIDTH_FROM_BEND",
-                                f"notches {', '.join(str(i) for i in dips)} show only as a shallow dip of the wall's "
-                                "coverage where the comb puts them (slots narrower than the stereo matcher's window, "
-                                "which fills them): their edges were not measured, and their widths are what their "
-                                "measured bends imply", notches=dips))
+                                f"{'; '.join(shown)} (slots narrower than the stereo matcher's window, which fills "
+                                "them): their edges were not measured, and their widths are what their measured bends "
+                                "imply", notches=sorted(dips + outlined), outline=outlined))
     return {"notches_found": len(found), "notches_expected": geometry.notch_count, "notches_missing": missing,
             "notches_missing_beyond_end": beyond, "notches_missing_unseen_by": unseen,
             "notches_missing_unmarked": unmarked, "notches_by_signal": by_signal,

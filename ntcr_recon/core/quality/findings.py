@@ -68,8 +68,9 @@ CODES: dict[str, Code] = {
     "NOTCHES_MISSING": Code("warn", "expected notches were not found: their widths are unknown (figures: where "
                             "each missing one lies)", "see where they lie: beyond the end seen, unseen by a camera, "
                             "or unmarked in the wall (a matcher's window wider than the cut)"),
-    "NOTCH_WIDTH_FROM_BEND": Code("info", "notches only a dip of the wall marks (slots the matcher filled): their "
-                                  "widths are what their bends imply, as stated in their uncertainty", "none"),
+    "NOTCH_WIDTH_FROM_BEND": Code("info", "notches only a dip of the wall or the tube's outline in a colour image "
+                                  "marks (slots the matcher filled): their widths are what their bends imply, as "
+                                  "stated in their uncertainty", "none"),
     "NOTCH_WIDTH_MISREAD": Code("info", "notches whose rims read a width their bends rule out: their widths are "
                                 "what their bends imply, as stated in their uncertainty",
                                 "check the robot's cut widths if it recurs"),

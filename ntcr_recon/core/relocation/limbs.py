@@ -130,17 +130,51 @@ def limb_offsets(centerline: Centerline, s: np.ndarray, view: CameraView, outer_
     """How far across the camera's view the middle of the tube's limbs lies from the centreline at stations s;
     none within the end disc's reach of end_s in the image (outer_radius |cos| of the tangent to the line of
     sight: a profile there may cross the end cap's outline instead of the limbs)."""
-    position, tangent, _, _ = centerline.frames_at(np.asarray(s, float))
+    edges = limb_edges(centerline, s, view, outer_radius, end_s)
+    offset = np.full(len(s), np.nan)
+    usable = edges.usable
+    if np.any(usable):
+        limbs = edges.limbs[usable]
+        middle, width = (limbs[:, 0] + limbs[:, 1]) / 2.0, limbs[:, 1] - limbs[:, 0]
+        good = np.abs(width - 2.0 * edges.half_width[usable]) <= WIDTH_TOLERANCE_PX
+        offset[np.flatnonzero(usable)[good]] = (middle * edges.metres_per_px[usable])[good]
+    return LimbPlacement(np.asarray(s, float), offset, edges.across)
+
+
+@dataclass(frozen=True)
+class LimbEdges:
+    """Per station, where the camera sees the tube's two limbs: each (px along the image's sideways direction from
+    the projected axis; NaN: not found), where a whole tube's would lie (half_width, px), a pixel's size there (m)
+    and the direction across the view in 3-D (the base frame, perpendicular to the line of sight)."""
+
+    limbs: np.ndarray           # (S, 2): the limb at -half_width and the one at +half_width
+    half_width: np.ndarray      # (S,)
+    metres_per_px: np.ndarray   # (S,)
+    across: np.ndarray          # (S, 3), zero where not usable
+    usable: np.ndarray          # (S,) bool: in front of the camera, inside its image, crossing its view
+
+    def inward(self) -> np.ndarray:
+        """(S, 2): how far inside a whole tube's outline each limb lies (m; NaN: not found)."""
+        return (self.half_width[:, None] + self.limbs * np.array([1.0, -1.0])) * self.metres_per_px[:, None]
+
+
+def limb_edges(centerline: Centerline, s: np.ndarray, view: CameraView, outer_radius: float,
+               end_s: float = np.inf) -> LimbEdges:
+    """The limbs the camera sees at stations s (LimbEdges; limb_offsets' end margin)."""
+    s = np.asarray(s, float)
+    position, tangent, _, _ = centerline.frames_at(s)
     rotation, origin = view.extrinsic[:3, :3], view.extrinsic[:3, 3]
     optical, heading = (position - origin) @ rotation, tangent @ rotation
     k = view.intrinsics
     depth = optical[:, 2]
-    offset = np.full(len(s), np.nan)
+    limbs = np.full((len(s), 2), np.nan)
     across = np.zeros((len(s), 3))
     in_front = depth > 2.0 * outer_radius
-    if not np.any(in_front):
-        return LimbPlacement(np.asarray(s, float), offset, across)
     safe = np.where(in_front, depth, 1.0)
+    half_width = k.fx * outer_radius / np.sqrt(np.maximum(safe**2 - outer_radius**2, 1e-12))
+    edges = LimbEdges(limbs, half_width, safe / k.fx, across, np.zeros(len(s), bool))
+    if not np.any(in_front):
+        return edges
     pixel = np.stack([k.fx * optical[:, 0] / safe + k.cx, k.fy * optical[:, 1] / safe + k.cy], axis=1)
     # the axis's direction in the image, and across it (the derivative of the projection along the tangent)
     image_heading = np.stack([k.fx * (heading[:, 0] - optical[:, 0] * heading[:, 2] / safe),
@@ -149,35 +183,29 @@ def limb_offsets(centerline: Centerline, s: np.ndarray, view: CameraView, outer_
     length = np.linalg.norm(sideways, axis=1)
     view_dir = optical / np.linalg.norm(optical, axis=1)[:, None]
     crossing = np.linalg.norm(np.cross(heading, view_dir), axis=1) > np.cos(LEAST_CROSSING)
-    crossing &= np.asarray(s, float) <= end_s - outer_radius * np.abs(np.einsum("ij,ij->i", heading, view_dir))
-    half_width = k.fx * outer_radius / np.sqrt(np.maximum(safe**2 - outer_radius**2, 1e-12))
+    crossing &= s <= end_s - outer_radius * np.abs(np.einsum("ij,ij->i", heading, view_dir))
     reach = half_width + SEARCH_PX + BACKGROUND_PX[1] + 1.0
     inside = ((pixel[:, 0] - reach >= 0) & (pixel[:, 0] + reach <= k.width - 1)
               & (pixel[:, 1] - reach >= 0) & (pixel[:, 1] + reach <= k.height - 1))
     usable = in_front & crossing & inside & (length > 0)
     if not np.any(usable):
-        return LimbPlacement(np.asarray(s, float), offset, across)
+        return edges
     sideways = sideways[usable] / length[usable, None]
-    middle, width = _limb_middles(view.color, pixel[usable], sideways, half_width[usable])
-    good = np.abs(width - 2.0 * half_width[usable]) <= WIDTH_TOLERANCE_PX
-    offset[np.flatnonzero(usable)[good]] = (middle * depth[usable] / k.fx)[good]
+    limbs[usable] = _limbs(view.color, pixel[usable], sideways, half_width[usable])
     # across in 3-D: the image's sideways direction in the optical frame, made perpendicular to the line of sight
     direction = np.concatenate([sideways, np.zeros((len(sideways), 1))], axis=1)
     direction -= view_dir[usable] * np.einsum("ij,ij->i", direction, view_dir[usable])[:, None]
     across[usable] = (direction / np.linalg.norm(direction, axis=1)[:, None]) @ rotation.T
-    return LimbPlacement(np.asarray(s, float), offset, across)
+    return dataclasses.replace(edges, usable=usable)
 
 
-def _limb_middles(color: np.ndarray, pixel: np.ndarray, sideways: np.ndarray, half_width: np.ndarray
-                  ) -> tuple[np.ndarray, np.ndarray]:
-    """Per station, the middle of its two limbs (px along `sideways` from `pixel`) and their distance apart (px);
-    NaN where a limb was not found."""
+def _limbs(color: np.ndarray, pixel: np.ndarray, sideways: np.ndarray, half_width: np.ndarray) -> np.ndarray:
+    """Per station (S, 2), its two limbs (px along `sideways` from `pixel`); NaN where one was not found."""
     most = float(np.max(half_width)) + SEARCH_PX + BACKGROUND_PX[1]
     ks = np.arange(-most, most + 0.5 / SAMPLES_PER_PX, 1.0 / SAMPLES_PER_PX)
-    limbs = _limbs_kernel(np.ascontiguousarray(color), np.ascontiguousarray(pixel, dtype=float),
-                          np.ascontiguousarray(sideways, dtype=float), np.ascontiguousarray(half_width, dtype=float),
-                          ks, SEARCH_PX, *BACKGROUND_PX, *TUBE_PX, MIN_CONTRAST)
-    return (limbs[:, 0] + limbs[:, 1]) / 2.0, limbs[:, 1] - limbs[:, 0]
+    return _limbs_kernel(np.ascontiguousarray(color), np.ascontiguousarray(pixel, dtype=float),
+                         np.ascontiguousarray(sideways, dtype=float), np.ascontiguousarray(half_width, dtype=float),
+                         ks, SEARCH_PX, *BACKGROUND_PX, *TUBE_PX, MIN_CONTRAST)
 
 
 @jit

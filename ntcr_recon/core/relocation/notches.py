@@ -17,6 +17,7 @@ Width (the documented definition): the gap on the outer surface line facing the 
 from __future__ import annotations
 
 import statistics
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, replace
 from typing import NamedTuple
 
@@ -54,6 +55,9 @@ SPINE_TOP_PERCENTILE = 95
 ERODED_SPINE_TOP = 0.25
 
 
+# The signals of notches found without their edges measured: placed by the comb, their widths their bends'.
+BEND_IMPLIED = ("dip", "outline", "bend")
+
 @dataclass(frozen=True)
 class Notch:
     index: int            # position in the robot's notch order (0 = nearest the base)
@@ -64,13 +68,14 @@ class Notch:
     bend: float | None    # rad, the centreline's turn across the notch
     signal: str = "coverage"  # what measured it: "coverage" (a slot seen through), "depression" (seen
                               # obliquely: its floor and faces inside the wall's radius), "dip" (a slot the
-                              # matcher filled: only its place is measured, its width is its bend's) or "bend"
-                              # (found, but its edges read a width its bend rules out: its width is its bend's)
+                              # matcher filled: only its place is measured, its width is its bend's), "outline"
+                              # (as a dip, but only a colour image's outline marks it: relocation.outline_notches)
+                              # or "bend" (found, but its edges read a width its bend rules out: its bend's)
 
     @property
     def edges_measured(self) -> bool:
-        """Whether its edges are the data's: a dip's or a misread one's ("bend") are those its bend implies."""
-        return self.signal not in ("dip", "bend")
+        """Whether its edges are the data's: a dip's, an outline's or a misread one's are those its bend implies."""
+        return self.signal not in BEND_IMPLIED
 
 
 def bend_implied(notch: Notch, geometry: TubeGeometry, signal: str) -> Notch:
@@ -94,7 +99,8 @@ def spine_wall(observed: TubeCoordinates, centerline: Centerline, geometry: Tube
 def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: TubeGeometry, gate: float,
                    footprint: float, kernel_px: float, min_width_fraction: float, tip_s: float,
                    observed: TubeCoordinates | None = None,
-                   wall: tuple[np.ndarray, float, float] | None = None) -> list[Notch]:
+                   wall: tuple[np.ndarray, float, float] | None = None,
+                   outline: Callable[[np.ndarray, list[int]], Collection[int]] | None = None) -> list[Notch]:
     """The robot's comb of notches matched to the evidence along s; each notch refined where the comb puts it.
 
     Evidence, per cell of s, within the angular window where a notch opens the outer surface:
@@ -120,6 +126,8 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
     observed: the points' coordinates as measured, when `coords` are those points moved (e.g. along their
     viewing rays onto the wall): which points lie on the outer wall is judged by where they were seen, as a
     cut face seen through a notch would otherwise be moved onto the wall inside the notch and fill it.
+    outline: given the comb's centres and the notches depth did not find, those the tube's outline in the colour
+    images shows (relocation.outline_notches): found as a dip is ("outline").
     """
     footprint = geometry.pixel_footprint_or_default(footprint)
     seen = coords if observed is None else observed
@@ -128,13 +136,14 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
     if profiles is None:
         return []
     shift = _comb_shift(profiles, centres, geometry)
-    gaps, indices, dipped = [], [], []
+    gaps, indices, dipped, unfound = [], [], [], []
     half_width = geometry.notch_width / 2.0
     for k, centre in enumerate(centres + shift):
         if centre - half_width <= 0 or centre + half_width >= tip_s:
             continue
         found = _gap_at(profiles, centre, geometry, footprint, min_width_fraction)
         if found is None:
+            unfound.append(k)
             continue
         gaps.append(found[0])
         indices.append(k)
@@ -144,7 +153,11 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
     see_through = _seen_through(profiles.grid, profiles.anything, profiles.plateau, gaps)
     signals = ["dip" if dip else "coverage" if through else "depression"
                for dip, through in zip(dipped, see_through, strict=True)]
-    return _measure(gaps, indices, signals, centerline, geometry, centres + shift, tip_s)
+    shown = sorted(outline(centres + shift, unfound)) if outline is not None and unfound else []
+    gaps += [(centres[k] + shift - half_width, centres[k] + shift + half_width) for k in shown]
+    order = np.argsort(indices + shown, kind="stable")
+    gaps, signals = [gaps[i] for i in order], [(signals + ["outline"] * len(shown))[i] for i in order]
+    return _measure(gaps, sorted(indices + shown), signals, centerline, geometry, centres + shift, tip_s)
 
 
 class _Profiles(NamedTuple):
@@ -420,10 +433,10 @@ def _measure(gaps: list[tuple[float, float]], indices: list[int], signals: list[
     widths = np.maximum((end - start) - bends * r_o, 0.0)  # s_n (1 - kappa r_o) with kappa s_n = theta
     measured = [Notch(index, float((a + b) / 2), float(a), float(b), float(width), float(bend), signal)
                 for index, signal, a, b, width, bend in zip(indices, signals, start, end, widths, bends, strict=True)]
-    # a dip has no edges measured: the arc and gap its steady bend implies, about the comb's place
+    # a dip (or an outline's) has no edges measured: the arc and gap its steady bend implies, about the comb's place
     bends = {n.index: n.bend for n in measured}
-    return [bend_implied(replace(n, bend=steady_bend(bends, n.index)), geometry, "dip") if n.signal == "dip" else n
-            for n in measured]
+    return [bend_implied(replace(n, bend=steady_bend(bends, n.index)), geometry, n.signal)
+            if n.signal in ("dip", "outline") else n for n in measured]
 
 
 def steady_bend(bends: dict[int, float | None], index: int) -> float:

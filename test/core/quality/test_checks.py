@@ -559,3 +559,19 @@ def test_a_pose_a_millimetre_off_is_told_by_the_outlines_where_the_limbs_no_long
         assert said["EXTRINSICS_DISAGREE"][0].figures["by_outlines"] is True
         assert extrinsics_apart(trace) == pytest.approx(1.58e-3)
         assert quality["uncertainty_mm"]["centerline"] > 1.58
+
+
+def test_notches_only_a_dip_or_the_outline_marks_are_named_with_their_widths_from_their_bends():
+    """NOTCH_WIDTH_FROM_BEND lists the dips and the notches only a colour image's outline showed (their signal
+    "outline"), the latter also on their own; a notch measured by its edges is in neither."""
+    s = np.linspace(0.0, 50e-3, 2000)
+    notches = [Notch(i, c, c - 0.75e-3, c + 0.75e-3, 1.5e-3, 0.0, signal)
+               for i, (c, signal) in enumerate(zip(GEOMETRY.notch_centers_s[:4], ("coverage", "dip", "outline",
+                                                                                   "outline"), strict=True))]
+    _, warnings = assess(Trace(
+        geometry=GEOMETRY, camera_names=("cam_a", "cam_b"), notches=notches, coords_s=s, camera=None, tip_s=50e-3,
+        total_bend=0.0, footprint=FOOTPRINT, wall_residual=0.0, notch_side=0.0, configured_side=0.0,
+        bias_notch_side=0.0, bias_binormal=0.0, depth_steps={}))
+    (from_bend,) = _by_code(warnings)["NOTCH_WIDTH_FROM_BEND"]
+    assert from_bend.severity == "info"
+    assert (from_bend.figures["notches"], from_bend.figures["outline"]) == ([1, 2, 3], [2, 3])

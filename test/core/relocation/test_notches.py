@@ -69,6 +69,27 @@ def test_a_slot_the_matcher_filled_is_found_by_its_dip_and_given_its_bends_width
     assert found[0.85] == [] and DIP_PEAK > 1 - 0.85
 
 
+def test_a_notch_no_depth_marks_is_found_where_the_outline_shows_it():
+    """The slot filled to 85 % (no dip: depth marks nothing): the outline in a colour image is asked about the
+    notches depth did not find and shows notch 5 (relocation.outline_notches); found where the comb puts it
+    ("outline"), its width the one its bend implies. Without the outline's word it stays missing."""
+    geometry, centerline, coords, start, end = _tube_with_one_notch(False, filled=0.85)
+    asked = []
+
+    def outline(centres, unfound):
+        asked.extend(unfound)
+        return {5: 0.15e-3} if 5 in unfound else {}
+
+    [notch] = detect_notches(coords, centerline, geometry, 0.8e-3, FOOTPRINT, 0.5, 0.25, geometry.length - 0.1e-3,
+                             outline=outline)
+    assert 5 in asked
+    assert (notch.index, notch.signal, notch.edges_measured) == (5, "outline", False)
+    assert abs(notch.center_s - (start + end) / 2) < FOOTPRINT / 2
+    assert notch.width == pytest.approx(geometry.notch_width_at_bend(notch.bend))
+    assert detect_notches(coords, centerline, geometry, 0.8e-3, FOOTPRINT, 0.5, 0.25, geometry.length - 0.1e-3,
+                          outline=lambda centres, unfound: {}) == []
+
+
 def test_a_dips_width_is_its_bend_taken_with_its_neighbours_not_one_chords_wobble():
     """A robot bent 3.75 deg at each notch whose centreline wobbles 0.1 mm across the spine between notches 9 and
     10 (where its support changes from two cameras to one): that spine's chord turns 3.8 deg, notch 9 reads 7.6
