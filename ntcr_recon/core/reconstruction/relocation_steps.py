@@ -217,7 +217,8 @@ def notches_and_side(scene: Scene, axis: Axis, tip_s: float, wall) -> Sided:
             break
         turned = axis.rolled(roll)
         again = find_notches(scene, turned, tip_s, wall)
-        if len(again) < len(found):
+        # judged by what depth found in each frame's notch window (the outlines' are the same in any frame)
+        if sum(n.signal != "outline" for n in again) < sum(n.signal != "outline" for n in found):
             side_uncertainty = None
             break  # the turned frame explains the data worse: the measurement was not to be trusted
         notch_side += roll

@@ -118,3 +118,38 @@ def test_a_side_that_does_not_settle_in_the_turned_frame_keeps_the_configured_on
         assert side == pytest.approx(sum(rolls_deg))
         assert relocation.quality["notch_side_unsettled_deg"] is None
         assert [round(f["side_off_deg"]) for f in said["ROBOT_ROLLED"]] == [21]
+
+
+def test_a_turned_frame_is_judged_by_what_depth_finds_in_it_not_by_the_outlines(monkeypatch):
+    """A side measured 150 deg off (replaced, as above) turns the frame. There depth finds half the notches and the
+    outlines (relocation.outline_notches, frame-blind) the rest, as many as depth found in the configured frame:
+    judged by depth's, the turned frame explains the data worse, the measurement is not trusted and the configured
+    side kept."""
+    import dataclasses
+
+    from support import tiny_rig
+
+    import ntcr_recon.core.reconstruction.relocation_steps as steps
+    from ntcr_recon.core.config.rig import load_rig_config
+    from ntcr_recon.core.reconstruction.reconstructor import Reconstructor
+
+    bag = BAGS / "bend45"
+    config = load_rig_config(bag / "rig.yaml")
+    pair = tiny_rig.bag_frame_pairs(bag, config)[0]
+    measurements = iter([SideMeasurement(math.radians(150.0), math.radians(2.0))])
+    monkeypatch.setattr(steps, "measure_notch_side", lambda *args, **kwargs: next(measurements, None))
+    found_in_frame, real = [], steps.find_notches
+
+    def half_by_depth_when_turned(*args, **kwargs):
+        notches = real(*args, **kwargs)
+        if found_in_frame:  # the turned frame: depth missed the upper half, the outlines show them
+            notches = [dataclasses.replace(n, signal="outline") if n.index >= 8 else n for n in notches]
+        found_in_frame.append([n.signal for n in notches])
+        return notches
+
+    monkeypatch.setattr(steps, "find_notches", half_by_depth_when_turned)
+    relocation = Reconstructor(config).process(pair).relocation
+    print(f"\nsignals per frame {found_in_frame}; side {relocation.quality['notch_side_deg']:.1f} deg")
+    assert len(found_in_frame[0]) == len(found_in_frame[1]) == 16
+    assert relocation.quality["notch_side_deg"] == pytest.approx(0.0, abs=1e-9)
+    assert relocation.quality["notch_side_uncertainty_deg"] is None
