@@ -27,6 +27,8 @@ from ntcr_recon.core.relocation.wall import band_gate
 
 # Alignment passes: each selects the trusted points about the axis the previous one moved.
 ALIGNMENT_PASSES = 3
+# Limb passes: each reads the limbs about where the previous one left the axis (it moves it about half way).
+LIMB_PASSES = 2
 
 
 def align(scene: Scene, fitted: Axis, model: Centerline | None = None) -> Aligned:
@@ -67,8 +69,9 @@ def align(scene: Scene, fitted: Axis, model: Centerline | None = None) -> Aligne
     leveled, backbone_shift = level_by_backbone(centerline, coords, frames, viewpoints, seen_by, scene.origins, trust)
     outline = aligned_outline if across_from_fit is None else None  # of the axis as it stands
     # across the views the limbs in the colour images place the axis sharper than any depth (core.relocation.limbs)
-    placed, limbs = (placed_by_limbs(leveled, scene.views, geometry.outer_radius, geometry.notch_pitch, end)
-                     if scene.views else (leveled, None))
+    placed, limbs = leveled, None
+    for _ in range(LIMB_PASSES if scene.views else 0):
+        placed, limbs = placed_by_limbs(placed, scene.views, geometry.outer_radius, geometry.notch_pitch, end)
     if model is not None:
         placed = model
     if placed is not centerline:  # levelled or placed by the limbs or the model: the points projected once onto it

@@ -326,8 +326,9 @@ def tip_by_length(scene: Scene, centerline: Centerline, end: SeenEnd, centreline
                          tip_s, expected_length, geometry.outer_radius, footprint, scene.extrinsics,
                          scene.cloud.xyz, scene.seen_by)
     # an end seen far short of the robot's length where every camera was kept from seeing the rest (nearer than
-    # its depth range, pointing at it): the robot goes on there, bending as the notches seen did (two at least)
-    if (along.disagreement > LENGTH_AGREEMENT_SIGMAS and sum(n.edges_measured for n in notches) >= 2
+    # its depth range, pointing at it): the robot goes on there, bending as the notches seen did (two at least,
+    # found by any signal: an outline's or a dip's bend is its spines' chords', as an edged one's)
+    if (along.disagreement > LENGTH_AGREEMENT_SIGMAS and len(notches) >= 2
             and reach.why_unseen(list(scene.config.camera_names), tip_s, expected_length, continued=True)):
         for _ in range(2):  # the hidden notches' own bend shortens the centreline further
             total_bend = turn_from_base(centerline, geometry, expected_length)
