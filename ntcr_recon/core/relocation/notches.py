@@ -58,6 +58,7 @@ ERODED_SPINE_TOP = 0.25
 # The signals of notches found without their edges measured: placed by the comb, their widths their bends'.
 BEND_IMPLIED = ("dip", "outline", "bend")
 
+
 @dataclass(frozen=True)
 class Notch:
     index: int            # position in the robot's notch order (0 = nearest the base)
@@ -66,10 +67,9 @@ class Notch:
     end_s: float
     width: float          # m, outer-surface gap facing the notches
     bend: float | None    # rad, the centreline's turn across the notch
-    signal: str = "coverage"  # what measured it: "coverage" (a slot seen through), "depression" (seen
-                              # obliquely: its floor and faces inside the wall's radius), "dip" (a slot the
-                              # matcher filled: only its place is measured, its width is its bend's), "outline"
-                              # (as a dip, but only a colour image's outline marks it: relocation.outline_notches)
+    signal: str = "coverage"  # what measured it: "coverage" (a slot seen through), "depression" (seen obliquely:
+                              # floor and faces inside the wall's radius), "dip" (a slot the matcher filled: placed,
+                              # its width its bend's), "outline" (as a dip, only a colour image's outline marks it)
                               # or "bend" (found, but its edges read a width its bend rules out: its bend's)
 
     @property

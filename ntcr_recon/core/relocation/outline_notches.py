@@ -45,8 +45,8 @@ def least_recession(geometry: TubeGeometry) -> float:
 def notches_in_outline(centerline: Centerline, views: dict[str, CameraView], geometry: TubeGeometry,
                        centres: np.ndarray, indices: list[int], end_s: float) -> dict[int, float]:
     """Of the comb's notches `indices` (their centres, m of s: `centres`), those whose cut the outline shows in
-    some camera: per notch the most a limb receded there beyond the spines either side (m). Up to end_s (the end
-    seen), each notch and its spines within it."""
+    some camera: per notch the most a limb receded there beyond the spines either side (m; one gone from where it
+    was looked for counts as the tube's diameter). Up to end_s (the end seen), each notch and its spines within it."""
     least = least_recession(geometry)
     if least <= 0.0 or not views or not indices:
         return {}
