@@ -5,6 +5,7 @@ the backbone."""
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import numpy as np
@@ -69,9 +70,7 @@ def align(scene: Scene, fitted: Axis, model: Centerline | None = None) -> Aligne
     leveled, backbone_shift = level_by_backbone(centerline, coords, frames, viewpoints, seen_by, scene.origins, trust)
     outline = aligned_outline if across_from_fit is None else None  # of the axis as it stands
     # across the views the limbs in the colour images place the axis sharper than any depth (core.relocation.limbs)
-    placed, limbs = leveled, None
-    for _ in range(LIMB_PASSES if scene.views else 0):
-        placed, limbs = placed_by_limbs(placed, scene.views, geometry.outer_radius, geometry.notch_pitch, end)
+    placed, limbs = _placed_by_limbs(leveled, scene, end)
     if model is not None:
         placed = model
     if placed is not centerline:  # levelled or placed by the limbs or the model: the points projected once onto it
@@ -90,6 +89,23 @@ def align(scene: Scene, fitted: Axis, model: Centerline | None = None) -> Aligne
                    # along the rays)
                    outline_of(coords, frames) if outline is None else outline, across_from_fit, scatter, limbs,
                    outlines)
+
+
+def _placed_by_limbs(leveled: Centerline, scene: Scene, end: float):
+    """relocation.limbs.placed_by_limbs, LIMB_PASSES times (a pass placing nothing leaves the last one's word), and
+    its figures with how far all of them moved the axis (m, RMS over the levelled axis's samples)."""
+    placed, limbs = leveled, None
+    for _ in range(LIMB_PASSES if scene.views else 0):
+        moved, figures = placed_by_limbs(placed, scene.views, scene.geometry.outer_radius,
+                                         scene.geometry.notch_pitch, end)
+        if limbs is not None and moved is placed:
+            break
+        placed, limbs = moved, figures
+    if limbs is not None and placed is not leveled:
+        s = leveled.s[leveled.s <= placed.length]
+        apart = placed.frames_at(s)[0] - leveled.frames_at(s)[0]
+        limbs = dataclasses.replace(limbs, moved_rms=float(np.sqrt(np.mean(np.sum(apart**2, axis=1)))))
+    return placed, limbs
 
 
 def _wall_band_gate(coords: TubeCoordinates, centerline: Centerline, geometry, gate: float, footprint: float
