@@ -225,6 +225,23 @@ def notch_side(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
             else [math.degrees(a) for a in t.side_unsettled]}, warnings
 
 
+def bend_plane(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
+    """The plane the axis was held to (relocation.bend_plane): its roll off the configured side, and a robot that
+    bends in another plane than that beyond robot.roll_tolerance."""
+    plane = t.bend_plane
+    if plane is None:
+        return {}, []
+    figures = plane.figures()
+    if not plane.roll_measured:
+        return {"bend_plane": figures}, []
+    return {"bend_plane": figures}, [finding(
+        "BEND_PLANE_TURNED", f"the robot bends in a plane turned {figures['roll_deg']:+.1f} deg from the configured "
+        f"robot.notch_side (+-{figures['roll_sd_deg']:.1f} deg; robot.roll_tolerance "
+        f"{math.degrees(t.geometry.roll_tolerance):.1f} deg): the axis is held to that plane; the robot is rolled in "
+        "its clamp, or the rig file's notch_side or its calibration is off", roll_deg=figures["roll_deg"],
+        roll_sd_deg=figures["roll_sd_deg"])]
+
+
 def depth_resolution(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
     """The pixel footprint against the tube, and the depth step each camera's data showed."""
     geometry, footprint, warnings = t.geometry, t.footprint, []
@@ -395,4 +412,4 @@ def _camera_distance(t: Trace) -> float | None:
 
 # The checks, in the order their warnings are listed.
 CHECKS: tuple[Check, ...] = (notches_found, widths_against_bends, icp_reference, tip_end, camera_views,
-                             tip_against_length, notch_side, depth_resolution, centerline, extrinsics)
+                             tip_against_length, notch_side, bend_plane, depth_resolution, centerline, extrinsics)

@@ -83,6 +83,9 @@ CODES: dict[str, Code] = {
     "NOTCH_SIDE_OFF": Code("info", "the notches open away from the configured robot.notch_side, by no more than "
                            "the measured side is known to (the measured side is used)",
                            "none; if it recurs, check robot.notch_side"),
+    "BEND_PLANE_TURNED": Code("warn", "the robot bends in a plane turned from the configured robot.notch_side "
+                              "beyond robot.roll_tolerance: the axis is held to the plane its points show",
+                              "correct robot.notch_side or recalibrate; check the robot's roll in its clamp"),
     # the centreline
     "CENTERLINE_UNCERTAIN": Code("info", "the centreline's stated uncertainty exceeds the floor, and why",
                                  "see the figures: cameras closer, or a camera facing the backbone"),

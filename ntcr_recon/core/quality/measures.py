@@ -19,6 +19,7 @@ from scipy.ndimage import uniform_filter1d
 
 from ntcr_recon.core.base.robust import median
 from ntcr_recon.core.quality.findings import Z90
+from ntcr_recon.core.relocation.bend_plane import BendPlane
 from ntcr_recon.core.relocation.centerline import cameras_round_tube
 from ntcr_recon.core.relocation.wall import surface_band
 from ntcr_recon.core.robot.comb import expected_centres, inside_intervals
@@ -288,7 +289,8 @@ def centerline_uncertainty(cross_view_spread: float | None, notched_thinning: fl
                            looking_into_slots: tuple[str, ...] = (), levelled: bool = False,
                            one_sided: tuple[float, float] | None = None, astray: float | None = None,
                            varying_lean: float | None = None, limbs: tuple[float, float] | None = None,
-                           level_scatter: float | None = None) -> float | None:
+                           level_scatter: float | None = None,
+                           bend_plane: BendPlane | None = None) -> float | None:
     """How far the centreline may be off (m), from what the data show of where each view places it; None when
     nothing could be measured.
 
@@ -310,6 +312,8 @@ def centerline_uncertainty(cross_view_spread: float | None, notched_thinning: fl
     itself: that much again over that share. varying_lean: how much the alignment's shift of the fit varies along
     the tube (alignment.shift_scatter): the cameras' spread misses a facing wall stereo moved alike in every view,
     and that shows there.
+    bend_plane: the axis held to the robot's bend plane (relocation.bend_plane): the terms along the views scaled by
+    what that left of them (along_views_kept), how far off the plane may lie added (plane_uncertainty).
     The terms are orthogonal: added in quadrature (the shares as weights, as the RMS over the length). astray:
     how far the axis lies from the middle of the tube's outline where that shows it went astray (m): the wall
     the others are measured on moved with it, and the axis is known no better than that.
@@ -324,8 +328,9 @@ def centerline_uncertainty(cross_view_spread: float | None, notched_thinning: fl
     along_views = (float(np.hypot(Z90 * level_scatter, slot_lean)) if level_scatter is not None
                    else slot_lean or (notched_thinning or 0.0))
     share, level = one_sided if one_sided is not None else (0.0, 0.0)
-    return max(float(np.sqrt(across**2 + along_views**2 + share * level**2 + (varying_lean or 0.0) ** 2)),
-               astray or 0.0)
+    kept, plane = (1.0, 0.0) if bend_plane is None else (bend_plane.along_views_kept, bend_plane.plane_uncertainty)
+    along = kept**2 * (along_views**2 + share * level**2) + plane**2
+    return max(float(np.sqrt(across**2 + along + (varying_lean or 0.0) ** 2)), astray or 0.0)
 
 
 def nearest_box_face(point: np.ndarray, box: tuple[np.ndarray, np.ndarray]) -> tuple[int, float, float]:

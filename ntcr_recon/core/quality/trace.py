@@ -15,6 +15,7 @@ from ntcr_recon.core.quality.measures import (
     centerline_uncertainty,
     unmeasured_share,
 )
+from ntcr_recon.core.relocation.bend_plane import BendPlane
 from ntcr_recon.core.relocation.icp import ReferenceMove
 from ntcr_recon.core.relocation.outline import went_astray
 from ntcr_recon.core.relocation.tip import TipAlongTube
@@ -91,6 +92,7 @@ class Trace:
     side_uncertainty: float | None = None
     cross_view_spread: float | None = None
     level_scatter: float | None = None  # cross_view.CrossView.level_scatter
+    bend_plane: BendPlane | None = None  # the axis held to the robot's bend plane (None: not held)
     # where the limbs in the colour images placed the axis across the views (limbs.LimbFigures): their disagreement
     # (m) and the share of the length seen they placed it over
     limbs_across: tuple[float, float] | None = None
@@ -245,7 +247,8 @@ def derive(t: Trace) -> Derived:
     levelled = bool(t.backbone_shift)
     uncertainty = centerline_uncertainty(t.cross_view_spread, t.notched_thinning, t.looking_into_slots, levelled,
                                          one_sided=resting_on_level, astray=astray, varying_lean=t.alignment_scatter,
-                                         limbs=t.limbs_across, level_scatter=t.level_scatter)
+                                         limbs=t.limbs_across, level_scatter=t.level_scatter,
+                                         bend_plane=t.bend_plane)
     # where no camera's view showed the tube's outline whole, nothing checked the axis across the views (outline.py):
     # it is known there no better than that check resolves, a pixel footprint, whatever the cameras' spread says
     outline_unchecked = t.camera is not None and t.outline_offset is None

@@ -17,6 +17,7 @@ from ntcr_recon.core.relocation.alignment import (
     shift_scatter,
 )
 from ntcr_recon.core.relocation.backbone import level_by_backbone
+from ntcr_recon.core.relocation.bend_plane import held_to_bend_plane
 from ntcr_recon.core.relocation.centerline import Centerline, TubeCoordinates
 from ntcr_recon.core.relocation.cross_view import cross_view_spread
 from ntcr_recon.core.relocation.limbs import placed_by_limbs
@@ -71,6 +72,10 @@ def align(scene: Scene, fitted: Axis, model: Centerline | None = None) -> Aligne
     outline = aligned_outline if across_from_fit is None else None  # of the axis as it stands
     # across the views the limbs in the colour images place the axis sharper than any depth (core.relocation.limbs)
     placed, limbs = _placed_by_limbs(leveled, scene, end)
+    # off the plane the notches bend the robot in lies what depth places worst: held to it (relocation.bend_plane)
+    plane = held_to_bend_plane(placed, geometry, end, scene.origins) if model is None else None
+    if plane is not None:
+        placed = plane.centerline
     if model is not None:
         placed = model
     if placed is not centerline:  # levelled or placed by the limbs or the model: the points projected once onto it
@@ -88,7 +93,7 @@ def align(scene: Scene, fitted: Axis, model: Centerline | None = None) -> Aligne
                    # the axis against the middle of the tube's outline in each camera's view (depth errors lie
                    # along the rays)
                    outline_of(coords, frames) if outline is None else outline, across_from_fit, scatter, limbs,
-                   outlines)
+                   outlines, plane)
 
 
 def _placed_by_limbs(leveled: Centerline, scene: Scene, end: float):

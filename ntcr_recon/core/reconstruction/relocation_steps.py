@@ -33,6 +33,7 @@ from ntcr_recon.core.relocation.alignment import (
     SILHOUETTE_MARGIN_PX,
     Alignment,
 )
+from ntcr_recon.core.relocation.bend_plane import BendPlane
 from ntcr_recon.core.relocation.bends import continued_bend, held_bend, turn_from_base
 from ntcr_recon.core.relocation.centerline import Centerline, TubeCoordinates, cameras_round_tube
 from ntcr_recon.core.relocation.centerline_fit import CenterlineSettings
@@ -129,6 +130,7 @@ class Aligned:
     scatter: float | None = None                  # m, alignment.shift_scatter
     limbs: LimbFigures | None = None              # what the limbs in the colour images did (None: no image)
     outline_rigid: tuple[float, float] | None = None  # outline.outline_rigid_offset about the final axis
+    bend_plane: BendPlane | None = None           # the axis held to the bend plane (None: not held)
 
 
 @dataclass(frozen=True)
@@ -281,7 +283,8 @@ def centreline_thinning(scene: Scene, aligned: Aligned, axis: Axis, wall, tip_s:
     looking = tuple(cameras_looking_into_slots(axis.centerline, geometry, scene.origins, scene.config.camera_names))
     off = centerline_uncertainty(aligned.cross_view.spread, thinning, looking, bool(aligned.backbone_shift),
                                  limbs=limbs_across(aligned, tip_s, geometry.notch_pitch),
-                                 level_scatter=aligned.cross_view.level_scatter) or 0.0
+                                 level_scatter=aligned.cross_view.level_scatter,
+                                 bend_plane=aligned.bend_plane) or 0.0
     return Thinning(thinning, looking, off)
 
 
@@ -359,7 +362,7 @@ def assess(scene: Scene, aligned: Aligned, sided: Sided, end: SeenEnd, length: B
         notched_thinning=thinning.thinning, looking_into_slots=thinning.looking, tip_from_cap=end.from_cap,
         side_unsettled=sided.unsettled, side_uncertainty=sided.side_uncertainty,
         cross_view_spread=aligned.cross_view.spread, distal_cross_view=distal_cross_view,
-        level_scatter=aligned.cross_view.level_scatter,
+        level_scatter=aligned.cross_view.level_scatter, bend_plane=aligned.bend_plane,
         limbs_across=limbs_across(aligned, length.along.s, geometry.notch_pitch),
         cross_view_offsets=aligned.cross_view.offsets,
         limbs_rigid=None if aligned.limbs is None else aligned.limbs.rigid, outline_rigid=aligned.outline_rigid,

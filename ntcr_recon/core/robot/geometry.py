@@ -57,6 +57,12 @@ class TubeGeometry:
                                         exclusive_minimum=True)
     notch_side: float = setting(0.0, "angle about the axis of the side the notches open to, from +x towards +y",
                                 unit="rad", minimum=-2 * math.pi, maximum=2 * math.pi)
+    roll_tolerance: float | None = setting(
+        math.radians(0.2), "how well the robot's roll in its clamp is known about notch_side (one standard "
+        "deviation; `ntcr-recon calibrate` puts the base frame's x where the robot bends, so a calibrated rig knows "
+        "it as well as that fit's bend plane): the centreline is held to the plane its notches bend it in, at that "
+        "roll unless the points show another (core.relocation.bend_plane); null = not held to a plane", unit="rad",
+        minimum=0.0, maximum=math.pi, exclusive_minimum=True)
     proximal_length: float = setting(5.0e-3, "base to the first notch's proximal edge", unit="m", minimum=0.0,
                                      maximum=MAX_ROBOT_LENGTH, exclusive_maximum=True)
     distal_length: float = setting(1.5e-3, "last notch's distal edge to the tip", unit="m", minimum=0.0,

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import types
 
 import numpy as np
 import pytest
@@ -21,7 +22,9 @@ from ntcr_recon.core.quality.measures import (
     where_notches_went_unseen,
 )
 from ntcr_recon.core.quality.trace import Trace, derive, extrinsics_apart
+from ntcr_recon.core.relocation.bend_plane import held_to_bend_plane
 from ntcr_recon.core.relocation.bends import continued_bend
+from ntcr_recon.core.relocation.centerline import Centerline
 from ntcr_recon.core.relocation.notches import Notch
 from ntcr_recon.core.relocation.outline import OUTLINE_TOLERANCE_PX
 from ntcr_recon.core.relocation.tip import TipAlongTube, carried_to_length
@@ -99,6 +102,30 @@ def test_quality_says_what_is_doubtful():
     (cap,) = _by_code(cap_warnings)["TIP_ON_END_CAP"]
     assert cap.figures["along_mm"] == pytest.approx(0.26)  # the cap's points smeared over that much
     assert "TIP_ON_ERODED_RIM" not in _by_code(cap_warnings)
+
+
+def test_a_robot_bending_in_a_plane_turned_beyond_its_roll_tolerance_is_warned_and_its_plane_reported():
+    s = np.linspace(0.0, 50e-3, 2000)
+    truth = TubeShape.from_bend_angle(GEOMETRY, math.radians(45.0))
+    points, frames = truth.centerline(s)
+    axis = Centerline.from_frames(s, points, frames)
+    turned = dataclasses.replace(GEOMETRY, notch_side=math.radians(-8.0))  # the rig file's side, 8 deg off
+
+    def assessed(configured):
+        plane = held_to_bend_plane(axis, configured, truth.length)
+        return assess(Trace(geometry=configured, camera_names=("cam_a", "cam_b"), notches=[], coords_s=s,
+                            camera=(np.arange(len(s)) % 2).astype(np.int8), tip_s=truth.length, total_bend=0.0,
+                            footprint=FOOTPRINT, wall_residual=0.0, notch_side=configured.notch_side,
+                            configured_side=configured.notch_side, bias_notch_side=0.0, bias_binormal=0.0,
+                            depth_steps={}, bend_plane=plane))
+
+    quality, warnings = assessed(turned)
+    (said,) = _by_code(warnings)["BEND_PLANE_TURNED"]
+    assert said.severity == "warn" and said.figures["roll_deg"] == pytest.approx(8.0, abs=0.1)
+    assert quality["bend_plane"]["roll_measured"]
+    quality, warnings = assessed(GEOMETRY)
+    assert "BEND_PLANE_TURNED" not in _by_code(warnings)
+    assert quality["bend_plane"]["roll_deg"] == 0.0 and quality["bend_plane"]["off_plane_mm"] < 0.001
 
 
 def test_quality_tells_a_tube_cut_short_by_the_crop_box_from_one_that_ends_inside_it():
@@ -370,6 +397,12 @@ def test_quality_gives_the_centreline_an_uncertainty_and_warns_above_its_floor()
     assert centerline_uncertainty(0.08e-3, 0.03e-3, ("cam_a",), limbs=(0.01e-3, 0.5),
                                   level_scatter=0.02e-3) == pytest.approx(
         math.sqrt(0.5 * (z * 0.01e-3) ** 2 + 0.5 * 0.08e-3**2 + (z * 0.02e-3) ** 2 + (2 * 0.03e-3) ** 2))
+    # the axis held to the robot's bend plane: what lies along the views only as far as the hold left it (a tenth,
+    # seen nearly square to the plane), the plane's own uncertainty added
+    plane = types.SimpleNamespace(along_views_kept=0.1, plane_uncertainty=0.01e-3)
+    assert centerline_uncertainty(0.08e-3, 0.03e-3, limbs=(0.01e-3, 1.0), level_scatter=0.2e-3,
+                                  bend_plane=plane) == pytest.approx(
+        math.sqrt((z * 0.01e-3) ** 2 + (0.1 * z * 0.2e-3) ** 2 + 0.01e-3**2))
 
     # a robot 50 mm long, seen to its tip (one ending short of its length states its tip as far off)
     seen_to_tip = dataclasses.replace(GEOMETRY, proximal_length=GEOMETRY.proximal_length - 3e-3)
