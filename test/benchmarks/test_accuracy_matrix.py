@@ -71,11 +71,11 @@ def test_a_row_renders_without_flying_pixels():
     assert flying[1] < 0.3 * flying[0], flying
 
 
-def test_a_row_that_misses_says_so():
-    """1 mm depth steps (realsense-ros recordings) cost accuracy: the result must warn about them."""
+def test_depth_in_1mm_steps_is_warned_and_the_centreline_stays_within_what_the_result_states():
+    """1 mm depth steps (realsense-ros recordings) flatten the tube's depth profile: the result warns about them.
+    (Held to the robot's bend plane, the centreline now meets its floor here: 0.03 mm, 0.10 before.)"""
     figures = accuracy_matrix.run_row(ROWS["depth_unit_1mm"], frames=2)
     print("\n" + accuracy_matrix.format_row(figures) + "\n" + _listed(figures["warnings"]))
-    assert figures["misses"], "this row was expected to miss a floor; if it no longer does, pick another"
     assert any(f["depth_step_mm"] == pytest.approx(1.0, abs=0.05) for f in _found(figures, "DEPTH_QUANTISED"))
     # the alignment followed the quantised wall across the views (0.41 mm off); the fit, which the outline bears
     # out, places the axis across them instead (0.20 mm off), and the error stays within what the result states
@@ -140,11 +140,13 @@ def test_a_camera_looking_into_the_notches_from_afar_is_overruled_by_the_one_fac
 
 
 def test_a_centreline_off_its_floor_says_how_uncertain_it_is():
-    """The tube bent towards cam_a from 110 mm, its distal stretch edge-on to cam_b: stereo beside the notches moves
-    the wall cam_a sees there, which no second view checks, the centreline misses its floor, and the result's own
-    uncertainty (the wall's deficit between the notches, the correction's scatter along the tube) says so - at
-    least as large as the error it made. (Cameras 110 mm away missed it too until the limbs placed the axis.)"""
-    figures = accuracy_matrix.run_row(ROWS["bend90_toward_cam_a"], frames=2)
+    """The notches open towards cam_a, so the robot bends along the cameras' views, where only depth places it (the
+    bend plane holds nothing there), and a real stereo matcher reads the wall between the notches that cam_a looks
+    into 0.1 mm deep: the centreline misses its floor, and the result's own uncertainty (the walls' levels apart,
+    the slots' lean) says so - at least as large as the error it made. (The emulated depth's rows that missed it
+    here - the tube bent towards cam_a from 110 mm, 1 mm depth steps - meet it since the axis is held to the bend
+    plane.)"""
+    figures = accuracy_matrix.run_row(accuracy_matrix.with_matcher(ROWS["side-90_bend30"], "sgbm", False), frames=2)
     print("\n" + accuracy_matrix.format_row(figures) + "\n" + _listed(figures["warnings"]))
     assert "centerline" in figures["misses"], "this row was expected to miss; if it no longer does, pick another"
     stated = _found(figures, "CENTERLINE_UNCERTAIN")
