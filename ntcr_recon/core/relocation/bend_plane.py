@@ -9,9 +9,11 @@ and the walls place it), what lies off the plane is taken for depth's error, rep
 
 The roll: the configured one (known to robot.roll_tolerance, one standard deviation), unless the axis's samples (one
 per notch pitch, up to the end seen) show another beyond ROLL_SIGMAS of that and of their own uncertainty - the
-robot turned in its clamp - whose plane is then taken, and the result says so. The samples' roll: their part off
-the configured plane regressed on their part in it (a plane turned by a puts a sample l across it l tan(a) off;
-depth's error lies off the plane seen side on, and a sample's place in it is known to a hundredth of its extent).
+robot turned in its clamp - whose plane is then taken, and the result says so; a robot bent less than its outer
+radius away from its base's axis (RMS over the samples) shows no plane beyond its axis's own errors. The samples'
+roll: their part off the configured plane regressed on their part in it (a plane turned by a puts a sample l across
+it l tan(a) off; depth's error lies off the plane seen side on, and a sample's place in it is known to a hundredth
+of its extent).
 
     plane = held_to_bend_plane(centerline, geometry, end_s)   # BendPlane; None: robot.roll_tolerance null
 """
@@ -74,7 +76,9 @@ def held_to_bend_plane(centerline: Centerline, geometry: TubeGeometry, end_s: fl
     own = float(off @ lateral) / spread
     scatter2 = max(float(np.sum((off - own * lateral) ** 2)) / (len(s) - 1), 1e-12)  # per sample (m^2)
     own_sd = math.sqrt(scatter2 / spread)
-    roll_measured = abs(own) > ROLL_SIGMAS * math.hypot(math.tan(tolerance), own_sd)
+    # (a robot bent less than its radius away from its base's axis shows no plane: its axis's errors would)
+    roll_measured = (spread > len(s) * geometry.outer_radius**2
+                     and abs(own) > ROLL_SIGMAS * math.hypot(math.tan(tolerance), own_sd))
     # within that, the configured roll: depth's error runs smoothly along the tube, so the samples' scatter about
     # their own plane says too little of how far that plane is off (a 0.1 mm wiggle turns it 0.3 deg)
     # (and a roll taken from the samples is known no better than one sample's scatter tells, for the same reason)

@@ -61,11 +61,17 @@ def test_a_robot_turned_in_its_clamp_is_held_to_the_plane_its_samples_show():
 
 
 def test_a_straight_robot_keeps_the_configured_plane():
+    """Even where its axis's error is a tilt that a plane turned 45 deg fits exactly: a robot bent less than its
+    radius away from its base's axis shows no plane."""
     truth, _ = bent_axis(GEOMETRY, 0.0)
     plane = held_to_bend_plane(off_plane(truth, 0.05e-3), GEOMETRY, truth.length)
     assert not plane.roll_measured
     assert abs(plane.roll) < math.radians(0.5)
     assert rms_apart(plane.centerline, truth) < 0.01e-3
+    tilt = np.outer(truth.s / truth.length * 0.05e-3, [1.0, 1.0, 0.0])  # 0.07 mm off at the tip, diagonally
+    tilted = Centerline.from_points(truth.points + tilt, np.asarray(base_pose(GEOMETRY)[2], float), STEP)
+    plane = held_to_bend_plane(tilted, GEOMETRY, truth.length)
+    assert not plane.roll_measured and plane.roll == 0.0
 
 
 def test_no_plane_without_a_roll_tolerance_or_before_the_third_notch():
