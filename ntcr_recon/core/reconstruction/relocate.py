@@ -52,6 +52,7 @@ from ntcr_recon.core.relocation.icp import (
 from ntcr_recon.core.relocation.limbs import CameraView
 from ntcr_recon.core.relocation.notch_widths import calibrate_and_check
 from ntcr_recon.core.relocation.notches import Notch, spine_wall
+from ntcr_recon.core.relocation.outline_tip import end_in_outline
 from ntcr_recon.core.relocation.reference import RelocatedPoints, relocate_points
 from ntcr_recon.core.relocation.tip import MAX_EDGE_BAND_RAD, tube_end
 from ntcr_recon.core.robot.comb import expected_centres
@@ -192,6 +193,14 @@ class Relocator:
         comb_centres = expected_centres(geometry, axis.centerline)  # where the robot's notches lie on the final frame
         # 5. tip, refined: the rim the stereo matcher erodes at depth edges given back, or the end cap seen
         end = seen_end(scene, axis, notches, coarse_end, comb_centres)
+        # 5''. where the colour images show the tube's outline ending: sharp where depth smears the end
+        # (core.relocation.outline_tip)
+        outline_end = (end_in_outline(axis.centerline, end.tip_s, scene.views, geometry, settings.cell)
+                       if scene.views and not end.from_cap else None)
+        if outline_end is not None:
+            tip_s, tip_uncertainty = outline_end.with_depth(end.tip_s, end.tip_uncertainty)
+            end = replace(end, tip_s=tip_s, tip_uncertainty=tip_uncertainty,
+                          refinement=f"{end.refinement}, with the tube's outline ending in the colour images")
         # the coarse end may stop at the last cut, where little of a thinly seen ring is left: notches the refined
         # end now reaches past are looked for again (kept if more are found)
         if any(coarse_end <= centre + geometry.notch_width / 2 < end.tip_s for centre in comb_centres):

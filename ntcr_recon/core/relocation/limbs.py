@@ -189,7 +189,7 @@ def limb_edges(centerline: Centerline, s: np.ndarray, view: CameraView, outer_ra
     if not np.any(usable):
         return edges
     sideways = sideways[usable] / length[usable, None]
-    limbs[usable] = _limbs(view.color, pixel[usable], sideways, half_width[usable])
+    limbs[usable] = limb_crossings(view.color, pixel[usable], sideways, half_width[usable])
     # across in 3-D: the image's sideways direction in the optical frame, made perpendicular to the line of sight
     direction = np.concatenate([sideways, np.zeros((len(sideways), 1))], axis=1)
     direction -= view_dir[usable] * np.einsum("ij,ij->i", direction, view_dir[usable])[:, None]
@@ -197,8 +197,10 @@ def limb_edges(centerline: Centerline, s: np.ndarray, view: CameraView, outer_ra
     return dataclasses.replace(edges, usable=usable)
 
 
-def _limbs(color: np.ndarray, pixel: np.ndarray, sideways: np.ndarray, half_width: np.ndarray) -> np.ndarray:
-    """Per station (S, 2), its two limbs (px along `sideways` from `pixel`); NaN where one was not found."""
+def limb_crossings(color: np.ndarray, pixel: np.ndarray, sideways: np.ndarray, half_width: np.ndarray) -> np.ndarray:
+    """Per station (S, 2), where the colour profile along `sideways` (unit, px) from `pixel` crosses half-way from
+    the tube to the background nearest -half_width and +half_width (px; NaN where none was found): its limbs, or
+    (along the axis, at the end) the end's outline."""
     most = float(np.max(half_width)) + SEARCH_PX + BACKGROUND_PX[1]
     ks = np.arange(-most, most + 0.5 / SAMPLES_PER_PX, 1.0 / SAMPLES_PER_PX)
     return _limbs_kernel(np.ascontiguousarray(color), np.ascontiguousarray(pixel, dtype=float),
