@@ -307,7 +307,8 @@ def tip_bounds(t: Trace, seen_end: float, centreline_known: float | None, apart:
     # carried past an end hidden from every camera: the hidden notches may bend otherwise than the ones seen
     hidden_across = 0.0 if t.tip_along is None or t.tip_along.hidden_across is None else t.tip_along.hidden_across
     centreline_across = math.hypot(free_end, held, carried_across, hidden_across, apart)
-    across = max(math.hypot(centreline_across, icp_across), end_spread)
+    # ICP's move is a displacement it made, not an error independent of the centreline's: the two add
+    across = max(centreline_across + icp_across, end_spread)
     # named by the largest term, each weighed against those after it (ICP's move first, the free end last)
     terms = [("icp", icp_across), ("extrinsics", apart), ("hidden", hidden_across), ("carried", carried_across),
              ("held_shift", held)]
@@ -331,7 +332,7 @@ def tip_bounds(t: Trace, seen_end: float, centreline_known: float | None, apart:
     short = expected_length - seen_end
     ends_off_length = abs(short) > TIP_SHORT_DIAMETERS * t.geometry.outer_diameter
     return TipBounds(
-        along=math.hypot(along, icp_along), across=across, measured=measured,
+        along=along + icp_along, across=across, measured=measured,
         weighed=bool(t.tip_along is not None and t.tip_along.length_weighed), because=because, why=why,
         icp_along=icp_along, icp_across=icp_across, centreline_along=along,
         centreline_across=max(centreline_across, end_spread), held=held, held_from=held_from, carried=carried,
