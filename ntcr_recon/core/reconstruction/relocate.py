@@ -193,7 +193,7 @@ class Relocator:
         comb_centres = expected_centres(geometry, axis.centerline)  # where the robot's notches lie on the final frame
         # 5. tip, refined: the rim the stereo matcher erodes at depth edges given back, or the end cap seen
         end = seen_end(scene, axis, notches, coarse_end, comb_centres)
-        # 5''. where the colour images show the tube's outline ending: sharp where depth smears the end
+        # and where the colour images show the tube's outline ending: sharp where depth smears the end
         # (core.relocation.outline_tip)
         outline_end = (end_in_outline(axis.centerline, end.tip_s, scene.views, geometry, settings.cell)
                        if scene.views and not end.from_cap else None)

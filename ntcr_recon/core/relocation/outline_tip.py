@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ntcr_recon.core.relocation.centerline import Centerline
-from ntcr_recon.core.relocation.limbs import CameraView, limb_crossings
+from ntcr_recon.core.relocation.limbs import BACKGROUND_PX, SEARCH_PX, CameraView, limb_crossings
 from ntcr_recon.core.relocation.outline import LEAST_CROSSING
 from ntcr_recon.core.robot.geometry import TubeGeometry
 
@@ -118,7 +118,8 @@ def _read_end(centerline: Centerline, end_s: float, view: CameraView, geometry: 
     offsets = np.array(LATERAL_OFFSETS)
     starts = pixel + np.outer(offsets * half_width, sideways)
     expected = reach * np.sqrt(1.0 - offsets**2)
-    if np.any(starts < expected.max() + 12) or np.any(starts > np.array([k.width, k.height]) - expected.max() - 12):
+    reaches = expected.max() + SEARCH_PX + BACKGROUND_PX[1] + 1.0  # how far a profile reads (and interpolates)
+    if np.any(starts < reaches) or np.any(starts > np.array([k.width, k.height]) - 1.0 - reaches):
         return None
     crossings = limb_crossings(view.color, starts, np.tile(direction, (len(offsets), 1)), np.maximum(expected, 0.0))
     found = crossings[:, 1] - expected  # the far crossing: past the end, into the background
