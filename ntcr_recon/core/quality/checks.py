@@ -232,14 +232,13 @@ def bend_plane(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
     if plane is None:
         return {}, []
     figures = plane.figures()
-    if not plane.roll_measured:
-        return {"bend_plane": figures}, []
-    return {"bend_plane": figures}, [finding(
+    turned = [finding(
         "BEND_PLANE_TURNED", f"the robot bends in a plane turned {figures['roll_deg']:+.1f} deg from the configured "
         f"robot.notch_side (+-{figures['roll_sd_deg']:.1f} deg; robot.roll_tolerance "
         f"{math.degrees(t.geometry.roll_tolerance):.1f} deg): the axis is held to that plane; the robot is rolled in "
         "its clamp, or the rig file's notch_side or its calibration is off", roll_deg=figures["roll_deg"],
-        roll_sd_deg=figures["roll_sd_deg"])]
+        roll_sd_deg=figures["roll_sd_deg"])] if plane.roll_measured else []
+    return {"bend_plane": figures}, turned
 
 
 def depth_resolution(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:

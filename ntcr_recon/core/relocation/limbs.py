@@ -156,30 +156,56 @@ class LimbEdges:
         return (self.half_width[:, None] + self.limbs * np.array([1.0, -1.0])) * self.metres_per_px[:, None]
 
 
+@dataclass(frozen=True)
+class StationsInView:
+    """Stations of a centreline as a camera sees them: whether in front of it (beyond a tube's diameter), their depth
+    (1 where not in front), pixel, the axis's direction in the image (px per metre of arc length: the derivative of
+    the projection along the tangent), the tube's half width (px), and the unit line of sight and the tangent, both
+    in the optical frame."""
+
+    in_front: np.ndarray
+    depth: np.ndarray
+    pixel: np.ndarray
+    image_heading: np.ndarray
+    half_width: np.ndarray
+    sight: np.ndarray
+    heading: np.ndarray
+
+
+def stations_in_view(centerline: Centerline, s: np.ndarray, view: CameraView, outer_radius: float
+                     ) -> StationsInView:
+    """The stations s of `centerline` projected into `view` (StationsInView): what the limbs and the end's outline
+    (relocation.outline_tip) are read about."""
+    position, tangent, _, _ = centerline.frames_at(np.asarray(s, float))
+    rotation, origin = view.extrinsic[:3, :3], view.extrinsic[:3, 3]
+    optical, heading = (position - origin) @ rotation, tangent @ rotation
+    k = view.intrinsics
+    in_front = optical[:, 2] > 2.0 * outer_radius
+    depth = np.where(in_front, optical[:, 2], 1.0)
+    half_width = k.fx * outer_radius / np.sqrt(np.maximum(depth**2 - outer_radius**2, 1e-12))
+    pixel = np.stack([k.fx * optical[:, 0] / depth + k.cx, k.fy * optical[:, 1] / depth + k.cy], axis=1)
+    image_heading = np.stack([k.fx * (heading[:, 0] - optical[:, 0] * heading[:, 2] / depth),
+                              k.fy * (heading[:, 1] - optical[:, 1] * heading[:, 2] / depth)], axis=1) / depth[:, None]
+    sight = optical / np.linalg.norm(optical, axis=1)[:, None]
+    return StationsInView(in_front, depth, pixel, image_heading, half_width, sight, heading)
+
+
 def limb_edges(centerline: Centerline, s: np.ndarray, view: CameraView, outer_radius: float,
                end_s: float = np.inf) -> LimbEdges:
     """The limbs the camera sees at stations s (LimbEdges; limb_offsets' end margin)."""
     s = np.asarray(s, float)
-    position, tangent, _, _ = centerline.frames_at(s)
-    rotation, origin = view.extrinsic[:3, :3], view.extrinsic[:3, 3]
-    optical, heading = (position - origin) @ rotation, tangent @ rotation
+    seen = stations_in_view(centerline, s, view, outer_radius)
+    in_front, pixel, half_width, view_dir, heading = (seen.in_front, seen.pixel, seen.half_width, seen.sight,
+                                                      seen.heading)
     k = view.intrinsics
-    depth = optical[:, 2]
     limbs = np.full((len(s), 2), np.nan)
     across = np.zeros((len(s), 3))
-    in_front = depth > 2.0 * outer_radius
-    safe = np.where(in_front, depth, 1.0)
-    half_width = k.fx * outer_radius / np.sqrt(np.maximum(safe**2 - outer_radius**2, 1e-12))
-    edges = LimbEdges(limbs, half_width, safe / k.fx, across, np.zeros(len(s), bool))
+    edges = LimbEdges(limbs, half_width, seen.depth / k.fx, across, np.zeros(len(s), bool))
     if not np.any(in_front):
         return edges
-    pixel = np.stack([k.fx * optical[:, 0] / safe + k.cx, k.fy * optical[:, 1] / safe + k.cy], axis=1)
-    # the axis's direction in the image, and across it (the derivative of the projection along the tangent)
-    image_heading = np.stack([k.fx * (heading[:, 0] - optical[:, 0] * heading[:, 2] / safe),
-                              k.fy * (heading[:, 1] - optical[:, 1] * heading[:, 2] / safe)], axis=1) / safe[:, None]
-    sideways = np.stack([-image_heading[:, 1], image_heading[:, 0]], axis=1)
+    # across the axis's direction in the image
+    sideways = np.stack([-seen.image_heading[:, 1], seen.image_heading[:, 0]], axis=1)
     length = np.linalg.norm(sideways, axis=1)
-    view_dir = optical / np.linalg.norm(optical, axis=1)[:, None]
     crossing = np.linalg.norm(np.cross(heading, view_dir), axis=1) > np.cos(LEAST_CROSSING)
     crossing &= s <= end_s - outer_radius * np.abs(np.einsum("ij,ij->i", heading, view_dir))
     reach = half_width + SEARCH_PX + BACKGROUND_PX[1] + 1.0
@@ -193,7 +219,7 @@ def limb_edges(centerline: Centerline, s: np.ndarray, view: CameraView, outer_ra
     # across in 3-D: the image's sideways direction in the optical frame, made perpendicular to the line of sight
     direction = np.concatenate([sideways, np.zeros((len(sideways), 1))], axis=1)
     direction -= view_dir[usable] * np.einsum("ij,ij->i", direction, view_dir[usable])[:, None]
-    across[usable] = (direction / np.linalg.norm(direction, axis=1)[:, None]) @ rotation.T
+    across[usable] = (direction / np.linalg.norm(direction, axis=1)[:, None]) @ view.extrinsic[:3, :3].T
     return dataclasses.replace(edges, usable=usable)
 
 

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ntcr_recon.core.relocation.centerline import Centerline
-from ntcr_recon.core.relocation.limbs import BACKGROUND_PX, SEARCH_PX, CameraView, limb_crossings
+from ntcr_recon.core.relocation.limbs import BACKGROUND_PX, SEARCH_PX, CameraView, limb_crossings, stations_in_view
 from ntcr_recon.core.relocation.outline import LEAST_CROSSING
 from ntcr_recon.core.robot.geometry import TubeGeometry
 
@@ -96,24 +96,18 @@ def _camera_end(centerline: Centerline, end_s: float, view: CameraView, geometry
 
 def _read_end(centerline: Centerline, end_s: float, view: CameraView, geometry: TubeGeometry) -> float | None:
     """One reading of _camera_end about end_s."""
-    radius = geometry.outer_radius
-    position, tangent, _, _ = centerline.frames_at(np.array([end_s]))
-    rotation, origin = view.extrinsic[:3, :3], view.extrinsic[:3, 3]
-    optical, heading = (position[0] - origin) @ rotation, tangent[0] @ rotation
-    depth, k = float(optical[2]), view.intrinsics
-    if depth <= 2.0 * radius:
+    radius, k = geometry.outer_radius, view.intrinsics
+    seen = stations_in_view(centerline, np.array([end_s]), view, radius)
+    if not seen.in_front[0]:
         return None
-    sight = optical / np.linalg.norm(optical)
+    heading, sight = seen.heading[0], seen.sight[0]
     sine = float(np.linalg.norm(np.cross(heading, sight)))
     if sine <= math.cos(LEAST_CROSSING):
         return None
-    pixel = np.array([k.fx * optical[0] / depth + k.cx, k.fy * optical[1] / depth + k.cy])
-    along = np.array([k.fx * (heading[0] - optical[0] * heading[2] / depth),
-                      k.fy * (heading[1] - optical[1] * heading[2] / depth)]) / depth  # px per metre of s
+    pixel, half_width, along = seen.pixel[0], float(seen.half_width[0]), seen.image_heading[0]  # along: px per m of s
     px_per_m = float(np.linalg.norm(along))
     direction = along / px_per_m
     sideways = np.array([-direction[1], direction[0]])
-    half_width = k.fx * radius / math.sqrt(depth**2 - radius**2)
     reach = radius * abs(float(heading @ sight)) / sine * px_per_m  # the rim's outline past the centre (px)
     offsets = np.array(LATERAL_OFFSETS)
     starts = pixel + np.outer(offsets * half_width, sideways)
