@@ -150,6 +150,7 @@ class LimbEdges:
     metres_per_px: np.ndarray   # (S,)
     across: np.ndarray          # (S, 3), zero where not usable
     usable: np.ndarray          # (S,) bool: in front of the camera, inside its image, crossing its view
+    contrast: np.ndarray        # (S, 2, 3): the colour inside each limb less the colour outside it (NaN: unread)
 
     def inward(self) -> np.ndarray:
         """(S, 2): how far inside a whole tube's outline each limb lies (m; NaN: not found)."""
@@ -200,7 +201,8 @@ def limb_edges(centerline: Centerline, s: np.ndarray, view: CameraView, outer_ra
     k = view.intrinsics
     limbs = np.full((len(s), 2), np.nan)
     across = np.zeros((len(s), 3))
-    edges = LimbEdges(limbs, half_width, seen.depth / k.fx, across, np.zeros(len(s), bool))
+    contrast = np.full((len(s), 2, 3), np.nan)
+    edges = LimbEdges(limbs, half_width, seen.depth / k.fx, across, np.zeros(len(s), bool), contrast)
     if not np.any(in_front):
         return edges
     # across the axis's direction in the image
@@ -215,7 +217,7 @@ def limb_edges(centerline: Centerline, s: np.ndarray, view: CameraView, outer_ra
     if not np.any(usable):
         return edges
     sideways = sideways[usable] / length[usable, None]
-    limbs[usable] = limb_crossings(view.color, pixel[usable], sideways, half_width[usable])
+    limbs[usable], contrast[usable] = limb_crossings(view.color, pixel[usable], sideways, half_width[usable])
     # across in 3-D: the image's sideways direction in the optical frame, made perpendicular to the line of sight
     direction = np.concatenate([sideways, np.zeros((len(sideways), 1))], axis=1)
     direction -= view_dir[usable] * np.einsum("ij,ij->i", direction, view_dir[usable])[:, None]
@@ -223,10 +225,12 @@ def limb_edges(centerline: Centerline, s: np.ndarray, view: CameraView, outer_ra
     return dataclasses.replace(edges, usable=usable)
 
 
-def limb_crossings(color: np.ndarray, pixel: np.ndarray, sideways: np.ndarray, half_width: np.ndarray) -> np.ndarray:
+def limb_crossings(color: np.ndarray, pixel: np.ndarray, sideways: np.ndarray, half_width: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
     """Per station (S, 2), where the colour profile along `sideways` (unit, px) from `pixel` crosses half-way from
     the tube to the background nearest -half_width and +half_width (px; NaN where none was found): its limbs, or
-    (along the axis, at the end) the end's outline."""
+    (along the axis, at the end) the end's outline; and (S, 2, 3) the colour it took for the tube's less the
+    background's there (NaN where too faint to read)."""
     most = float(np.max(half_width)) + SEARCH_PX + BACKGROUND_PX[1]
     ks = np.arange(-most, most + 0.5 / SAMPLES_PER_PX, 1.0 / SAMPLES_PER_PX)
     return _limbs_kernel(np.ascontiguousarray(color), np.ascontiguousarray(pixel, dtype=float),
@@ -238,7 +242,8 @@ def limb_crossings(color: np.ndarray, pixel: np.ndarray, sideways: np.ndarray, h
 def _limbs_kernel(color, pixel, sideways, half_width, ks, search, background_from, background_to, tube_from,
                   tube_to, min_contrast):
     """Per station (S, 2): where its colour profile along `sideways` crosses half-way from the background to the
-    tube (px along ks) nearest each expected limb (-half_width, +half_width); NaN without contrast or crossing.
+    tube (px along ks) nearest each expected limb (-half_width, +half_width), NaN without contrast or crossing;
+    and (S, 2, 3) the tube's mean colour less the background's (NaN without contrast).
     The background is the profile's mean background_from..to px outside the expected limb, the tube its mean
     tube_from..to px inside it; the profile is sampled bilinearly from the (H, W, 3) uint8 image."""
     stations, samples = pixel.shape[0], ks.shape[0]
@@ -246,6 +251,7 @@ def _limbs_kernel(color, pixel, sideways, half_width, ks, search, background_fro
     step = ks[1] - ks[0]
     profile = np.empty((samples, 3))
     limbs = np.full((stations, 2), np.nan)
+    contrast = np.full((stations, 2, 3), np.nan)
     for i in range(stations):
         for k in range(samples):  # bilinear, from the uint8 image itself
             u = pixel[i, 0] + ks[k] * sideways[i, 0]
@@ -276,6 +282,7 @@ def _limbs_kernel(color, pixel, sideways, half_width, ks, search, background_fro
             strength = c0 * c0 + c1 * c1 + c2 * c2
             if strength < min_contrast * min_contrast:
                 continue
+            contrast[i, j, 0], contrast[i, j, 1], contrast[i, j, 2] = c0, c1, c2
             best = np.inf
             previous = ((profile[0, 0] - b0) * c0 + (profile[0, 1] - b1) * c1 + (profile[0, 2] - b2) * c2) / strength
             previous -= 0.5
@@ -288,7 +295,7 @@ def _limbs_kernel(color, pixel, sideways, half_width, ks, search, background_fro
                         best = abs(at - expected)
                         limbs[i, j] = at
                 previous = following
-    return limbs
+    return limbs, contrast
 
 
 @dataclass(frozen=True)

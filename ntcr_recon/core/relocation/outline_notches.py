@@ -34,6 +34,11 @@ STATIONS = 7
 # makes (the noise of a median over the stations is a few hundredths of a pixel on a sharp image).
 RECESSION_SHARE = 0.5
 
+# A crossing read inside the notch is the tube's limb only where the colour it took for the tube stands off the
+# background by at least this share of the spines' (projected on theirs): a slot seen side on shows background on
+# both sides of where the limb was, and the crossing found there is a shade of the background's texture.
+LIMB_CONTRAST_SHARE = 0.5
+
 
 def least_recession(geometry: TubeGeometry) -> float:
     """How far in (m) the outline recedes at a notch at least, whatever the line of sight (module docstring);
@@ -63,12 +68,14 @@ def notches_in_outline(centerline: Centerline, views: dict[str, CameraView], geo
                         middle[:, None] + pitch / 2 + spine_offsets], axis=1)
     found: dict[int, float] = {}
     for view in views.values():
-        inward = limb_edges(centerline, s.ravel(), view, geometry.outer_radius, end_s).inward()
-        inward = inward.reshape(len(candidates), 3, STATIONS, 2)
+        edges = limb_edges(centerline, s.ravel(), view, geometry.outer_radius, end_s)
+        inward = edges.inward().reshape(len(candidates), 3, STATIONS, 2)
         with np.errstate(all="ignore"), warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # numpy's all-NaN median: a station set unread
-            # a limb not found inside the notch is gone from where it was looked for: receded past the search
-            at_notch = np.nanmedian(np.where(np.isnan(inward[:, 0]), np.inf, inward[:, 0]), axis=1)
+            # a limb not found inside the notch, or found where the tube does not stand off the background as on
+            # the spines, is gone from where it was looked for: receded past the search
+            gone = np.isnan(inward[:, 0]) | ~_tube_like(edges.contrast.reshape(len(candidates), 3, STATIONS, 2, 3))
+            at_notch = np.nanmedian(np.where(gone, np.inf, inward[:, 0]), axis=1)
             spines = np.nanmedian(inward[:, 1:].reshape(len(candidates), 2 * STATIONS, 2), axis=1)
             # per side: the spines read at as many stations as the notch has
             whole = np.sum(np.isfinite(inward[:, 1:]), axis=(1, 2)) >= STATIONS
@@ -77,3 +84,13 @@ def notches_in_outline(centerline: Centerline, views: dict[str, CameraView], geo
             if recession >= RECESSION_SHARE * least:
                 found[index] = max(found.get(index, 0.0), float(min(recession, geometry.outer_diameter)))
     return found
+
+
+def _tube_like(contrast: np.ndarray) -> np.ndarray:
+    """(N, STATIONS, 2): whether each limb read inside a notch (contrast (N, 3, STATIONS, 2, 3): the notch's
+    stations, then the spines') took a tube against the background as the spines' limbs did on its side
+    (LIMB_CONTRAST_SHARE of their median contrast, projected on it)."""
+    spines = np.nanmedian(contrast[:, 1:].transpose(0, 3, 1, 2, 4).reshape(len(contrast), 2, -1, 3), axis=2)
+    along = np.einsum("nksc,nkc->nsk", np.nan_to_num(contrast[:, 0].transpose(0, 2, 1, 3), nan=0.0),
+                      np.nan_to_num(spines, nan=0.0))
+    return along >= LIMB_CONTRAST_SHARE * np.sum(spines**2, axis=2)[:, None, :]

@@ -115,7 +115,8 @@ def _read_end(centerline: Centerline, end_s: float, view: CameraView, geometry: 
     reaches = expected.max() + SEARCH_PX + BACKGROUND_PX[1] + 1.0  # how far a profile reads (and interpolates)
     if np.any(starts < reaches) or np.any(starts > np.array([k.width, k.height]) - 1.0 - reaches):
         return None
-    crossings = limb_crossings(view.color, starts, np.tile(direction, (len(offsets), 1)), np.maximum(expected, 0.0))
+    crossings, _ = limb_crossings(view.color, starts, np.tile(direction, (len(offsets), 1)),
+                                  np.maximum(expected, 0.0))
     found = crossings[:, 1] - expected  # the far crossing: past the end, into the background
     if not np.any(np.isfinite(found)):
         return None
