@@ -42,7 +42,7 @@ from ntcr_recon.core.relocation.icp import ReferenceMove
 from ntcr_recon.core.relocation.limbs import CameraView, LimbFigures
 from ntcr_recon.core.relocation.notch_side import measure_notch_side
 from ntcr_recon.core.relocation.notches import Notch, detect_notches
-from ntcr_recon.core.relocation.outline_notches import notches_in_outline
+from ntcr_recon.core.relocation.outline_notches import comb_shift_in_outline, notches_in_outline
 from ntcr_recon.core.relocation.tip import (
     LENGTH_AGREEMENT_SIGMAS,
     RimViews,
@@ -179,12 +179,13 @@ class Thinning:
 def find_notches(scene: Scene, axis: Axis, tip_s: float, wall) -> list[Notch]:
     """The robot's comb matched to the evidence about the axis, up to tip_s (core.relocation.notches)."""
     options, settings = scene.config.relocation, scene.settings
-    outline = (functools.partial(notches_in_outline, axis.centerline, scene.views, scene.geometry, end_s=tip_s)
-               if scene.views else None)
+    in_views = (axis.centerline, scene.views, scene.geometry)
+    outline = functools.partial(notches_in_outline, *in_views, end_s=tip_s) if scene.views else None
+    comb_shift = functools.partial(comb_shift_in_outline, *in_views, end_s=tip_s) if scene.views else None
     return detect_notches(axis.measured, axis.centerline, geometry=scene.geometry, gate=settings.gate,
                           footprint=settings.cell, kernel_px=options.notch_kernel_px,
                           min_width_fraction=options.min_notch_width_fraction, tip_s=tip_s,
-                          observed=axis.coords, wall=wall, outline=outline)
+                          observed=axis.coords, wall=wall, outline=outline, comb_shift=comb_shift)
 
 
 def notches_and_side(scene: Scene, axis: Axis, tip_s: float, wall) -> Sided:

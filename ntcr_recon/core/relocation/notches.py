@@ -32,8 +32,7 @@ from ntcr_recon.core.relocation.wall import surface_band
 from ntcr_recon.core.robot.comb import expected_centres, near_cuts
 from ntcr_recon.core.robot.geometry import TubeGeometry
 
-# a notch window whose density plateau is under this share of the tube's (its 90th percentile) is seen by no
-# camera
+# a notch window whose density plateau is under this share of the tube's (90th percentile): seen by no camera
 UNSEEN_PLATEAU_FRACTION = 0.1
 
 # A notch neither signal measures is still found where the comb puts it when the wall's coverage dips there: its
@@ -44,7 +43,6 @@ UNSEEN_PLATEAU_FRACTION = 0.1
 DIP_PEAK = 0.3
 DIP_PROMINENCE = 0.25
 
-
 # The wall's local density plateau is the upper quartile of its coverage over a pitch (a gap fills at most half of
 # it). A matcher whose window mixes a backdrop behind the slots into the rims' pixels erodes each spine from both
 # sides, down to a tenth of a pitch, and pulls what is left off the wall's level: the upper quartile then lies in
@@ -53,7 +51,6 @@ DIP_PROMINENCE = 0.25
 # the wall seen whole (a stray point's bump, where no camera sees the window, is a few hundredths of that).
 SPINE_TOP_PERCENTILE = 95
 ERODED_SPINE_TOP = 0.25
-
 
 # The signals of notches found without their edges measured: placed by the comb, their widths their bends'.
 BEND_IMPLIED = ("dip", "outline", "bend")
@@ -100,7 +97,8 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
                    footprint: float, kernel_px: float, min_width_fraction: float, tip_s: float,
                    observed: TubeCoordinates | None = None,
                    wall: tuple[np.ndarray, float, float] | None = None,
-                   outline: Callable[[np.ndarray, list[int]], Collection[int]] | None = None) -> list[Notch]:
+                   outline: Callable[[np.ndarray, list[int]], Collection[int]] | None = None,
+                   comb_shift: Callable[[np.ndarray], float | None] | None = None) -> list[Notch]:
     """The robot's comb of notches matched to the evidence along s; each notch refined where the comb puts it.
 
     Evidence, per cell of s, within the angular window where a notch opens the outer surface:
@@ -111,7 +109,8 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
     inside the wall's radius fill it (seen obliquely). The wall's level and band
       are measured on spine points only (away from the comb's cuts), so notch interiors cannot widen them.
     The comb (count and pitch from the configuration, bent by the centreline: comb.expected_centres) is
-    slid along s as one matched filter to where the evidence agrees best; each notch is then the run of
+    slid along s as one matched filter to where the evidence agrees best (or where `comb_shift` says the colour
+    images show it); each notch is then the run of
     evidence above one half around its comb position, its edges where the evidence crosses one half (for
     coverage that is the half-plateau level: each depth pixel stands for a cell of one footprint), centred
     within the comb's notch (a run centred farther off is not that notch). Where neither gives a run, a dip of
@@ -127,7 +126,8 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
     viewing rays onto the wall): which points lie on the outer wall is judged by where they were seen, as a
     cut face seen through a notch would otherwise be moved onto the wall inside the notch and fill it.
     outline: given the comb's centres and the notches depth did not find, those the tube's outline in the colour
-    images shows (relocation.outline_notches): found as a dip is ("outline").
+    images shows (relocation.outline_notches): found as a dip is ("outline"). comb_shift: given the comb's
+    centres, its shift the colour images show (relocation.outline_notches; None: not shown).
     """
     footprint = geometry.pixel_footprint_or_default(footprint)
     seen = coords if observed is None else observed
@@ -135,7 +135,8 @@ def detect_notches(coords: TubeCoordinates, centerline: Centerline, geometry: Tu
     profiles = _evidence(coords, seen, centerline, geometry, gate, footprint, kernel_px, tip_s, wall)
     if profiles is None:
         return []
-    shift = _comb_shift(profiles, centres, geometry)
+    shift = comb_shift(centres) if comb_shift is not None else None
+    shift = _comb_shift(profiles, centres, geometry) if shift is None else shift
     gaps, indices, dipped, unfound = [], [], [], []
     half_width = geometry.notch_width / 2.0
     for k, centre in enumerate(centres + shift):
@@ -433,8 +434,7 @@ def _measure(gaps: list[tuple[float, float]], indices: list[int], signals: list[
     widths = np.maximum((end - start) - bends * r_o, 0.0)  # s_n (1 - kappa r_o) with kappa s_n = theta
     measured = [Notch(index, float((a + b) / 2), float(a), float(b), float(width), float(bend), signal)
                 for index, signal, a, b, width, bend in zip(indices, signals, start, end, widths, bends, strict=True)]
-    # a dip (or an outline's) has no edges measured: the arc and gap its steady bend implies, about the comb's place
-    bends = {n.index: n.bend for n in measured}
+    bends = {n.index: n.bend for n in measured}  # a dip's (or an outline's) arc and gap: its steady bend's
     return [bend_implied(replace(n, bend=steady_bend(bends, n.index)), geometry, n.signal)
             if n.signal in ("dip", "outline") else n for n in measured]
 

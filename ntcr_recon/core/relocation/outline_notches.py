@@ -11,6 +11,10 @@ both the notch and the spines either side, marks the notch. Its place is the com
 (a face seen obliquely blurs into a ramp), so its width is what its bend implies, as for a dip. A limb shaded dark
 reads up to a pixel inward on the spines, as far as the least recession at 90 mm: a view square to the notch side
 may then show none, a view turned from it (the other camera, or any at +-45 deg and beyond) still does.
+
+In such a view (a cut limb falls out of the limbs' search) the comb itself is placed by the outline
+(comb_shift_in_outline): a stereo matcher fattens the spines towards one side along its baseline, which shifts
+the slots depth sees by a few tenths of a millimetre, and the comb with them.
 """
 
 from __future__ import annotations
@@ -20,8 +24,8 @@ import warnings
 
 import numpy as np
 
-from ntcr_recon.core.relocation.centerline import Centerline
-from ntcr_recon.core.relocation.limbs import CameraView, limb_edges
+from ntcr_recon.core.relocation.centerline import Centerline, cameras_round_tube
+from ntcr_recon.core.relocation.limbs import SEARCH_PX, CameraView, limb_edges
 from ntcr_recon.core.robot.geometry import TubeGeometry
 
 # Stations across the middle of the notch (this share of its width) and on each spine's middle (this share of the
@@ -38,6 +42,11 @@ RECESSION_SHARE = 0.5
 # background by at least this share of the spines' (projected on theirs): a slot seen side on shows background on
 # both sides of where the limb was, and the crossing found there is a shade of the background's texture.
 LIMB_CONTRAST_SHARE = 0.5
+
+
+# The comb is slid along s over half a pitch either way in steps of this share of the pitch (then refined between
+# the best step and its neighbours).
+COMB_STEP_SHARE = 1.0 / 40.0
 
 
 def least_recession(geometry: TubeGeometry) -> float:
@@ -84,6 +93,91 @@ def notches_in_outline(centerline: Centerline, views: dict[str, CameraView], geo
             if recession >= RECESSION_SHARE * least:
                 found[index] = max(found.get(index, 0.0), float(min(recession, geometry.outer_diameter)))
     return found
+
+
+def comb_shift_in_outline(centerline: Centerline, views: dict[str, CameraView], geometry: TubeGeometry,
+                          centres: np.ndarray, end_s: float) -> float | None:
+    """The shift along s (m, within half a pitch) of the comb's notch centres `centres` (m of s) at which the
+    tube's outline in the colour images recedes most inside the notches against the spines between them: the
+    matched filter notches._comb_shift runs on depth, run on the sharper image (a stereo matcher fattens the spines
+    towards one side along its baseline, which shifts the slots it sees). In the views where a cut limb falls out
+    of the limbs' search (limb_fall): there the outline shows the notch as the limb gone, ending where the cut's
+    faces meet the limb edge on; seen along the notch side both limbs recede by the chord's least, which shading and
+    the faces seen obliquely move along the tube as much. None without such a view, for a cut short of the axis,
+    or where no shift shows the notches' recession (RECESSION_SHARE of the least)."""
+    least = least_recession(geometry)
+    if least <= 0.0 or not views:
+        return None
+    pitch, r_o = geometry.notch_pitch, geometry.outer_radius
+    step = pitch * COMB_STEP_SHARE
+    s = np.arange(step / 2, end_s, step)
+    shifts = np.arange(-pitch / 2, pitch / 2 + step / 2, step)
+    spine = max(pitch - geometry.notch_width, 0.0)
+    score, weight = np.zeros(len(shifts)), np.zeros(len(shifts))
+    for view in views.values():
+        edges = limb_edges(centerline, s, view, r_o, end_s)
+        if not np.any(edges.usable) or (limb_fall(centerline, view, geometry, centres)
+                                        <= SEARCH_PX * np.median(edges.metres_per_px[edges.usable])):
+            continue
+        receded = _receded(edges, least, r_o)
+        notch = _window_means(s, receded, centres[None, :] + shifts[:, None], NOTCH_SHARE * geometry.notch_width / 2)
+        spines = [_window_means(s, receded, centres[None, :] + shifts[:, None] + side * pitch / 2,
+                                SPINE_SHARE * spine / 2) for side in (-1.0, 1.0)]
+        contrast = notch - (spines[0] + spines[1]) / 2  # (shifts, notches): NaN where a window was unread
+        seen = np.isfinite(contrast)
+        score += np.where(seen, contrast, 0.0).sum(axis=1)
+        weight += seen.sum(axis=1)
+    if not np.any(weight):
+        return None
+    score = np.where(weight > 0, score / np.maximum(weight, 1), -np.inf)
+    best = int(np.argmax(score))
+    if score[best] < RECESSION_SHARE * least:
+        return None
+    if 0 < best < len(shifts) - 1 and np.all(np.isfinite(score[best - 1:best + 2])):  # the parabola's vertex
+        below, at, above = score[best - 1:best + 2]
+        curvature = below - 2 * at + above
+        return float(shifts[best] + (0.5 * step * (below - above) / curvature if curvature < 0 else 0.0))
+    return float(shifts[best])
+
+
+def limb_fall(centerline: Centerline, view: CameraView, geometry: TubeGeometry, centres: np.ndarray) -> float:
+    """How far (m) the limb nearer the notch side falls at a notch in this view, median over the comb's notches:
+    seen at an angle t from the notch side (the camera's direction round the tube turned by a right angle), the
+    cut leaves the wall up to the gap's half angle g from it, whose corner lies r_o cos(g - t) out: it falls by
+    r_o (1 - cos(g - t)) where t < g (side on, t = 0: past the axis to the backbone's chord)."""
+    frames = centerline.frames_at(np.clip(centres, 0.0, centerline.length))
+    round_tube = cameras_round_tube(frames, view.extrinsic[None, :3, 3])[:, 0]
+    turned = np.abs(np.abs(np.arctan2(round_tube[:, 1], round_tube[:, 0])) - math.pi / 2)
+    gap = geometry.gap_half_angle
+    fall = np.where(turned < gap, geometry.outer_radius * (1.0 - np.cos(gap - turned)), 0.0)
+    return float(np.median(fall))
+
+
+def _receded(edges, least: float, cap: float) -> np.ndarray:
+    """(S,): how far in the more receded limb lies at each station (m; `cap` where one is gone, or read where the
+    tube does not stand off the background as where the outline is whole; NaN where the station is unusable)."""
+    inward = edges.inward()
+    whole = np.abs(inward) <= least
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a side with no whole limb: no reference
+        reference = np.stack([np.nanmedian(edges.contrast[whole[:, j], j], axis=0) if np.any(whole[:, j])
+                              else np.full(3, np.nan) for j in range(2)])
+    along = np.einsum("sjc,jc->sj", np.nan_to_num(edges.contrast), np.nan_to_num(reference))
+    tube = along >= LIMB_CONTRAST_SHARE * np.sum(np.nan_to_num(reference) ** 2, axis=1)
+    receded = np.where(np.isnan(inward) | ~tube, cap, np.clip(inward, -cap, cap)).max(axis=1)
+    return np.where(edges.usable, receded, np.nan)
+
+
+def _window_means(s: np.ndarray, values: np.ndarray, middles: np.ndarray, half: float) -> np.ndarray:
+    """The mean of `values` (at stations s, ascending, evenly spaced; NaN: unread) within `half` of each of
+    `middles` (any shape); NaN where fewer than half the window's stations were read."""
+    finite = np.isfinite(values)
+    total = np.concatenate([[0.0], np.cumsum(np.where(finite, values, 0.0))])
+    count = np.concatenate([[0], np.cumsum(finite)])
+    low, high = np.searchsorted(s, middles - half), np.searchsorted(s, middles + half, side="right")
+    read = count[high] - count[low]
+    with np.errstate(all="ignore"):
+        return np.where(2 * read >= np.maximum(high - low, 1), (total[high] - total[low]) / read, np.nan)
 
 
 def _tube_like(contrast: np.ndarray) -> np.ndarray:

@@ -7,7 +7,12 @@ from scipy import ndimage
 from ntcr_recon.core.cloud.deproject import Intrinsics
 from ntcr_recon.core.relocation.centerline import Centerline
 from ntcr_recon.core.relocation.limbs import CameraView
-from ntcr_recon.core.relocation.outline_notches import least_recession, notches_in_outline
+from ntcr_recon.core.relocation.outline_notches import (
+    comb_shift_in_outline,
+    least_recession,
+    limb_fall,
+    notches_in_outline,
+)
 from ntcr_recon.core.robot.geometry import TubeGeometry
 
 GEOMETRY = TubeGeometry()
@@ -58,9 +63,10 @@ def notched_tube_image(extrinsic: np.ndarray, cut: set[int], facing: bool, seed:
     return np.clip(np.rint(image), 0, 255).astype(np.uint8)
 
 
-def centerline() -> Centerline:
+def centerline(facing: bool = False) -> Centerline:
+    """The tube's axis; its frame's normal (the notch side) across the cameras' views (+y), or `facing` them (z)."""
     points = np.stack([np.linspace(0.0, LENGTH, 551), np.zeros(551), np.zeros(551)], axis=1)
-    return Centerline.from_points(points, np.array([0.0, 0.0, 1.0]), 1e-4)
+    return Centerline.from_points(points, np.array([0.0, -1.0, 0.0] if facing else [0.0, 0.0, 1.0]), 1e-4)
 
 
 @pytest.mark.parametrize("facing", [False, True])
@@ -98,3 +104,23 @@ def test_only_the_notches_asked_about_and_seen_whole_with_their_spines():
     assert notches_in_outline(centerline(), {}, GEOMETRY, CENTRES, [0, 5], LENGTH) == {}
     # a cut short of the axis leaves a camera looking along the notch side both limbs: no least recession to look for
     assert least_recession(TubeGeometry(notch_depth=1.5e-3)) == 0.0
+
+
+@pytest.mark.parametrize("off_mm", [0.4, -0.25, 0.0])
+def test_the_comb_slides_to_where_the_outline_shows_its_notches(off_mm):
+    # a matcher's fattened spines shift the slots depth sees; the outline places the comb (to a step of 0.075 mm)
+    views = {name: CameraView(notched_tube_image(pose, set(range(16)), False, seed=i, blotches=0.4), INTRINSICS, pose)
+             for i, (name, pose) in enumerate(opposed_cameras().items())}
+    shift = comb_shift_in_outline(centerline(), views, GEOMETRY, CENTRES + off_mm * 1e-3, LENGTH)
+    assert shift == pytest.approx(-off_mm * 1e-3, abs=0.05e-3)
+
+
+def test_the_comb_is_left_to_depth_where_the_cameras_look_along_the_notch_side():
+    # seen along the notch side the limbs fall by the chord's least only: no view to slide the comb by
+    views = {name: CameraView(notched_tube_image(pose, set(range(16)), True, seed=i), INTRINSICS, pose)
+             for i, (name, pose) in enumerate(opposed_cameras().items())}
+    assert comb_shift_in_outline(centerline(facing=True), views, GEOMETRY, CENTRES, LENGTH) is None
+    assert limb_fall(centerline(facing=True), views["cam_a"], GEOMETRY, CENTRES) == pytest.approx(
+        least_recession(GEOMETRY))
+    # side on, the cut limb falls past the axis to the backbone's chord
+    assert limb_fall(centerline(), views["cam_a"], GEOMETRY, CENTRES) == pytest.approx(RADIUS + CUT)
