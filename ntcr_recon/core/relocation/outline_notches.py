@@ -25,7 +25,7 @@ import warnings
 import numpy as np
 
 from ntcr_recon.core.relocation.centerline import Centerline, cameras_round_tube
-from ntcr_recon.core.relocation.limbs import SEARCH_PX, CameraView, limb_edges
+from ntcr_recon.core.relocation.limbs import SEARCH_PX, CameraView, limb_edges, stations_in_view
 from ntcr_recon.core.robot.geometry import TubeGeometry
 
 # Stations across the middle of the notch (this share of its width) and on each spine's middle (this share of the
@@ -44,9 +44,9 @@ RECESSION_SHARE = 0.5
 LIMB_CONTRAST_SHARE = 0.5
 
 
-# The comb is slid along s over half a pitch either way in steps of this share of the pitch (then refined between
-# the best step and its neighbours).
-COMB_STEP_SHARE = 1.0 / 40.0
+# The comb is slid along s over half a pitch either way in steps of this share of the pitch (0.15 mm, under a
+# pixel at 90 mm; then refined between the best step and its neighbours), the limbs read as finely.
+COMB_STEP_SHARE = 1.0 / 20.0
 
 
 def least_recession(geometry: TubeGeometry) -> float:
@@ -110,23 +110,25 @@ def comb_shift_in_outline(centerline: Centerline, views: dict[str, CameraView], 
         return None
     pitch, r_o = geometry.notch_pitch, geometry.outer_radius
     step = pitch * COMB_STEP_SHARE
-    s = np.arange(step / 2, end_s, step)
+    s = np.arange(max(centres[0] - pitch, step / 2), min(centres[-1] + pitch, end_s), step)  # the comb slid
     shifts = np.arange(-pitch / 2, pitch / 2 + step / 2, step)
     spine = max(pitch - geometry.notch_width, 0.0)
     score, weight = np.zeros(len(shifts)), np.zeros(len(shifts))
+    middles = centres[None, :] + shifts[:, None]
+    windows = ((0.0, NOTCH_SHARE * geometry.notch_width / 2), (-pitch / 2, SPINE_SHARE * spine / 2),
+               (pitch / 2, SPINE_SHARE * spine / 2))  # the notch's middle, then its spines'
     for view in views.values():
-        edges = limb_edges(centerline, s, view, r_o, end_s)
-        if not np.any(edges.usable) or (limb_fall(centerline, view, geometry, centres)
-                                        <= SEARCH_PX * np.median(edges.metres_per_px[edges.usable])):
+        at_centres = stations_in_view(centerline, np.clip(centres, 0.0, end_s), view, r_o)
+        distance = at_centres.depth[at_centres.in_front]
+        if not distance.size or (limb_fall(centerline, view, geometry, centres)
+                                 <= SEARCH_PX * np.median(distance) / view.intrinsics.fx):
             continue
-        receded = _receded(edges, least, r_o)
-        notch = _window_means(s, receded, centres[None, :] + shifts[:, None], NOTCH_SHARE * geometry.notch_width / 2)
-        spines = [_window_means(s, receded, centres[None, :] + shifts[:, None] + side * pitch / 2,
-                                SPINE_SHARE * spine / 2) for side in (-1.0, 1.0)]
-        contrast = notch - (spines[0] + spines[1]) / 2  # (shifts, notches): NaN where a window was unread
-        seen = np.isfinite(contrast)
-        score += np.where(seen, contrast, 0.0).sum(axis=1)
-        weight += seen.sum(axis=1)
+        receded = _receded(limb_edges(centerline, s, view, r_o, end_s), least, r_o)
+        notch, proximal, distal = _window_means(s, receded, middles, windows)
+        contrast = notch - (proximal + distal) / 2  # (shifts, notches): NaN where a window was unread
+        read = np.isfinite(contrast)
+        score += np.where(read, contrast, 0.0).sum(axis=1)
+        weight += read.sum(axis=1)
     if not np.any(weight):
         return None
     score = np.where(weight > 0, score / np.maximum(weight, 1), -np.inf)
@@ -158,26 +160,32 @@ def _receded(edges, least: float, cap: float) -> np.ndarray:
     tube does not stand off the background as where the outline is whole; NaN where the station is unusable)."""
     inward = edges.inward()
     whole = np.abs(inward) <= least
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # a side with no whole limb: no reference
-        reference = np.stack([np.nanmedian(edges.contrast[whole[:, j], j], axis=0) if np.any(whole[:, j])
-                              else np.full(3, np.nan) for j in range(2)])
-    along = np.einsum("sjc,jc->sj", np.nan_to_num(edges.contrast), np.nan_to_num(reference))
-    tube = along >= LIMB_CONTRAST_SHARE * np.sum(np.nan_to_num(reference) ** 2, axis=1)
+    # a limb read is a contrast read: the whole limbs' contrasts are finite (none: no reference, every limb tube-like)
+    reference = np.stack([np.median(edges.contrast[whole[:, j], j], axis=0) if np.any(whole[:, j])
+                          else np.zeros(3) for j in range(2)])
+    along = np.einsum("sjc,jc->sj", np.nan_to_num(edges.contrast), reference)
+    tube = along >= LIMB_CONTRAST_SHARE * np.sum(reference**2, axis=1)
     receded = np.where(np.isnan(inward) | ~tube, cap, np.clip(inward, -cap, cap)).max(axis=1)
     return np.where(edges.usable, receded, np.nan)
 
 
-def _window_means(s: np.ndarray, values: np.ndarray, middles: np.ndarray, half: float) -> np.ndarray:
-    """The mean of `values` (at stations s, ascending, evenly spaced; NaN: unread) within `half` of each of
-    `middles` (any shape); NaN where fewer than half the window's stations were read."""
-    finite = np.isfinite(values)
-    total = np.concatenate([[0.0], np.cumsum(np.where(finite, values, 0.0))])
-    count = np.concatenate([[0], np.cumsum(finite)])
-    low, high = np.searchsorted(s, middles - half), np.searchsorted(s, middles + half, side="right")
-    read = count[high] - count[low]
+def _window_means(s: np.ndarray, values: np.ndarray, middles: np.ndarray,
+                  windows: tuple[tuple[float, float], ...]) -> list[np.ndarray]:
+    """Per window (its offset from `middles`, any shape, and its half length): the mean of `values` (at stations s,
+    ascending; NaN: unread), taken as linear between stations (so that the mean slides smoothly with the window),
+    over the window about each middle; NaN where less than half the window was read."""
+    read = np.isfinite(values).astype(float)
+    step = np.diff(s)
+    # the running integrals of the values and of being read, by the trapezoid rule (an unread station counts 0)
+    total = np.concatenate([[0.0], np.cumsum(step * (np.nan_to_num(values[:-1]) + np.nan_to_num(values[1:])) / 2)])
+    length = np.concatenate([[0.0], np.cumsum(step * (read[:-1] + read[1:]) / 2)])
+    # per window its two ends about every middle, one interpolation for all
+    ends = np.stack([middles + offset + sign * half for offset, half in windows for sign in (-1.0, 1.0)])
+    totals = np.interp(ends, s, total).reshape(len(windows), 2, *middles.shape)
+    lengths = np.interp(ends, s, length).reshape(len(windows), 2, *middles.shape)
     with np.errstate(all="ignore"):
-        return np.where(2 * read >= np.maximum(high - low, 1), (total[high] - total[low]) / read, np.nan)
+        return [np.where(covered[1] - covered[0] >= half, (summed[1] - summed[0]) / (covered[1] - covered[0]), np.nan)
+                for (_, half), summed, covered in zip(windows, totals, lengths, strict=True)]
 
 
 def _tube_like(contrast: np.ndarray) -> np.ndarray:
