@@ -224,9 +224,14 @@ class RelocationNode(RigNode):
             except ValueError as error:  # one bad image: the axis is placed by depth alone in that view
                 self.get_logger().warning(f"colour image of '{camera}' not used: {error}", throttle_duration_sec=5.0)
         if missing:
-            self.get_logger().warning(f"no colour window of {', '.join(missing)} came with the cloud of "
-                                      f"{cloud.stamp_ns} ns: the axis is placed by depth alone in that view",
-                                      throttle_duration_sec=5.0)
+            message = (f"no colour window of {', '.join(missing)} came with the cloud of {cloud.stamp_ns} ns: the "
+                       "axis is placed by depth alone in that view")
+            # a window late from a camera_node that publishes them is said for each frame (rare, and the frame
+            # named); a camera publishing none would say it every frame: once per 5 s
+            if any(camera in self._windows and self._windows[camera].get_publisher_count() > 0 for camera in missing):
+                self.get_logger().warning(message)
+            else:
+                self.get_logger().warning(message, throttle_duration_sec=5.0)
 
     @guarded
     def _on_cloud(self, raw: bytes) -> None:
