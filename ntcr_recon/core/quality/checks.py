@@ -13,7 +13,7 @@ measure with live in quality.measures; the tip's two checks in quality.tip_check
     tip_end                 TIP_ON_END_CAP, TIP_ON_ERODED_RIM
     camera_views            DISTAL_ONE_CAMERA, CAMERA_SHORT_VIEW
     tip_against_length      TIP_OFF_LENGTH, TUBE_ENDS_SHORT, TIP_CARRIED
-    notch_side              NOTCH_SIDE_UNSETTLED, ROBOT_ROLLED, NOTCH_SIDE_OFF
+    notch_side              NOTCH_SIDE_UNSETTLED, NOTCH_SIDE_RULED_OUT, ROBOT_ROLLED, NOTCH_SIDE_OFF
     depth_resolution        PIXEL_FOOTPRINT_COARSE, DEPTH_QUANTISED
     centerline              CENTERLINE_UNCERTAIN, OUTLINE_UNCHECKED, ALIGNMENT_ASTRAY, CENTERLINE_UNSUPPORTED,
                             DISTAL_END_ON, SLOTS_LEAN
@@ -209,6 +209,15 @@ def notch_side(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
                                 f"then {then:+.0f} deg more in the frame turned to it: no consistent measurement, the "
                                 "configured side is kept (check the robot's roll in its clamp)",
                                 side_off_deg=[first, then]))
+    if t.side_ruled_out is not None and t.bend_plane is not None and t.bend_plane.shown is not None:
+        measured, known_deg = (math.degrees(angle) for angle in t.side_ruled_out)
+        shown, shown_sd = (math.degrees(angle) for angle in t.bend_plane.shown)
+        warnings.append(finding("NOTCH_SIDE_RULED_OUT",
+                                f"the notches' edges put their side {measured:+.0f} deg from the configured "
+                                f"robot.notch_side (known to +-{known_deg:.0f} deg), a roll in the clamp the robot's "
+                                f"bend rules out (its plane lies {shown:+.1f} +- {shown_sd:.1f} deg off): the "
+                                "configured side is kept", side_off_deg=measured, side_uncertainty_deg=known_deg,
+                                plane_roll_deg=shown, plane_roll_sd_deg=shown_sd))
     if abs(side_off) > SIDE_OFF_DEG:
         known_deg = None if t.side_uncertainty is None else math.degrees(t.side_uncertainty)
         known = "" if known_deg is None else f" (known to +-{known_deg:.0f} deg)"

@@ -78,6 +78,9 @@ CODES: dict[str, Code] = {
                                   "within a pitch of them)", "none; a view of the next notch checks it"),
     "NOTCH_SIDE_UNSETTLED": Code("warn", "the notches' side could not be measured consistently: the configured "
                                  "side is kept", "check the robot's roll in its clamp (robot.notch_side)"),
+    "NOTCH_SIDE_RULED_OUT": Code("info", "the notches' edges put their side off the configured robot.notch_side "
+                                 "by a roll the plane the robot bends in rules out: the configured side is kept",
+                                 "none; if it recurs, check the notches' edges (a matcher smearing them)"),
     "ROBOT_ROLLED": Code("warn", "the notches open away from the configured robot.notch_side (the measured side "
                          "is used)", "correct robot.notch_side, or the robot's roll in its clamp"),
     "NOTCH_SIDE_OFF": Code("info", "the notches open away from the configured robot.notch_side, by no more than "

@@ -47,10 +47,12 @@ class Trace:
     measures.cameras_looking_into_slots; tip_from_cap: the tip is the end cap's plane (tip.end_cap_plane),
     tip_uncertainty the smear of its points; side_unsettled: the notch side measured off the configured one, then
     off again in the frame turned to it, when the configured one was kept for it; side_uncertainty: how well the
-    side measured is known (None: not measured). tip_along: the tip between the end seen and the robot's length
-    (tip.TipAlongTube); its uncertainty is the tip's then, and the end seen is what is judged against the robot's
-    length. backbone_shift: how far backbone.level_by_backbone moved the axis (None or 0: no camera faced the
-    backbone). unsupported: the stretches of s where no camera saw trusted wall (cross_view.CrossView).
+    side measured is known (None: not measured); side_ruled_out: a side measured off the configured one by a roll
+    the robot's bend plane rules out, and its uncertainty (rad; the configured side kept). tip_along: the tip
+    between the end seen and the robot's length (tip.TipAlongTube); its uncertainty is the tip's then, and the end
+    seen is what is judged against the robot's length. backbone_shift: how far backbone.level_by_backbone moved
+    the axis (None or 0: no camera faced the backbone). unsupported: the stretches of s where no camera saw
+    trusted wall (cross_view.CrossView).
     distal_cross_view: CrossView.distal, the cameras' spread across their views in the last window, which bounds the
     tip across the tube from below (the limbs' disagreement where they placed that window: end_by_limbs).
     alignment_scatter: how much the alignment's shift of the fit varies along the tube (alignment.shift_scatter).
@@ -89,6 +91,7 @@ class Trace:
     looking_into_slots: tuple[str, ...] = ()
     tip_from_cap: bool = False
     side_unsettled: tuple[float, float] | None = None
+    side_ruled_out: tuple[float, float] | None = None
     side_uncertainty: float | None = None
     cross_view_spread: float | None = None
     level_scatter: float | None = None  # cross_view.CrossView.level_scatter

@@ -188,7 +188,7 @@ class Relocator:
         # per camera the band its matcher spoils at depth edges (an angle; NaN: not measured): what smears a notch
         # window's edge round the tube, and what the tip's rim refinement gives back
         scene = replace(scene, bands=np.array([self.edge_bands.measure(name) for name in self.config.camera_names]))
-        sided = notches_and_side(scene, axis, coarse_end, wall)
+        sided = notches_and_side(scene, axis, coarse_end, wall, aligned.bend_plane)
         axis, notches = sided.axis, sided.notches
         comb_centres = expected_centres(geometry, axis.centerline)  # where the robot's notches lie on the final frame
         # 5. tip, refined: the rim the stereo matcher erodes at depth edges given back, or the end cap seen

@@ -142,6 +142,7 @@ class Sided:
     notch_side: float                             # rad, measured (or the configured one)
     unsettled: tuple[float, float] | None         # a turn that did not settle: (turned by, then measured off)
     side_uncertainty: float | None                # rad; None: the side not measured
+    ruled_out: tuple[float, float] | None = None  # a side the robot's bend plane rules out: (measured off, its SD)
 
 
 @dataclass(frozen=True)
@@ -188,12 +189,11 @@ def find_notches(scene: Scene, axis: Axis, tip_s: float, wall) -> list[Notch]:
                           observed=axis.coords, wall=wall, outline=outline, comb_shift=comb_shift)
 
 
-def notches_and_side(scene: Scene, axis: Axis, tip_s: float, wall) -> Sided:
+def notches_and_side(scene: Scene, axis: Axis, tip_s: float, wall, plane: BendPlane | None = None) -> Sided:
     """Step 4: the notches found in the configured frame; the side they open to measured, and where it is off
     the configured one the tube frame turned to it and the notches found again there (the robot's roll in its
-    clamp is never exact)."""
-    geometry, settings = scene.geometry, scene.settings
-    footprint = settings.cell
+    clamp is never exact), unless the plane the robot bends in (relocation.bend_plane) rules that roll out."""
+    geometry, settings, footprint = scene.geometry, scene.settings, scene.settings.cell
     found = find_notches(scene, axis, tip_s, wall)
     notch_side, unsettled, side_uncertainty = geometry.notch_side, None, None
     configured = axis, found
@@ -205,10 +205,13 @@ def notches_and_side(scene: Scene, axis: Axis, tip_s: float, wall) -> Sided:
         if side_measured is None:
             break
         roll, side_uncertainty, by_edges = side_measured
-        # one edge or none placed the window, or each edge was seen by another camera: a matcher's smear of an
-        # edge is not cancelled by the same smear of the other
+        # one edge or none placed the window, or each was seen by another camera: one's smear is not the other's
         if not by_edges or not _one_camera_faces_both_edges(scene, axis, edged, roll):
             side_uncertainty += _edge_reach(scene, footprint, axis.centerline) / geometry.outer_radius
+        if not turn and plane is not None:  # the plane the robot bends in is a measurement of its roll too
+            if plane.rules_out(roll, side_uncertainty):
+                return Sided(axis, found, notch_side, None, None, (roll, side_uncertainty))
+            roll, side_uncertainty = plane.weighed_with(roll, side_uncertainty)
         if abs(roll) <= ROLL_TO_REFRAME:
             notch_side += roll  # reported as measured; too small a turn to find the notches again for
             break
@@ -361,7 +364,7 @@ def assess(scene: Scene, aligned: Aligned, sided: Sided, end: SeenEnd, length: B
         tip_erosion=end.tip_s - end.eroded_end, tip_uncertainty=end.tip_uncertainty, tip_position=tip,
         tip_along=length.along, crop_box=scene.config.crop_box(),
         notched_thinning=thinning.thinning, looking_into_slots=thinning.looking, tip_from_cap=end.from_cap,
-        side_unsettled=sided.unsettled, side_uncertainty=sided.side_uncertainty,
+        side_unsettled=sided.unsettled, side_uncertainty=sided.side_uncertainty, side_ruled_out=sided.ruled_out,
         cross_view_spread=aligned.cross_view.spread, distal_cross_view=distal_cross_view,
         level_scatter=aligned.cross_view.level_scatter, bend_plane=aligned.bend_plane,
         limbs_across=limbs_across(aligned, length.along.s, geometry.notch_pitch),

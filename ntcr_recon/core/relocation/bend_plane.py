@@ -15,6 +15,10 @@ roll: their part off the configured plane regressed on their part in it (a plane
 it l tan(a) off; depth's error lies off the plane seen side on, and a sample's place in it is known to a hundredth
 of its extent).
 
+The roll the samples show, taken or not (`BendPlane.shown`), measures the robot's roll in its clamp as the notches'
+edges do, and far more sharply on a bent robot (a tenth of a degree against ten): the side those measure is weighed
+with it, and one it rules out is not taken (reconstruction.relocation_steps.notches_and_side).
+
     plane = held_to_bend_plane(centerline, geometry, end_s)   # BendPlane; None: robot.roll_tolerance null
 """
 
@@ -48,6 +52,28 @@ class BendPlane:
     # itself may lie (m, RMS over the samples: its roll's SD times their distance from the base's axis)
     along_views_kept: float = 1.0
     plane_uncertainty: float = 0.0
+    # the roll the samples show whether taken or not, and its SD (rad; one sample's scatter per sample, as a taken
+    # roll's); None where the robot is bent too little to show a plane
+    shown: tuple[float, float] | None = None
+
+    def rules_out(self, roll: float, sd: float) -> bool:
+        """Whether the robot's bend rules out a roll off robot.notch_side (rad, measured to `sd`) as its roll in
+        its clamp: it lies beyond ROLL_SIGMAS of theirs combined from the roll its plane shows (a plane: modulo a
+        half turn)."""
+        if self.shown is None:
+            return False
+        shown, shown_sd = self.shown
+        return abs(math.remainder(roll - shown, math.pi)) > ROLL_SIGMAS * math.hypot(sd, shown_sd)
+
+    def weighed_with(self, roll: float, sd: float) -> tuple[float, float]:
+        """A roll off robot.notch_side measured otherwise (rad, to `sd`: the notches' edges) weighed with the one
+        the plane shows, by their variances; as it was where the robot shows no plane."""
+        if self.shown is None:
+            return roll, sd
+        shown, shown_sd = self.shown
+        shown = roll + math.remainder(shown - roll, math.pi)  # the plane's nearer way round
+        weight = sd**2 / (sd**2 + shown_sd**2)
+        return roll + weight * (shown - roll), sd * shown_sd / math.hypot(sd, shown_sd)
 
     def figures(self) -> dict:
         """The result's quality.bend_plane: the roll (deg) off the configured side, its SD, and the off-plane RMS
@@ -77,8 +103,8 @@ def held_to_bend_plane(centerline: Centerline, geometry: TubeGeometry, end_s: fl
     scatter2 = max(float(np.sum((off - own * lateral) ** 2)) / (len(s) - 1), 1e-12)  # per sample (m^2)
     own_sd = math.sqrt(scatter2 / spread)
     # (a robot bent less than its radius away from its base's axis shows no plane: its axis's errors would)
-    roll_measured = (spread > len(s) * geometry.outer_radius**2
-                     and abs(own) > ROLL_SIGMAS * math.hypot(math.tan(tolerance), own_sd))
+    bent = spread > len(s) * geometry.outer_radius**2
+    roll_measured = bent and abs(own) > ROLL_SIGMAS * math.hypot(math.tan(tolerance), own_sd)
     # within that, the configured roll: depth's error runs smoothly along the tube, so the samples' scatter about
     # their own plane says too little of how far that plane is off (a 0.1 mm wiggle turns it 0.3 deg)
     # (and a roll taken from the samples is known no better than one sample's scatter tells, for the same reason)
@@ -89,8 +115,9 @@ def held_to_bend_plane(centerline: Centerline, geometry: TubeGeometry, end_s: fl
     points = centerline.points - np.outer((centerline.points - base) @ normal, normal)
     step = float(np.median(np.diff(centerline.s)))
     kept = 1.0 if origins is None or not len(origins) else _along_views_kept(samples, tangents, origins, normal)
+    shown = (math.atan(own), math.atan(own_sd * math.sqrt(len(s)))) if bent else None
     return BendPlane(Centerline.from_points(points, binormal, step), roll, math.atan(slope_sd), roll_measured,
-                     off_plane, kept, slope_sd * float(np.sqrt(np.mean(lateral**2))))
+                     off_plane, kept, slope_sd * float(np.sqrt(np.mean(lateral**2))), shown)
 
 
 def _along_views_kept(samples: np.ndarray, tangents: np.ndarray, origins: np.ndarray, normal: np.ndarray) -> float:

@@ -94,3 +94,23 @@ def test_the_hold_leaves_of_an_error_along_the_views_what_lies_in_the_plane(came
     s = np.arange(0.5 * GEOMETRY.notch_pitch, truth.length, GEOMETRY.notch_pitch)
     lateral = truth.frames_at(s)[0][:, 0]
     assert plane.plane_uncertainty == pytest.approx(math.tan(GEOMETRY.roll_tolerance) * np.sqrt(np.mean(lateral**2)))
+
+
+def test_the_roll_the_plane_shows_weighs_a_side_measured_otherwise_or_rules_it_out():
+    axis, _ = bent_axis(GEOMETRY, 45.0)
+    plane = held_to_bend_plane(off_plane(axis, 0.02e-3), GEOMETRY, axis.length)
+    shown, shown_sd = plane.shown
+    assert abs(shown) < 3 * shown_sd < math.radians(1.0)
+    # the notches' edges, a few degrees off and known to ten: the plane's, nearly
+    roll, sd = plane.weighed_with(math.radians(6.0), math.radians(10.0))
+    assert roll == pytest.approx(shown, abs=0.01 * math.radians(6.0))
+    assert sd == pytest.approx(shown_sd, rel=0.01)
+    assert not plane.rules_out(math.radians(6.0), math.radians(10.0))
+    # known to two, twenty degrees off: no roll the plane allows; half a turn round, the same plane
+    assert plane.rules_out(math.radians(20.0), math.radians(2.0))
+    assert not plane.rules_out(math.pi + shown, math.radians(2.0))
+    # a robot bent less than its radius shows no plane: nothing weighed, nothing ruled out
+    straight, _ = bent_axis(GEOMETRY, 0.0)
+    unbent = held_to_bend_plane(straight, GEOMETRY, straight.length)
+    assert unbent.shown is None
+    assert unbent.weighed_with(0.3, 0.1) == (0.3, 0.1) and not unbent.rules_out(0.3, 0.01)

@@ -4,6 +4,7 @@ exact; each figure asserted is printed."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -88,7 +89,8 @@ def test_a_side_that_does_not_settle_in_the_turned_frame_keeps_the_configured_on
     """Turned to a measured side, the notches should open there: the measurement in the turned frame then
     stays within ROLL_TO_REFRAME and the side reported is the sum. One that moves on again is no measurement:
     the configured side is kept, and the result says why. (The measurement is replaced by the given rolls, so
-    only the pipeline's handling of it is under test; on the sample bag bend45, whose notches open at 0 deg.)"""
+    only the pipeline's handling of it is under test; on the sample bag bend45, whose notches open at 0 deg, with
+    no bend plane held, whose roll would rule those out: the next test.)"""
 
     from support import tiny_rig
 
@@ -98,6 +100,7 @@ def test_a_side_that_does_not_settle_in_the_turned_frame_keeps_the_configured_on
 
     bag = BAGS / "bend45"
     config = load_rig_config(bag / "rig.yaml")
+    config = dataclasses.replace(config, robot=dataclasses.replace(config.robot, roll_tolerance=None))
     pair = tiny_rig.bag_frame_pairs(bag, config)[0]
     rolls = iter(math.radians(r) for r in rolls_deg)
     measurements = (SideMeasurement(roll, math.radians(2.0)) for roll in rolls)
@@ -120,12 +123,46 @@ def test_a_side_that_does_not_settle_in_the_turned_frame_keeps_the_configured_on
         assert [round(f["side_off_deg"]) for f in said["ROBOT_ROLLED"]] == [21]
 
 
+@pytest.mark.parametrize("roll_deg, sd_deg", [(60.0, 2.0), (6.0, 10.0)])
+def test_the_plane_the_robot_bends_in_weighs_the_side_or_rules_it_out(monkeypatch, roll_deg, sd_deg):
+    """The robot bends in the plane its notches open to: the roll that plane shows (to a tenth of a degree on
+    bend45, bent 45 deg) is a measurement of the side too. The notches' edges measured 60 deg off (known to a few
+    degrees, their reach added): ruled out, the configured side kept, and the result says so (info); 6 +- 10 deg:
+    weighed with the plane's, no roll."""
+    from support import tiny_rig
+
+    import ntcr_recon.core.reconstruction.relocation_steps as steps
+    from ntcr_recon.core.config.rig import load_rig_config
+    from ntcr_recon.core.reconstruction.reconstructor import Reconstructor
+
+    bag = BAGS / "bend45"
+    config = load_rig_config(bag / "rig.yaml")
+    pair = tiny_rig.bag_frame_pairs(bag, config)[0]
+    measurements = iter([SideMeasurement(math.radians(roll_deg), math.radians(sd_deg))])
+    monkeypatch.setattr(steps, "measure_notch_side", lambda *args, **kwargs: next(measurements, None))
+    relocation = Reconstructor(config).process(pair).relocation
+    said = {warning.code: warning for warning in relocation.warnings}
+    plane = relocation.quality["bend_plane"]
+    assert "ROBOT_ROLLED" not in said and "NOTCH_SIDE_OFF" not in said
+    if sd_deg < 5.0:
+        ruled_out = said["NOTCH_SIDE_RULED_OUT"]
+        assert ruled_out.severity == "info"
+        assert ruled_out.figures["side_off_deg"] == pytest.approx(roll_deg)
+        assert abs(ruled_out.figures["plane_roll_deg"]) < 3 * ruled_out.figures["plane_roll_sd_deg"] < 2.0
+        assert relocation.quality["notch_side_deg"] == pytest.approx(0.0, abs=1e-9)
+        assert relocation.quality["notch_side_uncertainty_deg"] is None
+    else:
+        assert "NOTCH_SIDE_RULED_OUT" not in said
+        assert abs(relocation.quality["notch_side_deg"]) < 1.0  # the plane's, not 6 deg
+        assert relocation.quality["notch_side_uncertainty_deg"] < 1.0
+    assert plane["roll_measured"] is False
+
+
 def test_a_turned_frame_is_judged_by_what_depth_finds_in_it_not_by_the_outlines(monkeypatch):
     """A side measured 150 deg off (replaced, as above) turns the frame. There depth finds half the notches and the
     outlines (relocation.outline_notches, frame-blind) the rest, as many as depth found in the configured frame:
     judged by depth's, the turned frame explains the data worse, the measurement is not trusted and the configured
     side kept."""
-    import dataclasses
 
     from support import tiny_rig
 
@@ -135,6 +172,7 @@ def test_a_turned_frame_is_judged_by_what_depth_finds_in_it_not_by_the_outlines(
 
     bag = BAGS / "bend45"
     config = load_rig_config(bag / "rig.yaml")
+    config = dataclasses.replace(config, robot=dataclasses.replace(config.robot, roll_tolerance=None))  # no plane
     pair = tiny_rig.bag_frame_pairs(bag, config)[0]
     measurements = iter([SideMeasurement(math.radians(150.0), math.radians(2.0))])
     monkeypatch.setattr(steps, "measure_notch_side", lambda *args, **kwargs: next(measurements, None))
