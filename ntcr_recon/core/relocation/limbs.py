@@ -334,8 +334,9 @@ def placed_by_limbs(centerline: Centerline, views: dict[str, CameraView], outer_
 
     Per window of s (a notch pitch) and camera, the median offset of its stations; per window the least move
     across the tangent that gives every camera placing it its offset (opposed cameras share one direction: the
-    move lies along it, depth keeps the axis along the views); between windows interpolated, beyond the first and
-    last faded out over a window. Up to end_s (the end of the wall seen); unchanged where no window was placed."""
+    move lies along it, depth keeps the axis along the views); between windows interpolated, before the first
+    faded in over a window, past the last held to the end. Up to end_s (the end of the wall seen); unchanged where
+    no window was placed."""
     move, figures = _limb_move(centerline, views, outer_radius, window, end_s)
     if move is None:
         return centerline, figures
@@ -384,10 +385,12 @@ def _limb_move(centerline: Centerline, views: dict[str, CameraView], outer_radiu
     distal = directions[last][np.any(directions[last] != 0.0, axis=1)]
     centres = (np.flatnonzero(solved) + 0.5) * window
     move = np.stack([np.interp(centerline.s, centres, moves[:, axis]) for axis in range(3)], axis=1)
-    # beyond the windows placed nothing says where the axis lies across the views: the move fades out over a
-    # window (held on, it would carry one window's move along a stretch that may turn, e.g. towards a camera)
-    beyond = np.maximum(centres[0] - centerline.s, centerline.s - centres[-1]) / window
-    move *= np.clip(1.0 - beyond, 0.0, 1.0)[:, None]
+    # before the first window placed nothing says where the axis lies across the views: the move fades in over a
+    # window from the base. Past the last it is held (np.interp's ends) to the free end: there a matcher smears
+    # depth most (it fattens the end, and the fit curls with it), and the last window's move is the nearest word
+    # on where the end lies (faded out, the tip fell back on depth's curl: 0.29 mm across on the real matcher's
+    # bend90, 0.05 held)
+    move *= np.clip(1.0 - (centres[0] - centerline.s) / window, 0.0, 1.0)[:, None]
     # across the tangent only: a move along it would stretch the centreline
     return (move - centerline.tangents * np.einsum("ij,ij->i", move, centerline.tangents)[:, None],
             LimbFigures(placed, 0.0, disagreement, float(min((last + 1) * window, end_s)), distal, rigid))

@@ -165,3 +165,20 @@ def test_the_limbs_are_read_up_to_the_end_seen_less_the_end_discs_reach():
     _, figures = placed_by_limbs(centerline, views, RADIUS, window=3.2e-3, end_s=centerline.length)
     assert figures.reach == pytest.approx(centerline.length, abs=1e-6)
     assert figures.windows == {"cam_a": 10, "cam_b": 10}
+
+
+def test_past_the_last_window_placed_the_move_is_held_to_the_free_end():
+    """A centreline 0.2 mm off the tube across the views (y), its last 8 mm past the end the limbs are read up to
+    (end_s): there it keeps the last window's move (the free end, where a matcher's depth smears most, lies as the
+    last window placed it), not depth's; before the first window the move fades in from the base."""
+    views = views_of(axis_y=0.0)
+    centerline = straight_centerline(0.2e-3)
+    end_s = centerline.length - 8e-3
+    moved, figures = placed_by_limbs(centerline, views, RADIUS, window=3.2e-3, end_s=end_s)
+    s = np.linspace(0.0, centerline.length, 301)
+    shift = moved.frames_at(s)[0][:, 1] - centerline.frames_at(s)[0][:, 1]
+    last_window = (s > end_s - 3.2e-3) & (s < end_s)
+    free_end = s > end_s
+    assert np.median(shift[last_window]) < -0.07e-3  # towards the tube
+    assert np.allclose(shift[free_end], np.median(shift[last_window]), atol=0.02e-3)
+    assert abs(shift[0]) < 0.5 * abs(np.median(shift[last_window]))  # faded in at the base
