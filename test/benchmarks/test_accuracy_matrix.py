@@ -195,7 +195,7 @@ def test_a_side_that_one_edge_of_the_notches_window_placed_is_stated_as_uncertai
     """A rig file rolled 15 deg off, notches opening 45 deg towards cam_a from 104 mm: neither camera sees both
     edges of the notches' open window, and the matcher smears the one edge seen by its edge band (0.5 mm round
     a 1.75 mm radius: 16 deg), which no second edge cancels. The side the result states must say so (it claimed
-    +-8 deg while 13 deg off)."""
+    +-8 deg while 13 deg off); the plane the robot bends in, 88 deg, places it to a fraction of a degree."""
     row = accuracy_matrix.Row("side_by_one_edge",
                               ("--bend-deg", "87.6", "--notch-side", "-44.6", "--camera-distance", "0.104",
                                "--camera-yaw-deg=-1.3,2.0", "--camera-pitch-deg=-1.1,-0.9"), side_error_deg=-15.0)

@@ -19,7 +19,7 @@ import numpy as np
 from ntcr_recon.core.cloud.points import Cloud
 from ntcr_recon.core.config.rig import RigConfig
 from ntcr_recon.core.quality.checks import assess as assess_trace
-from ntcr_recon.core.quality.findings import Finding
+from ntcr_recon.core.quality.findings import Z90, Finding
 from ntcr_recon.core.quality.measures import (
     CameraReach,
     camera_reach,
@@ -208,10 +208,13 @@ def notches_and_side(scene: Scene, axis: Axis, tip_s: float, wall, plane: BendPl
         # one edge or none placed the window, or each was seen by another camera: one's smear is not the other's
         if not by_edges or not _one_camera_faces_both_edges(scene, axis, edged, roll):
             side_uncertainty += _edge_reach(scene, footprint, axis.centerline) / geometry.outer_radius
-        if not turn and plane is not None:  # the plane the robot bends in is a measurement of its roll too
-            if plane.rules_out(roll, side_uncertainty):
-                return Sided(axis, found, notch_side, None, None, (roll, side_uncertainty))
-            roll, side_uncertainty = plane.weighed_with(roll, side_uncertainty)
+        if plane is not None:  # the plane the robot bends in measures its roll too (off the configured side)
+            turned_by = notch_side - geometry.notch_side
+            if plane.rules_out(turned_by + roll, side_uncertainty):
+                return Sided(*configured, geometry.notch_side, None, None, (turned_by + roll, side_uncertainty))
+            if plane.shown is not None:  # stated as a bound, as the edges' is: Z90 times the SD of the two together
+                weighed, sd = plane.weighed_with(turned_by + roll, side_uncertainty)
+                roll, side_uncertainty = weighed - turned_by, Z90 * sd
         if abs(roll) <= ROLL_TO_REFRAME:
             notch_side += roll  # reported as measured; too small a turn to find the notches again for
             break
@@ -238,8 +241,7 @@ def seen_end(scene: Scene, axis: Axis, notches: list[Notch], coarse_end: float, 
     camera, else each camera's rim with the band its matcher erodes given back (core.relocation.tip)."""
     settings, seen_by = scene.settings, scene.seen_by
     geometry, footprint, centerline = scene.geometry, settings.cell, axis.centerline
-    # where a camera looks onto the end cap - wider in its image than 4 pixels, more than a matcher's
-    # silhouette band - the end is that face (measured), not a rim the matcher erodes
+    # a camera looking onto the end cap (wider than 4 px, a matcher's band): the end is that face, not an eroded rim
     cap_seen = seen_by is not None and cap_faces_a_camera(centerline, coarse_end, scene.origins,
                                                           min(2 * footprint / geometry.outer_radius, 1.0))
     if cap_seen and cap_faces_a_camera(centerline, coarse_end, scene.origins, np.sin(CAP_PLANE_ANGLE)):
@@ -308,12 +310,10 @@ def tip_by_length(scene: Scene, centerline: Centerline, end: SeenEnd, centreline
     """Step 5': the tip along the tube, the end seen weighed with the robot's own length at the bend measured
     (core.relocation.tip); carried on to that length where every camera was kept from seeing the rest."""
     geometry, footprint, tip_s = scene.geometry, scene.settings.cell, end.tip_s
-    # a tip left at the coarse end is known as well as the band the matcher spoils there, not given back
-    # (assess is told no uncertainty then: nothing measured the erosion given back)
+    # a tip left at the coarse end is known as well as the band the matcher spoils there (none given back)
     seen_uncertainty = (end.tip_uncertainty if end.tip_uncertainty is not None
                         else _unrefined_tip_uncertainty(scene, centerline, tip_s, footprint))
-    # the fit reaches as far as the tube's wall is seen whole; the tip may lie beyond, over a last notch seen
-    # thinly: the curve carries on bending there as the notches before it did
+    # the fit reaches as far as the wall is seen whole; past it the curve carries on bending as the notches did
     fitted_end = centerline.length
     centerline = continued_bend(centerline, geometry.reach, comb_centres, geometry)
     # the robot's own length, at the bend measured, is a measurement of the tip too (relocation.tip); the bend is
