@@ -142,7 +142,7 @@ class Sided:
     notch_side: float                             # rad, measured (or the configured one)
     unsettled: tuple[float, float] | None         # a turn that did not settle: (turned by, then measured off)
     side_uncertainty: float | None                # rad; None: the side not measured
-    ruled_out: tuple[float, float] | None = None  # a side the robot's bend plane rules out: (measured off, its SD)
+    ruled_out: tuple[float, float] | None = None  # a side the robot's bend rules out: (measured off, known to)
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,7 @@ import warnings
 import numpy as np
 
 from ntcr_recon.core.relocation.centerline import Centerline, cameras_round_tube
-from ntcr_recon.core.relocation.limbs import SEARCH_PX, CameraView, limb_edges, stations_in_view
+from ntcr_recon.core.relocation.limbs import SEARCH_PX, CameraView, LimbEdges, limb_edges, stations_in_view
 from ntcr_recon.core.robot.geometry import TubeGeometry
 
 # Stations across the middle of the notch (this share of its width) and on each spine's middle (this share of the
@@ -42,7 +42,6 @@ RECESSION_SHARE = 0.5
 # background by at least this share of the spines' (projected on theirs): a slot seen side on shows background on
 # both sides of where the limb was, and the crossing found there is a shade of the background's texture.
 LIMB_CONTRAST_SHARE = 0.5
-
 
 # The comb is slid along s over half a pitch either way in steps of this share of the pitch (0.15 mm, under a
 # pixel at 90 mm; then refined between the best step and its neighbours), the limbs read as finely.
@@ -155,7 +154,7 @@ def limb_fall(centerline: Centerline, view: CameraView, geometry: TubeGeometry, 
     return float(np.median(fall))
 
 
-def _receded(edges, least: float, cap: float) -> np.ndarray:
+def _receded(edges: LimbEdges, least: float, cap: float) -> np.ndarray:
     """(S,): how far in the more receded limb lies at each station (m; `cap` where one is gone, or read where the
     tube does not stand off the background as where the outline is whole; NaN where the station is unusable)."""
     inward = edges.inward()
@@ -163,8 +162,7 @@ def _receded(edges, least: float, cap: float) -> np.ndarray:
     # a limb read is a contrast read: the whole limbs' contrasts are finite (none: no reference, every limb tube-like)
     reference = np.stack([np.median(edges.contrast[whole[:, j], j], axis=0) if np.any(whole[:, j])
                           else np.zeros(3) for j in range(2)])
-    along = np.einsum("sjc,jc->sj", np.nan_to_num(edges.contrast), reference)
-    tube = along >= LIMB_CONTRAST_SHARE * np.sum(reference**2, axis=1)
+    tube = _stands_off(edges.contrast, reference)
     receded = np.where(np.isnan(inward) | ~tube, cap, np.clip(inward, -cap, cap)).max(axis=1)
     return np.where(edges.usable, receded, np.nan)
 
@@ -193,6 +191,11 @@ def _tube_like(contrast: np.ndarray) -> np.ndarray:
     stations, then the spines') took a tube against the background as the spines' limbs did on its side
     (LIMB_CONTRAST_SHARE of their median contrast, projected on it)."""
     spines = np.nanmedian(contrast[:, 1:].transpose(0, 3, 1, 2, 4).reshape(len(contrast), 2, -1, 3), axis=2)
-    along = np.einsum("nksc,nkc->nsk", np.nan_to_num(contrast[:, 0].transpose(0, 2, 1, 3), nan=0.0),
-                      np.nan_to_num(spines, nan=0.0))
-    return along >= LIMB_CONTRAST_SHARE * np.sum(spines**2, axis=2)[:, None, :]
+    return _stands_off(contrast[:, 0], np.nan_to_num(spines)[:, None])
+
+
+def _stands_off(contrast: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """Whether each limb's contrast (..., 3; NaN: none read) stands off the background along `reference` (the
+    whole limbs' contrast, broadcast to it) by LIMB_CONTRAST_SHARE of the reference's own (a zero one: any does)."""
+    along = np.sum(np.nan_to_num(contrast) * reference, axis=-1)
+    return along >= LIMB_CONTRAST_SHARE * np.sum(reference**2, axis=-1)
