@@ -116,14 +116,13 @@ def comb_shift_in_outline(centerline: Centerline, views: dict[str, CameraView], 
     middles = centres[None, :] + shifts[:, None]
     windows = ((0.0, NOTCH_SHARE * geometry.notch_width / 2), (-pitch / 2, SPINE_SHARE * spine / 2),
                (pitch / 2, SPINE_SHARE * spine / 2))  # the notch's middle, then its spines'
-    for view in views.values():
-        at_centres = stations_in_view(centerline, np.clip(centres, 0.0, end_s), view, r_o)
-        distance = at_centres.depth[at_centres.in_front]
-        if not distance.size or (limb_fall(centerline, view, geometry, centres)
-                                 <= SEARCH_PX * np.median(distance) / view.intrinsics.fx):
-            continue
-        receded = _receded(limb_edges(centerline, s, view, r_o, end_s), least, r_o)
-        notch, proximal, distal = _window_means(s, receded, middles, windows)
+    falling = _falling_out(centerline, views, geometry, centres, end_s)
+    for i, view in enumerate(falling):
+        # the views share the stations out (each read costs 1 ms a camera): opposed views see a notch's cut faces
+        # shifted opposite ways, which their mean cancels
+        stations = s[i::len(falling)]
+        receded = _receded(limb_edges(centerline, stations, view, r_o, end_s), least, r_o)
+        notch, proximal, distal = _window_means(stations, receded, middles, windows)
         contrast = notch - (proximal + distal) / 2  # (shifts, notches): NaN where a window was unread
         read = np.isfinite(contrast)
         score += np.where(read, contrast, 0.0).sum(axis=1)
@@ -139,6 +138,19 @@ def comb_shift_in_outline(centerline: Centerline, views: dict[str, CameraView], 
         curvature = below - 2 * at + above
         return float(shifts[best] + (0.5 * step * (below - above) / curvature if curvature < 0 else 0.0))
     return float(shifts[best])
+
+
+def _falling_out(centerline: Centerline, views: dict[str, CameraView], geometry: TubeGeometry,
+                 centres: np.ndarray, end_s: float) -> list[CameraView]:
+    """The views in which the cut limb falls out of the limbs' search (limb_fall, in pixels at the notches)."""
+    falling = []
+    for view in views.values():
+        at_centres = stations_in_view(centerline, np.clip(centres, 0.0, end_s), view, geometry.outer_radius)
+        distance = at_centres.depth[at_centres.in_front]
+        if distance.size and (limb_fall(centerline, view, geometry, centres)
+                              > SEARCH_PX * np.median(distance) / view.intrinsics.fx):
+            falling.append(view)
+    return falling
 
 
 def limb_fall(centerline: Centerline, view: CameraView, geometry: TubeGeometry, centres: np.ndarray) -> float:
