@@ -249,26 +249,31 @@ def _limbs_kernel(color, pixel, sideways, half_width, ks, search, background_fro
     stations, samples = pixel.shape[0], ks.shape[0]
     height, width = color.shape[0], color.shape[1]
     step = ks[1] - ks[0]
+    # each side reads only the samples about its expected limb (its background, tube and search), not the tube's
+    # middle: the index range below holds every sample the tests inside the loops accept, with a margin
+    reach = max(background_to, tube_to, search)
     profile = np.empty((samples, 3))
     limbs = np.full((stations, 2), np.nan)
     contrast = np.full((stations, 2, 3), np.nan)
     for i in range(stations):
-        for k in range(samples):  # bilinear, from the uint8 image itself
-            u = pixel[i, 0] + ks[k] * sideways[i, 0]
-            v = pixel[i, 1] + ks[k] * sideways[i, 1]
-            u0 = min(max(int(np.floor(u)), 0), width - 2)
-            v0 = min(max(int(np.floor(v)), 0), height - 2)
-            du, dv = u - u0, v - v0
-            for c in range(3):
-                top = color[v0, u0, c] * (1.0 - du) + color[v0, u0 + 1, c] * du
-                bottom = color[v0 + 1, u0, c] * (1.0 - du) + color[v0 + 1, u0 + 1, c] * du
-                profile[k, c] = top * (1.0 - dv) + bottom * dv
         for j in range(2):
             side = -1.0 if j == 0 else 1.0
             expected = side * half_width[i]
+            lo = max(int(np.floor((expected - reach - ks[0]) / step)) - 2, 0)
+            hi = min(int(np.ceil((expected + reach - ks[0]) / step)) + 2, samples - 1)
+            for k in range(lo, hi + 1):  # bilinear, from the uint8 image itself
+                u = pixel[i, 0] + ks[k] * sideways[i, 0]
+                v = pixel[i, 1] + ks[k] * sideways[i, 1]
+                u0 = min(max(int(np.floor(u)), 0), width - 2)
+                v0 = min(max(int(np.floor(v)), 0), height - 2)
+                du, dv = u - u0, v - v0
+                for c in range(3):
+                    top = color[v0, u0, c] * (1.0 - du) + color[v0, u0 + 1, c] * du
+                    bottom = color[v0 + 1, u0, c] * (1.0 - du) + color[v0 + 1, u0 + 1, c] * du
+                    profile[k, c] = top * (1.0 - dv) + bottom * dv
             b0 = b1 = b2 = t0 = t1 = t2 = 0.0
             count_background = count_tube = 0
-            for k in range(samples):
+            for k in range(lo, hi + 1):
                 beyond = side * (ks[k] - expected)  # px outward from the expected limb
                 if background_from <= beyond <= background_to:
                     b0, b1, b2 = b0 + profile[k, 0], b1 + profile[k, 1], b2 + profile[k, 2]
@@ -284,9 +289,9 @@ def _limbs_kernel(color, pixel, sideways, half_width, ks, search, background_fro
                 continue
             contrast[i, j, 0], contrast[i, j, 1], contrast[i, j, 2] = c0, c1, c2
             best = np.inf
-            previous = ((profile[0, 0] - b0) * c0 + (profile[0, 1] - b1) * c1 + (profile[0, 2] - b2) * c2) / strength
-            previous -= 0.5
-            for k in range(samples - 1):
+            previous = ((profile[lo, 0] - b0) * c0 + (profile[lo, 1] - b1) * c1
+                        + (profile[lo, 2] - b2) * c2) / strength - 0.5
+            for k in range(lo, hi):
                 following = ((profile[k + 1, 0] - b0) * c0 + (profile[k + 1, 1] - b1) * c1
                              + (profile[k + 1, 2] - b2) * c2) / strength - 0.5
                 if np.sign(previous) != np.sign(following) and abs(side * (ks[k] - expected)) <= search:
