@@ -256,9 +256,10 @@ def depth_resolution(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
     if footprint > FOOTPRINT_RADIUS_FRACTION * geometry.outer_radius:
         warnings.append(finding("PIXEL_FOOTPRINT_COARSE",
                                 f"a depth pixel covers {footprint * 1e3:.2f} mm, the tube is only "
-                                f"{geometry.outer_diameter / footprint:.0f} px across: expect errors above 0.1 mm (a "
-                                "higher depth resolution, or cameras closer, down to the D405's minimum depth of "
-                                "about 70 mm)", pixel_footprint_mm=footprint * 1e3))
+                                f"{geometry.outer_diameter / footprint:.0f} px across: depth resolves its roundness "
+                                "coarsely, which the stated uncertainties carry (a higher depth resolution, or cameras "
+                                "closer, down to the D405's minimum depth of about 70 mm)",
+                                pixel_footprint_mm=footprint * 1e3))
     warnings += [finding("DEPTH_QUANTISED", w, camera=name, depth_step_mm=step * 1e3)
                  for name, step in t.depth_steps.items() if (w := depth_quantisation_warning(name, step, geometry))]
     return {"pixel_footprint_mm": footprint * 1e3,
@@ -327,9 +328,12 @@ def _centerline_uncertain(t: Trace, d: Derived) -> Finding:
         message += (f", a correction that varies along the tube by {t.alignment_scatter * 1e3:.2f} mm (RMS), which "
                     "the wall facing the cameras cannot tell from a wall stereo moved alike in every view")
     if t.limbs_across is not None:
-        disagreement, share = t.limbs_across
+        disagreement, share, interpolated = t.limbs_across
         message += (f"; across the views the tube's limbs in the colour images placed the axis over {share:.0%} of "
                     f"the length, agreeing to {disagreement * 1e3:.3f} mm")
+        if interpolated is not None and share < 1.0:
+            message += (f", and the rest by interpolation, which misses by {interpolated * 1e3:.3f} mm (RMS) where "
+                        "they can check it")
     if t.level_scatter is not None:
         message += (f"; the walls the two cameras see read apart by an amount that varies along the tube by "
                     f"{2 * t.level_scatter * 1e3:.3f} mm (SD), half of which the axis, midway, may be off along the "
@@ -347,6 +351,7 @@ def _centerline_uncertain(t: Trace, d: Derived) -> Finding:
                    notched_thinning_mm=(t.notched_thinning or 0.0) * 1e3,
                    alignment_scatter_mm=(t.alignment_scatter or 0.0) * 1e3, level_scatter_mm=_mm(t.level_scatter),
                    limbs_disagreement_mm=None if t.limbs_across is None else t.limbs_across[0] * 1e3,
+                   limbs_interpolated_mm=None if t.limbs_across is None else _mm(t.limbs_across[2]),
                    one_camera_wall_level_mm=t.wall_level * 1e3 if d.resting_on_level else None)
 
 

@@ -54,8 +54,8 @@ CODES: dict[str, Code] = {
                                     "recording rescaled)", "record at the D405's 0.1 mm depth unit"),
     "DEPTH_QUANTISED": Code("warn", "a camera's depth step is too coarse for the tube's roundness",
                             "record at the D405's 0.1 mm depth unit (realsense-ros forces 1 mm)"),
-    "PIXEL_FOOTPRINT_COARSE": Code("warn", "too few pixels across the tube", "a higher resolution, or cameras "
-                                   "closer (down to the D405's 70 mm minimum depth)"),
+    "PIXEL_FOOTPRINT_COARSE": Code("info", "few depth pixels across the tube (the stated uncertainties carry it)",
+                                   "a higher resolution, or cameras closer (down to the D405's 70 mm minimum depth)"),
     "FRAMES_BEFORE_CAMERA_INFO": Code("info", "depth images with no camera_info to deproject them were skipped",
                                       "none: record camera_info with the depth images"),
     "PAIRS_ONE_CAMERA": Code("info", "some frame pairs had one camera only (stamps further apart than "

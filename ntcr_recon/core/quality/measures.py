@@ -296,9 +296,10 @@ def centerline_uncertainty(cross_view_spread: float | None, notched_thinning: fl
 
     Across a camera's line of sight each camera places the axis by itself: their spread about the fused axis
     (cross_view.cross_view_spread) is how well the fused one is known that way by depth. Where the tube's limbs in
-    the colour images placed it (limbs: (their disagreement, the share of the length seen they placed it over)),
-    it is known across the views as well as the limbs agree: Z90 times their disagreement there (the least
-    squares' residual, each window's own error), depth's spread over the rest.
+    the colour images placed it (limbs: (their disagreement, the share of the length seen they placed it over, how
+    far the move interpolated into a window they did not place misses: LimbFigures.interpolated)), it is known
+    across the views as well as the limbs agree: Z90 times their disagreement there (the least squares' residual,
+    each window's own error), Z90 times the interpolation's miss over the rest (depth's spread where not measured).
     Along the lines of sight the cameras' levels decide. Each window's axis lies midway between the two walls, off
     by half the difference of their depth biases, which no depth measures; biases that vary independently vary as
     their sum does, which shows in how far apart the walls read (level_scatter, cross_view.CrossView.level_scatter):
@@ -322,8 +323,11 @@ def centerline_uncertainty(cross_view_spread: float | None, notched_thinning: fl
         return astray
     across = cross_view_spread or 0.0
     if limbs is not None:
-        disagreement, share = limbs
-        across = float(np.sqrt(share * (Z90 * disagreement) ** 2 + (1.0 - share) * across**2))
+        disagreement, share, interpolated = limbs
+        # a window the limbs did not place takes the move its neighbours' give it: off by what that interpolation
+        # misses where it can be checked (the placed windows, each left out), not by depth's own spread
+        unplaced = across if interpolated is None else Z90 * interpolated
+        across = float(np.sqrt(share * (Z90 * disagreement) ** 2 + (1.0 - share) * unplaced**2))
     slot_lean = 2.0 * (notched_thinning or 0.0) if looking_into_slots and not levelled else 0.0
     along_views = (float(np.hypot(Z90 * level_scatter, slot_lean)) if level_scatter is not None
                    else slot_lean or (notched_thinning or 0.0))

@@ -98,7 +98,7 @@ class Trace:
     bend_plane: BendPlane | None = None  # the axis held to the robot's bend plane (None: not held)
     # where the limbs in the colour images placed the axis across the views (limbs.LimbFigures): their disagreement
     # (m) and the share of the length seen they placed it over
-    limbs_across: tuple[float, float] | None = None
+    limbs_across: tuple[float, float, float | None] | None = None
     distal_cross_view: float | None = None
     alignment_scatter: float | None = None
     outline_offset: float | None = None

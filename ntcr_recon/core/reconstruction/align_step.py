@@ -20,7 +20,7 @@ from ntcr_recon.core.relocation.backbone import level_by_backbone
 from ntcr_recon.core.relocation.bend_plane import held_to_bend_plane
 from ntcr_recon.core.relocation.centerline import Centerline, TubeCoordinates
 from ntcr_recon.core.relocation.cross_view import cross_view_spread
-from ntcr_recon.core.relocation.limbs import placed_by_limbs
+from ntcr_recon.core.relocation.limbs import interpolation_error, placed_by_limbs
 from ntcr_recon.core.relocation.notches import spine_wall
 from ntcr_recon.core.relocation.outline import across_views_from, outline_offset, outline_rigid_offset, went_astray
 from ntcr_recon.core.relocation.reference import along_rays
@@ -106,10 +106,14 @@ def _placed_by_limbs(leveled: Centerline, scene: Scene, end: float):
         if limbs is not None and moved is placed:
             break
         placed, limbs = moved, figures
-    if limbs is not None and placed is not leveled:
+    if limbs is not None and placed is not leveled and limbs.centres is not None:
         s = leveled.s[leveled.s <= placed.length]
         apart = placed.frames_at(s)[0] - leveled.frames_at(s)[0]
-        limbs = dataclasses.replace(limbs, moved_rms=float(np.sqrt(np.mean(np.sum(apart**2, axis=1)))))
+        # the passes' moves together at the windows the last one placed, each against what the others interpolate
+        at = np.clip(limbs.centres, 0.0, min(leveled.length, placed.length))
+        moves = placed.frames_at(at)[0] - leveled.frames_at(at)[0]
+        limbs = dataclasses.replace(limbs, moved_rms=float(np.sqrt(np.mean(np.sum(apart**2, axis=1)))),
+                                    interpolated=interpolation_error(limbs.centres, moves))
     return placed, limbs
 
 

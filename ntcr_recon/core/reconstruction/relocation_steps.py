@@ -294,15 +294,15 @@ def centreline_thinning(scene: Scene, aligned: Aligned, axis: Axis, wall, tip_s:
     return Thinning(thinning, looking, off)
 
 
-def limbs_across(aligned: Aligned, tip_s: float, window: float) -> tuple[float, float] | None:
+def limbs_across(aligned: Aligned, tip_s: float, window: float) -> tuple[float, float, float | None] | None:
     """Where the limbs placed the axis across the views (quality.measures.centerline_uncertainty): their
-    disagreement (m) and the share of the windows up to tip_s they placed: the fewest any camera placed (the least
-    squares, which needs every camera in a window, solved at most that many); None where they placed none, or one
-    camera alone."""
+    disagreement (m), the share of the windows up to tip_s they placed (the fewest any camera placed: the least
+    squares needs every camera in a window) and LimbFigures.interpolated; None: none placed, or one camera alone."""
     limbs = aligned.limbs
     if limbs is None or limbs.disagreement is None or len(limbs.windows) < 2:
         return None
-    return limbs.disagreement, min(min(limbs.windows.values()) / max(np.ceil(tip_s / window), 1.0), 1.0)
+    return (limbs.disagreement, min(min(limbs.windows.values()) / max(np.ceil(tip_s / window), 1.0), 1.0),
+            limbs.interpolated)
 
 
 def tip_by_length(scene: Scene, centerline: Centerline, end: SeenEnd, centreline_off: float,
@@ -384,12 +384,12 @@ def assess(scene: Scene, aligned: Aligned, sided: Sided, end: SeenEnd, length: B
                "notch_side_uncertainty_deg": None if side_uncertainty is None else float(np.degrees(
                    side_uncertainty)),
                "edge_band_mrad": {name: band * 1e3 for name, band in scene.edge_bands.angles.items()},
-               # the notch pitches whose limbs in each camera's colour image placed the axis across its view, and
-               # how far that moved it (None: no colour image)
-               "centerline_limbs": None if aligned.limbs is None else {
-                   "windows": dict(aligned.limbs.windows), "moved_mm": aligned.limbs.moved_rms * 1e3,
-                   "disagreement_mm": None if aligned.limbs.disagreement is None
-                   else aligned.limbs.disagreement * 1e3},
+               # the notch pitches whose limbs in each camera's colour image placed the axis across its view, how
+               # far that moved it, how far a window they did not place may be off (None: no colour image)
+               "centerline_limbs": None if (limbs := aligned.limbs) is None else {
+                   "windows": dict(limbs.windows), "moved_mm": limbs.moved_rms * 1e3,
+                   "disagreement_mm": None if limbs.disagreement is None else limbs.disagreement * 1e3,
+                   "interpolated_mm": None if limbs.interpolated is None else limbs.interpolated * 1e3},
                "robot_bend_end_off_deg": None if length.end_turn_off is None else float(np.degrees(
                    length.end_turn_off))}
     return quality, warnings

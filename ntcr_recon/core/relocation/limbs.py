@@ -70,6 +70,10 @@ MIN_CAMERAS = 2
 # Windows both cameras must have placed for their offset apart (LimbFigures.rigid) to be measured.
 MIN_RIGID_WINDOWS = 4
 
+# Windows placed that the move's interpolation error is measured on (LimbFigures.interpolated): each left out, the
+# rest interpolate it; with fewer, one left out leaves too little to interpolate from.
+MIN_INTERPOLATED = 4
+
 # The cameras' directions across their views are solved for in least squares whose singular values under this share
 # of the largest are cut: two directions count as distinct beyond about 53 deg apart (tan(angle / 2) > 0.5);
 # opposed cameras share one, and are averaged along it.
@@ -319,6 +323,11 @@ class LimbFigures:
     # the other's: the matcher's noise varies window to window), and its standard error; None: fewer than
     # MIN_RIGID_WINDOWS windows both placed, or not two cameras
     rigid: tuple[float, float] | None = None
+    centres: np.ndarray | None = None         # (W,) m of s: the middles of the windows placed
+    # how far a window's move lies from the move the windows either side of it give by interpolation (m, RMS, one
+    # left out at a time; interpolation_error): how far off the axis may lie in a window the limbs did not place,
+    # which takes its move so; None: fewer than MIN_INTERPOLATED windows placed
+    interpolated: float | None = None
 
     def unchecked(self, shift: np.ndarray, reaching: float) -> float:
         """How much of a shift of the axis (3,) the limbs did not measure: its part off the directions across the
@@ -398,7 +407,19 @@ def _limb_move(centerline: Centerline, views: dict[str, CameraView], outer_radiu
     move *= np.clip(1.0 - (centres[0] - centerline.s) / window, 0.0, 1.0)[:, None]
     # across the tangent only: a move along it would stretch the centreline
     return (move - centerline.tangents * np.einsum("ij,ij->i", move, centerline.tangents)[:, None],
-            LimbFigures(placed, 0.0, disagreement, float(min((last + 1) * window, end_s)), distal, rigid))
+            LimbFigures(placed, 0.0, disagreement, float(min((last + 1) * window, end_s)), distal, rigid, centres,
+                        interpolation_error(centres, moves)))
+
+
+def interpolation_error(centres: np.ndarray, moves: np.ndarray) -> float | None:
+    """LimbFigures.interpolated: each placed window's move (moves (W, 3) at `centres`, m of s) against the one the
+    other windows give it as _limb_move gives a window it did not place (interpolated, held past the ends), RMS."""
+    if len(centres) < MIN_INTERPOLATED:
+        return None
+    others = ~np.eye(len(centres), dtype=bool)
+    predicted = np.array([[np.interp(centres[i], centres[others[i]], moves[others[i], axis]) for axis in range(3)]
+                          for i in range(len(centres))])
+    return float(np.sqrt(np.mean(np.sum((moves - predicted) ** 2, axis=1))))
 
 
 def _rigid_offset(residual: np.ndarray, rows: np.ndarray) -> tuple[float, float] | None:

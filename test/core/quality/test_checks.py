@@ -392,15 +392,20 @@ def test_quality_gives_the_centreline_an_uncertainty_and_warns_above_its_floor()
     # across the views the limbs' disagreement where they placed the axis (Z90 times it), depth's spread over the
     # rest; along them Z90 times how much the walls apart vary, with the slots' lean only where a camera looks in
     z = 1.645
-    assert centerline_uncertainty(0.08e-3, 0.03e-3, limbs=(0.01e-3, 1.0), level_scatter=0.02e-3) == pytest.approx(
+    assert centerline_uncertainty(0.08e-3, 0.03e-3, limbs=(0.01e-3, 1.0, None), level_scatter=0.02e-3) == pytest.approx(
         math.hypot(z * 0.01e-3, z * 0.02e-3))
-    assert centerline_uncertainty(0.08e-3, 0.03e-3, ("cam_a",), limbs=(0.01e-3, 0.5),
+    assert centerline_uncertainty(0.08e-3, 0.03e-3, ("cam_a",), limbs=(0.01e-3, 0.5, None),
                                   level_scatter=0.02e-3) == pytest.approx(
         math.sqrt(0.5 * (z * 0.01e-3) ** 2 + 0.5 * 0.08e-3**2 + (z * 0.02e-3) ** 2 + (2 * 0.03e-3) ** 2))
+    # the windows they did not place took the move interpolated from the others: off by what that misses where
+    # they can be checked (Z90 times it), not by depth's spread
+    assert centerline_uncertainty(0.08e-3, 0.03e-3, ("cam_a",), limbs=(0.01e-3, 0.5, 0.02e-3),
+                                  level_scatter=0.02e-3) == pytest.approx(
+        math.sqrt(0.5 * (z * 0.01e-3) ** 2 + 0.5 * (z * 0.02e-3) ** 2 + (z * 0.02e-3) ** 2 + (2 * 0.03e-3) ** 2))
     # the axis held to the robot's bend plane: what lies along the views only as far as the hold left it (a tenth,
     # seen nearly square to the plane), the plane's own uncertainty added
     plane = types.SimpleNamespace(along_views_kept=0.1, plane_uncertainty=0.01e-3)
-    assert centerline_uncertainty(0.08e-3, 0.03e-3, limbs=(0.01e-3, 1.0), level_scatter=0.2e-3,
+    assert centerline_uncertainty(0.08e-3, 0.03e-3, limbs=(0.01e-3, 1.0, None), level_scatter=0.2e-3,
                                   bend_plane=plane) == pytest.approx(
         math.sqrt((z * 0.01e-3) ** 2 + (0.1 * z * 0.2e-3) ** 2 + 0.01e-3**2))
 

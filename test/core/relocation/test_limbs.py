@@ -10,6 +10,7 @@ from ntcr_recon.core.relocation.limbs import (
     WINDOW_MARGIN_PX,
     CameraView,
     LimbFigures,
+    interpolation_error,
     limb_offsets,
     placed_by_limbs,
 )
@@ -182,3 +183,16 @@ def test_past_the_last_window_placed_the_move_is_held_to_the_free_end():
     assert np.median(shift[last_window]) < -0.07e-3  # towards the tube
     assert np.allclose(shift[free_end], np.median(shift[last_window]), atol=0.02e-3)
     assert abs(shift[0]) < 0.5 * abs(np.median(shift[last_window]))  # faded in at the base
+
+
+def test_the_interpolation_error_is_each_windows_move_against_what_the_others_interpolate():
+    centres = np.arange(6) * 2e-3
+    # a move alike all along is interpolated exactly; one varying linearly is between windows, and held past the
+    # ends the end windows miss by a step; one window 0.1 mm off misses by that, its neighbours by half of it
+    assert interpolation_error(centres, np.full((6, 3), 1e-4)) == pytest.approx(0.0, abs=1e-12)
+    linear = np.stack([centres * 0.01, np.zeros(6), np.zeros(6)], axis=1)
+    assert interpolation_error(centres, linear) == pytest.approx(np.sqrt(2 * (0.01 * 2e-3) ** 2 / 6))
+    bumped = np.zeros((6, 3))
+    bumped[2, 1] = 1e-4
+    assert interpolation_error(centres, bumped) == pytest.approx(np.sqrt((1e-4**2 + 2 * (0.5e-4) ** 2) / 6))
+    assert interpolation_error(centres[:3], bumped[:3]) is None  # too few to leave one out of
