@@ -55,7 +55,7 @@ UNDETERMINED = 1.0
 # A recording whose total bend stays below this (rad) leaves the tube a cylinder about its axis.
 STRAIGHT_RAD = np.radians(5.0)
 # The limbs are read from the round whose loss scale is this small (m) on: the pose then puts each limb within the
-# pixels their search spans (core.relocation.limbs.SEARCH_PX).
+# pixels their search spans (core.relocation.limb_profile.SEARCH_PX).
 LIMBS_FROM_SCALE_M = 1.5e-4
 # A camera's limb stations count together as much as its points, each at most this many times one point.
 LIMB_WEIGHT_MAX = 3.0

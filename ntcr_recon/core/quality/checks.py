@@ -145,6 +145,9 @@ def widths_against_bends(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
                                 "whose bend was measured)", notches=unchecked))
     width_known = notch_width_uncertainties({i: off for i, off in off_model.items() if i not in misread}, d.found,
                                             MISREAD_WIDTH_FRACTION * geometry.notch_width)
+    # a misread one took its bend's width, yet its edges said otherwise: which of the two erred, nothing tells (a
+    # kink the centreline spread reads so too), and its width is known no better than they disagree
+    width_known |= {i: max(width_known[i], abs(off_model[i])) for i in misread if i in width_known}
     return {"notch_width_vs_bend_mm": {str(i): off * 1e3 for i, off in sorted(off_model.items())},
             "notches_unchecked": unchecked,
             "notch_width_uncertainty_mm": {str(i): width_known[i] * 1e3 for i in d.found}}, warnings

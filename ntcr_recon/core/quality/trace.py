@@ -32,7 +32,7 @@ DISTAL_CROSS_VIEW_FACTOR = 2.0
 # A mean shift across the views this many standard errors from none is rigid, not the matcher's noise.
 EXTRINSICS_SIGMAS = 3.0
 # Cameras whose outlines lie more than this many pixel footprints apart across their views are off by more than the
-# limbs look for (limbs.SEARCH_PX) and the trusted wall's gate lets in: their outlines tell the offset
+# limbs look for (limb_profile.SEARCH_PX) and the trusted wall's gate lets in: their outlines tell the offset
 GROSS_OFFSET_PX = 3.0
 
 
@@ -204,7 +204,7 @@ class RigidOffset:
 
 def rigid_offset(t: Trace) -> RigidOffset | None:
     """The cameras' rigid offset across their views: from their limbs where both placed the axis there (sharp where
-    depth is smeared; found within limbs.SEARCH_PX of the fused axis in both views, the cameras cannot be further
+    depth is smeared; found within limb_profile.SEARCH_PX of the fused axis in both views, the cameras cannot be further
     apart than that); else from their whole outlines where those lie beyond what the trusted wall's gate reaches
     (GROSS_OFFSET_PX: a pose a millimetre off moves one camera's whole tube out of it, and out of the limbs' search);
     else from depth; None unless two cameras each placed the axis. Not the outlines where the limbs were found: a

@@ -10,8 +10,10 @@ profile crosses half-way from the background just outside the expected limb to t
 the background may be darker or brighter than the tube, and differ in hue only). A station counts where both limbs
 were found with contrast and lie a tube's width apart (within WIDTH_TOLERANCE_PX): not at a notch cutting a limb,
 not at the end cap, not where a prop behind matches the tube. Its offset is the limbs' middle against the
-projected axis, in metres at the axis's depth. Shading darkens a tube towards its limbs, so each limb reads
-inward by up to a pixel (a blurred lens more); the middle cancels what the two sides share. The levels are read
+projected axis, in metres at the axis's depth. Shading darkens a tube towards its limbs, so a crossing read
+half-way to the tube's mean colour inside lies inward by up to a pixel and a half (a blurred lens, a dark background
+more): each limb is read half-way to the tube's colour carried on from inside to the blur's reach
+(limb_profile.SHADED_EDGE_PX), and the middle cancels what the two sides still share. The levels are read
 about where the axis puts each limb, so an axis a pixel or more off is moved part of the way (about half): the
 alignment reads them twice (align_step.LIMB_PASSES), the second time about where the first left the axis. Measured
 on both depth sources (accuracy_matrix --matcher both) that took the error across the views from 0.044 to 0.038 mm
@@ -29,26 +31,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ntcr_recon.core.base.compiled import jit
 from ntcr_recon.core.cloud.deproject import Intrinsics
 from ntcr_recon.core.relocation.centerline import Centerline
+from ntcr_recon.core.relocation.limb_profile import BACKGROUND_PX, SEARCH_PX, limb_crossings
 from ntcr_recon.core.relocation.outline import LEAST_CROSSING
-
-# Profile samples per pixel across the tube.
-SAMPLES_PER_PX = 4
-
-# A limb is looked for this far either side of where the axis puts it (px): the axis as aligned on depth is off
-# by up to a millimetre's fraction (about a pixel at 90 mm), a shaded limb reads up to a pixel inward.
-SEARCH_PX = 3.0
-
-# The background is read this far outside the expected limb, the tube this far inside it (px): beyond the blur
-# of the lens and the search.
-BACKGROUND_PX = (1.5, 4.0)
-TUBE_PX = (1.5, 3.0)
-
-# The least colour contrast between tube and background at a limb (8-bit levels, Euclidean in RGB): a few times
-# a sensor's noise, so that noise does not place the crossing.
-MIN_CONTRAST = 15.0
 
 # A station counts where its limbs lie within this of the tube's projected width apart (px): a notch cutting a
 # limb, the end cap, a neighbour or a prop behind the tube give another width.
@@ -132,7 +118,7 @@ def limb_offsets(centerline: Centerline, s: np.ndarray, view: CameraView, outer_
     """How far across the camera's view the middle of the tube's limbs lies from the centreline at stations s;
     none within the end disc's reach of end_s in the image (outer_radius |cos| of the tangent to the line of
     sight: a profile there may cross the end cap's outline instead of the limbs)."""
-    edges = limb_edges(centerline, s, view, outer_radius, end_s)
+    edges = limb_edges(centerline, s, view, outer_radius, end_s, shaded=True)
     offset = np.full(len(s), np.nan)
     usable = edges.usable
     if np.any(usable):
@@ -196,8 +182,8 @@ def stations_in_view(centerline: Centerline, s: np.ndarray, view: CameraView, ou
 
 
 def limb_edges(centerline: Centerline, s: np.ndarray, view: CameraView, outer_radius: float,
-               end_s: float = np.inf) -> LimbEdges:
-    """The limbs the camera sees at stations s (LimbEdges; limb_offsets' end margin)."""
+               end_s: float = np.inf, shaded: bool = False) -> LimbEdges:
+    """The limbs the camera sees at stations s (LimbEdges; limb_offsets' end margin; shaded: limb_crossings')."""
     s = np.asarray(s, float)
     seen = stations_in_view(centerline, s, view, outer_radius)
     in_front, pixel, half_width, view_dir, heading = (seen.in_front, seen.pixel, seen.half_width, seen.sight,
@@ -221,90 +207,12 @@ def limb_edges(centerline: Centerline, s: np.ndarray, view: CameraView, outer_ra
     if not np.any(usable):
         return edges
     sideways = sideways[usable] / length[usable, None]
-    limbs[usable], contrast[usable] = limb_crossings(view.color, pixel[usable], sideways, half_width[usable])
+    limbs[usable], contrast[usable] = limb_crossings(view.color, pixel[usable], sideways, half_width[usable], shaded)
     # across in 3-D: the image's sideways direction in the optical frame, made perpendicular to the line of sight
     direction = np.concatenate([sideways, np.zeros((len(sideways), 1))], axis=1)
     direction -= view_dir[usable] * np.einsum("ij,ij->i", direction, view_dir[usable])[:, None]
     across[usable] = (direction / np.linalg.norm(direction, axis=1)[:, None]) @ view.extrinsic[:3, :3].T
     return dataclasses.replace(edges, usable=usable)
-
-
-def limb_crossings(color: np.ndarray, pixel: np.ndarray, sideways: np.ndarray, half_width: np.ndarray
-                   ) -> tuple[np.ndarray, np.ndarray]:
-    """Per station (S, 2), where the colour profile along `sideways` (unit, px) from `pixel` crosses half-way from
-    the tube to the background nearest -half_width and +half_width (px; NaN where none was found): its limbs, or
-    (along the axis, at the end) the end's outline; and (S, 2, 3) the colour it took for the tube's less the
-    background's there (NaN where too faint to read)."""
-    most = float(np.max(half_width)) + SEARCH_PX + BACKGROUND_PX[1]
-    ks = np.arange(-most, most + 0.5 / SAMPLES_PER_PX, 1.0 / SAMPLES_PER_PX)
-    return _limbs_kernel(np.ascontiguousarray(color), np.ascontiguousarray(pixel, dtype=float),
-                         np.ascontiguousarray(sideways, dtype=float), np.ascontiguousarray(half_width, dtype=float),
-                         ks, SEARCH_PX, *BACKGROUND_PX, *TUBE_PX, MIN_CONTRAST)
-
-
-@jit
-def _limbs_kernel(color, pixel, sideways, half_width, ks, search, background_from, background_to, tube_from,
-                  tube_to, min_contrast):
-    """Per station (S, 2): where its colour profile along `sideways` crosses half-way from the background to the
-    tube (px along ks) nearest each expected limb (-half_width, +half_width), NaN without contrast or crossing;
-    and (S, 2, 3) the tube's mean colour less the background's (NaN without contrast).
-    The background is the profile's mean background_from..to px outside the expected limb, the tube its mean
-    tube_from..to px inside it; the profile is sampled bilinearly from the (H, W, 3) uint8 image."""
-    stations, samples = pixel.shape[0], ks.shape[0]
-    height, width = color.shape[0], color.shape[1]
-    step = ks[1] - ks[0]
-    # each side reads only the samples about its expected limb (its background, tube and search), not the tube's
-    # middle: the index range below holds every sample the tests inside the loops accept, with a margin
-    reach = max(background_to, tube_to, search)
-    profile = np.empty((samples, 3))
-    limbs = np.full((stations, 2), np.nan)
-    contrast = np.full((stations, 2, 3), np.nan)
-    for i in range(stations):
-        for j in range(2):
-            side = -1.0 if j == 0 else 1.0
-            expected = side * half_width[i]
-            lo = max(int(np.floor((expected - reach - ks[0]) / step)) - 2, 0)
-            hi = min(int(np.ceil((expected + reach - ks[0]) / step)) + 2, samples - 1)
-            for k in range(lo, hi + 1):  # bilinear, from the uint8 image itself
-                u = pixel[i, 0] + ks[k] * sideways[i, 0]
-                v = pixel[i, 1] + ks[k] * sideways[i, 1]
-                u0 = min(max(int(np.floor(u)), 0), width - 2)
-                v0 = min(max(int(np.floor(v)), 0), height - 2)
-                du, dv = u - u0, v - v0
-                for c in range(3):
-                    top = color[v0, u0, c] * (1.0 - du) + color[v0, u0 + 1, c] * du
-                    bottom = color[v0 + 1, u0, c] * (1.0 - du) + color[v0 + 1, u0 + 1, c] * du
-                    profile[k, c] = top * (1.0 - dv) + bottom * dv
-            b0 = b1 = b2 = t0 = t1 = t2 = 0.0
-            count_background = count_tube = 0
-            for k in range(lo, hi + 1):
-                beyond = side * (ks[k] - expected)  # px outward from the expected limb
-                if background_from <= beyond <= background_to:
-                    b0, b1, b2 = b0 + profile[k, 0], b1 + profile[k, 1], b2 + profile[k, 2]
-                    count_background += 1
-                if tube_from <= -beyond <= tube_to:
-                    t0, t1, t2 = t0 + profile[k, 0], t1 + profile[k, 1], t2 + profile[k, 2]
-                    count_tube += 1
-            nb, nt = max(count_background, 1), max(count_tube, 1)
-            b0, b1, b2 = b0 / nb, b1 / nb, b2 / nb
-            c0, c1, c2 = t0 / nt - b0, t1 / nt - b1, t2 / nt - b2  # the tube's colour against the background's
-            strength = c0 * c0 + c1 * c1 + c2 * c2
-            if strength < min_contrast * min_contrast:
-                continue
-            contrast[i, j, 0], contrast[i, j, 1], contrast[i, j, 2] = c0, c1, c2
-            best = np.inf
-            previous = ((profile[lo, 0] - b0) * c0 + (profile[lo, 1] - b1) * c1
-                        + (profile[lo, 2] - b2) * c2) / strength - 0.5
-            for k in range(lo, hi):
-                following = ((profile[k + 1, 0] - b0) * c0 + (profile[k + 1, 1] - b1) * c1
-                             + (profile[k + 1, 2] - b2) * c2) / strength - 0.5
-                if np.sign(previous) != np.sign(following) and abs(side * (ks[k] - expected)) <= search:
-                    at = ks[k] + previous / (previous - following) * step
-                    if abs(at - expected) < best:
-                        best = abs(at - expected)
-                        limbs[i, j] = at
-                previous = following
-    return limbs, contrast
 
 
 @dataclass(frozen=True)

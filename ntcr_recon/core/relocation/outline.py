@@ -96,7 +96,7 @@ def outline_rigid_offset(coords: TubeCoordinates, frames: tuple, xyz: np.ndarray
     to the other reads with the same sign in both views), and that mean's standard error; None for other than two
     cameras or fewer than minimum_windows such windows. Every point within an outer radius of the wall counts (not
     the wall's gate): a camera whose pose in the rig file is a millimetre or more off has its whole outline that far
-    across its view, where the wall's gate and the limbs' search (limbs.SEARCH_PX) no longer reach it. Across its
+    across its view, where the wall's gate and the limbs' search (limb_profile.SEARCH_PX) no longer reach it. Across its
     view a camera's outline does not depend on its depth, so a pose off the camera's moves it alike in every window
     (trace.rigid_offset); only windows both cameras saw whole count, so that a stretch one sees end-on or cut
     short does not pass for an offset."""

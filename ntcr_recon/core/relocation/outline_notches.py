@@ -25,7 +25,8 @@ import warnings
 import numpy as np
 
 from ntcr_recon.core.relocation.centerline import Centerline, cameras_round_tube
-from ntcr_recon.core.relocation.limbs import SEARCH_PX, CameraView, LimbEdges, limb_edges, stations_in_view
+from ntcr_recon.core.relocation.limb_profile import SEARCH_PX
+from ntcr_recon.core.relocation.limbs import CameraView, LimbEdges, limb_edges, stations_in_view
 from ntcr_recon.core.robot.geometry import TubeGeometry
 
 # Stations across the middle of the notch (this share of its width) and on each spine's middle (this share of the

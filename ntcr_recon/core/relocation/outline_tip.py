@@ -5,15 +5,15 @@ millimetre off the tip, one way or the other as the matcher goes (the package's 
 matcher fattens it). The left imager's colour image shows the end sharp. Seen across the tube, the end of its
 outline is the end cap's rim, whose outline reaches past the tip's centre by r |cot a| along the tube (a the angle
 between the tangent and the line of sight; an ellipse r wide), at u r beside the axis by that times sqrt(1 - u^2).
-Per camera, profiles along the projected axis at LATERAL_OFFSETS are read for the crossing half-way from the tube
-to the background (limbs.limb_crossings, as the limbs are), each placing the tip's centre (their median). Unlike a
-limb, which shading darkens as the wall turns away, the end's wall faces the camera up to the rim: read about the
-true axis, the end lies within 0.005 mm of the tip on a straight robot and 0.02-0.07 mm past it bent 45 deg
-(rendered with the package's emulation or a real matcher's left image alike). The cameras' tips are averaged; how
-far apart they lie, and half a pixel (EDGE_PX), is how well it is known; weighed with depth's end where the two agree
-(OutlineEnd.with_depth), else taken for it. The end is looked for within the limbs' search
-(limbs.SEARCH_PX) of the end depth saw, which a matcher leaves within a pixel or two: further back, a slot seen side
-on shows the background too.
+Per camera, profiles along the projected axis at LATERAL_OFFSETS are read for the crossing half-way from the tube to
+the background (limb_profile.limb_crossings, as the limbs are, not shaded), each placing the tip's centre (their
+median). Unlike a limb, which shading darkens as the wall turns away, the end's wall faces the camera up to the rim:
+read about the true axis, the end lies within 0.005 mm of the tip on a straight robot and 0.02-0.07 mm past it bent
+45 deg (rendered with the package's emulation or a real matcher's left image alike). The cameras' tips are averaged;
+how far apart they lie, and half a pixel (EDGE_PX), is how well it is known; weighed with depth's end where the two
+agree (OutlineEnd.with_depth), else taken for it. The end is looked for within the limbs' search
+(limb_profile.SEARCH_PX) of the end depth saw, which a matcher leaves within a pixel or two: further back, a slot
+seen side on shows the background too.
 
     seen = end_in_outline(centerline, end_s, views, geometry, footprint)   # OutlineEnd, or None
 """
@@ -26,7 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ntcr_recon.core.relocation.centerline import Centerline
-from ntcr_recon.core.relocation.limbs import BACKGROUND_PX, SEARCH_PX, CameraView, limb_crossings, stations_in_view
+from ntcr_recon.core.relocation.limb_profile import BACKGROUND_PX, SEARCH_PX, limb_crossings
+from ntcr_recon.core.relocation.limbs import CameraView, stations_in_view
 from ntcr_recon.core.relocation.outline import LEAST_CROSSING
 from ntcr_recon.core.robot.geometry import TubeGeometry
 
