@@ -21,7 +21,7 @@ from ntcr_recon.core.robot.geometry import TubeGeometry
 # calibrate_and_check): manufacturing keeps a cut to a few hundredths of a millimetre, a tenth of 1.0-1.8 mm.
 MISREAD_WIDTH_FRACTION = 0.1
 
-# The least share of a kink's excess chord each of its neighbours holds (bump_at).
+# The least share of a kink's excess chord its neighbours hold, on average (bump_at).
 SPREAD_SHARE = 0.35
 
 
@@ -39,7 +39,7 @@ def bump_at(bends: dict[int, float | None], index: int, scatter: float | None = 
     bump: its own chord reads about half its bend, its neighbours' the rest. It moves the turn along the tube, it
     does not lose it: the kink's bend is the steady bend about it (the median of _steady_chords) plus the excess
     over it of the chords up to two notches either side. A bump has its own chord's excess the largest, beyond three
-    times the chords' `scatter`, its two neighbours' the same way and each at least SPREAD_SHARE of it, the span's
+    times the chords' `scatter`, its two neighbours' the same way and on average at least SPREAD_SHARE of it, the span's
     excess beyond three sigma of a sum of that many chords (noisy chords give any notch some excess either way), and
     the chords three and four away within six of it and half its own excess of each other (a real bump three notches
     on is no steady bend, and a curve that waves along the tube has none: five chords' excess over it sums what it
@@ -55,9 +55,11 @@ def bump_at(bends: dict[int, float | None], index: int, scatter: float | None = 
     steady = float(statistics.median(around))  # plain Python: as chord_scatter's
     peak, beside = own - steady, [bend - steady for bend in neighbours]
     excess = [bend - steady for i in range(index - 2, index + 3) if (bend := bends.get(i)) is not None]
-    # the smoothing spreads a kink over both neighbours alike: each holds a good part of its excess (0.45-0.75 of
-    # the kink's own on bend_kink); a chord alone off its neighbours (0.2 of it) is the curve's wobble, no kink
-    if peak == 0.0 or not all(e / peak >= SPREAD_SHARE for e in beside) or any(abs(e) > abs(peak) for e in excess):
+    # the smoothing spreads a kink over both neighbours: together they hold a good part of its excess (0.45-0.75 of
+    # the kink's own each on bend_kink, 0.29 and 0.52 where the limbs moved the chords about it); a chord alone off
+    # its neighbours (0.2 of it each) is the curve's wobble, no kink. Their mean, not each: chord noise splits it
+    if (peak == 0.0 or not all(e / peak > 0.0 for e in beside) or sum(beside) / peak < 2.0 * SPREAD_SHARE
+            or any(abs(e) > abs(peak) for e in excess)):
         return None
     if scatter is None:  # measured only where there is a bump to judge (a dozen medians)
         scatter = chord_scatter({i: bend for i, bend in bends.items() if abs(i - index) > 2})
