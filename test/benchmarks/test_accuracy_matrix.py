@@ -29,8 +29,8 @@ def _found(figures: dict, code: str) -> list:
 
 # rows that meet every floor on seed 1 and on five noise seeds too (`accuracy_matrix.py --seeds 5`; bend_kink's
 # kinked notch, taken for misread on seed 5 while each of its neighbours' chords had to hold 0.35 of its excess,
-# keeps its width on all five since their mean has to). Not bend_largest: its tip misses its floor on four seeds of five, 0.19-0.24 mm off, as its warning of
-# the alignment's shift held to the tip says.
+# keeps its width on all five since their mean has to). Not bend_largest: its tip misses its floor on four seeds of
+# five, 0.19-0.24 mm off, as its warning of the alignment's shift held to the tip says.
 @pytest.mark.parametrize("name", ["side45_bend30", "cameras75", "bend90", "bends_falling", "bend_kink"])
 def test_rows_meet_the_floors(name):
     figures = accuracy_matrix.run_row(ROWS[name], frames=2)

@@ -324,9 +324,9 @@ def interpolation_error(centres: np.ndarray, moves: np.ndarray) -> float | None:
     other windows give it as _limb_move gives a window it did not place (interpolated, held past the ends), RMS."""
     if len(centres) < MIN_INTERPOLATED:
         return None
-    others = ~np.eye(len(centres), dtype=bool)
-    predicted = np.array([[np.interp(centres[i], centres[others[i]], moves[others[i], axis]) for axis in range(3)]
-                          for i in range(len(centres))])
+    # one left out, its neighbours interpolate it (the ends: the next one in, held)
+    weight = ((centres[1:-1] - centres[:-2]) / (centres[2:] - centres[:-2]))[:, None]
+    predicted = np.concatenate([moves[1:2], (1.0 - weight) * moves[:-2] + weight * moves[2:], moves[-2:-1]])
     return float(np.sqrt(np.mean(np.sum((moves - predicted) ** 2, axis=1))))
 
 
