@@ -97,7 +97,8 @@ class Trace:
     level_scatter: float | None = None  # cross_view.CrossView.level_scatter
     bend_plane: BendPlane | None = None  # the axis held to the robot's bend plane (None: not held)
     # where the limbs in the colour images placed the axis across the views (limbs.LimbFigures): their disagreement
-    # (m) and the share of the length seen they placed it over
+    # (m), the share of the length seen they placed it over, and how far a window they did not place may lie off (m,
+    # LimbFigures.interpolated; None: not measured)
     limbs_across: tuple[float, float, float | None] | None = None
     distal_cross_view: float | None = None
     alignment_scatter: float | None = None

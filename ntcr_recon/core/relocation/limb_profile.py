@@ -95,7 +95,7 @@ def _limbs_kernel(color, pixel, sideways, half_width, ks, search, background_fro
                 if tube_from <= -beyond <= tube_to:
                     t0, t1, t2 = t0 + profile[k, 0], t1 + profile[k, 1], t2 + profile[k, 2]
                     count_tube += 1
-                    depth_in = depth_in - beyond
+                    depth_in -= beyond
                     if -beyond <= near_to:
                         n0, n1, n2 = n0 + profile[k, 0], n1 + profile[k, 1], n2 + profile[k, 2]
                         count_near += 1

@@ -258,8 +258,15 @@ def test_a_notch_bent_much_sharper_than_its_neighbours_keeps_the_width_it_reads(
     checked, misread, _ = calibrate_and_check([dataclasses.replace(n, bend=float(as_read[n.index])) for n in notches],
                                               geometry)
     assert 7 not in misread and next(n for n in checked if n.index == 7).width == pytest.approx(true_width, abs=1e-6)
+    # ... and as read once the limbs read shaded edges: the kink's spread split unevenly, its neighbours holding 0.29
+    # and 0.52 of its excess (together enough; each alone need not be)
+    split = np.radians([1.8, 2.1, 1.5, 1.9, 3.1, 1.5, 3.7, 7.8, 5.0, 1.7, 2.1, 1.6, 2.3, 1.5, 2.5, 1.5])
+    assert np.degrees(bump_at(dict(enumerate(split)), 7).bend) == pytest.approx(11.7, abs=0.1)
     wobble = {i: np.radians(2.0) for i in range(16)} | {7: np.radians(3.0), 8: np.radians(1.0)}
     assert bump_at(wobble, 7) is None and bump_at(wobble, 8) is None
+    # one neighbour beside the peak, the other the other way: no kink's spread, however much the one holds
+    lopsided = {i: np.radians(2.0) for i in range(16)} | {6: np.radians(5.0), 7: np.radians(6.0), 8: np.radians(1.8)}
+    assert bump_at(lopsided, 7) is None
     assert bump_at(dict(enumerate(chords)), 0) is None and bump_at({7: 0.1, 8: 0.1}, 7) is None
     # chords as read on second-renderer scenes of robots bent evenly (4.8 deg at each of 20 notches, 4.5 at each of
     # 16): one alone off its neighbours, a curve that waves along the tube, chords falling towards its end
