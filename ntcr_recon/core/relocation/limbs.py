@@ -114,11 +114,11 @@ class LimbPlacement:
 
 
 def limb_offsets(centerline: Centerline, s: np.ndarray, view: CameraView, outer_radius: float,
-                 end_s: float = np.inf) -> LimbPlacement:
+                 end_s: float = np.inf, shaded: bool = True) -> LimbPlacement:
     """How far across the camera's view the middle of the tube's limbs lies from the centreline at stations s;
     none within the end disc's reach of end_s in the image (outer_radius |cos| of the tangent to the line of
-    sight: a profile there may cross the end cap's outline instead of the limbs)."""
-    edges = limb_edges(centerline, s, view, outer_radius, end_s, shaded=True)
+    sight: a profile there may cross the end cap's outline instead of the limbs). shaded: as limb_crossings'."""
+    edges = limb_edges(centerline, s, view, outer_radius, end_s, shaded)
     offset = np.full(len(s), np.nan)
     usable = edges.usable
     if np.any(usable):
