@@ -143,11 +143,9 @@ def widths_against_bends(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
                                 f"{', '.join(map(str, unchecked))} (the next notch was not found and the tube seen "
                                 "ends within a pitch: no whole spine beyond measures the bend, and no notch before it "
                                 "whose bend was measured)", notches=unchecked))
-    width_known = notch_width_uncertainties({i: off for i, off in off_model.items() if i not in misread}, d.found,
-                                            MISREAD_WIDTH_FRACTION * geometry.notch_width)
-    # a misread one took its bend's width, yet its edges said otherwise: which of the two erred, nothing tells (a
-    # kink the centreline spread reads so too), and its width is known no better than they disagree
-    width_known |= {i: max(width_known[i], abs(off_model[i])) for i in misread if i in width_known}
+    # a misread one took its bend's width, yet its edges said otherwise: known no better than the two disagree
+    width_known = notch_width_uncertainties(off_model, d.found, MISREAD_WIDTH_FRACTION * geometry.notch_width,
+                                            misread)
     return {"notch_width_vs_bend_mm": {str(i): off * 1e3 for i, off in sorted(off_model.items())},
             "notches_unchecked": unchecked,
             "notch_width_uncertainty_mm": {str(i): width_known[i] * 1e3 for i in d.found}}, warnings
@@ -353,7 +351,7 @@ def _centerline_uncertain(t: Trace, d: Derived) -> Finding:
                    cross_view_mm=(t.cross_view_spread or 0.0) * 1e3,
                    notched_thinning_mm=(t.notched_thinning or 0.0) * 1e3,
                    alignment_scatter_mm=(t.alignment_scatter or 0.0) * 1e3, level_scatter_mm=_mm(t.level_scatter),
-                   limbs_disagreement_mm=None if t.limbs_across is None else t.limbs_across[0] * 1e3,
+                   limbs_disagreement_mm=None if t.limbs_across is None else _mm(t.limbs_across[0]),
                    limbs_interpolated_mm=None if t.limbs_across is None else _mm(t.limbs_across[2]),
                    one_camera_wall_level_mm=t.wall_level * 1e3 if d.resting_on_level else None)
 

@@ -17,7 +17,7 @@ is `error`; `warn` otherwise.
 
 Public API:
     CODES, Finding, finding(code, message, **figures), sort_by_severity(findings)
-    notch_width_uncertainties(width_vs_bend, indices, limit), every_notch_factor(count)
+    notch_width_uncertainties(width_vs_bend, indices, limit, misread), every_notch_factor(count)
     uncertainty_mm(quality, notch_uncertainties_mm) -> {"centerline", "tip", "notch_width"}
     result_status(findings, quality, tolerance) -> "ok" | "warn" | "error"
     codes_table() -> str  (the README's table)
@@ -170,14 +170,16 @@ Z90 = 1.645
 MIN_CHECKED_NOTCHES = 3
 
 
-def notch_width_uncertainties(width_vs_bend: Mapping[int, float], indices: Iterable[int], limit: float
-                              ) -> dict[int, float]:
+def notch_width_uncertainties(width_vs_bend: Mapping[int, float], indices: Iterable[int], limit: float,
+                              misread: Iterable[int] = ()) -> dict[int, float]:
     """Per notch a 90 % bound of its width's error (m), from how the widths read disagree with the widths their
     bends imply (notch_widths.calibrate_and_check's two independent measurements of each notch): the disagreement's
     variance is the sum of both errors' variances, so Z90 times its RMS over the notches bounds either; a notch
     whose own disagreement is larger is known no better than that. With fewer than MIN_CHECKED_NOTCHES checked,
-    `limit` (what the check lets pass)."""
-    checked = list(width_vs_bend.values())
+    `limit` (what the check lets pass). The `misread` notches (given their bend's width) are left out of the RMS:
+    their disagreement is a misread rim's, or a kink's the centreline spread, and which nothing tells."""
+    left_out = set(misread)
+    checked = [d for i, d in width_vs_bend.items() if i not in left_out]
     spread = (Z90 * math.sqrt(sum(d * d for d in checked) / len(checked)) if len(checked) >= MIN_CHECKED_NOTCHES
               else limit)
     return {i: max(spread, abs(width_vs_bend.get(i, 0.0))) for i in indices}
