@@ -223,10 +223,9 @@ def test_the_centreline_is_the_cores_placed_by_the_same_limbs(reference, replay)
     """The axis across each camera's view is placed by the tube's limbs in that camera's colour window, which
     camera_node publishes beside its cloud and relocation_node waits for: the graph's centreline is the core's,
     which read the same images. Placed by depth alone in a view (a window lost or late), it moves by about
-    `centerline_limbs.moved_mm`, tens of um. relocation_node starts each frame's fit from the previous frame's
-    axis, the reference each frame cold, and the limbs are read about where the fit puts them: that alone has left
-    the two 0.37 of the move apart (7.9 um of 21.5, once in CI): nearer the limbs' placement than half way to
-    depth's is what tells the one from the other."""
+    `centerline_limbs.moved_mm`, tens of um. Once in CI a frame placed with its windows lay 0.37 of the move from
+    the core's (7.9 um of 21.5; not a warm start: this replay runs without one, and the cause was not found):
+    nearer the limbs' placement than half way to depth's is what tells the one from the other."""
     config, by_offset, first, loop_span = reference
     out, *_, log = replay
     late = [line for line in log.splitlines() if "colour window" in line]
