@@ -186,11 +186,19 @@ class RelocationNode(RigNode):
         seen = () if cloud.camera is None else np.unique(cloud.camera).tolist()
         return [self.rig.camera_names[index] for index in seen]
 
+    def _publishes_windows(self, camera: str, stamp_ns: int) -> bool:
+        """Whether the camera's camera_node publishes colour windows: its publisher is matched, or a window of it
+        came within fusion.camera_timeout of the stamp (a busy machine's discovery can report a running publisher
+        unmatched for a while: a frame then placed by depth alone, unsaid)."""
+        if camera not in self._windows:
+            return False
+        recent = self._color[camera].nearest(stamp_ns, int(self.rig.fusion.camera_timeout * 1e9)) is not None
+        return recent or self._windows[camera].get_publisher_count() > 0
+
     def _awaited(self, cloud) -> list[str]:
         """The cameras with points in the cloud whose window of its instant has not come while their camera_node
         publishes windows: the cloud waits for those."""
-        return [camera for camera in self._cameras_in(cloud)
-                if camera in self._windows and self._windows[camera].get_publisher_count() > 0
+        return [camera for camera in self._cameras_in(cloud) if self._publishes_windows(camera, cloud.stamp_ns)
                 and self._window_of(camera, cloud.stamp_ns) is None]
 
     def _release_when_complete(self) -> None:
@@ -228,7 +236,7 @@ class RelocationNode(RigNode):
                        "axis is placed by depth alone in that view")
             # a window late from a camera_node that publishes them is said for each frame (rare, and the frame
             # named); a camera publishing none would say it every frame: once per 5 s
-            if any(camera in self._windows and self._windows[camera].get_publisher_count() > 0 for camera in missing):
+            if any(self._publishes_windows(camera, cloud.stamp_ns) for camera in missing):
                 self.get_logger().warning(message)
             else:
                 self.get_logger().warning(message, throttle_duration_sec=5.0)

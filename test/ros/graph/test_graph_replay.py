@@ -5,6 +5,7 @@ computes on the same frames, and what `ntcr-recon reconstruct` reports for the f
 
 from __future__ import annotations
 
+import ast
 import json
 import re
 import signal
@@ -14,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path as PathMsg
 from scipy.spatial import cKDTree
@@ -91,7 +93,9 @@ def read_ply_points(path: Path) -> np.ndarray:
 def replay(reference, tmp_path_factory):
     output = tmp_path_factory.mktemp("replay")
     with RosGraph() as graph:
-        out = {name: [] for name in ("relocated", "notches", "tip", "centerline", "mesh", "mesh_raw")}
+        out = {name: [] for name in ("relocated", "notches", "tip", "centerline", "mesh", "mesh_raw", "diagnostics")}
+        out["camera_names"], out["base_frame"], out["cameras"] = reference[0].camera_names, reference[0].base_frame, {}
+        graph.node.create_subscription(DiagnosticArray, "/diagnostics", out["diagnostics"].append, COLLECT_RELIABLE)
         graph.node.create_subscription(PathMsg, "/ntcr/centerline", out["centerline"].append, COLLECT_RELIABLE)
         graph.node.create_subscription(PoseStamped, "/ntcr/tip", out["tip"].append, COLLECT_RELIABLE)
         graph.node.create_subscription(PointCloud2, "/ntcr/relocated/points", out["relocated"].append,
@@ -109,12 +113,11 @@ def replay(reference, tmp_path_factory):
                 _, _, first, loop_shift = reference
 
                 # OUTPUTS frames placed with their colour windows and one more, the bag's first pair among them
-                # (not a camera's alone): a frame whose window came late is left out (placed_with_their_windows)
+                # (not a camera's alone): a frame placed without a window is left out (placed_with_their_windows)
                 def enough() -> bool:
                     collected = min(len(out["relocated"]), len(out["notches"]))
-                    late = late_stamps(log_path.read_text())
-                    placed = [m for m in out["relocated"][:collected] if stamp_to_ns(m.header.stamp) not in late]
-                    return collected >= OUTPUTS + 1 and len(placed) >= OUTPUTS and any(
+                    placed = placed_with_their_windows((out, None, None, None, log_path.read_text()))
+                    return collected >= OUTPUTS + 1 and len([i for i in placed if i < collected]) >= OUTPUTS and any(
                         (stamp_to_ns(m.header.stamp) - first) % loop_shift == 0 and both_cameras(m, reference[0])
                         for m in out["relocated"])
 
@@ -139,12 +142,35 @@ def both_cameras(cloud_msg, config) -> bool:
 
 
 def placed_with_their_windows(replay) -> list[int]:
-    """The indices of the relocated frames relocation_node placed with every camera's colour window. One whose
-    window came after its wait (a loaded machine) is placed by depth alone in that view, as the node's log line
-    says for each such frame, and is not the core's frame: the core read the windows."""
+    """The indices of the relocated frames relocation_node placed with the colour window of every camera in the
+    cloud, as the frame's own /diagnostics say (its quality's centerline_limbs windows, per camera given a window).
+    One whose window came after its wait (a loaded machine), as the node's log line says for each such frame, or
+    before the node matched camera_node's publisher, is placed by depth alone in that view and is not the core's
+    frame: the core read the windows."""
     out, *_, log = replay
-    late = late_stamps(log)
-    return [i for i, m in enumerate(out["relocated"]) if stamp_to_ns(m.header.stamp) not in late]
+    late, windowed = late_stamps(log), colour_windows(out["diagnostics"])
+    placed = []
+    for i, m in enumerate(out["relocated"]):
+        stamp = stamp_to_ns(m.header.stamp)
+        if i not in out["cameras"]:  # decoded once: enough() asks again while the graph runs
+            cloud = stage_cloud_and_normals(m, out["base_frame"])[0]
+            out["cameras"][i] = {out["camera_names"][c] for c in np.unique(cloud.camera)}
+        if stamp not in late and stamp in windowed and out["cameras"][i] <= windowed[stamp]:
+            placed.append(i)
+    return placed
+
+
+def colour_windows(diagnostics: list) -> dict[int, set[str]]:
+    """Per frame (its stamp, ns) the cameras relocation_node placed the axis with a colour window of, from its
+    /diagnostics (the quality's centerline_limbs: windows per camera given a window; None: no window at all)."""
+    windowed = {}
+    for array in diagnostics:
+        for status in array.status:
+            values = {kv.key: kv.value for kv in status.values}
+            if "stamp_ns" in values and "centerline_limbs" in values:
+                found = re.search(r"'windows': (\{[^}]*\})", values["centerline_limbs"])
+                windowed[int(values["stamp_ns"])] = set(ast.literal_eval(found.group(1))) if found else set()
+    return windowed
 
 
 def late_stamps(log: str) -> set[int]:
