@@ -105,6 +105,9 @@ CODES: dict[str, Code] = {
                           "not placed across the tube", "a camera seeing the distal part side-on"),
     "DISTAL_ONE_CAMERA": Code("warn", "a distal stretch seen by one camera alone: its far side is inferred",
                               "a pose both cameras see, or cameras further back (70 mm minimum depth)"),
+    "COLOUR_VIEW_MISSING": Code("info", "a camera's colour image did not come with its depth (relocation.limbs): "
+                                "across its view the axis was placed by depth alone (the stated bounds carry it)",
+                                "check the camera streams colour aligned with depth (camera_node's colour topic)"),
     "CAMERA_SHORT_VIEW": Code("warn", "a camera saw under half of the robot's length", "check its view of "
                               "the robot"),
     "EXTRINSICS_DISAGREE": Code("warn", "the cameras place the axis apart across their views alike all along the "

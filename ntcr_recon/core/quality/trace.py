@@ -116,6 +116,7 @@ class Trace:
     wall_level: float | None = None
     fitted_end: float | None = None
     reference_moved: ReferenceMove | None = None
+    colour_missing: tuple[str, ...] = ()  # cameras in the cloud without a colour image, relocation.limbs on
     cross_view_offsets: tuple[tuple[float, float] | None, ...] = ()  # cross_view.CrossView.offsets
     limbs_rigid: tuple[float, float] | None = None  # limbs.LimbFigures.rigid: the same, from the limbs
     outline_rigid: tuple[float, float] | None = None  # outline.outline_rigid_offset: the same, from the outlines
@@ -235,6 +236,15 @@ def extrinsics_apart(t: Trace) -> float:
     if rigid.offset <= rigid.least * t.centerline_tolerance:
         return 0.0
     return rigid.offset if rigid.whole else rigid.offset / 2
+
+
+def missing_views(config, seen_by: np.ndarray | None, views) -> tuple[str, ...]:
+    """The cameras with points in the cloud (seen_by: each point's camera index) whose colour image is not among
+    `views` while relocation.limbs asks for them: across their views the axis was placed by depth alone."""
+    if not config.relocation.limbs or seen_by is None:
+        return ()
+    present = set(np.unique(seen_by).tolist())
+    return tuple(name for index, name in enumerate(config.camera_names) if index in present and name not in views)
 
 
 def derive(t: Trace) -> Derived:

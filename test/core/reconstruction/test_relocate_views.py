@@ -74,3 +74,33 @@ def test_without_relocation_limbs_no_view_is_kept():
     camera = relocator.config.camera_names[0]
     relocator.note_views(FramePair(0, {camera: frame_of(camera, 0)}), fused_over({0: np.array([[30, 20]])}))
     assert relocator.views == {}
+
+
+def test_a_camera_in_the_cloud_without_its_colour_image_is_said_by_code():
+    """relocation.limbs on and a camera's colour image missing (a window late in the graph, a recording without
+    colour): across its view the axis is placed by depth alone, and the result says which camera (info: its bounds
+    carry it)."""
+    from support import BAGS, tiny_rig
+
+    from ntcr_recon.core.config.rig import load_rig_config
+    from ntcr_recon.core.reconstruction.reconstructor import Reconstructor
+
+    config = load_rig_config(BAGS / "bend45" / "rig.yaml")
+    assert config.relocation.limbs
+    reconstructor = Reconstructor(config)
+    pair = tiny_rig.bag_frame_pairs(BAGS / "bend45", config)[0]
+    cloud = reconstructor.filter(reconstructor.fuse(pair))
+    views = dict(reconstructor.relocator.views)
+    assert set(views) == set(config.camera_names)
+    relocator = Relocator(config)
+    relocator.views = views
+    whole = relocator.relocate(cloud, warm_start=False)
+    cam_a, cam_b = config.camera_names
+    relocator.views = {cam_a: views[cam_a]}
+    half = relocator.relocate(cloud, warm_start=False)
+    missing = next(w for w in half.warnings if w.code == "COLOUR_VIEW_MISSING")
+    assert "COLOUR_VIEW_MISSING" not in {w.code for w in whole.warnings}
+    assert missing.severity == "info" and missing.figures["cameras"] == [cam_b]
+    # a camera with no point in the cloud needs no image
+    alone = cloud.subset(np.flatnonzero(cloud.camera == 0))
+    assert "COLOUR_VIEW_MISSING" not in {w.code for w in relocator.relocate(alone, warm_start=False).warnings}

@@ -5,7 +5,6 @@ computes on the same frames, and what `ntcr-recon reconstruct` reports for the f
 
 from __future__ import annotations
 
-import ast
 import json
 import re
 import signal
@@ -94,7 +93,6 @@ def replay(reference, tmp_path_factory):
     output = tmp_path_factory.mktemp("replay")
     with RosGraph() as graph:
         out = {name: [] for name in ("relocated", "notches", "tip", "centerline", "mesh", "mesh_raw", "diagnostics")}
-        out["camera_names"], out["base_frame"], out["cameras"] = reference[0].camera_names, reference[0].base_frame, {}
         graph.node.create_subscription(DiagnosticArray, "/diagnostics", out["diagnostics"].append, COLLECT_RELIABLE)
         graph.node.create_subscription(PathMsg, "/ntcr/centerline", out["centerline"].append, COLLECT_RELIABLE)
         graph.node.create_subscription(PoseStamped, "/ntcr/tip", out["tip"].append, COLLECT_RELIABLE)
@@ -143,34 +141,20 @@ def both_cameras(cloud_msg, config) -> bool:
 
 def placed_with_their_windows(replay) -> list[int]:
     """The indices of the relocated frames relocation_node placed with the colour window of every camera in the
-    cloud, as the frame's own /diagnostics say (its quality's centerline_limbs windows, per camera given a window).
-    One whose window came after its wait (a loaded machine), as the node's log line says for each such frame, or
-    before the node matched camera_node's publisher, is placed by depth alone in that view and is not the core's
-    frame: the core read the windows."""
+    cloud: the frame's own /diagnostics carry no COLOUR_VIEW_MISSING (nor the node's log a line naming it late). One
+    whose window came after its wait (a loaded machine), or before the node matched camera_node's publisher, is
+    placed by depth alone in that view and is not the core's frame: the core read the windows."""
     out, *_, log = replay
-    late, windowed = late_stamps(log), colour_windows(out["diagnostics"])
-    placed = []
-    for i, m in enumerate(out["relocated"]):
-        stamp = stamp_to_ns(m.header.stamp)
-        if i not in out["cameras"]:  # decoded once: enough() asks again while the graph runs
-            cloud = stage_cloud_and_normals(m, out["base_frame"])[0]
-            out["cameras"][i] = {out["camera_names"][c] for c in np.unique(cloud.camera)}
-        if stamp not in late and stamp in windowed and out["cameras"][i] <= windowed[stamp]:
-            placed.append(i)
-    return placed
+    late, codes = late_stamps(log), frame_codes(out["diagnostics"])
+    return [i for i, m in enumerate(out["relocated"]) if (stamp := stamp_to_ns(m.header.stamp)) not in late
+            and stamp in codes and "COLOUR_VIEW_MISSING" not in codes[stamp]]
 
 
-def colour_windows(diagnostics: list) -> dict[int, set[str]]:
-    """Per frame (its stamp, ns) the cameras relocation_node placed the axis with a colour window of, from its
-    /diagnostics (the quality's centerline_limbs: windows per camera given a window; None: no window at all)."""
-    windowed = {}
-    for array in diagnostics:
-        for status in array.status:
-            values = {kv.key: kv.value for kv in status.values}
-            if "stamp_ns" in values and "centerline_limbs" in values:
-                found = re.search(r"'windows': (\{[^}]*\})", values["centerline_limbs"])
-                windowed[int(values["stamp_ns"])] = set(ast.literal_eval(found.group(1))) if found else set()
-    return windowed
+def frame_codes(diagnostics: list) -> dict[int, set[str]]:
+    """Per frame (its stamp, ns) the codes of relocation_node's result, from its /diagnostics."""
+    return {int(values["stamp_ns"]): set(filter(None, values.get("codes", "").split(",")))
+            for array in diagnostics for status in array.status
+            if "stamp_ns" in (values := {kv.key: kv.value for kv in status.values})}
 
 
 def late_stamps(log: str) -> set[int]:
