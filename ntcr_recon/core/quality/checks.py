@@ -190,9 +190,10 @@ def camera_views(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
             warnings.append(finding("CAMERA_SHORT_VIEW", f"{name} saw only {fraction:.0%} of the robot's length",
                                     camera=name, share=fraction))
     if t.colour_missing:
-        warnings.append(finding("COLOUR_VIEW_MISSING", f"no colour image of {', '.join(t.colour_missing)} came with "
-                                "its depth (relocation.limbs): across its view the axis was placed by depth alone, "
-                                "as uncertain as stated", cameras=list(t.colour_missing)))
+        views = "its view" if len(t.colour_missing) == 1 else "their views"
+        warnings.append(finding("COLOUR_VIEW_MISSING", f"no colour image of {' or '.join(t.colour_missing)} came "
+                                f"with its depth (relocation.limbs): across {views} the axis was placed by depth "
+                                "alone, as uncertain as stated", cameras=list(t.colour_missing)))
     reach = t.reach
     return {"length_seen_share": d.share, "distal_one_camera_mm": {k: v * 1e3 for k, v in d.alone.items()},
             # per camera the nearest depth it returned, and the tube seen's nearest to it (its surface, optical axis)
