@@ -366,6 +366,10 @@ def test_relocation_node_waits_for_the_colour_windows_of_its_cloud(scene, reloca
     assert time.monotonic() - sent >= WINDOW_WAIT_S
     np.testing.assert_allclose(centreline_of(stamp_to_ns(alone.header.stamp)), by_depth.centerline.points, atol=1e-7)
     assert "no colour window of cam_a, cam_b came with the cloud" in probe.graph.log_of(probe.process)[log_before:]
+    # and each frame's own status says which views went without colour, in codes a controller reads
+    assert probe.graph.spin_until(lambda: quality_of(probe, stamp_to_ns(alone.header.stamp)) is not None, 10)
+    assert "COLOUR_VIEW_MISSING" in quality_of(probe, stamp_to_ns(alone.header.stamp))[1]["codes"].split(",")
+    assert "COLOUR_VIEW_MISSING" not in quality_of(probe, stamp_to_ns(first.header.stamp))[1]["codes"].split(",")
 
 
 def test_relocation_node_fits_the_robots_own_model_as_the_core(scene):
