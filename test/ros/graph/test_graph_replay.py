@@ -233,9 +233,11 @@ def test_the_centreline_is_the_cores_placed_by_the_same_limbs(reference, replay)
     """The axis across each camera's view is placed by the tube's limbs in that camera's colour window, which
     camera_node publishes beside its cloud and relocation_node waits for: the graph's centreline is the core's,
     which read the same images. Placed by depth alone in a view (a window lost or late), it moves by about
-    `centerline_limbs.moved_mm`, tens of um. Once in CI a frame placed with its windows lay 0.37 of the move from
-    the core's (7.9 um of 21.5; not a warm start: this replay runs without one, and the cause was not found):
-    nearer the limbs' placement than half way to depth's is what tells the one from the other."""
+    `centerline_limbs.moved_mm`, tens of um. Once in CI a frame taken for placed with its windows lay 0.37 of the
+    move from the core's (7.9 um of 21.5): most likely one camera's window was missing while discovery reported its
+    publisher unmatched, which relocation_node then neither waited for nor named per frame (it now waits for a
+    camera whose windows came lately, and such a frame says COLOUR_VIEW_MISSING and is left out here). Nearer the
+    limbs' placement than half way to depth's tells the one from the other."""
     config, by_offset, first, loop_span = reference
     out, *_, log = replay
     late = [line for line in log.splitlines() if "colour window" in line]
