@@ -6,7 +6,6 @@ computes on the same frames, and what `ntcr-recon reconstruct` reports for the f
 from __future__ import annotations
 
 import json
-import re
 import signal
 import subprocess
 import sys
@@ -114,7 +113,7 @@ def replay(reference, tmp_path_factory):
                 # (not a camera's alone): a frame placed without a window is left out (placed_with_their_windows)
                 def enough() -> bool:
                     collected = min(len(out["relocated"]), len(out["notches"]))
-                    placed = placed_with_their_windows((out, None, None, None, log_path.read_text()))
+                    placed = placed_with_their_windows(out)
                     return collected >= OUTPUTS + 1 and len([i for i in placed if i < collected]) >= OUTPUTS and any(
                         (stamp_to_ns(m.header.stamp) - first) % loop_shift == 0 and both_cameras(m, reference[0])
                         for m in out["relocated"])
@@ -139,15 +138,14 @@ def both_cameras(cloud_msg, config) -> bool:
     return len(np.unique(cloud.camera)) == len(config.camera_names)
 
 
-def placed_with_their_windows(replay) -> list[int]:
+def placed_with_their_windows(out: dict) -> list[int]:
     """The indices of the relocated frames relocation_node placed with the colour window of every camera in the
-    cloud: the frame's own /diagnostics carry no COLOUR_VIEW_MISSING (nor the node's log a line naming it late). One
-    whose window came after its wait (a loaded machine), or before the node matched camera_node's publisher, is
-    placed by depth alone in that view and is not the core's frame: the core read the windows."""
-    out, *_, log = replay
-    late, codes = late_stamps(log), frame_codes(out["diagnostics"])
-    return [i for i, m in enumerate(out["relocated"]) if (stamp := stamp_to_ns(m.header.stamp)) not in late
-            and stamp in codes and "COLOUR_VIEW_MISSING" not in codes[stamp]]
+    cloud: the frame's own /diagnostics carry no COLOUR_VIEW_MISSING. One whose window came after its wait (a loaded
+    machine, as the node's log also says), or before the node matched camera_node's publisher, is placed by depth
+    alone in that view and is not the core's frame: the core read the windows."""
+    codes = frame_codes(out["diagnostics"])
+    return [i for i, m in enumerate(out["relocated"])
+            if (stamp := stamp_to_ns(m.header.stamp)) in codes and "COLOUR_VIEW_MISSING" not in codes[stamp]]
 
 
 def frame_codes(diagnostics: list) -> dict[int, set[str]]:
@@ -157,14 +155,9 @@ def frame_codes(diagnostics: list) -> dict[int, set[str]]:
             if "stamp_ns" in (values := {kv.key: kv.value for kv in status.values})}
 
 
-def late_stamps(log: str) -> set[int]:
-    """The stamps (ns) of the clouds relocation_node's log names as placed without a camera's colour window."""
-    return {int(stamp) for stamp in re.findall(r"came with the cloud of (\d+) ns", log)}
-
-
 def compared_frames(replay) -> list[int]:
     """The first OUTPUTS of placed_with_their_windows."""
-    kept = placed_with_their_windows(replay)
+    kept = placed_with_their_windows(replay[0])
     assert len(kept) >= OUTPUTS, f"{len(replay[0]['relocated']) - len(kept)} frames placed without a window"
     return kept[:OUTPUTS]
 
@@ -262,7 +255,7 @@ def test_the_first_frame_matches_ntcr_recon_reconstruct(reference, reconstructed
     result, points = reconstructed
     out, *_ = replay
     clouds = [stage_cloud_and_normals(m, config.base_frame)[0] for m in out["relocated"]]
-    index = next(i for i in placed_with_their_windows(replay)
+    index = next(i for i in placed_with_their_windows(replay[0])
                  if (stamp_to_ns(out["relocated"][i].header.stamp) - first) % loop_shift == 0
                  and both_cameras(out["relocated"][i], config))
     cloud = clouds[index]
