@@ -4,17 +4,20 @@ with launch_testing_ros's WaitForTopics) run by `launch_test` against a `colcon 
 
 ROS 2's launch comes with ROS on a rig; elsewhere scripts/setup_env.sh (the README's test command runs it)
 installs it into the test environment from ../shared/ros2-launch-jazzy. Where neither is there, these tests
-are skipped and say so. The build is made once per session, in ~/.cache/ntcr_recon/launch-tests (kept while the
-sources are unchanged, so is its kernel cache), and its kernels compiled there before the first launch."""
+are skipped and say so. The build is made once per session, in ~/.cache/ntcr_recon/launch-tests/ws-<digest of the
+sources> (kept while the sources are unchanged, so is its kernel cache), and its kernels compiled there before the
+first launch."""
 
 from __future__ import annotations
 
+import fcntl
 import hashlib
 import os
 import re
 import shutil
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -42,6 +45,52 @@ def _sources() -> list[Path]:
                   and (REPO / name).is_file())
 
 
+NODE_EXECUTABLES = ("transform_node", "camera_node", "fusion_node", "filter_node", "relocation_node", "mesh_node",
+                    "ntcr-recon")
+STALE_AFTER_S = 24 * 3600  # another digest's workspace unused this long is no other test run's
+
+
+def _complete(ws: Path, stamp: Path) -> bool:
+    """The build finished (its stamp) and every executable a launch file starts is in it."""
+    lib = ws / "install" / "ntcr_recon" / "lib" / "ntcr_recon"
+    return stamp.exists() and all((lib / name).is_file() for name in NODE_EXECUTABLES)
+
+
+def _build(ws: Path, sources: list[Path]) -> None:
+    shutil.rmtree(ws, ignore_errors=True)
+    package = ws / "src" / "ntcr_recon"
+    for path in sources:
+        target = package / path.relative_to(REPO)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(path, target)
+    env = {**os.environ, "PATH": f"{BIN}:{os.environ['PATH']}"}
+    build = subprocess.run([str(BIN / "colcon"), "build", "--event-handlers", "console_direct-"], cwd=ws,
+                           env=env, capture_output=True, text=True, timeout=600)
+    assert build.returncode == 0, build.stdout[-3000:] + build.stderr[-3000:]
+
+
+def _workspace(sources: list[Path]) -> Path:
+    """The colcon workspace of these sources: one per digest of them, built under a lock and never deleted while
+    fresh, so two test runs sharing the cache (two checkouts, two CI jobs) never build into, or delete, the
+    workspace the other is launching from."""
+    digest = hashlib.sha1()
+    for path in sources:
+        digest.update(str(path.relative_to(REPO)).encode() + b"\0" + path.read_bytes())
+    CACHE.mkdir(parents=True, exist_ok=True)
+    ws = CACHE / f"ws-{digest.hexdigest()[:16]}"
+    stamp = ws / ".built"
+    with open(CACHE / ".lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not _complete(ws, stamp):
+            _build(ws, sources)
+        stamp.touch()  # its time says when a run last used it
+        for other in CACHE.glob("ws*"):
+            used = other / ".built"
+            if other != ws and (not used.exists() or time.time() - used.stat().st_mtime > STALE_AFTER_S):
+                shutil.rmtree(other, ignore_errors=True)
+    return ws
+
+
 @pytest.fixture(scope="session")
 def colcon_install() -> dict[str, str]:
     """The environment of a colcon build of this checkout (`source install/setup.bash`), its kernels compiled."""
@@ -49,24 +98,7 @@ def colcon_install() -> dict[str, str]:
         pytest.skip(MISSING)
     if not (BIN / "colcon").exists():
         pytest.skip("colcon is not installed in the test environment (requirements-test.txt)")
-    sources = _sources()
-    digest = hashlib.sha1()
-    for path in sources:
-        digest.update(str(path.relative_to(REPO)).encode() + b"\0" + path.read_bytes())
-    ws = CACHE / "ws"
-    stamp = ws / f".built-{digest.hexdigest()[:16]}"
-    if not stamp.exists():
-        shutil.rmtree(ws, ignore_errors=True)
-        package = ws / "src" / "ntcr_recon"
-        for path in sources:
-            target = package / path.relative_to(REPO)
-            target.parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy2(path, target)
-        env = {**os.environ, "PATH": f"{BIN}:{os.environ['PATH']}"}
-        build = subprocess.run([str(BIN / "colcon"), "build", "--event-handlers", "console_direct-"], cwd=ws,
-                               env=env, capture_output=True, text=True, timeout=600)
-        assert build.returncode == 0, build.stdout[-3000:] + build.stderr[-3000:]
-        stamp.touch()
+    ws = _workspace(_sources())
     dump = subprocess.run(["bash", "-c", f"source {ws}/install/setup.bash && env -0"], capture_output=True,
                           check=True, env={**os.environ, "PATH": f"{BIN}:{os.environ['PATH']}"}).stdout
     env = dict(line.split("=", 1) for line in dump.decode().split("\0") if "=" in line)
