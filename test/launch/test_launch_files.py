@@ -50,10 +50,15 @@ NODE_EXECUTABLES = ("transform_node", "camera_node", "fusion_node", "filter_node
 STALE_AFTER_S = 24 * 3600  # another digest's workspace unused this long is no other test run's
 
 
-def _complete(ws: Path, stamp: Path) -> bool:
-    """The build finished (its stamp) and every executable a launch file starts is in it."""
-    lib = ws / "install" / "ntcr_recon" / "lib" / "ntcr_recon"
-    return stamp.exists() and all((lib / name).is_file() for name in NODE_EXECUTABLES)
+def _complete(ws: Path, stamp: Path, sources: list[Path]) -> bool:
+    """The build finished (its stamp), and every executable a launch file starts and every module of the package
+    is in its install (a cache carried over from elsewhere can hold a stamp beside a part of a build)."""
+    prefix = ws / "install" / "ntcr_recon"
+    site = next(prefix.glob("lib/python3*/site-packages"), None)
+    modules = [path.relative_to(REPO) for path in sources if path.suffix == ".py" and
+               path.relative_to(REPO).parts[0] == "ntcr_recon"]
+    return (stamp.exists() and site is not None and all((site / module).is_file() for module in modules)
+            and all((prefix / "lib" / "ntcr_recon" / name).is_file() for name in NODE_EXECUTABLES))
 
 
 def _build(ws: Path, sources: list[Path]) -> None:
@@ -81,7 +86,7 @@ def _workspace(sources: list[Path]) -> Path:
     stamp = ws / ".built"
     with open(CACHE / ".lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
-        if not _complete(ws, stamp):
+        if not _complete(ws, stamp, sources):
             _build(ws, sources)
         stamp.touch()  # its time says when a run last used it
         for other in CACHE.glob("ws*"):
