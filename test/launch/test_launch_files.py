@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 
 import pytest
-from support import REPO
+from support import NODE_EXECUTABLES, REPO
 
 LAUNCH_TESTS = Path(__file__).resolve().parent  # the launch_testing files beside this one
 BIN = Path(sys.executable).parent
@@ -45,8 +45,6 @@ def _sources() -> list[Path]:
                   and (REPO / name).is_file())
 
 
-NODE_EXECUTABLES = ("transform_node", "camera_node", "fusion_node", "filter_node", "relocation_node", "mesh_node",
-                    "ntcr-recon")
 STALE_AFTER_S = 24 * 3600  # another digest's workspace unused this long is no other test run's
 
 
@@ -58,7 +56,7 @@ def _complete(ws: Path, stamp: Path, sources: list[Path]) -> bool:
     modules = [path.relative_to(REPO) for path in sources if path.suffix == ".py" and
                path.relative_to(REPO).parts[0] == "ntcr_recon"]
     return (stamp.exists() and site is not None and all((site / module).is_file() for module in modules)
-            and all((prefix / "lib" / "ntcr_recon" / name).is_file() for name in NODE_EXECUTABLES))
+            and all((prefix / "lib" / "ntcr_recon" / name).is_file() for name in (*NODE_EXECUTABLES, "ntcr-recon")))
 
 
 def _build(ws: Path, sources: list[Path]) -> None:

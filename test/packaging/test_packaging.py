@@ -9,11 +9,9 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pytest
-from support import REPO
+from support import NODE_EXECUTABLES, REPO
 
 COLCON = Path(sys.executable).parent / "colcon"
-NODE_EXECUTABLES = ("transform_node", "camera_node", "fusion_node", "filter_node", "relocation_node",
-                    "mesh_node")
 
 
 @pytest.fixture(scope="module")

@@ -5,3 +5,5 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
 BAGS = REPO / "bags"
+# the console script of each node (setup.py), as `ros2 run ntcr_recon <node>` and the launch files start them
+NODE_EXECUTABLES = ("transform_node", "camera_node", "fusion_node", "filter_node", "relocation_node", "mesh_node")
