@@ -58,7 +58,9 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 jit = functools.partial(numba.njit, cache=True, nogil=True, error_model="numpy")
 
 
-READY_FILE = "ready.json"  # written in the cache once the workload ran: {"seconds", "finished" (wall time)}
+# written in the cache once the workload ran: {"seconds", "finished" (wall time), "files" (the cache's files then)}
+READY_FILE = "ready.json"
+CACHE_SUFFIXES = (".nbi", ".nbc")  # numba's cache index and data files
 DEFAULT_COMPILE_S = 90  # the estimate on a first install (2 cores); later ones say what the last one took
 
 
@@ -67,11 +69,22 @@ def _base_dir() -> Path:
 
 
 def ready_at() -> float | None:
-    """Wall-clock time (s) at which this version's kernels were complete in the cache; None while they are not."""
+    """Wall-clock time (s) at which this version's kernels were complete in the cache; None while they are not,
+    or once a file the cache held then is gone (a cache copied or cleaned in part: its kernels would compile
+    inside the frames)."""
+    directory = Path(numba.config.CACHE_DIR)
     try:
-        return float(json.loads((Path(numba.config.CACHE_DIR) / READY_FILE).read_text())["finished"])
-    except (OSError, ValueError, KeyError, TypeError):
+        record = json.loads((directory / READY_FILE).read_text())
+        if not all((directory / name).is_file() for name in record.get("files", ())):
+            return None
+        return float(record["finished"])
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return None
+
+
+def _cache_files(directory: Path) -> list[str]:
+    """The cache's index and data files, relative to it (numba keeps them in a folder per source folder)."""
+    return sorted(str(path.relative_to(directory)) for path in directory.rglob("*") if path.suffix in CACHE_SUFFIXES)
 
 
 def estimate_s() -> int:
@@ -118,7 +131,8 @@ def ensure_compiled(workload: Callable[[], None], log: Callable[[str], None]) ->
             log(f"compiling the kernels ahead failed ({type(error).__name__}: {error}): they compile on first use")
             return time.monotonic() - started
         seconds = time.monotonic() - started
-        (directory / READY_FILE).write_text(json.dumps({"seconds": round(seconds, 1), "finished": time.time()}))
+        (directory / READY_FILE).write_text(json.dumps({"seconds": round(seconds, 1), "finished": time.time(),
+                                                         "files": _cache_files(directory)}))
         return seconds
 
 
