@@ -87,9 +87,9 @@ def _workspace(sources: list[Path]) -> Path:
         if not _complete(ws, stamp, sources):
             _build(ws, sources)
         stamp.touch()  # its time says when a run last used it
-        for other in CACHE.glob("ws*"):
-            used = other / ".built"
-            if other != ws and (not used.exists() or time.time() - used.stat().st_mtime > STALE_AFTER_S):
+        for other in CACHE.glob("ws*"):  # and the single `ws` of earlier versions of this file
+            used = other / ".built" if (other / ".built").exists() else other
+            if other != ws and time.time() - used.stat().st_mtime > STALE_AFTER_S:
                 shutil.rmtree(other, ignore_errors=True)
     return ws
 
