@@ -157,7 +157,7 @@ def test_ctrl_c_during_reconstruct_is_one_line_and_exit_130_whenever_it_comes(tm
     out.mkdir()
     (out / "result.json").write_text("previous")
     command = [sys.executable, "-m", "ntcr_recon.cli", "reconstruct", str(BAG), "--out"]
-    # the moments as shares of a whole run on this machine now (3.3 s idle, faster than a fixed 3 s once in CI):
+    # Ctrl-C at shares of a whole run timed here first (3.3 s idle; once in CI a run ended before a fixed 3 s):
     # in the imports, the reading, the frames and the writing
     started = time.perf_counter()
     subprocess.run(command + [str(tmp_path / "whole")], capture_output=True, check=True, timeout=120)
