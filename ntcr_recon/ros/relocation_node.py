@@ -181,11 +181,6 @@ class RelocationNode(RigNode):
         info = None if image is None else self._color_info[camera].at(image[0])
         return None if info is None or info[0] != image[0] else (image[1], info[1])
 
-    def _cameras_in(self, cloud) -> list[str]:
-        """The cameras with points in the cloud (fusion publishes a camera's frame alone when the other is late)."""
-        seen = () if cloud.camera is None else np.unique(cloud.camera).tolist()
-        return [self.rig.camera_names[index] for index in seen]
-
     def _publishes_windows(self, camera: str, stamp_ns: int) -> bool:
         """Whether the camera's camera_node publishes colour windows: its publisher is matched, or a window of it
         came within fusion.camera_timeout of the stamp (a busy machine's discovery can report a running publisher
@@ -198,8 +193,8 @@ class RelocationNode(RigNode):
     def _awaited(self, cloud) -> list[str]:
         """The cameras with points in the cloud whose window of its instant has not come while their camera_node
         publishes windows: the cloud waits for those."""
-        return [camera for camera in self._cameras_in(cloud) if self._publishes_windows(camera, cloud.stamp_ns)
-                and self._window_of(camera, cloud.stamp_ns) is None]
+        return [camera for camera in cloud.cameras_in(self.rig.camera_names)
+                if self._publishes_windows(camera, cloud.stamp_ns) and self._window_of(camera, cloud.stamp_ns) is None]
 
     def _release_when_complete(self) -> None:
         if self._held is not None and not self._awaited(self._held[1]):
@@ -221,7 +216,7 @@ class RelocationNode(RigNode):
         point in the cloud (fusion published the other alone) or without an image of its instant."""
         self._relocator.views.clear()  # one of another instant shows the robot elsewhere
         missing = []
-        for camera in self._cameras_in(cloud):
+        for camera in cloud.cameras_in(self.rig.camera_names):
             window = self._window_of(camera, cloud.stamp_ns)
             if window is None:
                 missing.append(camera)

@@ -52,6 +52,12 @@ class Cloud:
                        camera=None if self.camera is None else np.take(self.camera, index, axis=0),
                        pixel=None if self.pixel is None else np.take(self.pixel, index, axis=0))
 
+    def cameras_in(self, camera_names) -> list[str]:
+        """The names (of the rig's camera_names, which `camera` indexes) of the cameras with points in the cloud;
+        none without per-point cameras (fusion publishes a camera's frame alone when the other is late)."""
+        seen = () if self.camera is None else np.unique(self.camera).tolist()
+        return [camera_names[index] for index in seen]
+
     def with_points(self, xyz: np.ndarray) -> Cloud:
         """The same points moved (same count and attributes)."""
         return replace(self, xyz=xyz)

@@ -238,13 +238,12 @@ def extrinsics_apart(t: Trace) -> float:
     return rigid.offset if rigid.whole else rigid.offset / 2
 
 
-def missing_views(config, seen_by: np.ndarray | None, views) -> tuple[str, ...]:
-    """The cameras with points in the cloud (seen_by: each point's camera index) whose colour image is not among
-    `views` while relocation.limbs asks for them: across their views the axis was placed by depth alone."""
-    if not config.relocation.limbs or seen_by is None:
+def missing_views(config, cloud, views) -> tuple[str, ...]:
+    """The cameras with points in the cloud whose colour image is not among `views` while relocation.limbs asks
+    for them: across their views the axis was placed by depth alone."""
+    if not config.relocation.limbs:
         return ()
-    present = set(np.unique(seen_by).tolist())
-    return tuple(name for index, name in enumerate(config.camera_names) if index in present and name not in views)
+    return tuple(name for name in cloud.cameras_in(config.camera_names) if name not in views)
 
 
 def derive(t: Trace) -> Derived:

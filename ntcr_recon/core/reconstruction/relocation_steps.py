@@ -374,7 +374,7 @@ def assess(scene: Scene, aligned: Aligned, sided: Sided, end: SeenEnd, length: B
         alignment_scatter=aligned.scatter, outline_offset=aligned.outline, across_from_fit=aligned.across_from_fit,
         unsupported=aligned.cross_view.unsupported, backbone_shift=aligned.backbone_shift, misread_widths=misread,
         held_shift=held_shift, end_by_limbs=end_by_limbs, unchecked=unchecked, reach=length.reach,
-        colour_missing=missing_views(scene.config, scene.seen_by, scene.views),
+        colour_missing=missing_views(scene.config, scene.cloud, scene.views),
         notch_centres=comb_centres, wall_level=level, fitted_end=length.fitted_end,
         reference_moved=reference_moved))
     backbone_shift, side_uncertainty = aligned.backbone_shift, sided.side_uncertainty

@@ -329,3 +329,11 @@ def test_cloud_subset_by_mask_or_index_keeps_attributes_together_and_refuses_a_m
     assert not moved.xyz.any() and np.array_equal(moved.pixel, cloud.pixel[mask])
     with pytest.raises(ValueError, match="mask of 10 entries for a cloud of 50"):
         cloud.subset(mask[:10])
+
+
+def test_cloud_names_the_cameras_with_points_in_it():
+    names = ("cam_a", "cam_b")
+    both = Cloud(np.zeros((4, 3)), camera=np.array([1, 0, 1, 1], np.int8))
+    assert both.cameras_in(names) == ["cam_a", "cam_b"]
+    assert both.subset(both.camera == 1).cameras_in(names) == ["cam_b"]  # fusion published cam_b's alone
+    assert Cloud(np.zeros((4, 3))).cameras_in(names) == []  # no per-point cameras
