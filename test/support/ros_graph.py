@@ -28,6 +28,18 @@ for _ in range(random.Random(os.getpid()).randrange(100)):
 VENV_BIN = Path(sys.executable).parent
 
 
+def frame_statuses(statuses) -> dict[int, tuple[object, dict[str, str]]]:
+    """relocation_node's per-frame statuses (diagnostic_msgs DiagnosticStatus, in the order they came) by their
+    frame's stamp (the `stamp_ns` value, ns): (the status, its values as a dict), the last one of each stamp.
+    Statuses without a stamp (other nodes') are left out."""
+    by_stamp = {}
+    for status in statuses:
+        values = {kv.key: kv.value for kv in status.values}
+        if "stamp_ns" in values:
+            by_stamp[int(values["stamp_ns"])] = status, values
+    return by_stamp
+
+
 class RosGraph:
     """One private DDS domain with node processes and an in-process test node."""
 

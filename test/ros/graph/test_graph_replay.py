@@ -21,7 +21,7 @@ from sensor_msgs.msg import PointCloud2
 from shape_msgs.msg import Mesh
 from std_msgs.msg import Float64MultiArray
 from support import BAGS, tiny_rig
-from support.ros_graph import RosGraph
+from support.ros_graph import RosGraph, frame_statuses
 from support.stage_probe import COLLECT_RELIABLE, ply_face_count
 from visualization_msgs.msg import Marker
 
@@ -150,9 +150,8 @@ def placed_with_their_windows(out: dict) -> list[int]:
 
 def frame_codes(diagnostics: list) -> dict[int, set[str]]:
     """Per frame (its stamp, ns) the codes of relocation_node's result, from its /diagnostics."""
-    return {int(values["stamp_ns"]): set(filter(None, values.get("codes", "").split(",")))
-            for array in diagnostics for status in array.status
-            if "stamp_ns" in (values := {kv.key: kv.value for kv in status.values})}
+    statuses = frame_statuses(status for array in diagnostics for status in array.status)
+    return {stamp: set(filter(None, values.get("codes", "").split(","))) for stamp, (_, values) in statuses.items()}
 
 
 def compared_frames(replay) -> list[int]:

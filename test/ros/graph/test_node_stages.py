@@ -14,7 +14,7 @@ from sensor_msgs.msg import CameraInfo, Image
 from shape_msgs.msg import Mesh
 from std_msgs.msg import Float64MultiArray
 from support import tiny_rig
-from support.ros_graph import RosGraph
+from support.ros_graph import RosGraph, frame_statuses
 from support.stage_probe import COLLECT_RELIABLE, StageProbe, ply_face_count, set_parameter
 from visualization_msgs.msg import Marker, MarkerArray
 
@@ -78,11 +78,7 @@ def relocation_probe(scene):
 
 def quality_of(probe, stamp_ns: int):
     """relocation_node's /diagnostics status of the frame stamped stamp_ns (None: not yet), its values a dict."""
-    for status in reversed(probe.quality):
-        values = {kv.key: kv.value for kv in status.values}
-        if values.get("stamp_ns") == str(stamp_ns):
-            return status, values
-    return None
+    return frame_statuses(probe.quality).get(stamp_ns)
 
 
 @pytest.fixture(scope="module")
