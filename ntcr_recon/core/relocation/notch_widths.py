@@ -207,7 +207,7 @@ def calibrate_and_check(notches: list[Notch], geometry: TubeGeometry, centerline
         read = next(n for n in calibrated if n.index == worst)
         misread[worst] = read.width
         steady = (before[worst] if worst in before else given_back[worst] if worst in given_back
-                  else steady_bend({n.index: n.bend for n in notches}, worst))
+                  else steady_bend({n.index: n.bend for n in notches}, worst, geometry.max_notch_bend))
         notches = [bend_implied(replace(read, bend=steady), geometry, "bend") if n.index == worst else n
                    for n in notches]
 
