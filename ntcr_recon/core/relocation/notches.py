@@ -439,16 +439,11 @@ def _measure(gaps: list[tuple[float, float]], indices: list[int], signals: list[
 
 
 def steady_bend(bends: dict[int, float | None], index: int, max_bend: float) -> float:
-    """The bend of notch `index` (rad) taken with its found neighbours' (`bends`, chord bends by index): the mean of
-    the chords up to two notches either side. A spine's chord on the smoothed centreline that wobbles turns the two
-    notches it joins opposite ways, so a sum of consecutive chords is the turn between its two end spines, which the
-    centreline holds best, and the smoothing spreads a notch's own turn over up to five (bump_at); where a notch's
-    width is the one its bend implies (its edges not measured, or misread), one chord's wobble is not its width (on
-    the real matcher's rows the chords of a robot bent 4.8 deg at each notch read 1-14 deg). A chord beyond what any
-    notch can bend (`max_bend`, its faces meeting) is left out: it spans a spine read no longer than nothing (two
-    gaps read overlapping), whose direction is no spine's."""
+    """The bend of notch `index` (rad) for a width its bend implies (its edges not measured, or misread): the mean of
+    the chords (`bends`, by index) up to two notches either side. A spine's chord that wobbles turns the two notches
+    it joins opposite ways, so a sum of consecutive chords is the turn between its end spines, which the centreline
+    holds best (the real matcher's chords of a robot bent 4.8 deg at each notch read 1-14 deg). A chord beyond what
+    a notch can bend (`max_bend`) is left out: it spans a spine read no longer than nothing (two gaps overlapping)."""
     known = [bend for i in range(index - 2, index + 3)
              if (bend := bends.get(i)) is not None and abs(bend) <= max_bend]
     return float(np.mean(known)) if known else 0.0
-
-
