@@ -162,7 +162,7 @@ def calibrate_and_check(notches: list[Notch], geometry: TubeGeometry, centerline
     to tip_s a pitch past where it should be: a spine running to a tube cut short is no chord of it) and
     whose calibrated width is off what its bend implies by more than MISREAD_WIDTH_FRACTION of the cut width was
     misread (a rim lost where only a narrow run of the slot was seen through, a rim merged with a face): it is
-    given the arc and width its bend (the median of its own and its neighbours') implies, about its centre
+    given the arc and width its steady bend (notches.steady_bend) implies, about its centre
     (signal "bend"), and the rims are calibrated again without it, so that no spine it bounds shares its error
     with a neighbour; so on, the farthest off first, until no measured notch is off its bend that far. One whose
     bend was not so measured (the last found: its distal rim, where the tube seen thins out, is the rim most often

@@ -13,7 +13,7 @@ from support.analytic_tube import FOOTPRINT, straight_centerline
 
 from ntcr_recon.core.quality.checks import assess
 from ntcr_recon.core.quality.trace import Trace
-from ntcr_recon.core.relocation.notches import Notch
+from ntcr_recon.core.relocation.notches import Notch, steady_bend
 from ntcr_recon.core.robot.geometry import TubeGeometry
 
 
@@ -315,9 +315,10 @@ def test_a_kink_read_wide_is_given_the_bend_its_chords_gather_back_and_its_neigh
         reported = np.array([n.bend for n in checked])
         assert np.degrees(np.abs(reported - true_bends)).max() < 1.3
         assert reported[5:10].sum() == pytest.approx(chords[5:10].sum(), abs=1e-12)
-    # a notch two from the kink whose edges were not measured (a dip: its width its bend's, by the median of its own
-    # and its neighbours' chords, one of them the kink's spread one) takes the width of the steady bend given back
-    dip = bend_implied(dataclasses.replace(notches[9], bend=float(np.median(chords[8:11]))), geometry, "dip")
+    # a notch two from the kink whose edges were not measured (a dip: its width its bend's, the mean of the chords
+    # two notches either side, the kink's spread ones among them) takes the width of the steady bend given back
+    steady = steady_bend(dict(enumerate(chords.tolist())), 9, geometry.max_notch_bend)
+    dip = bend_implied(dataclasses.replace(notches[9], bend=steady), geometry, "dip")
     with_dip = [dip if n.index == 9 else dataclasses.replace(n, bend=float(chords[n.index])) for n in notches]
     given = next(n for n in calibrate_and_check(with_dip, geometry).notches if n.index == 9)
     assert given.signal == "dip" and dip.width - geometry.notch_width_at_bend(true_bends[9]) < -0.05e-3
