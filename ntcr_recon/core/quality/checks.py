@@ -143,7 +143,7 @@ def widths_against_bends(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
                                 f"{', '.join(map(str, unchecked))} (the next notch was not found and the tube seen "
                                 "ends within a pitch: no whole spine beyond measures the bend, and no notch before it "
                                 "whose bend was measured)", notches=unchecked))
-    # a misread one took its bend's width, which nothing checks: known to the check's limit, as an unchecked one
+    # a misread one took its steady bend's width, as a dip does: known to the spread, as a dip is
     width_known = notch_width_uncertainties(off_model, d.found, MISREAD_WIDTH_FRACTION * geometry.notch_width,
                                             misread)
     return {"notch_width_vs_bend_mm": {str(i): off * 1e3 for i, off in sorted(off_model.items())},

@@ -180,15 +180,15 @@ def notch_width_uncertainties(width_vs_bend: Mapping[int, float], indices: Itera
     variance is the sum of both errors' variances, so Z90 times its RMS over the notches bounds either; a notch
     whose own disagreement is larger is known no better than that. With fewer than MIN_CHECKED_NOTCHES checked,
     `limit` (what the check lets pass). The `misread` notches are left out of the RMS (their disagreement is a
-    misread rim's): each was given the width its bend implies, which no reading of its edges checks, so it is known
-    as an unchecked width is, to `limit` (or the spread, if wider) - not as far off as its rims read (on the matrix's
-    rows and the three random sweeps, 1 of 229 misread notches' widths was off by more than 0.15 mm, 0.19, where
-    their rims had read 0.14-0.77 mm off, 10th to 90th percentile)."""
+    misread rim's): each was given the width its steady bend implies, as a dip is, and is known as a dip is, to the
+    spread, which bounds the implied widths' error as well as the read ones' - not as far off as its rims read (on
+    the matrix's rows and the three random sweeps, 1 of 229 misread notches' widths was off by more than 0.15 mm,
+    where their rims had read 0.14-0.77 mm off, 10th to 90th percentile)."""
     left_out = set(misread)
     checked = [d for i, d in width_vs_bend.items() if i not in left_out]
     spread = (Z90 * math.sqrt(sum(d * d for d in checked) / len(checked)) if len(checked) >= MIN_CHECKED_NOTCHES
               else limit)
-    return {i: max(spread, limit if i in left_out else abs(width_vs_bend.get(i, 0.0))) for i in indices}
+    return {i: spread if i in left_out else max(spread, abs(width_vs_bend.get(i, 0.0))) for i in indices}
 
 
 def every_notch_factor(count: int) -> float:
