@@ -117,8 +117,9 @@ def widths_against_bends(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
     length h bent by theta: notch_widths.calibrate_and_check gave a misread one its bend's), the notches that could not
     be checked so, and each width's 90 % bound from how the widths read disagree with their bends'."""
     geometry, misread, warnings = t.geometry, t.misread_widths or {}, []
-    # per notch how far the width read is off its bend's (a misread one's as read)
-    off_model = {n.index: misread.get(n.index, n.width) - geometry.notch_width_at_bend(n.bend or 0.0)
+    # per notch how far the width read is off its bend's (a misread one's, a weighed one's as read)
+    off_model = {n.index: misread.get(n.index, n.width if n.read_width is None else n.read_width)
+                 - geometry.notch_width_at_bend(n.bend or 0.0)
                  for n in t.notches if n.edges_measured or n.index in misread}
     if misread:
         listed = ", ".join(f"{n.index} ({misread[n.index] * 1e3:.2f} mm read, {n.width * 1e3:.2f} implied)"

@@ -1,6 +1,6 @@
 """Notch widths checked against their bends: a kink the centreline spread over its neighbours (bump_at), the
-chords' scatter, the rims calibrated where a stereo matcher eroded them, and a width off what its bend implies
-flagged as misread (calibrate_and_check)."""
+chords' scatter, the rims calibrated where a stereo matcher eroded them, a width off what its bend implies
+flagged as misread (calibrate_and_check), and one within weighed with its bend's (weighed_width)."""
 
 from __future__ import annotations
 
@@ -173,7 +173,8 @@ def calibrate_and_check(notches: list[Notch], geometry: TubeGeometry, centerline
     the kink is checked against (and if misread given) the bend gathered back, those notches against the steady
     bend about it, not by their chords, the spread ones (taking whichever of its own chord's bend and the gathered
     one explained its width let bend_kink's notch 7, read 0.22 mm wide by a matcher with a 5 px window and no
-    left-right check, stand); and those are the bends they report."""
+    left-right check, stand); and those are the bends they report. Each width checked and not misread is then the
+    mean of the one read and the one its bend implies (weighed_width)."""
     misread: dict[int, float] = {}
     limit = MISREAD_WIDTH_FRACTION * geometry.notch_width
     checked = _bends_measured(notches, geometry, tip_s)
@@ -202,6 +203,9 @@ def calibrate_and_check(notches: list[Notch], geometry: TubeGeometry, centerline
             calibrated = [n if (bend := given_back.get(n.index)) is None
                           else replace(n, bend=bend) if n.edges_measured
                           else bend_implied(replace(n, bend=bend), geometry, n.signal) for n in calibrated]
+            # a width checked against its bend is known twice over: the two measurements weighed alike
+            calibrated = [weighed_width(n, geometry, before.get(n.index, n.bend))
+                          if n.edges_measured and (n.index in checked or n.index in before) else n for n in calibrated]
             return CheckedNotches(calibrated, misread, sorted(n.index for n in calibrated if n.edges_measured
                                                               and n.index not in checked and n.index not in before))
         read = next(n for n in calibrated if n.index == worst)
@@ -210,6 +214,24 @@ def calibrate_and_check(notches: list[Notch], geometry: TubeGeometry, centerline
                   else steady_bend({n.index: n.bend for n in notches}, worst, geometry.max_notch_bend))
         notches = [bend_implied(replace(read, bend=steady), geometry, "bend") if n.index == worst else n
                    for n in notches]
+
+
+def weighed_width(notch: Notch, geometry: TubeGeometry, bend: float | None) -> Notch:
+    """The notch with its width the mean of the one its edges read and the one its `bend` implies
+    (geometry.notch_width_at_bend), its edges about its centre; the width its edges read kept as read_width.
+
+    Its edges and its bend measure a notch's width independently: the rims where the matcher smeared a depth edge,
+    the bend by the chords of the rigid spines either side, each a line through many points, through the robot's
+    kinematics (a laser-cut notch keeps its drawing's width to a few hundredths of a millimetre). Neither is known
+    to be the better one on every depth source, so they count alike. Off the drawing, a robot's notches read half as
+    far off it as they are, and the check (calibrate_and_check) flags none of them that is off by less than its
+    limit; a misread one takes its bend's alone."""
+    if bend is None:
+        return notch
+    width = (notch.width + geometry.notch_width_at_bend(bend)) / 2
+    arc = width + abs(notch.bend or 0.0) * geometry.outer_radius  # as notches._measure reads a width off its arc
+    return Notch(notch.index, notch.center_s, notch.center_s - arc / 2, notch.center_s + arc / 2, width, notch.bend,
+                 notch.signal, notch.width)
 
 
 def _bends_measured(notches: list[Notch], geometry: TubeGeometry, tip_s: float) -> set[int]:
