@@ -174,7 +174,8 @@ MIN_CHECKED_NOTCHES = 3
 
 
 def notch_width_uncertainties(width_vs_bend: Mapping[int, float], indices: Iterable[int], limit: float,
-                              misread: Iterable[int] = ()) -> dict[int, float]:
+                              misread: Iterable[int] = (), weighed: Iterable[int] = (),
+                              shared: float | None = None) -> dict[int, float]:
     """Per notch a 90 % bound of its width's error (m), from how the widths read disagree with the widths their
     bends imply (notch_widths.calibrate_and_check's two independent measurements of each notch): the disagreement's
     variance is the sum of both errors' variances, so Z90 times its RMS over the notches bounds either; a notch
@@ -183,12 +184,23 @@ def notch_width_uncertainties(width_vs_bend: Mapping[int, float], indices: Itera
     misread rim's): each was given the width its steady bend implies, as a dip is, and is known as a dip is, to the
     spread, which bounds the implied widths' error as well as the read ones' - not as far off as its rims read (on
     the matrix's rows and the three random sweeps, 1 of 229 misread notches' widths was off by more than 0.15 mm,
-    where their rims had read 0.14-0.77 mm off, 10th to 90th percentile)."""
+    where their rims had read 0.14-0.77 mm off, 10th to 90th percentile).
+
+    The `weighed` notches' widths are the mean of the two (notch_widths.weighed_width). The read width is the arc
+    between the rims less the bend's share (e_read = e_arc - r_o e_bend), the implied one the bend's alone
+    (e_implied = -(ybar + r_o) e_bend): their disagreement is e_arc + ybar e_bend, their mean
+    (e_arc - (ybar + 2 r_o) e_bend) / 2, whose variance is a quarter of the disagreement's plus
+    r_o (ybar + r_o) var(e_bend), `shared` squared (m: from the chords' scatter; None: not known, and the spread,
+    which bounds either measurement, bounds their mean). A weighed notch whose own disagreement is larger is known
+    to half of it: the mean lies that far from each."""
     left_out = set(misread)
     checked = [d for i, d in width_vs_bend.items() if i not in left_out]
-    spread = (Z90 * math.sqrt(sum(d * d for d in checked) / len(checked)) if len(checked) >= MIN_CHECKED_NOTCHES
-              else limit)
-    return {i: spread if i in left_out else max(spread, abs(width_vs_bend.get(i, 0.0))) for i in indices}
+    known = len(checked) >= MIN_CHECKED_NOTCHES
+    spread = Z90 * math.sqrt(sum(d * d for d in checked) / len(checked)) if known else limit
+    mean = math.hypot(spread / 2, Z90 * shared) if known and shared is not None else None
+    weighed = set(weighed) if mean is not None else set()
+    return {i: spread if i in left_out else max(mean, abs(width_vs_bend.get(i, 0.0)) / 2) if i in weighed
+            else max(spread, abs(width_vs_bend.get(i, 0.0))) for i in indices}
 
 
 def every_notch_factor(count: int) -> float:

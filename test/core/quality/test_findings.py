@@ -85,6 +85,21 @@ def test_notch_width_bounds_come_from_the_widths_disagreement_with_their_bends()
         0: 0.15e-3, 5: 0.15e-3}
 
 
+def test_a_width_weighed_with_its_bend_is_known_better_than_either_measurement():
+    # read - implied per notch (m); the weighed ones' widths are the mean of the two: a quarter of the disagreement's
+    # variance and what the two share through the bend (`shared`, m)
+    disagreement = {0: 0.02e-3, 1: -0.03e-3, 2: 0.01e-3, 3: 0.09e-3}
+    spread = Z90 * math.sqrt(sum(d * d for d in disagreement.values()) / 4)
+    bounds = notch_width_uncertainties(disagreement, [0, 1, 2, 3], limit=0.15e-3, weighed=[0, 1, 2, 3],
+                                       shared=0.01e-3)
+    mean = math.hypot(spread / 2, Z90 * 0.01e-3)
+    assert bounds[0] == bounds[1] == bounds[2] == pytest.approx(mean) and mean < spread
+    assert bounds[3] == pytest.approx(max(mean, 0.09e-3 / 2))  # the mean lies half its disagreement from each
+    # the shared part unknown (too few chords to scatter), or too few notches checked: as a width read
+    assert notch_width_uncertainties(disagreement, [0], limit=0.15e-3, weighed=[0]) == {0: pytest.approx(spread)}
+    assert notch_width_uncertainties({0: 0.01e-3}, [0], limit=0.15e-3, weighed=[0], shared=0.01e-3) == {0: 0.15e-3}
+
+
 def test_a_bound_on_every_notch_is_wider_the_more_notches_there_are():
     # all of n independent errors within a bound 90 % of the time: each within it 0.9 ** (1 / n) of the time, on
     # either side (review: the one-sided quantile, 2.48 for 16 notches, bounded them 84 % of the time)
