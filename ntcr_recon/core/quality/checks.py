@@ -36,7 +36,12 @@ from ntcr_recon.core.quality.measures import (
 )
 from ntcr_recon.core.quality.tip_checks import tip_against_length, tip_end
 from ntcr_recon.core.quality.trace import Derived, Trace, derive, extrinsics_apart, rigid_offset
-from ntcr_recon.core.relocation.notch_widths import MISREAD_WIDTH_FRACTION, chord_scatter
+from ntcr_recon.core.relocation.notch_widths import (
+    MISREAD_WIDTH_FRACTION,
+    chord_residuals,
+    chord_scatter,
+    weighing,
+)
 from ntcr_recon.core.relocation.outline import OUTLINE_TOLERANCE_PX
 
 # Thresholds, relative to the robot and the camera so that no robot is special.
@@ -144,13 +149,19 @@ def widths_against_bends(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
                                 f"{', '.join(map(str, unchecked))} (the next notch was not found and the tube seen "
                                 "ends within a pitch: no whole spine beyond measures the bend, and no notch before it "
                                 "whose bend was measured)", notches=unchecked))
-    # a misread one took its steady bend's width, as a dip does: known to the spread, as a dip is; a weighed one's
-    # two measurements share the bend's error, which the chords' scatter shows
-    bend_sd = chord_scatter({n.index: n.bend for n in t.notches if n.edges_measured})
-    shared = (math.sqrt(geometry.outer_radius * (geometry.neutral_axis_offset + geometry.outer_radius)) * bend_sd
-              if math.isfinite(bend_sd) else None)
+    # a misread one took its steady bend's width, as a dip does: known to the spread, as a dip is; a weighed one as
+    # notch_widths.calibrate_and_check weighed its two measurements, and no better than its own chord, where that
+    # stands out of its neighbours', puts it (the bend's error weighs ybar + r_o less the read one's weight of ybar
+    # in the weighed width): as far as its width's disagreement with its bend's shows (ybar times it) - a chord
+    # standing out where the rims agree with it is the robot's own bend (a kink)
+    chords = {n.index: n.bend for n in t.notches if n.edges_measured}
+    weighed = weighing([off for i, off in off_model.items() if i not in misread], chord_scatter(chords), geometry)
+    ybar = geometry.neutral_axis_offset
+    lever, residuals = ybar * (1.0 - weighed.read) + geometry.outer_radius, chord_residuals(chords)
+    bend_off = {n.index: lever * min(abs(residuals.get(n.index, 0.0)), abs(off_model[n.index]) / ybar)
+                for n in t.notches if n.read_width is not None}
     width_known = notch_width_uncertainties(off_model, d.found, MISREAD_WIDTH_FRACTION * geometry.notch_width,
-                                            misread, [n.index for n in t.notches if n.read_width is not None], shared)
+                                            misread, bend_off, weighed)
     return {"notch_width_vs_bend_mm": {str(i): off * 1e3 for i, off in sorted(off_model.items())},
             "notches_unchecked": unchecked,
             "notch_width_uncertainty_mm": {str(i): width_known[i] * 1e3 for i in d.found}}, warnings

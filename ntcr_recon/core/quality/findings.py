@@ -31,6 +31,8 @@ from dataclasses import dataclass, field
 from statistics import NormalDist
 from typing import Any, NamedTuple
 
+from ntcr_recon.core.relocation.notch_widths import MIN_CHECKED_NOTCHES, Weighing
+
 SEVERITIES = ("info", "warn", "error")
 
 
@@ -168,38 +170,34 @@ def sort_by_severity(findings: Iterable[Finding]) -> list[Finding]:
 
 # A 90 % bound of a normal error is this many of its standard deviations.
 Z90 = 1.645
-# Fewer notches than this checked against their bends leave their scatter unknown: each width is then known to the
-# check's own limit (notch_widths.MISREAD_WIDTH_FRACTION of the cut width), what a width passing it may still be off.
-MIN_CHECKED_NOTCHES = 3
 
 
 def notch_width_uncertainties(width_vs_bend: Mapping[int, float], indices: Iterable[int], limit: float,
-                              misread: Iterable[int] = (), weighed: Iterable[int] = (),
-                              shared: float | None = None) -> dict[int, float]:
-    """Per notch a 90 % bound of its width's error (m), from how the widths read disagree with the widths their
-    bends imply (notch_widths.calibrate_and_check's two independent measurements of each notch): the disagreement's
+                              misread: Iterable[int] = (), weighed: Mapping[int, float] | None = None,
+                              weighing: Weighing | None = None) -> dict[int, float]:
+    """Per notch a 90 % bound of its width's error (m), from how the widths read disagree with the widths their bends
+    imply (notch_widths.calibrate_and_check's two independent measurements of each notch): the disagreement's
     variance is the sum of both errors' variances, so Z90 times its RMS over the notches bounds either; a notch
-    whose own disagreement is larger is known no better than that. With fewer than MIN_CHECKED_NOTCHES checked,
-    `limit` (what the check lets pass). The `misread` notches are left out of the RMS (their disagreement is a
-    misread rim's): each was given the width its steady bend implies, as a dip is, and is known as a dip is, to the
-    spread, which bounds the implied widths' error as well as the read ones' - not as far off as its rims read (on
-    the matrix's rows and the three random sweeps, 1 of 229 misread notches' widths was off by more than 0.15 mm,
-    where their rims had read 0.14-0.77 mm off, 10th to 90th percentile).
+    whose own disagreement is larger is known no better than that. With fewer than MIN_CHECKED_NOTCHES checked
+    (notch_widths'), `limit` (what the check lets pass). The `misread` notches are left out of the RMS (their
+    disagreement is a misread rim's): each was given the width its steady bend implies, as a dip is, and is known as
+    a dip is, to the spread, which bounds the implied widths' error as well as the read ones' - not as far off as
+    its rims read (on the matrix's rows and the three random sweeps, 1 of 229 misread notches' widths was off by
+    more than 0.15 mm, where their rims had read 0.14-0.77 mm off, 10th to 90th percentile).
 
-    The `weighed` notches' widths are the mean of the two (notch_widths.weighed_width). The read width is the arc
-    between the rims less the bend's share (e_read = e_arc - r_o e_bend), the implied one the bend's alone
-    (e_implied = -(ybar + r_o) e_bend): their disagreement is e_arc + ybar e_bend, their mean
-    (e_arc - (ybar + 2 r_o) e_bend) / 2, whose variance is a quarter of the disagreement's plus
-    r_o (ybar + r_o) var(e_bend), `shared` squared (m: from the chords' scatter; None: not known, and the spread,
-    which bounds either measurement, bounds their mean). A weighed notch whose own disagreement is larger is known
-    to half of it: the mean lies that far from each."""
+    The `weighed` notches' widths are the two measurements weighed by their errors (notch_widths.weighing: its
+    error's SD, from the disagreements and the chords' scatter, Z90 times; None: not known, and the spread, which
+    bounds either measurement, bounds them weighed). `weighed`: by index, how far off its own chord's bend, where it
+    stands out of its neighbours', puts a weighed notch's width (m): known no better than that, nor than the read
+    width's weight times its own disagreement (a rim read off moves it that far)."""
     left_out = set(misread)
     checked = [d for i, d in width_vs_bend.items() if i not in left_out]
     known = len(checked) >= MIN_CHECKED_NOTCHES
     spread = Z90 * math.sqrt(sum(d * d for d in checked) / len(checked)) if known else limit
-    mean = math.hypot(spread / 2, Z90 * shared) if known and shared is not None else None
-    weighed = set(weighed) if mean is not None else set()
-    return {i: spread if i in left_out else max(mean, abs(width_vs_bend.get(i, 0.0)) / 2) if i in weighed
+    sd = weighing.error_sd if known and weighing is not None else None
+    weighed = (weighed or {}) if sd is not None else {}
+    return {i: spread if i in left_out
+            else max(Z90 * sd, weighing.read * abs(width_vs_bend.get(i, 0.0)), weighed[i]) if i in weighed
             else max(spread, abs(width_vs_bend.get(i, 0.0))) for i in indices}
 
 

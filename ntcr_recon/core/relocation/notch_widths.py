@@ -1,6 +1,6 @@
 """Notch widths checked against their bends: a kink the centreline spread over its neighbours (bump_at), the
 chords' scatter, the rims calibrated where a stereo matcher eroded them, a width off what its bend implies
-flagged as misread (calibrate_and_check), and one within weighed with its bend's (weighed_width)."""
+flagged as misread (calibrate_and_check), and one within weighed with its bend's (weighing, weighed_width)."""
 
 from __future__ import annotations
 
@@ -20,6 +20,10 @@ from ntcr_recon.core.robot.geometry import TubeGeometry
 # A notch whose width is off what its bend implies by more than this share of its cut width was misread (see
 # calibrate_and_check): manufacturing keeps a cut to a few hundredths of a millimetre, a tenth of 1.0-1.8 mm.
 MISREAD_WIDTH_FRACTION = 0.1
+
+# Fewer notches than this checked against their bends leave their disagreement's scatter unknown (weighing,
+# quality.findings.notch_width_uncertainties).
+MIN_CHECKED_NOTCHES = 3
 
 # The least share of a kink's excess chord its neighbours hold, on average (bump_at).
 SPREAD_SHARE = 0.35
@@ -81,14 +85,18 @@ def _steady_chords(bends: dict[int, float | None], index: int) -> list[float] | 
 
 def chord_scatter(bends: dict[int, float | None]) -> float:
     """How much the chord bends (rad, by index) scatter notch to notch: sigma from the median absolute deviation of
-    each about the median of the two on either side of it (a steady or steadily changing bend leaves none)."""
+    their chord_residuals (a steady or steadily changing bend leaves none); inf with fewer than five chords."""
+    residuals = chord_residuals(bends)
+    return robust_spread(np.fromiter(residuals.values(), float), 0.0) if len(residuals) >= 5 else np.inf
+
+
+def chord_residuals(bends: dict[int, float | None]) -> dict[int, float]:
+    """Each chord bend (rad, by index) less the median of the two on either side of it."""
     indices = sorted(i for i, bend in bends.items() if bend is not None)
-    if len(indices) < 5:
-        return np.inf
     values = [bends[i] for i in indices]
     # statistics.median of the two to four neighbours: a tenth of numpy's per-call cost on lists this short
-    local = [statistics.median(values[max(k - 2, 0):k] + values[k + 1:k + 3]) for k in range(len(values))]
-    return robust_spread(np.subtract(values, local), 0.0)
+    return {i: values[k] - statistics.median(values[max(k - 2, 0):k] + values[k + 1:k + 3] or [values[k]])
+            for k, i in enumerate(indices)}
 
 
 def calibrate_rims(notches: list[Notch], geometry: TubeGeometry, centerline: Centerline | None = None,
@@ -173,8 +181,8 @@ def calibrate_and_check(notches: list[Notch], geometry: TubeGeometry, centerline
     the kink is checked against (and if misread given) the bend gathered back, those notches against the steady
     bend about it, not by their chords, the spread ones (taking whichever of its own chord's bend and the gathered
     one explained its width let bend_kink's notch 7, read 0.22 mm wide by a matcher with a 5 px window and no
-    left-right check, stand); and those are the bends they report. Each width checked and not misread is then the
-    mean of the one read and the one its bend implies (weighed_width)."""
+    left-right check, stand); and those are the bends they report. Each width checked and not misread is then
+    weighed with the one its bend implies by their errors (weighing, weighed_width)."""
     misread: dict[int, float] = {}
     limit = MISREAD_WIDTH_FRACTION * geometry.notch_width
     checked = _bends_measured(notches, geometry, tip_s)
@@ -203,8 +211,11 @@ def calibrate_and_check(notches: list[Notch], geometry: TubeGeometry, centerline
             calibrated = [n if (bend := given_back.get(n.index)) is None
                           else replace(n, bend=bend) if n.edges_measured
                           else bend_implied(replace(n, bend=bend), geometry, n.signal) for n in calibrated]
-            # a width checked against its bend is known twice over: the two measurements weighed alike
-            calibrated = [weighed_width(n, geometry, before.get(n.index, n.bend))
+            # a width checked against its bend is known twice over: the two measurements weighed by their errors
+            read = weighing([n.width - geometry.notch_width_at_bend(n.bend or 0.0) for n in calibrated
+                             if n.edges_measured], chord_scatter({n.index: n.bend for n in calibrated
+                                                                  if n.edges_measured}), geometry).read
+            calibrated = [weighed_width(n, geometry, before.get(n.index, n.bend), read)
                           if n.edges_measured and (n.index in checked or n.index in before) else n for n in calibrated]
             return CheckedNotches(calibrated, misread, sorted(n.index for n in calibrated if n.edges_measured
                                                               and n.index not in checked and n.index not in before))
@@ -216,19 +227,43 @@ def calibrate_and_check(notches: list[Notch], geometry: TubeGeometry, centerline
                    for n in notches]
 
 
-def weighed_width(notch: Notch, geometry: TubeGeometry, bend: float | None) -> Notch:
-    """The notch with its width the mean of the one its edges read and the one its `bend` implies
-    (geometry.notch_width_at_bend), its edges about its centre; the width its edges read kept as read_width.
+class Weighing(NamedTuple):
+    """How a width read and the one its bend implies are weighed (weighing)."""
+    read: float              # the weight of the width read; the implied one's is 1 - read
+    error_sd: float | None   # m, the SD of the weighed width's error; None: not known
 
-    Its edges and its bend measure a notch's width independently: the rims where the matcher smeared a depth edge,
-    the bend by the chords of the rigid spines either side, each a line through many points, through the robot's
-    kinematics (a laser-cut notch keeps its drawing's width to a few hundredths of a millimetre). Neither is known
-    to be the better one on every depth source, so they count alike. Off the drawing, a robot's notches read half as
-    far off it as they are, and the check (calibrate_and_check) flags none of them that is off by less than its
-    limit; a misread one takes its bend's alone."""
+
+def weighing(disagreements: list[float], bend_sd: float, geometry: TubeGeometry) -> Weighing:
+    """The weights of a notch's two measurements of its width that err least, from the widths' disagreements with
+    their bends' (m, read - implied) and the chords' scatter (`bend_sd`, rad: chord_scatter).
+
+    A width read is the arc between its rims less its bend's share, so it errs by e_arc - r_o e_bend; the one its
+    bend implies (geometry.notch_width_at_bend) by -(ybar + r_o) e_bend: they disagree by e_arc + ybar e_bend, so
+    e_arc's variance is the disagreements' less ybar^2 that of the bend. Of w e_read + (1 - w) e_implied the
+    variance, w^2 var(e_arc) + (ybar + r_o - w ybar)^2 var(e_bend), is least at w = ybar (ybar + r_o) var(e_bend) /
+    var(disagreement) (within 0..1): little where the rims read far worse than the chords (a matcher's smeared
+    depth edges), much where the chords scatter (a centreline off). With fewer than MIN_CHECKED_NOTCHES
+    disagreements or too few chords to scatter, the two alike, the error not known."""
+    if len(disagreements) < MIN_CHECKED_NOTCHES or not math.isfinite(bend_sd):
+        return Weighing(0.5, None)
+    ybar, r_o = geometry.neutral_axis_offset, geometry.outer_radius
+    var_d, var_bend = float(np.mean(np.square(disagreements))), bend_sd**2
+    read = float(np.clip(ybar * (ybar + r_o) * var_bend / var_d, 0.0, 1.0)) if var_d > 0 else 0.5
+    var_arc = max(var_d - ybar**2 * var_bend, 0.0)
+    return Weighing(read, math.sqrt(read**2 * var_arc + (ybar + r_o - read * ybar) ** 2 * var_bend))
+
+
+def weighed_width(notch: Notch, geometry: TubeGeometry, bend: float | None, read: float = 0.5) -> Notch:
+    """The notch with its width `read` times the one its edges read and the rest the one its `bend` implies
+    (geometry.notch_width_at_bend; weighing), its edges about its centre; the width its edges read kept as
+    read_width. Its edges and its bend measure a notch's width independently: the rims where the matcher smeared a
+    depth edge, the bend by the chords of the rigid spines either side, each a line through many points, through
+    the robot's kinematics (a laser-cut notch keeps its drawing's width to a few hundredths of a millimetre). Off
+    the drawing, a robot's notches read only the read share as far off it as they are, and the check
+    (calibrate_and_check) flags none of them that is off by less than its limit; a misread one takes its bend's."""
     if bend is None:
         return notch
-    width = (notch.width + geometry.notch_width_at_bend(bend)) / 2
+    width = read * notch.width + (1.0 - read) * geometry.notch_width_at_bend(bend)
     arc = width + abs(notch.bend or 0.0) * geometry.outer_radius  # as notches._measure reads a width off its arc
     return Notch(notch.index, notch.center_s, notch.center_s - arc / 2, notch.center_s + arc / 2, width, notch.bend,
                  notch.signal, notch.width)

@@ -21,6 +21,7 @@ from ntcr_recon.core.quality.findings import (
     sort_by_severity,
     uncertainty_mm,
 )
+from ntcr_recon.core.relocation.notch_widths import Weighing
 
 WITHIN = {"centerline": 0.05, "tip": 0.10, "notch_width": 0.05}  # mm, within the default tolerances
 
@@ -85,19 +86,24 @@ def test_notch_width_bounds_come_from_the_widths_disagreement_with_their_bends()
         0: 0.15e-3, 5: 0.15e-3}
 
 
-def test_a_width_weighed_with_its_bend_is_known_better_than_either_measurement():
-    # read - implied per notch (m); the weighed ones' widths are the mean of the two: a quarter of the disagreement's
-    # variance and what the two share through the bend (`shared`, m)
+def test_a_width_weighed_with_its_bend_is_known_as_the_weighing_says():
+    # read - implied per notch (m); the weighed ones' widths are the two weighed by their errors (weighing): known to
+    # Z90 times the weighing's error SD, or the read one's weight times a notch's own disagreement, or how far its own
+    # chord puts it (`weighed`, by index), where larger
     disagreement = {0: 0.02e-3, 1: -0.03e-3, 2: 0.01e-3, 3: 0.09e-3}
     spread = Z90 * math.sqrt(sum(d * d for d in disagreement.values()) / 4)
-    bounds = notch_width_uncertainties(disagreement, [0, 1, 2, 3], limit=0.15e-3, weighed=[0, 1, 2, 3],
-                                       shared=0.01e-3)
-    mean = math.hypot(spread / 2, Z90 * 0.01e-3)
-    assert bounds[0] == bounds[1] == bounds[2] == pytest.approx(mean) and mean < spread
-    assert bounds[3] == pytest.approx(max(mean, 0.09e-3 / 2))  # the mean lies half its disagreement from each
-    # the shared part unknown (too few chords to scatter), or too few notches checked: as a width read
-    assert notch_width_uncertainties(disagreement, [0], limit=0.15e-3, weighed=[0]) == {0: pytest.approx(spread)}
-    assert notch_width_uncertainties({0: 0.01e-3}, [0], limit=0.15e-3, weighed=[0], shared=0.01e-3) == {0: 0.15e-3}
+    weighed = Weighing(read=0.5, error_sd=0.02e-3)
+    bounds = notch_width_uncertainties(disagreement, [0, 1, 2, 3], limit=0.15e-3,
+                                       weighed={0: 0.0, 1: 0.0, 2: 0.05e-3, 3: 0.0}, weighing=weighed)
+    assert bounds[0] == bounds[1] == pytest.approx(Z90 * 0.02e-3) and spread > Z90 * 0.02e-3
+    assert bounds[2] == pytest.approx(0.05e-3)  # its chord stands out of its neighbours'
+    assert bounds[3] == pytest.approx(0.5 * 0.09e-3)  # a rim read that far off moves it half as far
+    # the error not known (too few chords to scatter), or too few notches checked: as a width read
+    unknown = Weighing(0.5, None)
+    assert notch_width_uncertainties(disagreement, [0], limit=0.15e-3, weighed={0: 0.0}, weighing=unknown) == {
+        0: pytest.approx(spread)}
+    assert notch_width_uncertainties({0: 0.01e-3}, [0], limit=0.15e-3, weighed={0: 0.0}, weighing=weighed) == {
+        0: 0.15e-3}
 
 
 def test_a_bound_on_every_notch_is_wider_the_more_notches_there_are():
