@@ -212,10 +212,10 @@ def calibrate_and_check(notches: list[Notch], geometry: TubeGeometry, centerline
                           else replace(n, bend=bend) if n.edges_measured
                           else bend_implied(replace(n, bend=bend), geometry, n.signal) for n in calibrated]
             # a width checked against its bend is known twice over: the two measurements weighed by their errors
-            read = weighing([n.width - geometry.notch_width_at_bend(n.bend or 0.0) for n in calibrated
-                             if n.edges_measured], chord_scatter({n.index: n.bend for n in calibrated
-                                                                  if n.edges_measured}), geometry).read
-            calibrated = [weighed_width(n, geometry, before.get(n.index, n.bend), read)
+            read_weight = weighing([n.width - geometry.notch_width_at_bend(n.bend or 0.0) for n in calibrated
+                                    if n.edges_measured], chord_scatter({n.index: n.bend for n in calibrated
+                                                                         if n.edges_measured}), geometry).read
+            calibrated = [weighed_width(n, geometry, before.get(n.index, n.bend), read_weight)
                           if n.edges_measured and (n.index in checked or n.index in before) else n for n in calibrated]
             return CheckedNotches(calibrated, misread, sorted(n.index for n in calibrated if n.edges_measured
                                                               and n.index not in checked and n.index not in before))

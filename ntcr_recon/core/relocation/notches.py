@@ -67,7 +67,7 @@ class Notch:
                               # floor and faces inside the wall's radius), "dip" (a slot the matcher filled: placed,
                               # its width its bend's), "outline" (as a dip, only a colour image's outline marks it)
                               # or "bend" (found, but its edges read a width its bend rules out: its bend's)
-    read_width: float | None = None  # m, its edges' width where `width` is their mean with its bend's (weighed_width)
+    read_width: float | None = None  # m, its edges' width where `width` weighs it with its bend's (weighed_width)
 
     @property
     def edges_measured(self) -> bool:
