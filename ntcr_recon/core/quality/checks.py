@@ -36,12 +36,7 @@ from ntcr_recon.core.quality.measures import (
 )
 from ntcr_recon.core.quality.tip_checks import tip_against_length, tip_end
 from ntcr_recon.core.quality.trace import Derived, Trace, derive, extrinsics_apart, rigid_offset
-from ntcr_recon.core.relocation.notch_widths import (
-    MISREAD_WIDTH_FRACTION,
-    chord_residuals,
-    chord_scatter,
-    weighing,
-)
+from ntcr_recon.core.relocation.notch_widths import MISREAD_WIDTH_FRACTION, chord_residuals, weighing_of
 from ntcr_recon.core.relocation.outline import OUTLINE_TOLERANCE_PX
 
 # Thresholds, relative to the robot and the camera so that no robot is special.
@@ -154,10 +149,9 @@ def widths_against_bends(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
     # stands out of its neighbours', puts it (the bend's error weighs ybar + r_o less the read one's weight of ybar
     # in the weighed width): as far as its width's disagreement with its bend's shows (ybar times it) - a chord
     # standing out where the rims agree with it is the robot's own bend (a kink)
-    chords = {n.index: n.bend for n in t.notches if n.edges_measured}
-    weighed = weighing([off for i, off in off_model.items() if i not in misread], chord_scatter(chords), geometry)
-    ybar = geometry.neutral_axis_offset
-    lever, residuals = ybar * (1.0 - weighed.read) + geometry.outer_radius, chord_residuals(chords)
+    weighed, ybar = weighing_of(t.notches, geometry), geometry.neutral_axis_offset
+    residuals = chord_residuals({n.index: n.bend for n in t.notches if n.edges_measured})
+    lever = ybar * (1.0 - weighed.read) + geometry.outer_radius
     bend_off = {n.index: lever * min(abs(residuals.get(n.index, 0.0)), abs(off_model[n.index]) / ybar)
                 for n in t.notches if n.read_width is not None}
     width_known = notch_width_uncertainties(off_model, d.found, MISREAD_WIDTH_FRACTION * geometry.notch_width,

@@ -212,9 +212,7 @@ def calibrate_and_check(notches: list[Notch], geometry: TubeGeometry, centerline
                           else replace(n, bend=bend) if n.edges_measured
                           else bend_implied(replace(n, bend=bend), geometry, n.signal) for n in calibrated]
             # a width checked against its bend is known twice over: the two measurements weighed by their errors
-            read_weight = weighing([n.width - geometry.notch_width_at_bend(n.bend or 0.0) for n in calibrated
-                                    if n.edges_measured], chord_scatter({n.index: n.bend for n in calibrated
-                                                                         if n.edges_measured}), geometry).read
+            read_weight = weighing_of(calibrated, geometry).read
             calibrated = [weighed_width(n, geometry, before.get(n.index, n.bend), read_weight)
                           if n.edges_measured and (n.index in checked or n.index in before) else n for n in calibrated]
             return CheckedNotches(calibrated, misread, sorted(n.index for n in calibrated if n.edges_measured
@@ -251,6 +249,14 @@ def weighing(disagreements: list[float], bend_sd: float, geometry: TubeGeometry)
     read = float(np.clip(ybar * (ybar + r_o) * var_bend / var_d, 0.0, 1.0)) if var_d > 0 else 0.5
     var_arc = max(var_d - ybar**2 * var_bend, 0.0)
     return Weighing(read, math.sqrt(read**2 * var_arc + (ybar + r_o - read * ybar) ** 2 * var_bend))
+
+
+def weighing_of(notches: list[Notch], geometry: TubeGeometry) -> Weighing:
+    """weighing over the notches whose edges were measured: their widths as read (read_width, once weighed) against
+    their bends', and their chords' scatter - as calibrate_and_check weighs them and the quality states them."""
+    measured = [n for n in notches if n.edges_measured]
+    return weighing([(n.width if n.read_width is None else n.read_width) - geometry.notch_width_at_bend(n.bend or 0.0)
+                     for n in measured], chord_scatter({n.index: n.bend for n in measured}), geometry)
 
 
 def weighed_width(notch: Notch, geometry: TubeGeometry, bend: float | None, read: float = 0.5) -> Notch:
