@@ -286,7 +286,7 @@ def centerline(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
     """How sure the centreline is, and the stretches where nothing measured it: what the self-check of the
     alignment (cameras' spread, outline, slots' lean, backbone, wall's level) found."""
     warnings = []
-    if d.uncertainty is not None and d.uncertainty > CENTERLINE_FLOOR:
+    if d.uncertainty is not None and max(d.uncertainty, d.stated_centreline or 0.0) > CENTERLINE_FLOOR:
         warnings.append(_centerline_uncertain(t, d))
     if d.outline_unchecked:
         # the check ran (points carry their camera) and no window's outline spanned the tube's diameter: the
@@ -323,6 +323,7 @@ def centerline(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
             "notched_thinning_mm": _mm(t.notched_thinning), "cameras_looking_into_slots": list(t.looking_into_slots),
             "centerline_cross_view_mm": _mm(t.cross_view_spread),
             "centerline_level_scatter_mm": _mm(t.level_scatter),
+            "centerline_base_offset_mm": _mm(t.base_offset),
             "centerline_cross_view_at_tip_mm": _mm(t.distal_cross_view),
             "centerline_alignment_scatter_mm": _mm(t.alignment_scatter),
             "centerline_outline_offset_mm": _mm(t.outline_offset),
@@ -358,6 +359,9 @@ def _centerline_uncertain(t: Trace, d: Derived) -> Finding:
         message += (f"; over the distal {sum(d.one_sided.values()) * 1e3:.0f} mm seen by one camera alone, the wall's "
                     f"level ({t.wall_level * 1e3:+.2f} mm, the flattening of the views) places the axis along that "
                     "camera's view, and no second view checked it")
+    if t.base_offset is not None:
+        message += (f"; over the proximal segment the axis lies {t.base_offset * 1e3:.3f} mm off the base's, which the "
+                    "robot defines: a camera's pose off in the rig file moves it so all along the tube")
     if d.astray is not None:
         message += (f"; the axis lies {d.astray * 1e3:.2f} mm (RMS) from the middle of the tube's outline in the "
                     f"cameras' views, {d.astray / t.footprint:.1f} px where a sound one lies within "
@@ -368,7 +372,8 @@ def _centerline_uncertain(t: Trace, d: Derived) -> Finding:
                    alignment_scatter_mm=(t.alignment_scatter or 0.0) * 1e3, level_scatter_mm=_mm(t.level_scatter),
                    limbs_disagreement_mm=None if t.limbs_across is None else _mm(t.limbs_across[0]),
                    limbs_interpolated_mm=None if t.limbs_across is None else _mm(t.limbs_across[2]),
-                   one_camera_wall_level_mm=t.wall_level * 1e3 if d.resting_on_level else None)
+                   one_camera_wall_level_mm=t.wall_level * 1e3 if d.resting_on_level else None,
+                   base_offset_mm=_mm(t.base_offset))
 
 
 def _unmeasured_stretches(t: Trace, d: Derived) -> list[Finding]:

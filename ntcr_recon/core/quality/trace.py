@@ -121,6 +121,7 @@ class Trace:
     limbs_rigid: tuple[float, float] | None = None  # limbs.LimbFigures.rigid: the same, from the limbs
     outline_rigid: tuple[float, float] | None = None  # outline.outline_rigid_offset: the same, from the outlines
     centerline_tolerance: float | None = None  # config.rig.QualityConfig's, which the extrinsics check weighs against
+    base_offset: float | None = None  # bend_plane.base_offset: the proximal axis off the base's (m)
 
 
 @dataclass(frozen=True)
@@ -266,7 +267,9 @@ def derive(t: Trace) -> Derived:
     # it is known there no better than that check resolves, a pixel footprint, whatever the cameras' spread says
     outline_unchecked = t.camera is not None and t.outline_offset is None
     centreline_known = max(uncertainty or 0.0, footprint) if outline_unchecked else uncertainty
-    apart = extrinsics_apart(t)
+    # a rigid error of the whole axis, measured twice: the cameras' poses disagreeing, and the proximal axis off the
+    # base's (which the robot defines) - the latter also along the views, where the cameras cannot disagree
+    apart = max(extrinsics_apart(t), t.base_offset or 0.0)
     tip = tip_bounds(t, seen_end, centreline_known, apart)
     # the centreline runs on past the end seen to a carried tip: along that stretch a straight hidden part leaves it
     # off by up to hidden_across, growing with the square of the distance carried (a fifth of its square in the
@@ -283,7 +286,8 @@ def derive(t: Trace) -> Derived:
     unmeasured = unmeasured_share(t.unsupported, end_on if end_on_warned else 0.0, t.tip_s)
     if unmeasured and stated_centreline is not None:
         stated_centreline = math.sqrt(stated_centreline**2 + unmeasured * footprint**2)
-    # cameras whose poses disagree place the fused axis half their rigid offset off, all along the tube
+    # cameras whose poses disagree place the fused axis half their rigid offset off, all along the tube (and the axis
+    # off the base's, as far)
     if apart and stated_centreline is not None:
         stated_centreline = math.hypot(stated_centreline, apart)
     # pooled over two cameras, a deficit one of them carries alone reads half: the lean may reach twice it
@@ -330,7 +334,8 @@ def tip_bounds(t: Trace, seen_end: float, centreline_known: float | None, apart:
         "free_end")
     why = {"cameras_apart": "the cameras' axes that far apart across their views at the end",
            "icp": "ICP moved it that far off where the centreline placed it",
-           "extrinsics": "the cameras' poses in the rig file disagree: the axis lies about that far off",
+           "extrinsics": "the cameras' poses in the rig file disagree, or put the proximal axis off the base's: the "
+                         "axis lies about that far off",
            "hidden": f"were the {(t.tip_s - seen_end) * 1e3:.1f} mm no camera saw straight, not bent as the notches "
                      "seen, the tip would lie that far off",
            "carried": f"the centreline carried on bending over the {carried * 1e3:.1f} mm past where its fit reached, "

@@ -33,7 +33,7 @@ from ntcr_recon.core.relocation.alignment import (
     SILHOUETTE_MARGIN_PX,
     Alignment,
 )
-from ntcr_recon.core.relocation.bend_plane import BendPlane
+from ntcr_recon.core.relocation.bend_plane import BendPlane, base_offset
 from ntcr_recon.core.relocation.bends import continued_bend, held_bend, turn_from_base
 from ntcr_recon.core.relocation.centerline import Centerline, TubeCoordinates, cameras_round_tube
 from ntcr_recon.core.relocation.centerline_fit import CenterlineSettings
@@ -376,7 +376,7 @@ def assess(scene: Scene, aligned: Aligned, sided: Sided, end: SeenEnd, length: B
         held_shift=held_shift, end_by_limbs=end_by_limbs, unchecked=unchecked, reach=length.reach,
         colour_missing=missing_views(scene.config, scene.cloud, scene.views),
         notch_centres=comb_centres, wall_level=level, fitted_end=length.fitted_end,
-        reference_moved=reference_moved))
+        reference_moved=reference_moved, base_offset=base_offset(length.centerline, axis.measured.s, geometry)))
     backbone_shift, side_uncertainty = aligned.backbone_shift, sided.side_uncertainty
     quality = {**quality, "tip_refinement": end.refinement,
                "centerline_backbone_shift_mm": None if backbone_shift is None else backbone_shift * 1e3,

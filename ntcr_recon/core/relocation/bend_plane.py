@@ -127,3 +127,27 @@ def _along_views_kept(samples: np.ndarray, tangents: np.ndarray, origins: np.nda
     views -= np.einsum("csk,sk->cs", views, tangents)[..., None] * tangents[None]
     views /= np.maximum(np.linalg.norm(views, axis=2, keepdims=True), 1e-12)
     return float(np.sqrt(np.mean(1.0 - np.einsum("csk,k->cs", views, normal) ** 2)))
+
+
+def base_offset(centerline: Centerline, seen_s: np.ndarray, geometry: TubeGeometry, minimum_points: int = 10
+                ) -> float | None:
+    """How far the axis lies off the base's over the proximal segment (m: the length of its mean offset across the
+    base's axis, over the samples from the first point seen to half a notch width short of the first notch); None
+    where fewer than `minimum_points` points were seen there.
+
+    The base frame is the robot's own (its proximal segment's axis is z: `ntcr-recon calibrate` defines it so), so
+    the axis there lies on the base's axis by definition, and how far the fused one lies off it is its error there,
+    measured. A camera whose pose in the rig file is off moves its points rigidly, and the fused axis half as far
+    all along the tube (its sharpest case: along the camera's view, where nothing else measures it): what the
+    proximal offset then shows."""
+    end = geometry.proximal_length - geometry.notch_width / 2
+    seen = seen_s[seen_s < end]
+    if seen.size < minimum_points:
+        return None
+    inside = (centerline.s >= seen.min()) & (centerline.s <= end)
+    if not np.any(inside):
+        return None
+    position, axis, _ = base_pose(geometry)
+    offsets = centerline.points[inside] - position
+    offsets -= np.outer(offsets @ axis, axis)
+    return float(np.linalg.norm(offsets.mean(axis=0)))

@@ -599,6 +599,24 @@ def test_a_pose_a_millimetre_off_is_told_by_the_outlines_where_the_limbs_no_long
         assert quality["uncertainty_mm"]["centerline"] > 1.58
 
 
+
+def test_the_axis_off_the_base_at_the_clamp_widens_the_centreline_and_tip_bounds_and_is_said():
+    """A camera's pose off along its own view moves the fused axis along the views, where the cameras cannot
+    disagree (no EXTRINSICS_DISAGREE): the proximal axis off the base's measures it, and the centreline and the tip
+    are known no better, all along the tube. Where the cameras' disagreement says more, it decides (not both: one
+    rigid error measured twice)."""
+    exact, _ = assess(_offsets_trace())
+    moved, warnings = assess(_offsets_trace(base_offset=0.1e-3))
+    said = _by_code(warnings)
+    assert "EXTRINSICS_DISAGREE" not in said
+    assert moved["centerline_base_offset_mm"] == pytest.approx(0.1)
+    assert moved["centerline_uncertainty_mm"] == pytest.approx(math.hypot(exact["centerline_uncertainty_mm"], 0.1))
+    exact_across, moved_across = (derive(_offsets_trace(base_offset=off)).tip.across for off in (None, 0.1e-3))
+    assert moved_across == pytest.approx(math.hypot(exact_across, 0.1e-3))
+    assert said["CENTERLINE_UNCERTAIN"][0].figures["base_offset_mm"] == pytest.approx(0.1)
+    turned, _ = assess(_offsets_trace(limbs_rigid=(0.2e-3, 0.004e-3), base_offset=0.05e-3))
+    assert turned["centerline_uncertainty_mm"] == pytest.approx(math.hypot(exact["centerline_uncertainty_mm"], 0.1))
+
 def test_notches_only_a_dip_or_the_outline_marks_are_named_with_their_widths_from_their_bends():
     """NOTCH_WIDTH_FROM_BEND lists the dips and the notches only a colour image's outline showed (their signal
     "outline"), the latter also on their own; a notch measured by its edges is in neither."""

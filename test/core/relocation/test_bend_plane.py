@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from ntcr_recon.core.relocation.bend_plane import held_to_bend_plane
+from ntcr_recon.core.relocation.bend_plane import base_offset, held_to_bend_plane
 from ntcr_recon.core.relocation.centerline import Centerline, base_pose
 from ntcr_recon.core.robot.geometry import TubeGeometry
 from ntcr_recon.core.robot.kinematics import TubeShape
@@ -114,3 +114,19 @@ def test_the_roll_the_plane_shows_weighs_a_side_measured_otherwise_or_rules_it_o
     unbent = held_to_bend_plane(straight, GEOMETRY, straight.length)
     assert unbent.shown is None
     assert unbent.weighed_with(0.3, 0.1) == (0.3, 0.1) and not unbent.rules_out(0.3, 0.01)
+
+
+def test_the_axis_off_the_base_over_the_proximal_segment_is_measured_as_such():
+    """A rigid shift of the whole axis (a camera's pose off along its view) shows in full over the proximal segment,
+    whatever the bend; a smooth depth wiggle about the true axis shows as little; no points seen there: None."""
+    truth, _ = bent_axis(GEOMETRY, 45.0)
+    seen_s = np.linspace(0.3e-3, truth.length, 4000)
+    binormal = np.asarray(base_pose(GEOMETRY)[2], float)
+    assert base_offset(truth, seen_s, GEOMETRY) == pytest.approx(0.0, abs=1e-9)
+    shift = 0.1e-3 * (binormal + np.array([1.0, 0.0, 0.0])) / math.sqrt(2.0)  # along and across the bend plane
+    shifted = Centerline.from_points(truth.points + shift, binormal, STEP)
+    assert base_offset(shifted, seen_s, GEOMETRY) == pytest.approx(0.1e-3, rel=0.02)
+    tilted = Centerline.from_points(truth.points + np.outer(truth.s / truth.length, binormal) * 0.1e-3, binormal,
+                                    STEP)  # 0.1 mm off at the tip, nothing at the base
+    assert base_offset(tilted, seen_s, GEOMETRY) < 0.015e-3
+    assert base_offset(shifted, seen_s[seen_s > GEOMETRY.proximal_length], GEOMETRY) is None
