@@ -83,13 +83,16 @@ CODES: dict[str, Code] = {
     "NOTCH_SIDE_RULED_OUT": Code("info", "the notches' edges put their side off the configured robot.notch_side "
                                  "by a roll the plane the robot bends in rules out: the configured side is kept",
                                  "none; if it recurs, check the notches' edges (a matcher smearing them)"),
-    "ROBOT_ROLLED": Code("warn", "the notches open away from the configured robot.notch_side (the measured side "
-                         "is used)", "correct robot.notch_side, or the robot's roll in its clamp"),
+    "ROBOT_ROLLED": Code("info", "the notches open away from the configured robot.notch_side beyond what the "
+                         "measured side is known to: the robot is rolled in its clamp, or the rig file is off (the "
+                         "measured side is used, and the result stands)",
+                         "correct robot.notch_side, or the robot's roll in its clamp"),
     "NOTCH_SIDE_OFF": Code("info", "the notches open away from the configured robot.notch_side, by no more than "
                            "the measured side is known to (the measured side is used)",
                            "none; if it recurs, check robot.notch_side"),
-    "BEND_PLANE_TURNED": Code("warn", "the robot bends in a plane turned from the configured robot.notch_side "
-                              "beyond robot.roll_tolerance: the axis is held to the plane its points show",
+    "BEND_PLANE_TURNED": Code("info", "the robot bends in a plane turned from the configured robot.notch_side "
+                              "beyond robot.roll_tolerance: the axis is held to the plane its points show (its roll's "
+                              "SD counts in the centreline's bound, and the result stands)",
                               "correct robot.notch_side or recalibrate; check the robot's roll in its clamp"),
     # the centreline
     "CENTERLINE_UNCERTAIN": Code("info", "the centreline's stated uncertainty exceeds the floor, and why",

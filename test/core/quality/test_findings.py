@@ -33,7 +33,7 @@ def _quality(uncertainty, found: int, expected: int = 16) -> dict:
 
 def test_a_finding_is_a_record_with_its_codes_severity():
     record = finding("ROBOT_ROLLED", "the notches open +15 deg ...", side_off_deg=15.0).as_dict()
-    assert record == {"code": "ROBOT_ROLLED", "severity": "warn", "message": "the notches open +15 deg ...",
+    assert record == {"code": "ROBOT_ROLLED", "severity": "info", "message": "the notches open +15 deg ...",
                       "side_off_deg": 15.0}
     with pytest.raises(ValueError, match="NO_SUCH_CODE"):
         finding("NO_SUCH_CODE", "text")
