@@ -108,7 +108,9 @@ CODES: dict[str, Code] = {
                                    "there was not measured", "a camera facing that stretch"),
     "DISTAL_END_ON": Code("warn", "a distal stretch every camera sees nearly end-on: the axis and tip there were "
                           "not placed across the tube", "a camera seeing the distal part side-on"),
-    "DISTAL_ONE_CAMERA": Code("warn", "a distal stretch seen by one camera alone: its far side is inferred",
+    "DISTAL_ONE_CAMERA": Code("info", "a distal stretch seen by one camera alone: its far side is inferred, and the "
+                              "axis there rests on the one wall's level, which the centreline's and the tip's bounds "
+                              "carry",
                               "a pose both cameras see, or cameras further back (70 mm minimum depth)"),
     "COLOUR_VIEW_MISSING": Code("info", "a camera's colour image did not come with its depth (relocation.limbs): "
                                 "across its view the axis was placed by depth alone (the stated bounds carry it)",

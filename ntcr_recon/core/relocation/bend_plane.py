@@ -20,6 +20,7 @@ edges do, and far more sharply on a bent robot (a tenth of a degree against ten)
 with it, and one it rules out is not taken (reconstruction.relocation_steps.notches_and_side).
 
     plane = held_to_bend_plane(centerline, geometry, end_s)   # BendPlane; None: robot.roll_tolerance null
+    off = base_offset(centerline, seen_s, geometry)   # m, the axis off the base's at the clamp; None: unseen
 """
 
 from __future__ import annotations
