@@ -36,7 +36,7 @@ from ntcr_recon.core.quality.measures import (
 )
 from ntcr_recon.core.quality.tip_checks import tip_against_length, tip_end
 from ntcr_recon.core.quality.trace import Derived, Trace, derive, extrinsics_apart, rigid_offset
-from ntcr_recon.core.relocation.notch_widths import MISREAD_WIDTH_FRACTION, chord_residuals, weighing_of
+from ntcr_recon.core.relocation.notch_widths import MISREAD_WIDTH_FRACTION, chord_residuals, weighing_of, width_as_read
 from ntcr_recon.core.relocation.outline import OUTLINE_TOLERANCE_PX
 
 # Thresholds, relative to the robot and the camera so that no robot is special.
@@ -118,8 +118,7 @@ def widths_against_bends(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
     be checked so, and each width's 90 % bound from how the widths read disagree with their bends'."""
     geometry, misread, warnings = t.geometry, t.misread_widths or {}, []
     # per notch how far the width read is off its bend's (a misread one's, a weighed one's as read)
-    off_model = {n.index: misread.get(n.index, n.width if n.read_width is None else n.read_width)
-                 - geometry.notch_width_at_bend(n.bend or 0.0)
+    off_model = {n.index: misread.get(n.index, width_as_read(n)) - geometry.notch_width_at_bend(n.bend or 0.0)
                  for n in t.notches if n.edges_measured or n.index in misread}
     if misread:
         listed = ", ".join(f"{n.index} ({misread[n.index] * 1e3:.2f} mm read, {n.width * 1e3:.2f} implied)"
@@ -286,7 +285,7 @@ def centerline(t: Trace, d: Derived) -> tuple[dict, list[Finding]]:
     """How sure the centreline is, and the stretches where nothing measured it: what the self-check of the
     alignment (cameras' spread, outline, slots' lean, backbone, wall's level) found."""
     warnings = []
-    if d.uncertainty is not None and max(d.uncertainty, d.stated_centreline or 0.0) > CENTERLINE_FLOOR:
+    if d.uncertainty is not None and d.stated_centreline > CENTERLINE_FLOOR:  # the stated: its terms and more
         warnings.append(_centerline_uncertain(t, d))
     if d.outline_unchecked:
         # the check ran (points carry their camera) and no window's outline spanned the tube's diameter: the

@@ -255,8 +255,13 @@ def weighing_of(notches: list[Notch], geometry: TubeGeometry) -> Weighing:
     """weighing over the notches whose edges were measured: their widths as read (read_width, once weighed) against
     their bends', and their chords' scatter - as calibrate_and_check weighs them and the quality states them."""
     measured = [n for n in notches if n.edges_measured]
-    return weighing([(n.width if n.read_width is None else n.read_width) - geometry.notch_width_at_bend(n.bend or 0.0)
-                     for n in measured], chord_scatter({n.index: n.bend for n in measured}), geometry)
+    return weighing([width_as_read(n) - geometry.notch_width_at_bend(n.bend or 0.0) for n in measured],
+                    chord_scatter({n.index: n.bend for n in measured}), geometry)
+
+
+def width_as_read(notch: Notch) -> float:
+    """The width the notch's edges read: its read_width where weighed_width weighed it with its bend's."""
+    return notch.width if notch.read_width is None else notch.read_width
 
 
 def weighed_width(notch: Notch, geometry: TubeGeometry, bend: float | None, read: float = 0.5) -> Notch:
@@ -271,8 +276,8 @@ def weighed_width(notch: Notch, geometry: TubeGeometry, bend: float | None, read
         return notch
     width = read * notch.width + (1.0 - read) * geometry.notch_width_at_bend(bend)
     arc = width + abs(notch.bend or 0.0) * geometry.outer_radius  # as notches._measure reads a width off its arc
-    return Notch(notch.index, notch.center_s, notch.center_s - arc / 2, notch.center_s + arc / 2, width, notch.bend,
-                 notch.signal, notch.width)
+    return replace(notch, start_s=notch.center_s - arc / 2, end_s=notch.center_s + arc / 2, width=width,
+                   read_width=notch.width)
 
 
 def _bends_measured(notches: list[Notch], geometry: TubeGeometry, tip_s: float) -> set[int]:
