@@ -74,10 +74,14 @@ def align(scene: Scene, fitted: Axis, model: Centerline | None = None) -> Aligne
     placed, limbs = _placed_by_limbs(leveled, scene, end)
     # off the plane the notches bend the robot in lies what depth places worst: held to it (relocation.bend_plane)
     plane = held_to_bend_plane(placed, geometry, end, scene.origins) if model is None else None
+    # the axis after each step that moved it (what benchmarks/stage_errors.py measures each step by)
+    steps = [("fit", fitted.centerline), ("trusted wall", centerline), ("backbone", leveled), ("limbs", placed)]
     if plane is not None:
         placed = plane.centerline
+        steps.append(("bend plane", placed))
     if model is not None:
         placed = model
+        steps.append(("model", model))
     if placed is not centerline:  # levelled or placed by the limbs or the model: the points projected once onto it
         centerline, outline = placed, None
         coords, frames = centerline.project_with_frames(cloud.xyz, coords.s)
@@ -93,7 +97,12 @@ def align(scene: Scene, fitted: Axis, model: Centerline | None = None) -> Aligne
                    # the axis against the middle of the tube's outline in each camera's view (depth errors lie
                    # along the rays)
                    outline_of(coords, frames) if outline is None else outline, across_from_fit, scatter, limbs,
-                   outlines, plane)
+                   outlines, plane, _moving(steps))
+
+
+def _moving(steps: list[tuple[str, Centerline]]) -> tuple[tuple[str, Centerline], ...]:
+    """The first step and each that moved the axis the step before left (a step that did not run left it as is)."""
+    return tuple(step for i, step in enumerate(steps) if not i or step[1] is not steps[i - 1][1])
 
 
 def _placed_by_limbs(leveled: Centerline, scene: Scene, end: float):

@@ -104,6 +104,8 @@ class Relocator:
         # place the axis across the views (core.relocation.limbs)
         self.views: dict[str, CameraView] = {}
         self.fit: RobotFit | None = None  # the previous call's model fit (relocation.model_fit; the warm start)
+        # the last call's axis after each step of its alignment that moved it (Aligned.steps)
+        self.alignment_steps: tuple[tuple[str, Centerline], ...] = ()
 
     def reset(self) -> None:
         """Forget the previous centreline and model fit (the next frame starts cold)."""
@@ -177,6 +179,7 @@ class Relocator:
         # then as its camera saw it, along its viewing ray onto the wall (relocation.alignment, relocation.reference)
         model = self._model(cloud, settings, fitted.centerline, warm_start) if seen_by is not None else None
         aligned = align(scene, fitted, model)
+        self.alignment_steps = aligned.steps
         axis = aligned.axis
         # 3. tip, coarse: where the wall stops, over the sectors the cameras can see (core.relocation.tip)
         coarse_end = tube_end(axis.measured, geometry.outer_radius, settings.gate, settings.cell,

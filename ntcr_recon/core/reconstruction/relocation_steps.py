@@ -125,12 +125,12 @@ class Aligned:
     cross_view: CrossView = CrossView(None)
     backbone_shift: float | None = None           # m, backbone.level_by_backbone's
     outline: float | None = None                  # m, outline.outline_offset of the final axis
-    across_from_fit: tuple[float, float] | None = None  # the aligned and fitted axes' outline offsets, where the
-                                                        # fit's placement across the views was taken
+    across_from_fit: tuple[float, float] | None = None  # the aligned and fitted axes' outline offsets (fit taken)
     scatter: float | None = None                  # m, alignment.shift_scatter
     limbs: LimbFigures | None = None              # what the limbs in the colour images did (None: no image)
     outline_rigid: tuple[float, float] | None = None  # outline.outline_rigid_offset about the final axis
     bend_plane: BendPlane | None = None           # the axis held to the bend plane (None: not held)
+    steps: tuple[tuple[str, Centerline], ...] = ()  # the axis after each step that moved it: (step, axis), in order
 
 
 @dataclass(frozen=True)
