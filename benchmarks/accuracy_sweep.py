@@ -85,10 +85,17 @@ def random_row(index: int) -> matrix.Row:
 
 
 def run_views_scene(index: int, frames: int = 2) -> dict:
+    """Scene `index` rendered by the tests' own renderer (views_scene), reconstructed and measured as a matrix row."""
+    name, shape, config, pairs, distance = views_scene(index, frames)
+    return matrix.reconstruct_and_measure(name, shape, config, pairs, distance)
+
+
+def views_scene(index: int, frames: int = 2) -> tuple:
     """Scene `index` rendered by the tests' own renderer (test/support/synthetic_views.py: a z-buffer blurred by
     a box window, not the simulator's stereo matcher), with its own artefacts drawn per scene - the window (3-7 px),
     the noise (1-3 x 0.02 mm at 90 mm), a backdrop 50 mm behind the robot or none, and the camera's resolution
-    (VIEWS_INTRINSICS) - then reconstructed and measured as a matrix row."""
+    (VIEWS_INTRINSICS): its name, true shape, the rig configuration it is reconstructed with, its frame pairs and
+    the cameras' distance."""
     from ntcr_recon.core.config.rig import rig_config_from_mapping
     from ntcr_recon.core.robot.kinematics import TubeShape
 
@@ -109,7 +116,7 @@ def run_views_scene(index: int, frames: int = 2) -> dict:
     config = rig_config_from_mapping(rig(robot))
     name = (f"{scene.name}_w{window}_n{noise:.1f}" + ("_wall" if backdrop else "")
             + ("" if intrinsics == views.INTRINSICS else f"_{intrinsics.width}px"))
-    return matrix.reconstruct_and_measure(name, shape, config, pairs, scene.distance)
+    return name, shape, config, pairs, scene.distance
 
 
 def main() -> int:

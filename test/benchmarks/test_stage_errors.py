@@ -3,6 +3,7 @@ matrix (emulated depth), adds up to the matrix's figures for the result and show
 
 from __future__ import annotations
 
+import argparse
 import sys
 
 import pytest
@@ -43,3 +44,20 @@ def test_changes_count_a_step_against_the_one_before_it_that_ran():
     assert stage_errors.changes([errors], "bend plane") == (0, 1)
     worse = dict(errors, limbs=(0.05e-3, 0.05e-3))
     assert stage_errors.changes([worse], "limbs") == (1, 0)
+
+
+def test_a_sweep_scene_by_the_tests_own_renderer():
+    """--sweep --renderer views: accuracy_sweep's scene 1001 as the second renderer draws it (no colour images: the
+    limbs do not run), named as the sweep names it; its result's errors are the sweep's."""
+    import accuracy_sweep
+
+    args = argparse.Namespace(sweep=1, renderer="views", seed=1001, frames=2, simulate="", rows="", matcher="both")
+    [(source, measure)] = list(stage_errors.scenes(args))
+    name, errors = measure()
+    print("\n" + stage_errors.format_errors(name, errors))
+    assert source == "views"
+    assert "limbs" not in errors and list(errors)[0] == "fit" and list(errors)[-1] == "result"
+    figures = accuracy_sweep.run_views_scene(1001)
+    assert name == figures["row"]
+    assert errors["result"][0] == pytest.approx(figures["centerline_along_views"], abs=1e-9)
+    assert errors["result"][1] == pytest.approx(figures["centerline_across_views"], abs=1e-9)
