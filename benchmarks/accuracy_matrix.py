@@ -245,12 +245,13 @@ def perturbed_pose(translation, rotation_xyzw, turn_deg: float, along_mm: float)
     return position.tolist(), matrix_to_quaternion(rotation).tolist()
 
 
-def reconstruct(config, pairs):
-    """As `ntcr-recon reconstruct`: each pair through the chain, then the combined filtered clouds relocated."""
+def reconstruct(config, pairs, reconstructor=None):
+    """As `ntcr-recon reconstruct`: each pair through the chain, then the combined filtered clouds relocated (by
+    `reconstructor`, whose relocator then holds what the last call recorded; a new one by default)."""
     from ntcr_recon.core.cloud.points import Cloud
     from ntcr_recon.core.reconstruction.reconstructor import Reconstructor
 
-    reconstructor = Reconstructor(config)
+    reconstructor = reconstructor or Reconstructor(config)
     filtered = [reconstructor.process(pair).filtered for pair in pairs]
     return reconstructor.relocate(Cloud.concatenate(filtered))
 
@@ -375,11 +376,14 @@ def silent_misses(results: list[dict]) -> list[str]:
 def run_row(row: Row, frames: int = 2, seed: int = 1, method: str | None = None) -> dict:
     """Render, reconstruct and measure one row; the figures, the misses and the result's warnings."""
     simulation = simulation_for(row, seed, frames)
-    return reconstruct_and_measure(row.name, simulation.shape,
-                                   rig_config(simulation, row.side_error_deg, method, row.extrinsics_off, row.limbs,
-                                              row.model_fit),
+    return reconstruct_and_measure(row.name, simulation.shape, row_config(row, simulation, method),
                                    frame_pairs(simulation), max(simulation.camera_distances
                                                                 or (simulation.camera_distance,)))
+
+
+def row_config(row: Row, simulation, method: str | None = None):
+    """The rig configuration a row's scene is reconstructed with (rig_config with the row's own settings)."""
+    return rig_config(simulation, row.side_error_deg, method, row.extrinsics_off, row.limbs, row.model_fit)
 
 
 def reconstruct_and_measure(name: str, shape, config, pairs: list, distance: float) -> dict:
@@ -394,8 +398,7 @@ def reconstruct_and_measure(name: str, shape, config, pairs: list, distance: flo
     except ReconstructionError as error:
         return {"row": name, "error": str(error), "warnings": [str(error)], "misses": ["failed"],
                 "floors_apply": distance <= FLOOR_CAMERA_DISTANCE + 1e-9}
-    viewpoints = np.array([config.cameras[camera].extrinsic[:3, 3] for camera in config.camera_names])
-    figures = measure(shape, relocation, viewpoints)
+    figures = measure(shape, relocation, config.camera_origins)
     quality = getattr(relocation, "quality", None) or {}
     # what the result says of its own errors (mm -> m; not stated: 0, nothing owned up to)
     stated = {figure: (quality.get(key) or 0.0) * 1e-3 for figure, key in STATED.items()}

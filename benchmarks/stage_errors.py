@@ -42,26 +42,22 @@ def stage_errors(row: matrix.Row, frames: int = 2, seed: int = 1) -> dict[str, t
     """A matrix row (or a sweep's simulator scene) rendered as accuracy_matrix.py renders it: errors_of its
     reconstruction."""
     simulation = matrix.simulation_for(row, seed, frames)
-    config = matrix.rig_config(simulation, row.side_error_deg, None, row.extrinsics_off, row.limbs, row.model_fit)
-    return errors_of(simulation.shape, config, matrix.frame_pairs(simulation))
+    return errors_of(simulation.shape, matrix.row_config(row, simulation), matrix.frame_pairs(simulation))
 
 
 def errors_of(shape, config, pairs: list) -> dict[str, tuple[float, float]]:
     """Per step that moved the axis, and the result: its error (m, RMS) along and across the cameras' views, up to
     the result's tip; the scene's true shape, the rig configuration and its frame pairs reconstructed as
     `ntcr-recon reconstruct` does (accuracy_matrix.reconstruct)."""
-    from ntcr_recon.core.cloud.points import Cloud
     from ntcr_recon.core.quality.metrics import centerline_error_by_view
     from ntcr_recon.core.reconstruction.reconstructor import Reconstructor
 
     reconstructor = Reconstructor(config)
-    filtered = [reconstructor.process(pair).filtered for pair in pairs]
-    relocation = reconstructor.relocate(Cloud.concatenate(filtered))
+    relocation = matrix.reconstruct(config, pairs, reconstructor)
     truth, _ = shape.centerline(np.linspace(0.0, shape.length, 4000))
-    viewpoints = np.array([config.cameras[camera].extrinsic[:3, 3] for camera in config.camera_names])
     length = relocation.centerline.length
     axes = [*reconstructor.relocator.alignment_steps, ("result", relocation.centerline)]
-    return {step: centerline_error_by_view(axis.up_to(min(length, axis.length)).points, truth, viewpoints)
+    return {step: centerline_error_by_view(axis.up_to(min(length, axis.length)).points, truth, config.camera_origins)
             for step, axis in axes}
 
 
