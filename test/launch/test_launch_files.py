@@ -5,8 +5,8 @@ with launch_testing_ros's WaitForTopics) run by `launch_test` against a `colcon 
 ROS 2's launch comes with ROS on a rig; elsewhere scripts/setup_env.sh (the README's test command runs it)
 installs it into the test environment from ../shared/ros2-launch-jazzy. Where neither is there, these tests
 are skipped and say so. The build is made once per session, in ~/.cache/ntcr_recon/launch-tests/ws-<digest of the
-sources> (kept while the sources are unchanged, so is its kernel cache), and its kernels compiled there before the
-first launch."""
+sources and the test environment's path> (kept while they are unchanged, so is its kernel cache), and its kernels
+compiled there before the first launch."""
 
 from __future__ import annotations
 
@@ -48,15 +48,26 @@ def _sources() -> list[Path]:
 STALE_AFTER_S = 24 * 3600  # another digest's workspace unused this long is no other test run's
 
 
+def _runnable(executable: Path) -> bool:
+    """The script is there and so is the interpreter its #! line names (a build carried over from another
+    checkout's environment names that environment's python, and spawning it fails with 'No such file')."""
+    if not executable.is_file():
+        return False
+    with open(executable, "rb") as script:
+        first = script.readline()
+    return not first.startswith(b"#!") or Path(first[2:].split()[0].decode()).is_file()
+
+
 def _complete(ws: Path, stamp: Path, sources: list[Path]) -> bool:
-    """The build finished (its stamp), and every executable a launch file starts and every module of the package
-    is in its install (a cache carried over from elsewhere can hold a stamp beside a part of a build)."""
+    """The build finished (its stamp), and every executable a launch file starts (with its interpreter) and every
+    module of the package is in its install (a cache carried over from elsewhere can hold a stamp beside a part of
+    a build, or a build for another environment)."""
     prefix = ws / "install" / "ntcr_recon"
     site = next(prefix.glob("lib/python3*/site-packages"), None)
     modules = [path.relative_to(REPO) for path in sources if path.suffix == ".py" and
                path.relative_to(REPO).parts[0] == "ntcr_recon"]
     return (stamp.exists() and site is not None and all((site / module).is_file() for module in modules)
-            and all((prefix / "lib" / "ntcr_recon" / name).is_file() for name in (*NODE_EXECUTABLES, "ntcr-recon")))
+            and all(_runnable(prefix / "lib" / "ntcr_recon" / name) for name in (*NODE_EXECUTABLES, "ntcr-recon")))
 
 
 def _build(ws: Path, sources: list[Path]) -> None:
@@ -76,7 +87,7 @@ def _workspace(sources: list[Path]) -> Path:
     """The colcon workspace of these sources: one per digest of them, built under a lock and never deleted while
     fresh, so two test runs sharing the cache (two checkouts, two CI jobs) never build into, or delete, the
     workspace the other is launching from."""
-    digest = hashlib.sha1()
+    digest = hashlib.sha1(str(BIN).encode())  # the environment the build's scripts run in is part of what it is
     for path in sources:
         digest.update(str(path.relative_to(REPO)).encode() + b"\0" + path.read_bytes())
     CACHE.mkdir(parents=True, exist_ok=True)
@@ -145,3 +156,18 @@ def test_a_node_refusing_its_configuration_shuts_the_launch_down_with_the_reason
         output[-3000:]
     assert "process has died" in output and "exit code 2" in output, output[-3000:]  # launch's line for the exit
     assert "robot.notch_count must be > 0" in output, output[-3000:]
+
+
+def test_a_cached_build_whose_scripts_name_a_missing_interpreter_is_rebuilt(tmp_path):
+    """A workspace built from the same sources in another checkout's environment (a cache carried over) has node
+    scripts whose #! names that environment's python: launching them fails with 'No such file'. Needs no ROS."""
+    ws, sources = tmp_path / "ws", [REPO / "ntcr_recon" / "__init__.py"]
+    prefix = ws / "install" / "ntcr_recon"
+    (prefix / "lib" / "python3.11" / "site-packages" / "ntcr_recon").mkdir(parents=True)
+    (prefix / "lib" / "python3.11" / "site-packages" / "ntcr_recon" / "__init__.py").touch()
+    (ws / ".built").touch()
+    for interpreter, complete in ((tmp_path / "gone" / "bin" / "python", False), (Path(sys.executable), True)):
+        for name in (*NODE_EXECUTABLES, "ntcr-recon"):
+            (prefix / "lib" / "ntcr_recon" / name).parent.mkdir(parents=True, exist_ok=True)
+            (prefix / "lib" / "ntcr_recon" / name).write_text(f"#!{interpreter}\nprint()\n")
+        assert _complete(ws, ws / ".built", sources) is complete
