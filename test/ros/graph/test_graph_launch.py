@@ -231,12 +231,16 @@ def test_run_single_process_hosts_every_node_in_one_process(tmp_path):
             run = run_bend45_in_a_loop(ros, log, "--single-process", "--param", "mesh_node:rate:=2.0")
         try:
             assert ros.spin_until(lambda: len(tips) >= 3, 90), log_path.read_text()
+            # node names travel on their own discovery topic (ros_discovery_info), which can reach the probe after
+            # the data does (CI: tips received while only the probe's own name was known): wait for them as well
+            expected = {"camera_cam_a", "camera_cam_b", *graph.STAGE_NODES}
+            ros.spin_until(lambda: expected <= set(ros.node.get_node_names()), 30)
             names = set(ros.node.get_node_names())
             children = subprocess.run(["pgrep", "-P", str(run.pid)], capture_output=True, text=True).stdout.split()
         finally:
             run.send_signal(signal.SIGINT)
             code = run.wait(timeout=60)
-    assert {"camera_cam_a", "camera_cam_b", *graph.STAGE_NODES} <= names, names
+    assert expected <= names, names
     assert len(children) == 1
     assert code == 0, log_path.read_text()
     assert "Traceback" not in log_path.read_text()
